@@ -1,0 +1,1 @@
+"""oceanlidar control plane: sweeps, dask orchestration, zarr stores, statistics, CLI."""

@@ -1,0 +1,1 @@
+"""oceanlidar physics: pure numpy, no dask, no I/O (see ARCHITECTURE.md)."""
