@@ -1,0 +1,77 @@
+"""Render speed: time per sample over the time of one rfft2+irfft2 pair of the same size.
+
+Both are measured in the same run, interleaved round by round, and the medians are
+compared (the machines are shared and noisy: the ratio is the figure to quote). The
+reference pair is numpy.fft on float32 (scipy.fft's, faster, is printed too; the renderer
+uses scipy.fft). Usage: ``python benchmarks/render.py [--sizes 128 256 512]``.
+"""
+
+import argparse
+import statistics
+import time
+
+import numpy as np
+import scipy.fft
+
+from service.tuning import tune_allocator
+from workers.render import render
+from workers.scene import Scene
+
+
+def scene(n, *, target="sphere"):
+    # The surface patch covers the ~4 m footprint at every size (n points, 4.1 m / n apart).
+    return Scene.model_validate(
+        {
+            "surface": {"grid_size": n, "spacing": 4.1 / n},
+            "target": {"shape": target},
+            "receiver": {"pixels": n},
+        }
+    )
+
+
+def timed(function):
+    start = time.perf_counter()
+    function()
+    return time.perf_counter() - start
+
+
+def measure(n, target, rounds):
+    s = scene(n, target=target)
+    a = np.random.default_rng(0).standard_normal((n, n), dtype=np.float32)
+    render(s, seed=0)
+    samples, numpy_pairs, scipy_pairs = [], [], []
+    for seed in range(1, rounds + 1):
+        samples.append(timed(lambda seed=seed: render(s, seed=seed)))
+        numpy_pairs.append(
+            min(timed(lambda: np.fft.irfft2(np.fft.rfft2(a), s=a.shape)) for _ in range(5))
+        )
+        scipy_pairs.append(
+            min(timed(lambda: scipy.fft.irfft2(scipy.fft.rfft2(a), s=a.shape)) for _ in range(5))
+        )
+    return statistics.median(samples), statistics.median(numpy_pairs), statistics.median(
+        scipy_pairs
+    )
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--sizes", type=int, nargs="+", default=[128, 256, 512])
+    parser.add_argument("--rounds", type=int, default=15)
+    args = parser.parse_args()
+    print(f"allocator tuned: {tune_allocator()}; six ML(DC) gates, 0.3 m sphere at 5 m")
+    print(
+        f"{'pixels':>6} {'target':>7} {'sample ms':>10} {'numpy pair ms':>14} "
+        f"{'ratio':>6} {'scipy pair ms':>14} {'ratio':>6}"
+    )
+    for n in args.sizes:
+        for target in ("sphere", "none"):
+            sample, numpy_pair, scipy_pair = measure(n, target, args.rounds)
+            print(
+                f"{n:>6} {target:>7} {sample * 1e3:>10.1f} {numpy_pair * 1e3:>14.3f} "
+                f"{sample / numpy_pair:>6.1f} {scipy_pair * 1e3:>14.3f} "
+                f"{sample / scipy_pair:>6.1f}"
+            )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,187 @@
+"""The ``oceanlidar`` command line.
+
+Exit codes: 0 success, 2 bad input (a message, no traceback, nothing written), 1 failure
+(a sample that could not be rendered, an interrupted run, an unreadable store).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from service import store
+from service.sweep import SweepError, human_bytes, load_sweep
+
+__all__ = ["main"]
+
+EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):
+        self.print_usage(sys.stderr)
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message}\n")
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog="oceanlidar",
+        description="Simulate airborne range-gated LIDAR images through a rough sea.",
+    )
+    commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    run = commands.add_parser("run", help="run a sweep into a zarr store")
+    run.add_argument("sweep", help="sweep YAML file")
+    run.add_argument("--output", help="store path or fsspec URL (default: the file's output)")
+    where = run.add_mutually_exclusive_group()
+    where.add_argument(
+        "--workers", type=int, default=None, help="worker processes of the embedded cluster"
+    )
+    where.add_argument("--scheduler", help="address of an existing dask scheduler")
+    mode = run.add_mutually_exclusive_group()
+    mode.add_argument("--resume", action="store_true", help="complete an interrupted run")
+    mode.add_argument("--overwrite", action="store_true", help="replace an existing store")
+    run.add_argument("--batch", type=int, default=4, help="samples per task (default 4)")
+    run.add_argument("--no-limits", action="store_true", help="lift the sweep size limits")
+    run.add_argument(
+        "--storage-options", type=json.loads, default=None, help="fsspec options as JSON"
+    )
+
+    validate = commands.add_parser("validate", help="check a sweep and print its plan")
+    validate.add_argument("sweep", help="sweep YAML file")
+    validate.add_argument("--no-limits", action="store_true", help="lift the size limits")
+
+    info = commands.add_parser("info", help="what a store holds and how complete it is")
+    info.add_argument("store", help="store path or URL")
+    info.add_argument("--storage-options", type=json.loads, default=None)
+
+    stats = commands.add_parser("stats", help="(re)compute a store's statistics dataset")
+    stats.add_argument("store", help="store path or URL")
+    stats.add_argument("--storage-options", type=json.loads, default=None)
+    return parser
+
+
+def _plan_lines(plan, batch: int = 4) -> list[str]:
+    tasks = -(-plan.realisations // batch) * len(plan.points)
+    lines = [
+        f"sweep {plan.sweep.name!r}: {len(plan.points)} parameter points x "
+        f"{plan.realisations} realisations = {plan.samples} samples",
+        f"  tasks: about {tasks} (batch of {batch})",
+        f"  storage: about {human_bytes(plan.total_bytes())} uncompressed "
+        f"({human_bytes(plan.sample_bytes())} per sample)",
+        f"  swept: {', '.join(plan.swept) or '(nothing)'}",
+        f"  output: {plan.sweep.output}",
+    ]
+    return lines
+
+
+def _cmd_validate(args) -> int:
+    plan = load_sweep(args.sweep)
+    if not args.no_limits:
+        plan.check_limits()
+    store.check_uniform(plan)
+    print("\n".join(_plan_lines(plan)))
+    return EXIT_OK
+
+
+def _cmd_run(args) -> int:
+    from service.run import execute
+
+    if args.workers is not None and args.workers < 1:
+        raise SweepError("--workers must be at least 1")
+    if args.batch < 1:
+        raise SweepError("--batch must be at least 1")
+    plan = load_sweep(args.sweep)
+    if not args.no_limits:
+        plan.check_limits()
+    store.check_uniform(plan)
+    url = args.output or plan.sweep.output
+    print("\n".join(_plan_lines(plan, args.batch)), file=sys.stderr)
+    result = execute(
+        plan,
+        url,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        resume=args.resume,
+        overwrite=args.overwrite,
+        storage_options=args.storage_options,
+        batch_size=args.batch,
+    )
+    rate = result.written / result.seconds if result.seconds > 0 else 0.0
+    print(
+        f"{url}: wrote {result.written} samples in {result.seconds:.1f} s ({rate:.2f} samples/s)"
+        + (f", {result.skipped} already complete" if result.skipped else ""),
+        file=sys.stderr,
+    )
+    if result.interrupted:
+        print(f"interrupted: run again with --resume to complete {url}", file=sys.stderr)
+        return EXIT_FAILURE
+    if result.failed:
+        for start, count, error in result.failed:
+            print(f"samples {start}..{start + count - 1} failed: {error}", file=sys.stderr)
+        print("statistics not written: some samples failed", file=sys.stderr)
+        return EXIT_FAILURE
+    print(f"statistics: {store.stats_url(url)}", file=sys.stderr)
+    return EXIT_OK
+
+
+def _open(args):
+    if not store.store_exists(args.store, args.storage_options):
+        raise SweepError(f"{args.store}: no store there")
+    try:
+        return store.open_store(args.store, storage_options=args.storage_options)
+    except Exception as error:
+        raise SweepError(f"{args.store}: not an oceanlidar store ({error})") from None
+
+
+def _cmd_info(args) -> int:
+    ds = _open(args)
+    if "completed" not in ds:
+        raise SweepError(f"{args.store}: not an oceanlidar store (no completion record)")
+    done = int(ds["completed"].sum())
+    total = ds.sizes["sample"]
+    swept = [c for c in ds.coords if "." in str(c)]
+    print(f"{args.store}: {ds.attrs.get('title', '')}")
+    print(f"  samples: {done}/{total} complete ({100 * done / max(total, 1):.1f} %)")
+    print(f"  points: {ds.attrs.get('points')}  realisations: {ds.attrs.get('realisations')}")
+    print("  dimensions: " + ", ".join(f"{k}={v}" for k, v in ds.sizes.items()))
+    print("  variables: " + ", ".join(map(str, ds.data_vars)))
+    print(f"  swept: {', '.join(map(str, swept)) or '(nothing)'}")
+    print(f"  sweep sha256: {ds.attrs.get('sweep_sha256')}")
+    print(f"  written by: oceanlidar {ds.attrs.get('oceanlidar_version')}")
+    stats = store.stats_url(args.store)
+    there = store.store_exists(stats, args.storage_options)
+    print(f"  statistics: {stats if there else '(none)'}")
+    return EXIT_OK
+
+
+def _cmd_stats(args) -> int:
+    from service.stats import write_statistics
+
+    _open(args)
+    print(write_statistics(args.store, storage_options=args.storage_options))
+    return EXIT_OK
+
+
+def main(argv=None) -> int:
+    """Entry point of the ``oceanlidar`` console script."""
+    args = _parser().parse_args(argv)
+    commands = {
+        "run": _cmd_run,
+        "validate": _cmd_validate,
+        "info": _cmd_info,
+        "stats": _cmd_stats,
+    }
+    try:
+        return commands[args.command](args)
+    except SweepError as error:
+        print(f"oceanlidar {args.command}: error: {error}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return EXIT_FAILURE
+
+
+if __name__ == "__main__":
+    sys.exit(main())

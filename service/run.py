@@ -1,0 +1,279 @@
+"""Run a sweep on dask: an embedded LocalCluster on loopback, or an existing cluster.
+
+Samples are grouped into tasks of consecutive samples; each task renders its samples and
+writes them as whole chunks (`service.store.write_samples`). Submission is bounded: at most
+a few tasks per worker thread are in flight, so the client's memory stays flat whatever the
+sweep's size. Results never depend on worker count, order or retries: every sample's random
+streams are keyed by its position (`workers.seeds.SampleSeed`) and a retried task rewrites
+the same bytes.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+from distributed import Client, LocalCluster, as_completed
+
+from service import store
+from service.stats import write_statistics
+from service.sweep import Plan, SweepError
+from workers.render import render
+from workers.scene import Scene
+from workers.seeds import SampleSeed
+
+__all__ = ["RunResult", "render_batch", "run_plan", "task_batches"]
+
+IN_FLIGHT_PER_THREAD = 2
+RETRIES = 2
+
+
+def render_batch(url, start, jobs, storage_options=None):
+    """Render and write consecutive samples (runs on a dask worker).
+
+    Parameters
+    ----------
+    url : str
+        The store.
+    start : int
+        Index of the first sample.
+    jobs : list of tuple
+        ``(scene_json, root, point, realisation)`` per sample.
+    storage_options : dict, optional
+        fsspec options.
+
+    Returns
+    -------
+    tuple of int
+        ``(start, count)``.
+    """
+    samples = [
+        render(
+            Scene.model_validate_json(scene),
+            seed=SampleSeed(root=root, point=point, realisation=realisation),
+        )
+        for scene, root, point, realisation in jobs
+    ]
+    store.write_samples(url, start, samples, storage_options=storage_options)
+    return start, len(samples)
+
+
+def task_batches(plan: Plan, todo, batch_size: int) -> Iterator[tuple[int, list]]:
+    """Consecutive runs of the samples in `todo`, at most `batch_size` long.
+
+    Yields
+    ------
+    tuple
+        ``(start, jobs)`` as `render_batch` takes them.
+    """
+    scenes = {}
+    run: list = []
+    start = previous = None
+    for sample in todo:
+        sample = int(sample)
+        if run and (sample != previous + 1 or len(run) == batch_size):
+            yield start, run
+            run = []
+        if not run:
+            start = sample
+        point, realisation = divmod(sample, plan.realisations)
+        if point not in scenes:
+            scenes = {point: plan.scenes[point].model_dump_json()}
+        run.append((scenes[point], plan.sweep.seed, point, realisation))
+        previous = sample
+    if run:
+        yield start, run
+
+
+@dataclass
+class RunResult:
+    """What a run did."""
+
+    total: int
+    written: int = 0
+    skipped: int = 0
+    failed: list = field(default_factory=list)
+    seconds: float = 0.0
+    interrupted: bool = False
+
+
+class Progress:
+    """A progress line on stderr: samples done, samples/s, time left."""
+
+    def __init__(self, total: int, already: int, stream=None):
+        self.total = total
+        self.done = already
+        self.fresh = 0
+        self.start = time.monotonic()
+        self.stream = stream or sys.stderr
+        self.last = 0.0
+        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+
+    def update(self, count: int) -> None:
+        """Count `count` more samples done."""
+        self.done += count
+        self.fresh += count
+        now = time.monotonic()
+        if now - self.last < (0.2 if self.tty else 5.0) and self.done < self.total:
+            return
+        self.last = now
+        elapsed = max(now - self.start, 1e-9)
+        rate = self.fresh / elapsed
+        left = (self.total - self.done) / rate if rate > 0 else float("inf")
+        width = 30
+        filled = int(width * self.done / max(self.total, 1))
+        bar = "#" * filled + "-" * (width - filled)
+        line = (
+            f"[{bar}] {self.done}/{self.total} samples  {rate:.2f} samples/s  "
+            f"left {_duration(left)}"
+        )
+        self.stream.write(("\r" + line) if self.tty else line + "\n")
+        self.stream.flush()
+
+    def close(self) -> None:
+        """End the progress line."""
+        if self.tty:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+def _duration(seconds: float) -> str:
+    if seconds == float("inf"):
+        return "?"
+    seconds = round(seconds)
+    hours, rest = divmod(seconds, 3600)
+    minutes, secs = divmod(rest, 60)
+    return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes}:{secs:02d}"
+
+
+@contextlib.contextmanager
+def dask_client(*, workers: int | None, scheduler: str | None, security=None):
+    """A client for an existing scheduler, or for an embedded LocalCluster on 127.0.0.1."""
+    if scheduler is not None:
+        with Client(scheduler, security=security, timeout="30s") as client:
+            yield client
+        return
+    with (
+        LocalCluster(
+            n_workers=workers or 1,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address=None,
+            silence_logs=40,
+        ) as cluster,
+        Client(cluster) as client,
+    ):
+        yield client
+
+
+def run_plan(
+    plan: Plan,
+    url: str,
+    *,
+    client: Client,
+    resume: bool = False,
+    storage_options: dict | None = None,
+    batch_size: int = 4,
+    progress_stream=None,
+) -> RunResult:
+    """Render every missing sample of `plan` into the store at `url`.
+
+    The store must exist (`service.store.create_store`). With `resume`, samples already
+    marked complete are skipped.
+    """
+    done = store.completed_samples(url, storage_options=storage_options)
+    todo = [i for i in range(plan.samples) if not (resume and done[i])]
+    result = RunResult(total=plan.samples, skipped=plan.samples - len(todo))
+    progress = Progress(plan.samples, result.skipped, stream=progress_stream)
+    threads = sum(client.nthreads().values()) or 1
+    window = max(2, IN_FLIGHT_PER_THREAD * threads)
+    batches = task_batches(plan, todo, batch_size)
+    started = time.monotonic()
+    pending = as_completed()
+    sizes = {}
+
+    def submit_next() -> bool:
+        try:
+            start, jobs = next(batches)
+        except StopIteration:
+            return False
+        future = client.submit(
+            render_batch,
+            url,
+            start,
+            jobs,
+            storage_options,
+            key=f"oceanlidar-{plan.digest[:12]}-{start}-{len(jobs)}",
+            retries=RETRIES,
+            pure=False,
+        )
+        sizes[future.key] = (start, len(jobs))
+        pending.add(future)
+        return True
+
+    try:
+        for _ in range(window):
+            if not submit_next():
+                break
+        for future in pending:
+            start, count = sizes.pop(future.key)
+            if future.status == "finished":
+                result.written += count
+                progress.update(count)
+            else:
+                result.failed.append((start, count, repr(future.exception())))
+            future.release()
+            submit_next()
+    except KeyboardInterrupt:
+        result.interrupted = True
+        for future in list(pending.futures):
+            future.cancel()
+    finally:
+        progress.close()
+        result.seconds = time.monotonic() - started
+    return result
+
+
+def execute(
+    plan: Plan,
+    url: str,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    resume: bool = False,
+    overwrite: bool = False,
+    storage_options: dict | None = None,
+    batch_size: int = 4,
+    progress_stream=None,
+) -> RunResult:
+    """Create (or reopen) the store, run the missing samples and write the statistics."""
+    exists = store.store_exists(url, storage_options)
+    if exists and resume:
+        previous = store.open_store(url, storage_options=storage_options)
+        if previous.attrs.get("sweep_sha256") != plan.digest:
+            raise SweepError(
+                f"{url} holds a different sweep (its hash differs); refusing to resume into it"
+            )
+    elif exists and not overwrite:
+        raise SweepError(f"{url} already exists; pass --resume to complete it or --overwrite")
+    elif exists:
+        store.remove_store(url, storage_options)
+    if not (exists and resume):
+        store.create_store(plan, url, storage_options=storage_options)
+    with dask_client(workers=workers, scheduler=scheduler) as client:
+        result = run_plan(
+            plan,
+            url,
+            client=client,
+            resume=resume,
+            storage_options=storage_options,
+            batch_size=batch_size,
+            progress_stream=progress_stream,
+        )
+    if not result.interrupted and not result.failed:
+        write_statistics(url, storage_options=storage_options)
+    return result

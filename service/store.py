@@ -1,0 +1,236 @@
+"""The sweep's zarr store: template, region writes, completion records.
+
+Layout (DESIGN §4): dimensions ``sample, frame, gate, y, x``, one sample per chunk. The
+template (metadata and the coordinates that do not depend on rendering) is written once with
+``compute=False``; each task then writes whole chunks of its samples with region writes, and
+only after that sets their ``completed`` flags, so an interrupted run never marks a sample
+complete that is not written.
+"""
+
+from __future__ import annotations
+
+import warnings
+from importlib.metadata import PackageNotFoundError, version
+
+import dask.array as da
+import fsspec
+import numpy as np
+import xarray as xr
+
+from service.sweep import Plan, SweepError
+from workers.render import render
+from workers.seeds import SampleSeed
+
+__all__ = [
+    "SAMPLE_VARIABLES",
+    "check_uniform",
+    "completed_samples",
+    "create_store",
+    "open_store",
+    "remove_store",
+    "sample_dataset",
+    "stats_url",
+    "store_exists",
+    "write_samples",
+]
+
+SAMPLE_VARIABLES = (
+    "image",
+    "expected",
+    "target_mask",
+    "target_present",
+    "target_visibility",
+    "time",
+    "platform_x",
+    "platform_y",
+    "platform_z",
+)
+CONVENTIONS = "CF-1.10"
+
+warnings.filterwarnings("ignore", message=".*does not have a Zarr V3 specification.*")
+
+
+def package_version() -> str:
+    """The installed oceanlidar version."""
+    try:
+        return version("oceanlidar")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def stats_url(url: str) -> str:
+    """Where the statistics dataset of the store at `url` lives (beside it)."""
+    stem = url.rstrip("/")
+    if stem.endswith(".zarr"):
+        stem = stem[: -len(".zarr")]
+    return stem + ".stats.zarr"
+
+
+def _fs(url: str, storage_options: dict | None):
+    fs, path = fsspec.core.url_to_fs(url, **(storage_options or {}))
+    return fs, path
+
+
+def store_exists(url: str, storage_options: dict | None = None) -> bool:
+    """Whether anything is stored at `url`."""
+    fs, path = _fs(url, storage_options)
+    return fs.exists(path)
+
+
+def remove_store(url: str, storage_options: dict | None = None) -> None:
+    """Delete the store at `url` (used by ``--overwrite`` only)."""
+    fs, path = _fs(url, storage_options)
+    if fs.exists(path):
+        fs.rm(path, recursive=True)
+
+
+def check_uniform(plan: Plan) -> None:
+    """One store holds one array shape: the shape-defining parameters must not vary."""
+    first = plan.scenes[0]
+    fields = {
+        "receiver.pixels": lambda s: s.receiver.pixels,
+        "receiver.gates": lambda s: s.receiver.gate_depths,
+        "sequence.frames": lambda s: s.sequence.frames,
+        "save_surface": lambda s: s.save_surface,
+        "surface.grid_size": lambda s: s.surface.grid_size if s.save_surface else None,
+        "surface.spacing": lambda s: s.surface.spacing if s.save_surface else None,
+    }
+    for path, get in fields.items():
+        if any(get(scene) != get(first) for scene in plan.scenes[1:]):
+            raise SweepError(
+                f"sweep.parameters.{path}: cannot vary within one sweep (it sets the shape of "
+                "the stored arrays); run one sweep per value"
+            )
+
+
+def sample_dataset(plan: Plan, sample: int) -> xr.Dataset:
+    """Render sample `sample` of the plan, with its per-sample coordinates."""
+    point, realisation = divmod(sample, plan.realisations)
+    return render(
+        plan.scenes[point],
+        seed=SampleSeed(root=plan.sweep.seed, point=point, realisation=realisation),
+    )
+
+
+def _coordinate_array(values: list) -> np.ndarray:
+    array = np.asarray(values)
+    if array.dtype == object:
+        array = np.asarray([str(v) for v in values])
+    return array
+
+
+def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -> None:
+    """Write the template of the store: metadata, coordinates, empty data arrays.
+
+    Parameters
+    ----------
+    plan : Plan
+        The validated sweep.
+    url : str
+        A path or fsspec URL; nothing may exist there yet.
+    storage_options : dict, optional
+        fsspec options (credentials, endpoint).
+    """
+    check_uniform(plan)
+    probe = render(plan.scenes[0], seed=0)
+    n = plan.samples
+    data_vars = {}
+    for name, variable in probe.data_vars.items():
+        shape = (n, *variable.shape)
+        chunks = (1, *variable.shape)
+        fill = np.nan if variable.dtype.kind == "f" else 0
+        data_vars[name] = (
+            ("sample", *variable.dims),
+            da.full(shape, fill, chunks=chunks, dtype=variable.dtype),
+            dict(variable.attrs),
+        )
+    for name in ("time", "platform_x", "platform_y", "platform_z"):
+        coord = probe[name]
+        data_vars[name] = (
+            ("sample", *coord.dims),
+            da.full((n, *coord.shape), np.nan, chunks=(1, *coord.shape), dtype=coord.dtype),
+            dict(coord.attrs),
+        )
+    data_vars["completed"] = (
+        ("sample",),
+        da.zeros(n, chunks=1, dtype=np.uint8),
+        {"long_name": "sample rendered and written", "units": "1"},
+    )
+    realisations = plan.realisations
+    coords = {
+        "gate_top": probe["gate_top"],
+        "gate_bottom": probe["gate_bottom"],
+        "point": (
+            "sample",
+            np.repeat(np.arange(len(plan.points)), realisations),
+            {"long_name": "parameter point index", "units": "1"},
+        ),
+        "realisation": (
+            "sample",
+            np.tile(np.arange(realisations), len(plan.points)),
+            {"long_name": "Monte Carlo realisation index", "units": "1"},
+        ),
+    }
+    for name in ("sx", "sy"):
+        if name in probe.coords:
+            coords[name] = probe[name]
+    for path in plan.swept:
+        values = _coordinate_array([point[path] for point in plan.points])
+        coords[path] = (
+            "sample",
+            np.repeat(values, realisations),
+            {"long_name": f"swept scene parameter {path}"},
+        )
+    ds = xr.Dataset(data_vars, coords=coords)
+    ds.attrs.update(
+        title=f"oceanlidar sweep {plan.sweep.name}",
+        Conventions=CONVENTIONS,
+        source=f"oceanlidar {package_version()}",
+        oceanlidar_version=package_version(),
+        sweep=plan.text,
+        sweep_sha256=plan.digest,
+        seed=plan.sweep.seed,
+        realisations=realisations,
+        points=len(plan.points),
+    )
+    ds.to_zarr(
+        url,
+        mode="w-",
+        compute=False,
+        consolidated=False,
+        zarr_format=3,
+        storage_options=storage_options,
+    )
+
+
+def open_store(url: str, *, storage_options: dict | None = None) -> xr.Dataset:
+    """Open a store lazily (dask arrays, one sample per chunk)."""
+    return xr.open_zarr(url, consolidated=False, storage_options=storage_options)
+
+
+def completed_samples(url: str, *, storage_options: dict | None = None) -> np.ndarray:
+    """Boolean array: which samples are written."""
+    ds = open_store(url, storage_options=storage_options)
+    return ds["completed"].values.astype(bool)
+
+
+def write_samples(
+    url: str, start: int, samples: list[xr.Dataset], *, storage_options: dict | None = None
+) -> None:
+    """Write consecutive samples from `start` as whole chunks, then mark them complete."""
+    block = xr.concat(samples, dim="sample", coords="minimal", compat="override")
+    block = block.reset_coords([n for n in ("time", "platform_x", "platform_y", "platform_z")])
+    keep = [name for name in SAMPLE_VARIABLES if name in block] + (
+        ["surface_elevation"] if "surface_elevation" in block else []
+    )
+    block = block[keep].drop_vars(
+        [c for c in block.coords if "sample" not in block[c].dims], errors="ignore"
+    )
+    region = {"sample": slice(start, start + len(samples))}
+    block.to_zarr(
+        url, region=region, mode="r+", consolidated=False, storage_options=storage_options
+    )
+    done = xr.Dataset({"completed": ("sample", np.ones(len(samples), dtype=np.uint8))})
+    done.to_zarr(
+        url, region=region, mode="r+", consolidated=False, storage_options=storage_options
+    )

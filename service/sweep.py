@@ -1,0 +1,386 @@
+"""The sweep file: schema, safe loading, and expansion into parameter points and samples.
+
+A sweep is a scene (defaults for every sample), a set of parameters addressed by dotted
+paths into the scene (``target.depth``), a method that turns them into parameter points
+(``grid``, ``zip`` or ``random``), and a number of Monte Carlo realisations per point.
+Sample ``s`` is realisation ``s % realisations`` of point ``s // realisations``.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import itertools
+import json
+import math
+from dataclasses import dataclass
+from typing import Annotated, Any, Literal
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from workers.scene import Scene
+
+__all__ = [
+    "Plan",
+    "Sweep",
+    "SweepError",
+    "human_bytes",
+    "load_sweep",
+    "parse_sweep",
+]
+
+MAX_FILE_BYTES = 1_000_000
+MAX_DEPTH = 20
+MAX_ALIASES = 100
+DEFAULT_MAX_SAMPLES = 1_000_000
+DEFAULT_MAX_BYTES = 50 * 2**30
+
+
+class SweepError(ValueError):
+    """A sweep file a user must fix: the message names the place and the reason."""
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+class Values(_Model):
+    """An explicit list of values."""
+
+    values: Annotated[list[Any], Field(min_length=1, max_length=100_000)]
+
+
+class Value(_Model):
+    """One fixed value."""
+
+    value: Any
+
+
+class Distribution(_Model):
+    """A random distribution, for ``method: random``."""
+
+    distribution: Literal["uniform", "log_uniform", "normal", "int_uniform"]
+    min: float | None = None
+    max: float | None = None
+    mu: float | None = None
+    sigma: float | None = Field(None, gt=0.0)
+
+    @model_validator(mode="after")
+    def _parameters(self) -> Distribution:
+        if self.distribution == "normal":
+            if self.mu is None or self.sigma is None:
+                raise ValueError("a normal distribution needs mu and sigma")
+            return self
+        if self.min is None or self.max is None:
+            raise ValueError(f"a {self.distribution} distribution needs min and max")
+        if not self.min < self.max:
+            raise ValueError("min must be below max")
+        if self.distribution == "log_uniform" and self.min <= 0:
+            raise ValueError("a log_uniform distribution needs min > 0")
+        return self
+
+    def draw(self, rng: np.random.Generator, count: int) -> list:
+        """`count` draws, as plain Python numbers."""
+        if self.distribution == "uniform":
+            return rng.uniform(self.min, self.max, count).tolist()
+        if self.distribution == "log_uniform":
+            return np.exp(rng.uniform(np.log(self.min), np.log(self.max), count)).tolist()
+        if self.distribution == "normal":
+            return rng.normal(self.mu, self.sigma, count).tolist()
+        return rng.integers(
+            math.ceil(self.min), math.floor(self.max), count, endpoint=True
+        ).tolist()
+
+
+Parameter = Values | Value | Distribution
+
+
+class SweepSpec(_Model):
+    """How parameters combine into points."""
+
+    method: Literal["grid", "zip", "random"] = "grid"
+    count: int | None = Field(None, ge=1, le=10_000_000)
+    parameters: dict[str, Parameter] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _consistent(self) -> SweepSpec:
+        if self.method == "random":
+            if self.count is None:
+                raise ValueError("method random needs a count")
+        elif self.count is not None:
+            raise ValueError(f"count applies to method random only, not {self.method}")
+        if self.method != "random":
+            for path, parameter in self.parameters.items():
+                if isinstance(parameter, Distribution):
+                    raise ValueError(f"{path}: distributions need method random")
+        if self.method == "zip":
+            lengths = {
+                path: len(p.values) for path, p in self.parameters.items() if isinstance(p, Values)
+            }
+            if len(set(lengths.values())) > 1:
+                raise ValueError(f"method zip needs equally long value lists, got {lengths}")
+        return self
+
+
+class Sweep(_Model):
+    """A sweep file."""
+
+    name: str = Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,99}$")
+    seed: int = Field(ge=0, le=2**63 - 1)
+    realisations: int = Field(1, ge=1, le=1_000_000)
+    output: str = Field(min_length=1, max_length=4096)
+    scene: dict[str, Any] = Field(default_factory=dict)
+    sweep: SweepSpec = SweepSpec()
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A validated, expanded sweep.
+
+    Attributes
+    ----------
+    sweep : Sweep
+        The parsed file.
+    text : str
+        The file's text, stored with the data.
+    digest : str
+        SHA-256 of the canonical form of the sweep (the output location excluded), which
+        `--resume` compares.
+    points : tuple of dict
+        For every parameter point, the dotted-path values that define it.
+    scenes : tuple of Scene
+        The validated scene of every point.
+    """
+
+    sweep: Sweep
+    text: str
+    digest: str
+    points: tuple[dict[str, Any], ...]
+    scenes: tuple[Scene, ...]
+
+    @property
+    def realisations(self) -> int:
+        """Monte Carlo samples per point."""
+        return self.sweep.realisations
+
+    @property
+    def samples(self) -> int:
+        """Total number of samples."""
+        return len(self.points) * self.sweep.realisations
+
+    @property
+    def swept(self) -> tuple[str, ...]:
+        """Dotted paths that vary across the sweep, in file order."""
+        return tuple(self.sweep.sweep.parameters)
+
+    def sample_bytes(self) -> int:
+        """Estimated stored bytes of the largest sample (uncompressed)."""
+        return max(_sample_bytes(scene) for scene in self.scenes)
+
+    def total_bytes(self) -> int:
+        """Estimated stored bytes of the whole sweep (uncompressed)."""
+        r = self.sweep.realisations
+        return sum(_sample_bytes(scene) * r for scene in self.scenes)
+
+    def check_limits(self, *, max_samples=DEFAULT_MAX_SAMPLES, max_bytes=DEFAULT_MAX_BYTES):
+        """Refuse sweeps beyond the size limits (the caller may lift them)."""
+        if self.samples > max_samples:
+            raise SweepError(
+                f"the sweep has {self.samples:,} samples, over the limit of {max_samples:,}; "
+                "pass --no-limits to run it anyway"
+            )
+        if self.total_bytes() > max_bytes:
+            raise SweepError(
+                f"the sweep would store about {human_bytes(self.total_bytes())}, over the "
+                f"limit of {human_bytes(max_bytes)}; pass --no-limits to run it anyway"
+            )
+
+
+def _sample_bytes(scene: Scene) -> int:
+    pixels = scene.receiver.pixels**2
+    frames = scene.sequence.frames
+    gates = len(scene.receiver.gate_depths)
+    size = frames * (gates * pixels * 8 + pixels)
+    if scene.save_surface:
+        size += frames * scene.surface.grid_size**2 * 4
+    return size
+
+
+def human_bytes(n: float) -> str:
+    """A byte count for people (binary units)."""
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
+        if n < 1024 or unit == "TiB":
+            return f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n:.1f} TiB"
+
+
+def _check_structure(text: str) -> None:
+    """Refuse YAML that is too deep or uses many aliases, before building any object."""
+    depth = 0
+    aliases = 0
+    for event in yaml.parse(text, Loader=yaml.SafeLoader):
+        if isinstance(event, yaml.CollectionStartEvent):
+            depth += 1
+            if depth > MAX_DEPTH:
+                raise SweepError(f"the file nests deeper than {MAX_DEPTH} levels")
+        elif isinstance(event, yaml.CollectionEndEvent):
+            depth -= 1
+        elif isinstance(event, yaml.AliasEvent):
+            aliases += 1
+            if aliases > MAX_ALIASES:
+                raise SweepError(f"the file uses more than {MAX_ALIASES} YAML aliases")
+
+
+def _read_yaml(text: str) -> Any:
+    if len(text.encode()) > MAX_FILE_BYTES:
+        raise SweepError(f"the file is larger than {MAX_FILE_BYTES:,} bytes")
+    if "\x00" in text:
+        raise SweepError("the file is not YAML text (it contains NUL bytes)")
+    try:
+        _check_structure(text)
+        return yaml.safe_load(text)
+    except yaml.constructor.ConstructorError as error:
+        raise SweepError(
+            f"line {error.problem_mark.line + 1}: {error.problem} (only plain YAML is "
+            "accepted: no language-specific tags)"
+        ) from None
+    except yaml.MarkedYAMLError as error:
+        where = f"line {error.problem_mark.line + 1}: " if error.problem_mark else ""
+        raise SweepError(f"{where}not valid YAML: {error.problem}") from None
+    except yaml.YAMLError as error:
+        raise SweepError(f"not valid YAML: {error}") from None
+
+
+def _format_errors(error: ValidationError, prefix: str = "") -> str:
+    lines = []
+    for item in error.errors():
+        location = ".".join(str(part) for part in item["loc"] if not _is_union_tag(part))
+        place = ".".join(filter(None, [prefix, location])) or "(top level)"
+        lines.append(f"{place}: {item['msg']}")
+    return "\n".join(dict.fromkeys(lines))
+
+
+def _is_union_tag(part) -> bool:
+    return part in {"Values", "Value", "Distribution"}
+
+
+def load_sweep(path) -> Plan:
+    """Read, validate and expand a sweep file.
+
+    Raises
+    ------
+    SweepError
+        With a message that names the place and the reason.
+    """
+    try:
+        with open(path, encoding="utf-8") as handle:
+            text = handle.read()
+    except UnicodeDecodeError:
+        raise SweepError(f"{path}: not a UTF-8 text file") from None
+    except OSError as error:
+        raise SweepError(f"{path}: {error.strerror}") from None
+    return parse_sweep(text)
+
+
+def parse_sweep(text: str) -> Plan:
+    """Validate and expand sweep YAML text (see `load_sweep`)."""
+    data = _read_yaml(text)
+    if not isinstance(data, dict):
+        raise SweepError("the file must be a YAML mapping with name, seed, output and scene")
+    try:
+        sweep = Sweep.model_validate(data)
+    except ValidationError as error:
+        raise SweepError(_format_errors(error)) from None
+    try:
+        Scene.model_validate(sweep.scene)
+    except ValidationError as error:
+        raise SweepError(_format_errors(error, "scene")) from None
+    for path in sweep.sweep.parameters:
+        _check_path(path)
+    points = _expand(sweep)
+    if not points:
+        raise SweepError("sweep: the sweep expands to no parameter point")
+    scenes = []
+    cache: dict[str, Scene] = {}
+    for index, point in enumerate(points):
+        data = copy.deepcopy(sweep.scene)
+        for path, value in point.items():
+            _assign(data, path, value)
+        key = json.dumps(data, sort_keys=True, default=str)
+        if key not in cache:
+            try:
+                cache[key] = Scene.model_validate(data)
+            except ValidationError as error:
+                values = ", ".join(f"{p}={v!r}" for p, v in point.items())
+                raise SweepError(
+                    f"parameter point {index} ({values}):\n" + _format_errors(error, "scene")
+                ) from None
+        scenes.append(cache[key])
+    canonical = sweep.model_dump(mode="json", exclude={"output"})
+    digest = hashlib.sha256(json.dumps(canonical, sort_keys=True).encode()).hexdigest()
+    return Plan(sweep=sweep, text=text, digest=digest, points=tuple(points), scenes=tuple(scenes))
+
+
+def _check_path(path: str) -> None:
+    """A dotted path must name a leaf field of the scene."""
+    model: Any = Scene
+    parts = path.split(".")
+    for depth, part in enumerate(parts):
+        fields = getattr(model, "model_fields", None)
+        if fields is None or part not in fields:
+            known = ", ".join(sorted(fields)) if fields else "nothing (a leaf value)"
+            where = ".".join(parts[:depth]) or "the scene"
+            raise SweepError(f"sweep.parameters.{path}: unknown path; {where} has {known}")
+        annotation = fields[part].annotation
+        model = (
+            annotation
+            if isinstance(annotation, type) and issubclass(annotation, BaseModel)
+            else None
+        )
+    if model is not None:
+        raise SweepError(f"sweep.parameters.{path}: names a section, not a value")
+
+
+def _assign(data: dict, path: str, value: Any) -> None:
+    *parents, leaf = path.split(".")
+    node = data
+    for part in parents:
+        child = node.get(part)
+        if not isinstance(child, dict):
+            child = {}
+            node[part] = child
+        node = child
+    node[leaf] = value
+
+
+def _expand(sweep: Sweep) -> list[dict[str, Any]]:
+    spec = sweep.sweep
+    params = spec.parameters
+    if not params:
+        return [{}]
+    if spec.method == "random":
+        rng = np.random.Generator(
+            np.random.PCG64(np.random.SeedSequence(sweep.seed, spawn_key=(2,)))
+        )
+        columns = {}
+        for path, p in params.items():
+            if isinstance(p, Distribution):
+                columns[path] = p.draw(rng, spec.count)
+            elif isinstance(p, Values):
+                picks = rng.integers(0, len(p.values), spec.count)
+                columns[path] = [p.values[i] for i in picks]
+            else:
+                columns[path] = [p.value] * spec.count
+        return [{path: columns[path][i] for path in params} for i in range(spec.count)]
+    lists = {
+        path: (p.values if isinstance(p, Values) else [p.value]) for path, p in params.items()
+    }
+    if spec.method == "zip":
+        length = max(len(v) for v in lists.values())
+        lists = {path: v * length if len(v) == 1 else v for path, v in lists.items()}
+        return [{path: lists[path][i] for path in lists} for i in range(length)]
+    combos = itertools.product(*lists.values())
+    return [dict(zip(lists, combo, strict=True)) for combo in combos]

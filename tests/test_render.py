@@ -1,0 +1,289 @@
+"""End-to-end rendering of one sample: closed forms, invariants, labels, determinism."""
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from workers.optics import fresnel_reflectance
+from workers.render import render
+from workers.scene import Scene
+from workers.seeds import SampleSeed
+
+N_WATER = 1.34
+T0 = 1.0 - fresnel_reflectance(1.0, n1=1.0, n2=N_WATER)
+
+
+def scene(**sections):
+    """A small scene (fast) with the given sections merged over test defaults."""
+    base = {
+        "surface": {"grid_size": 64, "spacing": 0.064},
+        "receiver": {"pixels": 32},
+        "noise": {"photons": 0},
+    }
+    for key, value in sections.items():
+        base[key] = {**base.get(key, {}), **value} if isinstance(value, dict) else value
+    return Scene.model_validate(base)
+
+
+def clear_water(absorption=0.1, scattering=0.0, backscatter=0.0):
+    return {
+        "preset": None,
+        "absorption": absorption,
+        "scattering": scattering,
+        "backscatter": backscatter,
+    }
+
+
+def centre(image):
+    """Mean of the four central pixels of (..., y, x)."""
+    n = image.shape[-1] // 2
+    return image[..., n - 1 : n + 1, n - 1 : n + 1].mean(axis=(-2, -1))
+
+
+FLAT_DISK = {
+    "surface": {"spectrum": "flat"},
+    "water": clear_water(),
+    "laser": {"beam": "parallel"},
+    "receiver": {"gates": [[0.5, 12.0]]},
+}
+
+
+@pytest.mark.parametrize(
+    ("depth", "reflectance"),
+    [(2.0, 0.2), (5.0, 0.2), (5.0, 0.6), (9.0, 1.0)],
+    ids=["d2-r0.2", "d5-r0.2", "d5-r0.6", "d9-r1"],
+)
+def test_flat_sea_disk_equals_the_closed_form(depth, reflectance):
+    # Flat sea, no scattering, nadir, a disk wider than the field: each pixel sees
+    # t0 (down) · e^-Kd · ρ · e^-Kd · t0 (up), in units of a ρ = 1 plane just under the
+    # surface (which itself returns t0²). K = a when b = 0.
+    s = scene(
+        **FLAT_DISK,
+        target={"shape": "disk", "radius": 5.0, "depth": depth, "reflectance": reflectance},
+    )
+    value = centre(render(s, seed=1).expected.values[0, 0])
+    expected = reflectance * np.exp(-2 * 0.1 * depth)
+    assert_allclose(value, expected, rtol=0.01)
+    # the same in the issue's form: the ratio of two samples is the ratio of t0²ρe^-2Kd
+    ref = scene(
+        **FLAT_DISK, target={"shape": "disk", "radius": 5.0, "depth": 2.0, "reflectance": 0.2}
+    )
+    ratio = value / centre(render(ref, seed=1).expected.values[0, 0])
+    closed = (T0**2 * reflectance * np.exp(-0.2 * depth)) / (T0**2 * 0.2 * np.exp(-0.2 * 2.0))
+    assert_allclose(ratio, closed, rtol=0.01)
+
+
+def test_divergent_beam_spreads_as_the_apparent_range_squared():
+    # A divergent beam from altitude H reaches depth d with its cross-section widened by
+    # (H + d/n)/H (paraxial refraction), so the irradiance falls by its square.
+    H, d = 34.0, 6.0
+    s = scene(
+        **{**FLAT_DISK, "laser": {"beam": "divergent"}},
+        platform={"altitude": H},
+        target={"shape": "disk", "radius": 5.0, "depth": d, "reflectance": 0.5},
+    )
+    value = centre(render(s, seed=1).expected.values[0, 0])
+    expected = 0.5 * np.exp(-2 * 0.1 * d) * (H / (H + d / N_WATER)) ** 2
+    assert_allclose(value, expected, rtol=0.01)
+
+
+@pytest.mark.parametrize("gate", [(2.0, 4.0), (3.0, 9.0), (6.0, 15.0)], ids=["2-4", "3-9", "6-15"])
+def test_flat_sea_water_backscatter_is_the_single_scattering_lidar_integral(gate):
+    # No target, flat sea, no forward scattering: the gated return is
+    # π β(π) ∫ e^(-2Kz) dz over the gate (units of the ρ = 1 plane under the surface).
+    from workers.water import WaterOptics
+
+    water = clear_water(absorption=0.15, scattering=0.01, backscatter=0.01)
+    s = scene(
+        surface={"spectrum": "flat"},
+        water=water,
+        laser={"beam": "parallel"},
+        target={"shape": "none"},
+        receiver={"gates": [list(gate)]},
+    )
+    optics = WaterOptics(absorption=0.15, scattering=0.01, backscatter=0.01)
+    K, (top, bottom) = optics.diffuse_attenuation, gate
+    integral = (np.exp(-2 * K * top) - np.exp(-2 * K * bottom)) / (2 * K)
+    value = centre(render(s, seed=1).expected.values[0, 0])
+    assert_allclose(value, np.pi * optics.backscatter_pi * integral, rtol=0.01)
+
+
+def test_forward_scattering_conserves_the_diffuse_attenuation_law():
+    # A laser much wider than the receiver's field lights a uniform plane; the small-angle
+    # spread then moves light around without changing the interior level, which falls as
+    # e^(-2Kd) with K = c - b_f = a + b_b (Wells: MTF(0) = e^-Kz).
+    water = clear_water(absorption=0.1, scattering=0.3, backscatter=0.0)
+    base = dict(
+        FLAT_DISK,
+        water=water,
+        laser={"beam": "parallel", "field_of_view_deg": 40.0},
+        receiver={"gates": [[0.5, 12.0]], "field_of_view_deg": 3.0},
+    )
+    s = scene(**base, target={"shape": "disk", "radius": 20.0, "depth": 4.0, "reflectance": 1.0})
+    value = centre(render(s, seed=1).expected.values[0, 0])
+    profile = 1.0  # beam profile at the centre; the field sees |r/a| < 0.08
+    assert_allclose(value, profile * np.exp(-2 * 0.1 * 4.0), rtol=0.03)
+
+
+ROUGH = {
+    "surface": {"spectrum": "elfouhaily", "wind_speed": 5.0},
+    "water": {"preset": "clear_ocean"},
+}
+
+
+def target_scene(shape="sphere", depth=5.0, gates=((4.0, 7.0), (8.0, 12.0), (1.0, 2.5)), **extra):
+    return scene(
+        **ROUGH,
+        target={"shape": shape, "depth": depth, "radius": 0.6, "reflectance": 0.5},
+        receiver={"gates": [list(g) for g in gates]},
+        **extra,
+    )
+
+
+def test_target_visibility_labels():
+    ds = render(target_scene(), seed=3)
+    # gate 4–7 m holds the sphere (4.4–5.6 m), 8–12 m lies below it, 1–2.5 m above it
+    assert ds.target_visibility.values.tolist() == [1, 2, 3]
+    assert int(ds.target_present) == 1
+    none = render(target_scene(shape="none"), seed=3)
+    assert none.target_visibility.values.tolist() == [0, 0, 0]
+    assert int(none.target_present) == 0
+    assert none.target_mask.values.sum() == 0
+
+
+def test_target_in_gate_brightens_below_gate_is_invisible_above_gate_shadows():
+    with_target = render(target_scene(), seed=3)
+    without = render(target_scene(shape="none"), seed=3)
+    mask = with_target.target_mask.values[0].astype(bool)
+    assert mask.sum() > 20
+    a, b = with_target.expected.values[0], without.expected.values[0]
+    # in the gate: brighter inside the silhouette
+    assert a[0][mask].mean() > 2 * b[0][mask].mean()
+    # gate below the target: its shadow (clear water: little filling)
+    assert a[1][mask].mean() < 0.5 * b[1][mask].mean()
+    # gate above the target: untouched, to rounding
+    assert_allclose(a[2], b[2], rtol=1e-5, atol=1e-12)
+
+
+def test_same_seed_same_bytes_and_surface_depends_on_the_seed_only():
+    s = target_scene(save_surface=True, noise={"photons": 20})
+    a = render(s, seed=SampleSeed(root=5, point=0, realisation=2))
+    b = render(s, seed=SampleSeed(root=5, point=0, realisation=2))
+    for name in a.data_vars:
+        assert a[name].values.tobytes() == b[name].values.tobytes(), name
+    other_point = render(
+        target_scene(shape="none", save_surface=True, noise={"photons": 20}),
+        seed=SampleSeed(root=5, point=7, realisation=2),
+    )
+    assert a.surface_elevation.values.tobytes() == other_point.surface_elevation.values.tobytes()
+    assert a.image.values.tobytes() != other_point.image.values.tobytes()
+    other_realisation = render(s, seed=SampleSeed(root=5, point=0, realisation=3))
+    assert not np.array_equal(
+        a.surface_elevation.values, other_realisation.surface_elevation.values
+    )
+
+
+def test_image_is_poisson_around_expected():
+    s = target_scene(noise={"photons": 500})
+    ds = render(s, seed=11)
+    lam = ds.expected.values.astype(np.float64)
+    counts = ds.image.values.astype(np.float64)
+    assert np.all(counts == np.round(counts))
+    # Σ(n - λ) over N pixels has variance Σλ; allow 5 standard deviations.
+    assert abs((counts - lam).sum()) < 5 * np.sqrt(lam.sum())
+    # Σ((n - λ)² - λ) has variance Σ(2λ² + λ) for Poisson counts.
+    residual = ((counts - lam) ** 2 - lam).sum()
+    assert abs(residual) < 5 * np.sqrt((2 * lam**2 + lam).sum())
+
+
+def test_photons_zero_means_image_equals_expected():
+    ds = render(target_scene(), seed=1)
+    assert ds.image.values.tobytes() == ds.expected.values.tobytes()
+    assert ds.image.attrs["units"] == "1"
+
+
+def test_dataset_layout_and_metadata():
+    ds = render(target_scene(save_surface=True, sequence={"frames": 2}), seed=1)
+    assert ds.image.dims == ("frame", "gate", "y", "x")
+    assert ds.image.shape == (2, 3, 32, 32)
+    assert ds.expected.dtype == np.float32 and ds.target_mask.dtype == np.uint8
+    assert ds.target_mask.dims == ("frame", "y", "x")
+    assert ds.target_visibility.dims == ("gate",)
+    assert ds.surface_elevation.dims == ("frame", "sy", "sx")
+    assert_allclose(ds.sx.values[1] - ds.sx.values[0], 0.064)
+    assert_allclose(ds.gate_top.values, [4.0, 8.0, 1.0])
+    for name, variable in {**ds.data_vars, **ds.coords}.items():
+        assert "units" in variable.attrs and "long_name" in variable.attrs, name
+    assert np.isfinite(ds.expected.values).all()
+
+
+def test_default_scene_uses_the_mldc_gates():
+    ds = render(scene(), seed=1)
+    assert_allclose(ds.gate_top.values, np.array([12, 16, 20, 25, 35, 40]) * 0.3048)
+    assert_allclose(ds.gate_bottom.values, np.array([32, 36, 40, 40, 45, 50]) * 0.3048)
+
+
+def test_sequence_frames_evolve_and_the_platform_moves():
+    s = target_scene(
+        sequence={"frames": 3, "interval": 0.2, "velocity": [1.0, 0.0, 5.0]}, save_surface=True
+    )
+    ds = render(s, seed=4)
+    assert_allclose(ds.platform_z.values, [34.0, 35.0, 36.0])
+    assert_allclose(ds.platform_x.values, [0.0, 0.2, 0.4])
+    assert_allclose(ds.time.values, [0.0, 0.2, 0.4])
+    eta = ds.surface_elevation.values
+    assert not np.array_equal(eta[0], eta[1])
+    img = ds.expected.values
+    assert not np.array_equal(img[0], img[1]) and not np.array_equal(img[1], img[2])
+
+
+def test_a_rising_platform_sees_the_divergent_beam_weaken():
+    # Example 1 of the paper: the helicopter climbs; the beam's power is fixed, so the
+    # irradiance on the water falls with range (the pinhole keeps radiance per pixel).
+    flat = dict(FLAT_DISK, laser={"beam": "divergent"})
+    s = scene(
+        **flat,
+        target={"shape": "disk", "radius": 30.0, "depth": 3.0, "reflectance": 1.0},
+        sequence={"frames": 2, "interval": 1.0, "velocity": [0.0, 0.0, 34.0]},
+    )
+    values = centre(render(s, seed=1).expected.values[:, 0])
+    H, d = 34.0, 3.0
+    ratio = ((H + d / N_WATER) / (2 * H + d / N_WATER)) ** 2
+    assert_allclose(values[1] / values[0], ratio, rtol=0.01)
+
+
+@pytest.mark.parametrize("nadir", [20.0, 45.0, 60.0], ids=lambda a: f"nadir{a:g}")
+def test_oblique_views_render_the_target_near_the_image_centre(nadir):
+    s = target_scene(platform={"nadir_deg": nadir, "azimuth_deg": 30.0})
+    ds = render(s, seed=2)
+    mask = ds.target_mask.values[0]
+    assert np.isfinite(ds.expected.values).all()
+    rows, cols = np.nonzero(mask)
+    assert rows.size > 5
+    assert abs(rows.mean() - 15.5) < 6 and abs(cols.mean() - 15.5) < 6
+
+
+def test_paper_shading_returns_about_three_times_lambert():
+    paper_scene = scene(
+        **ROUGH,
+        target={
+            "shape": "sphere",
+            "depth": 5.0,
+            "radius": 0.6,
+            "reflectance": 0.5,
+            "shading": "paper",
+        },
+        receiver={"gates": [[4.0, 7.0]]},
+    )
+    lambert_scene = paper_scene.model_copy(
+        update={"target": paper_scene.target.model_copy(update={"shading": "lambert"})}
+    )
+    paper, lambert = render(paper_scene, seed=2), render(lambert_scene, seed=2)
+    mask = paper.target_mask.values[0].astype(bool)
+    assert np.array_equal(mask, lambert.target_mask.values[0])
+    a, b = paper.expected.values[0, 0], lambert.expected.values[0, 0]
+    # outside the silhouette the two agree; inside, paper weights integrate to 2πr²
+    # (limb-brightened), lambert to (2/3)πr²: three times the return, blurred a little
+    far = ~mask
+    assert 2.0 < a[mask].sum() / b[mask].sum() < 4.0
+    assert a[far].sum() > b[far].sum() * 0.99

@@ -1,0 +1,505 @@
+"""Sensor geometry: camera, laser, footprint and the in-water planes of the renderer.
+
+The paper's pan/tilt pinhole camera, the laser's ray lattice, the footprint formula, and
+the in-water planes on which light is spread and gathered.
+
+World frame: x east, y north, z up, mean sea level z = 0. The platform (laser and receiver on
+a common boresight) sits at ``(X0, Y0, H)``; the central ray meets mean sea level at the
+world origin in the first frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = [
+    "LaserRays",
+    "Located",
+    "PinholeCamera",
+    "PlaneGrid",
+    "flat_sea_point",
+    "footprint_length",
+    "pan_tilt_rotation",
+]
+
+
+def footprint_length(*, altitude, field_of_view, nadir):
+    r"""Length of the sea-surface strip seen by a camera tilted by `nadir` (paper §4.2).
+
+    Parameters
+    ----------
+    altitude : float or array_like
+        Height h of the camera above mean sea level [m].
+    field_of_view : float or array_like
+        Full opening angle α of the field of view [rad].
+    nadir : float or array_like
+        Angle θ between the vertical and the central ray [rad].
+
+    Returns
+    -------
+    float or ndarray
+        The footprint length L1 [m].
+
+    Notes
+    -----
+    The paper's formula,
+
+    .. math:: L_1 = 2\left(-\frac{h}{\tan\alpha}
+              + h\sqrt{1 + \frac{1}{\tan^2\alpha} + \tan^2\theta}\right),
+
+    solves :math:`\alpha = \arctan\frac{L_1 - x}{h} + \arctan\frac{x}{h}` with
+    :math:`\tan\theta = (L_1/2 - x)/h`, i.e. it assumes the central ray bisects the
+    footprint. That holds at nadir (:math:`L_1 = 2h\tan(\alpha/2)`, exact) but not for a
+    perspective camera at oblique angles, where it underestimates the exact
+    :math:`h[\tan(\theta+\alpha/2) - \tan(\theta-\alpha/2)]` (by 2 % at 60°, α = 6.7°).
+    The simulator only uses it to size the laser square; rays are traced exactly.
+
+    References
+    ----------
+    Carmona, R., Cérou, F. & Blasco, B. (2000). Lidar imaging through the ocean surface,
+    §4.2 "Field of View".
+    """
+    cot = 1.0 / np.tan(field_of_view)
+    return 2.0 * altitude * (-cot + np.sqrt(1.0 + cot**2 + np.tan(nadir) ** 2))
+
+
+def pan_tilt_rotation(*, pan, tilt):
+    r"""The paper's rotation R taking world axes to camera axes (pan θ, then tilt α).
+
+    Parameters
+    ----------
+    pan : float
+        Pan angle θ between the camera x axis and the world X axis [rad].
+    tilt : float
+        Tilt angle α between the camera z axis and the world Z axis [rad].
+
+    Returns
+    -------
+    ndarray, shape (3, 3)
+        Rows are the camera x, y, z axes expressed in world coordinates.
+
+    Notes
+    -----
+    .. math::
+        R = \begin{bmatrix} \cos\theta & \sin\theta & 0 \\
+            -\sin\theta\cos\alpha & \cos\theta\cos\alpha & \sin\alpha \\
+            \sin\theta\sin\alpha & -\cos\theta\sin\alpha & \cos\alpha \end{bmatrix}
+
+    References
+    ----------
+    Carmona, Cérou & Blasco (2000), §4.2 "The camera model"; Gonzalez, R. C. & Woods, R. E.,
+    Digital Image Processing, §2.5 (camera model with gimbals).
+    """
+    ct, st, ca, sa = np.cos(pan), np.sin(pan), np.cos(tilt), np.sin(tilt)
+    return np.array(
+        [
+            [ct, st, 0.0],
+            [-st * ca, ct * ca, sa],
+            [st * sa, -ct * sa, ca],
+        ]
+    )
+
+
+@dataclass(frozen=True)
+class PinholeCamera:
+    """The paper's pinhole camera on pan/tilt gimbals, looking down at the sea.
+
+    Parameters
+    ----------
+    position : tuple of float
+        Lens centre (X0, Y0, Z0) in world coordinates [m].
+    nadir : float
+        Angle of the optical axis from the downward vertical [rad].
+    azimuth : float
+        Compass azimuth of the optical axis, clockwise from north (+y) [rad].
+    field_of_view : float
+        Full opening angle α across the image width [rad].
+    pixels : int
+        Pixels per side N.
+    focal_length : float, optional
+        λ [m]; it scales the image plane and cancels in every ray direction.
+
+    Notes
+    -----
+    Looking down at compass azimuth φ with nadir angle ϑ is the paper's gimbal with pan
+    θ = -φ and tilt α = π + ϑ: the camera z axis is then the line of sight, its x axis
+    points to the right of the image (east when φ = 0) and its y axis down the image
+    (towards the platform). Images are stored erect: row 0 is the far edge, column 0 the
+    left edge. The paper's formula gives the inverted sensor image (x, y) = -(column, row)
+    offsets; `project` returns it as written in the paper.
+    """
+
+    position: tuple[float, float, float]
+    nadir: float
+    azimuth: float
+    field_of_view: float
+    pixels: int
+    focal_length: float = 0.05
+
+    @property
+    def rotation(self):
+        """World-to-camera rotation R of the paper, shape (3, 3)."""
+        return pan_tilt_rotation(pan=-self.azimuth, tilt=np.pi + self.nadir)
+
+    @property
+    def pixel_pitch(self):
+        """Pixel size on the image plane [m]."""
+        return 2.0 * self.focal_length * np.tan(0.5 * self.field_of_view) / self.pixels
+
+    def project(self, points):
+        r"""Image-plane coordinates of world points, :math:`\mathcal{C} = P R G \mathcal{W}`.
+
+        Parameters
+        ----------
+        points : array_like, shape (..., 3)
+            World points [m].
+
+        Returns
+        -------
+        x, y : ndarray
+            Image-plane coordinates [m] (the inverted sensor image of the paper).
+        """
+        lam = self.focal_length
+        R = self.rotation
+        image_centre = np.asarray(self.position) - lam * R[2]
+        G = np.eye(4)
+        G[:3, 3] = -image_centre
+        P = np.eye(4)
+        P[3, 2] = -1.0 / lam
+        R4 = np.eye(4)
+        R4[:3, :3] = R
+        pts = np.asarray(points, dtype=float)
+        homogeneous = np.concatenate([pts, np.ones((*pts.shape[:-1], 1))], axis=-1)
+        c = homogeneous @ (P @ R4 @ G).T
+        return lam * c[..., 0] / (lam * c[..., 3]), lam * c[..., 1] / (lam * c[..., 3])
+
+    def pixel_of(self, x, y):
+        """Fractional (row, column) of the erect image for image-plane coordinates (x, y)."""
+        half = 0.5 * self.pixels - 0.5
+        return -np.asarray(y) / self.pixel_pitch + half, -np.asarray(x) / self.pixel_pitch + half
+
+    def pixel_directions(self):
+        """Unit world directions of the pixel-centre rays, shape (N, N, 3), float64."""
+        offsets = (np.arange(self.pixels) + 0.5 - 0.5 * self.pixels) * (
+            self.pixel_pitch / self.focal_length
+        )
+        return _lattice_directions(self.rotation, offsets)
+
+
+def _lattice_directions(rotation, offsets):
+    """Unit world directions R^T (u, v, 1)/|.| for a square lattice of tangents (u, v)."""
+    u = offsets[np.newaxis, :]
+    v = offsets[:, np.newaxis]
+    camera = np.stack(np.broadcast_arrays(u, v, np.ones_like(u * v)), axis=-1)
+    camera /= np.linalg.norm(camera, axis=-1, keepdims=True)
+    return camera @ rotation
+
+
+@dataclass(frozen=True)
+class LaserRays:
+    """A square lattice of laser rays with the paper's Gaussian profile.
+
+    Attributes
+    ----------
+    origins : ndarray, shape (n, 3)
+        Ray origins [m].
+    directions : ndarray, shape (n, 3)
+        Unit propagation directions.
+    power : ndarray, shape (n,)
+        Power carried by each ray, in units of J·m² (J = 1: the irradiance on the beam
+        cross-section at the reference range).
+    """
+
+    origins: np.ndarray
+    directions: np.ndarray
+    power: np.ndarray
+    rays: int
+
+    def central(self):
+        """``(origins, directions)`` of the central ray and its right and lower neighbours."""
+        n = self.rays
+        index = [n // 2 * n + n // 2, n // 2 * n + n // 2 + 1, (n // 2 + 1) * n + n // 2]
+        return self.origins[index].astype(float), self.directions[index].astype(float)
+
+    @classmethod
+    def from_platform(cls, *, position, rotation, beam, field_of_view, rays, reference_range):
+        r"""Build the lattice for a laser on the platform.
+
+        Parameters
+        ----------
+        position : array_like, shape (3,)
+            Laser position [m].
+        rotation : ndarray, shape (3, 3)
+            World-to-boresight rotation (the camera's); the beam axis is its third row.
+        beam : {'divergent', 'parallel'}
+            Rays fan out from `position`, or run parallel to the axis.
+        field_of_view : float
+            Full opening of the illuminated square [rad].
+        rays : int
+            Rays per side.
+        reference_range : float
+            Range along the axis at which the beam cross-section has irradiance
+            :math:`J e^{-r^2/a^2}` with J = 1 [m].
+
+        Notes
+        -----
+        :math:`I_0 = J e^{-r^2/a^2}` (paper §4.1), r the distance from the axis in a plane
+        across the beam, a its value at the middle of the field's edge (the paper takes
+        :math:`0 \le r/a \le 1` over the field). Rays sample the square field on a lattice
+        uniform in the tangent plane, so at the reference range each carries the power of
+        an equal cross-section cell. A divergent beam's irradiance then falls as the inverse
+        square of range, and refraction and the sea surface redistribute it.
+        """
+        half = np.tan(0.5 * field_of_view)
+        step = 2.0 * half / rays
+        offsets = (np.arange(rays) + 0.5 - 0.5 * rays) * step
+        u, v = np.meshgrid(offsets, offsets)
+        profile = np.exp(-(u**2 + v**2) / half**2).ravel()
+        power = profile * (reference_range * step) ** 2
+        position = np.asarray(position, dtype=float)
+        if beam == "divergent":
+            directions = _lattice_directions(rotation, offsets).reshape(-1, 3)
+            origins = np.broadcast_to(position, directions.shape)
+        else:
+            directions = np.broadcast_to(rotation[2], (rays * rays, 3))
+            lateral = np.stack([u.ravel(), v.ravel()], axis=-1) @ rotation[:2]
+            origins = position + reference_range * lateral
+        return cls(origins=origins, directions=directions, power=power, rays=rays)
+
+
+def flat_sea_point(*, origin, direction, depth, refractive_index):
+    """Where a ray from the air reaches `depth` after refraction by a flat sea.
+
+    Parameters
+    ----------
+    origin : array_like, shape (..., 3)
+        Ray origins above the sea [m].
+    direction : array_like, shape (..., 3)
+        Unit directions, pointing down.
+    depth : float
+        Depth of the horizontal plane [m].
+    refractive_index : float
+        Refractive index of the water [1].
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        The point on the plane z = -depth [m].
+    """
+    origin = np.asarray(origin, dtype=float)
+    direction = np.asarray(direction, dtype=float)
+    at_surface = origin - origin[..., 2:3] / direction[..., 2:3] * direction
+    horizontal = direction[..., :2]
+    sin_air = np.linalg.norm(horizontal, axis=-1, keepdims=True)
+    sin_water = sin_air / refractive_index
+    tan_water = sin_water / np.sqrt(1.0 - sin_water**2)
+    unit = np.divide(horizontal, sin_air, out=np.zeros_like(horizontal), where=sin_air > 0)
+    xy = at_surface[..., :2] + depth * tan_water * unit
+    return np.concatenate([xy, np.full((*xy.shape[:-1], 1), -depth)], axis=-1)
+
+
+class Located(NamedTuple):
+    """Points located on a `PlaneGrid`: lower-left cell (flat index), fractions, validity."""
+
+    index: np.ndarray
+    row: np.ndarray
+    col: np.ndarray
+    valid: np.ndarray
+
+
+def _fast_length(n):
+    """Smallest even 5-smooth integer >= n (a fast FFT length)."""
+    m = max(int(n), 2)
+    while True:
+        k = m
+        for p in (2, 3, 5):
+            while k % p == 0:
+                k //= p
+        if k == 1 and m % 2 == 0:
+            return m
+        m += 1
+
+
+@dataclass(frozen=True)
+class PlaneGrid:
+    """A horizontal plane at a depth, gridded along the image axes, where light is spread.
+
+    The grid's u axis is the image's right (horizontal), its v axis the horizontal
+    direction towards the platform (down the image). Cell (row, col) has its centre at
+    ``origin + col·spacing_u·axis_u + row·spacing_v·axis_v``.
+
+    Attributes
+    ----------
+    depth : float
+        Depth of the plane [m].
+    origin : tuple of float
+        World (x, y) of the centre of cell (0, 0) [m].
+    axis_u, axis_v : tuple of float
+        Horizontal unit vectors of the columns and rows.
+    spacing_u, spacing_v : float
+        Cell sizes [m].
+    shape : tuple of int
+        (rows, columns), both even fast FFT lengths.
+    """
+
+    depth: float
+    origin: tuple[float, float]
+    axis_u: tuple[float, float]
+    axis_v: tuple[float, float]
+    spacing_u: float
+    spacing_v: float
+    shape: tuple[int, int]
+
+    @classmethod
+    def covering(cls, *, camera, lattice, depth, refractive_index, guard):
+        """The grid that covers the camera's flat-sea footprint at `depth`.
+
+        Parameters
+        ----------
+        camera : PinholeCamera
+            The receiver; the grid covers where its pixels' rays reach `depth` under a
+            flat sea, and its columns run along the image's right.
+        lattice : tuple of ndarray
+            ``(origins, directions)``, each (3, 3): three neighbouring laser rays, the
+            central one, the next to its right and the next below. Cells are sized so
+            that, under a flat sea, the laser lattice lands one ray per cell at the
+            image centre: bilinear splatting then makes no moiré.
+        depth : float
+            Depth of the plane [m].
+        refractive_index : float
+            Refractive index of the water [1].
+        guard : float
+            Guard band on every side, as a fraction of the image size, so that light
+            spread by scattering does not wrap around the periodic FFT convolution.
+        """
+        rotation = camera.rotation
+        axis_u = rotation[0, :2] / np.linalg.norm(rotation[0, :2])
+        axis_v = np.array([axis_u[1], -axis_u[0]])
+        rays = camera.pixel_directions()
+        edge = np.concatenate([rays[0], rays[-1], rays[:, 0], rays[:, -1]])
+        points = flat_sea_point(
+            origin=np.asarray(camera.position, dtype=float),
+            direction=edge,
+            depth=depth,
+            refractive_index=refractive_index,
+        )[:, :2]
+        centre, right, below = flat_sea_point(
+            origin=lattice[0], direction=lattice[1], depth=depth, refractive_index=refractive_index
+        )[:, :2]
+        spacing_u = float(np.dot(right - centre, axis_u))
+        spacing_v = float(np.dot(below - centre, axis_v))
+        su = (points - centre) @ axis_u / spacing_u
+        sv = (points - centre) @ axis_v / spacing_v
+        pad = max(4.0, guard * camera.pixels)
+        cols = _fast_length(np.ceil(su.max() - su.min()) + 2 * pad)
+        rows = _fast_length(np.ceil(sv.max() - sv.min()) + 2 * pad)
+        first_u = 0.5 * (su.max() + su.min()) - 0.5 * (cols - 1)
+        first_v = 0.5 * (sv.max() + sv.min()) - 0.5 * (rows - 1)
+        corner = centre + first_u * spacing_u * axis_u + first_v * spacing_v * axis_v
+        return cls(
+            depth=float(depth),
+            origin=(float(corner[0]), float(corner[1])),
+            axis_u=(float(axis_u[0]), float(axis_u[1])),
+            axis_v=(float(axis_v[0]), float(axis_v[1])),
+            spacing_u=spacing_u,
+            spacing_v=spacing_v,
+            shape=(rows, cols),
+        )
+
+    def cell_coordinates(self, x, y):
+        """Fractional (row, col) of world points (x, y) [m]; float32."""
+        dx = np.asarray(x, dtype=np.float32) - np.float32(self.origin[0])
+        dy = np.asarray(y, dtype=np.float32) - np.float32(self.origin[1])
+        col = (dx * np.float32(self.axis_u[0]) + dy * np.float32(self.axis_u[1])) / np.float32(
+            self.spacing_u
+        )
+        row = (dx * np.float32(self.axis_v[0]) + dy * np.float32(self.axis_v[1])) / np.float32(
+            self.spacing_v
+        )
+        return row, col
+
+    def cell_centres(self):
+        """World (x, y) of every cell centre, each of shape `shape` [m]."""
+        rows, cols = self.shape
+        c = np.arange(cols) * self.spacing_u
+        r = np.arange(rows) * self.spacing_v
+        x = self.origin[0] + c[np.newaxis, :] * self.axis_u[0] + r[:, np.newaxis] * self.axis_v[0]
+        y = self.origin[1] + c[np.newaxis, :] * self.axis_u[1] + r[:, np.newaxis] * self.axis_v[1]
+        return x, y
+
+    def locate(self, x, y):
+        """Cells and bilinear fractions of world points, for `splat` and `gather`.
+
+        Parameters
+        ----------
+        x, y : ndarray
+            World positions on the plane [m].
+
+        Returns
+        -------
+        Located
+            Reusable for every splat and gather at these points.
+        """
+        rows, cols = self.shape
+        row, col = self.cell_coordinates(x, y)
+        r0 = np.floor(row)
+        c0 = np.floor(col)
+        valid = (r0 >= 0) & (r0 < rows - 1) & (c0 >= 0) & (c0 < cols - 1)
+        index = np.where(valid, r0 * cols + c0, 0).astype(np.intp)
+        return Located(index=index, row=row - r0, col=col - c0, valid=valid)
+
+    def splat(self, located, power):
+        """Spread point powers bilinearly onto the cells: an irradiance map.
+
+        Parameters
+        ----------
+        located : Located
+            Where the rays cross the plane (`locate`).
+        power : ndarray
+            Power of each ray.
+
+        Returns
+        -------
+        ndarray, shape `shape`, float32
+            Power per unit horizontal area. Rays outside the grid are dropped.
+        """
+        rows, cols = self.shape
+        n = located.index.size
+        w = np.where(located.valid, power, 0.0) * (1.0 / (self.spacing_u * self.spacing_v))
+        right = w * located.col
+        left = w - right
+        index = np.empty((4, n), dtype=np.intp)
+        index[0] = located.index
+        np.add(located.index, 1, out=index[1])
+        np.add(located.index, cols, out=index[2])
+        np.add(located.index, cols + 1, out=index[3])
+        weight = np.empty((4, n), dtype=np.float64)
+        np.multiply(left, located.row, out=weight[2])
+        np.subtract(left, weight[2], out=weight[0])
+        np.multiply(right, located.row, out=weight[3])
+        np.subtract(right, weight[3], out=weight[1])
+        total = np.bincount(index.ravel(), weights=weight.ravel(), minlength=rows * cols)
+        return total.astype(np.float32).reshape(rows, cols)
+
+    def gather(self, field, located):
+        """Bilinear interpolation of a cell field at located points (0 outside the grid)."""
+        cols = self.shape[1]
+        flat = field.ravel()
+        i = located.index
+        top = flat[i]
+        top += (flat[i + 1] - top) * located.col
+        bottom = flat[i + cols]
+        bottom += (flat[i + cols + 1] - bottom) * located.col
+        top += (bottom - top) * located.row
+        top[~located.valid] = 0.0
+        return top
+
+    def frequency(self):
+        """Spatial-frequency magnitude on the rfft2 grid of the cells [cycles/m]."""
+        rows, cols = self.shape
+        fv = np.fft.fftfreq(rows, d=self.spacing_v)
+        fu = np.fft.rfftfreq(cols, d=self.spacing_u)
+        return np.hypot(fv[:, np.newaxis], fu[np.newaxis, :])

@@ -1,0 +1,616 @@
+"""Render one sample: a sea-surface realisation seen by the gated receivers.
+
+`render` is the seam between the physics and the service: it returns one sample as an
+`xarray.Dataset` holding exactly the variables of one ``sample`` of the store
+(``../shared/DESIGN.md`` §4), without the ``sample`` dimension.
+
+The image-formation model (DESIGN §3.5), per frame:
+
+1. Laser rays and pixel rays are intersected with the real surface, refracted (Snell) and
+   weighted by the Fresnel transmittance.
+2. Each gate is a slab [top, bottom]. Its single-scattering water backscatter is an
+   effective Lambertian reflectance on a reference plane at the slab's centroid depth.
+   Laser rays are splatted where they cross that plane (each with the attenuation of its
+   extra slant path), convolved with the Wells point-spread function twice (down, then up:
+   one product with MTF² in Fourier space), and gathered where each pixel's ray crosses
+   the plane, times the exit transmittance.
+3. The target is an impostor on the plane through its centre: downwelling irradiance there
+   (one MTF) times its reflectance map, restricted to the part of the target inside the
+   gate, spread up (one MTF) and gathered.
+4. Where a ray or a pixel's line of sight meets the target, the water behind the target is
+   neither lit nor seen: the slab's backscatter is reduced by the fraction lying behind the
+   target's surface, half on the way down and half on the way up (square roots), which is
+   exact without scattering and gives a full shadow when the target is above the gate.
+5. Images are scaled so that a ρ = 1 Lambertian plane just under a flat sea at nadir gives
+   `noise.photons` counts, then Poisson shot noise is drawn.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.fft
+import xarray as xr
+
+from workers import spectra
+from workers.geometry import LaserRays, PinholeCamera, PlaneGrid, flat_sea_point
+from workers.noise import shot_noise
+from workers.optics import fresnel_reflectance, refract
+from workers.scene import Scene
+from workers.seeds import SampleSeed
+from workers.surface import synthesize
+from workers.target import Impostor
+from workers.water import (
+    WaterOptics,
+    slab_backscatter_centroid,
+    slab_backscatter_reflectance,
+)
+
+__all__ = ["render"]
+
+GUARD = 0.125
+"""Guard band added on each side of an in-water plane, as a fraction of the image size."""
+
+SURFACE_ITERATIONS = 8
+"""Most fixed-point refinements of each ray's hit on the wavy surface (start at z = 0)."""
+
+SURFACE_TOLERANCE = 1e-3
+"""Height change [m] below which the surface hit has converged (1 mm)."""
+
+VISIBILITY = {"none": 0, "in_gate": 1, "shadow": 2, "below_gate": 3}
+
+
+def render(scene: Scene, *, seed: int | SampleSeed) -> xr.Dataset:
+    """Render one sample: six (or however many) gated images per frame.
+
+    Parameters
+    ----------
+    scene : Scene
+        All parameters of the sample.
+    seed : int or SampleSeed
+        An int is the root seed of a lone sample (point 0, realisation 0). The surface
+        depends on ``(root, realisation)`` only, the noise on ``(root, point,
+        realisation)``.
+
+    Returns
+    -------
+    xarray.Dataset
+        ``image`` and ``expected`` (frame, gate, y, x), ``target_mask`` (frame, y, x),
+        ``target_present`` (), ``target_visibility`` (gate), coordinates ``gate_top``,
+        ``gate_bottom`` (gate), ``time`` and the platform position (frame), and
+        ``surface_elevation`` (frame, sy, sx) when ``scene.save_surface`` is set.
+    """
+    if not isinstance(seed, SampleSeed):
+        seed = SampleSeed(root=int(seed))
+    key = scene.model_dump_json()
+    setup = _setup(key)
+    frames = scene.sequence.frames
+    times = np.arange(frames) * scene.sequence.interval
+    surface = None
+    if setup.spectrum is not None:
+        surface = synthesize(
+            setup.spectrum,
+            grid_size=scene.surface.grid_size,
+            spacing=scene.surface.spacing,
+            rng=seed.surface_rng(),
+            times=tuple(times),
+            max_elevation=scene.surface.max_elevation,
+        )
+    expected = []
+    masks = []
+    for frame in range(frames):
+        geometry = _frame_geometry(key, frame)
+        signal, mask = _render_frame(setup, geometry, surface, frame)
+        expected.append(signal)
+        masks.append(mask)
+    expected = np.stack(expected)
+    noise = scene.noise
+    if noise.photons > 0:
+        image = shot_noise(
+            expected, rng=seed.noise_rng(), gain=noise.gain, excess_noise=noise.excess_noise
+        )
+    else:
+        image = expected.copy()
+    return _dataset(scene, setup, times, expected, image, np.stack(masks), surface)
+
+
+@dataclass(frozen=True)
+class _Setup:
+    """What every frame of every sample of a scene shares."""
+
+    scene: Scene
+    water: WaterOptics
+    spectrum: object
+    gates: tuple[tuple[float, float], ...]
+    reference_depths: tuple[float, ...]
+    reflectances: tuple[float, ...]
+    scale: float
+    refracted_nadir: float
+    visibility: tuple[int, ...]
+
+
+@functools.lru_cache(maxsize=32)
+def _setup(key: str) -> _Setup:
+    scene = Scene.model_validate_json(key)
+    w = scene.water
+    coefficients = w.coefficients
+    coefficients.update(
+        phase_function=w.phase_function, theta0=w.theta0, refractive_index=w.refractive_index
+    )
+    water = WaterOptics(**coefficients)
+    gates = scene.receiver.gate_depths
+    K = water.diffuse_attenuation
+    references = tuple(
+        slab_backscatter_centroid(diffuse_attenuation=K, top=top, bottom=bottom)
+        for top, bottom in gates
+    )
+    reflectances = tuple(
+        slab_backscatter_reflectance(
+            backscatter_pi=water.backscatter_pi,
+            diffuse_attenuation=K,
+            top=top,
+            bottom=bottom,
+            reference=reference,
+        )
+        for (top, bottom), reference in zip(gates, references, strict=True)
+    )
+    t0 = 1.0 - float(fresnel_reflectance(1.0, n1=1.0, n2=w.refractive_index))
+    photons = scene.noise.photons
+    scale = (photons if photons > 0 else 1.0) / t0**2
+    refracted_nadir = float(
+        np.arcsin(np.sin(np.radians(scene.platform.nadir_deg)) / w.refractive_index)
+    )
+    return _Setup(
+        scene=scene,
+        water=water,
+        spectrum=_spectrum(scene),
+        gates=gates,
+        reference_depths=references,
+        reflectances=reflectances,
+        scale=scale,
+        refracted_nadir=refracted_nadir,
+        visibility=tuple(_visibility(scene, top, bottom) for top, bottom in gates),
+    )
+
+
+def _spectrum(scene: Scene):
+    s = scene.surface
+    common = {"wind_speed": s.wind_speed, "wind_direction": np.radians(s.wind_direction_deg)}
+    if s.spectrum == "flat":
+        return None
+    if s.spectrum == "elfouhaily":
+        return spectra.Elfouhaily(**common, inverse_wave_age=s.inverse_wave_age)
+    if s.spectrum == "phillips":
+        return spectra.Phillips(**common)
+    if s.spectrum == "pierson_moskowitz":
+        return spectra.PiersonMoskowitz(**common)
+    return spectra.Jonswap(**common, fetch=s.fetch)
+
+
+def _target_extent(scene: Scene):
+    t = scene.target
+    if t.shape == "sphere":
+        return t.depth - t.radius, t.depth + t.radius
+    return t.depth, t.depth
+
+
+def _visibility(scene: Scene, top: float, bottom: float) -> int:
+    if scene.target.shape == "none":
+        return VISIBILITY["none"]
+    upper, lower = _target_extent(scene)
+    if lower < top:
+        return VISIBILITY["shadow"]
+    if upper > bottom:
+        return VISIBILITY["below_gate"]
+    return VISIBILITY["in_gate"]
+
+
+@dataclass(frozen=True)
+class _Plane:
+    """An in-water plane with its Fourier filter and, for gates, the target's occlusion.
+
+    `filter` is the whole round trip for a gate plane (reflectance × MTF², down and up) and
+    one way (MTF) for the target plane. Where the target hides part of a gate's water,
+    `hiding` names the slab whose backscatter rays lose behind the target (gates the
+    target shadows whole share the key ``"shadow"``, so one computation per sample), and
+    `occlusion` (on this plane's grid) is the square root of the fraction not hidden, seen
+    back through the upwelling point-spread function.
+    """
+
+    grid: PlaneGrid
+    depth: float
+    filter: np.ndarray
+    hiding: tuple | None = None
+    occlusion: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class _FrameGeometry:
+    """Geometry of one frame: sensor rays, planes, filters and the target impostor."""
+
+    position: np.ndarray
+    pixel_origin: np.ndarray
+    pixel_directions: np.ndarray
+    laser: LaserRays
+    monostatic: bool
+    gate_planes: tuple[_Plane, ...]
+    target_plane: _Plane | None
+    impostor: Impostor | None
+    target_masks: tuple[np.ndarray | None, ...]
+
+
+def _platform_position(scene: Scene, time: float) -> np.ndarray:
+    p = scene.platform
+    nadir, azimuth = np.radians(p.nadir_deg), np.radians(p.azimuth_deg)
+    reach = p.altitude * np.tan(nadir)
+    start = np.array([-reach * np.sin(azimuth), -reach * np.cos(azimuth), p.altitude])
+    return start + time * np.asarray(scene.sequence.velocity, dtype=float)
+
+
+@functools.lru_cache(maxsize=64)
+def _frame_geometry(key: str, frame: int) -> _FrameGeometry:
+    setup = _setup(key)
+    scene = setup.scene
+    p, r, n_w = scene.platform, scene.receiver, scene.water.refractive_index
+    position = _platform_position(scene, frame * scene.sequence.interval)
+    camera = PinholeCamera(
+        position=tuple(position),
+        nadir=np.radians(p.nadir_deg),
+        azimuth=np.radians(p.azimuth_deg),
+        field_of_view=np.radians(r.field_of_view_deg),
+        pixels=r.pixels,
+    )
+    laser_fov = np.radians(scene.laser.field_of_view_deg or r.field_of_view_deg)
+    rays = scene.laser.rays or max(
+        8, round(r.pixels * np.tan(0.5 * laser_fov) / np.tan(0.5 * camera.field_of_view))
+    )
+    reference_range = p.altitude / np.cos(np.radians(p.nadir_deg))
+    laser = LaserRays.from_platform(
+        position=position,
+        rotation=camera.rotation,
+        beam=scene.laser.beam,
+        field_of_view=laser_fov,
+        rays=rays,
+        reference_range=reference_range,
+    )
+    lattice = laser.central()
+    laser = LaserRays(
+        origins=np.ascontiguousarray(laser.origins, dtype=np.float32),
+        directions=np.ascontiguousarray(laser.directions, dtype=np.float32),
+        power=laser.power.astype(np.float32),
+        rays=rays,
+    )
+    # The default laser (divergent, the receiver's field, one ray per pixel) shares the
+    # pixels' lattice of directions: its rays are the pixels' lines of sight, traced once.
+    monostatic = bool(
+        scene.laser.beam == "divergent" and rays == r.pixels and laser_fov == camera.field_of_view
+    )
+    water = setup.water
+
+    def grid_and_mtf(depth):
+        grid = PlaneGrid.covering(
+            camera=camera, lattice=lattice, depth=depth, refractive_index=n_w, guard=GUARD
+        )
+        return grid, water.mtf(grid.frequency(), distance=depth).astype(np.float32)
+
+    def gate_filter(reflectance, mtf):
+        return (np.float32(reflectance) * mtf * mtf).astype(np.float32)
+
+    t = scene.target
+    pixel_directions = camera.pixel_directions().reshape(-1, 3).astype(np.float32)
+    if t.shape == "none":
+        gate_planes = []
+        for depth, reflectance in zip(setup.reference_depths, setup.reflectances, strict=True):
+            grid, mtf = grid_and_mtf(depth)
+            gate_planes.append(
+                _Plane(grid=grid, depth=depth, filter=gate_filter(reflectance, mtf))
+            )
+        return _FrameGeometry(
+            position=position,
+            pixel_origin=position.astype(np.float32),
+            pixel_directions=pixel_directions,
+            laser=laser,
+            monostatic=monostatic,
+            gate_planes=tuple(gate_planes),
+            target_plane=None,
+            impostor=None,
+            target_masks=(None,) * len(setup.gates),
+        )
+    grid, mtf = grid_and_mtf(t.depth)
+    target_plane = _Plane(grid=grid, depth=t.depth, filter=mtf)
+    if t.x is None or t.y is None:
+        centre = flat_sea_point(
+            origin=_platform_position(scene, 0.0),
+            direction=camera.rotation[2],
+            depth=t.depth,
+            refractive_index=n_w,
+        )[:2]
+    else:
+        centre = (t.x, t.y)
+    impostor = Impostor.build(
+        grid=target_plane.grid,
+        shape=t.shape,
+        centre=(float(centre[0]), float(centre[1])),
+        radius=t.radius,
+        reflectance=t.reflectance,
+        shading=t.shading,
+        refracted_nadir=setup.refracted_nadir,
+    )
+    gate_planes = []
+    for (top, bottom), depth, reflectance, visibility in zip(
+        setup.gates, setup.reference_depths, setup.reflectances, setup.visibility, strict=True
+    ):
+        grid, mtf = grid_and_mtf(depth)
+        if visibility == VISIBILITY["below_gate"]:
+            gate_planes.append(
+                _Plane(grid=grid, depth=depth, filter=gate_filter(reflectance, mtf))
+            )
+            continue
+        hide = functools.partial(
+            _hidden_fraction, top=top, bottom=bottom, diffuse_attenuation=water.diffuse_attenuation
+        )
+        # The line of sight through a gate-plane cell crossed the target plane nearer the
+        # platform, by the depth difference times the tangent of the in-water angle.
+        x, y = grid.cell_centres()
+        back = (depth - t.depth) * np.tan(setup.refracted_nadir)
+        located = target_plane.grid.locate(x + back * grid.axis_v[0], y + back * grid.axis_v[1])
+        hidden = hide(
+            target_plane.grid.gather(impostor.surface_depth, located),
+            target_plane.grid.gather(impostor.occupancy, located),
+        )
+        occlusion = _convolve(np.sqrt(1.0 - hidden), mtf / mtf[0, 0])
+        gate_planes.append(
+            _Plane(
+                grid=grid,
+                depth=depth,
+                filter=gate_filter(reflectance, mtf),
+                hiding=("shadow",) if visibility == VISIBILITY["shadow"] else (top, bottom),
+                occlusion=occlusion.astype(np.float32),
+            )
+        )
+    # Reflectance of the part of the target inside each gate; gates that cut the target the
+    # same way share one array (and so one convolution per sample).
+    masks, by_span = [], {}
+    for top, bottom in setup.gates:
+        span = (max(top, impostor.top), min(bottom, impostor.bottom))
+        if span not in by_span:
+            inside = (impostor.surface_depth >= top) & (impostor.surface_depth <= bottom)
+            weight = np.where(inside, impostor.weight, 0.0).astype(np.float32)
+            by_span[span] = weight if weight.any() else None
+        masks.append(by_span[span])
+    return _FrameGeometry(
+        position=position,
+        pixel_origin=position.astype(np.float32),
+        pixel_directions=pixel_directions,
+        laser=laser,
+        monostatic=monostatic,
+        gate_planes=tuple(gate_planes),
+        target_plane=target_plane,
+        impostor=impostor,
+        target_masks=tuple(masks),
+    )
+
+
+@dataclass(frozen=True)
+class _Transmitted:
+    """Rays after the surface: entry point, in-water slopes, Fresnel transmittance."""
+
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    tan_x: np.ndarray
+    tan_y: np.ndarray
+    secant: np.ndarray
+    transmittance: np.ndarray
+
+    def at_depth(self, depth: float, diffuse_attenuation: float):
+        """Where the rays cross the plane at `depth`, and their extra-path attenuation.
+
+        The MTF of a plane at depth z already attenuates by exp(-Kz); a ray entering at
+        height η with angle ϑ from the vertical travels (z + η)/cos ϑ, so it is further
+        attenuated by exp(-K((z + η)/cos ϑ - z)).
+        """
+        drop = self.z + np.float32(depth)
+        x = self.x + drop * self.tan_x
+        y = self.y + drop * self.tan_y
+        extra = np.exp(np.float32(-diffuse_attenuation) * (drop * self.secant - np.float32(depth)))
+        return x, y, extra
+
+
+def _through_surface(origin, direction, surface, frame, refractive_index):
+    """Intersect rays with the surface, refract them and get their Fresnel transmittance.
+
+    Rays meeting a facet that faces away from them, and rays the surface would send back
+    up, transmit nothing.
+    """
+    ox, oy, oz = (origin[..., i] for i in range(3))
+    dx, dy, dz = (direction[..., i] for i in range(3))
+    travel = -oz / dz
+    if surface is None:
+        eta = np.zeros_like(travel)
+        sx = sy = eta
+    else:
+        # Fixed-point iteration from z = 0; it contracts by |slope · tan(view)| per step.
+        # Slopes are sampled with the last step: within the tolerance of the converged hit.
+        eta = surface.elevation_at(ox + travel * dx, oy + travel * dy, frame)
+        for _ in range(SURFACE_ITERATIONS):
+            update = (eta - oz) / dz
+            eta, sx, sy = surface.sample(ox + update * dx, oy + update * dy, frame)
+            converged = np.max(np.abs((update - travel) * dz)) < SURFACE_TOLERANCE
+            travel = update
+            if converged:
+                break
+    normal = np.stack([-sx, -sy, np.ones_like(eta)], axis=-1)
+    normal /= np.sqrt(1.0 + sx * sx + sy * sy)[:, np.newaxis]
+    cos_incidence = -(dx * normal[:, 0] + dy * normal[:, 1] + dz * normal[:, 2])
+    transmitted, _ = refract(
+        np.broadcast_to(direction, normal.shape), normal, n1=1.0, n2=refractive_index
+    )
+    down = -transmitted[:, 2]
+    facing = (cos_incidence > 0) & (down > 0)
+    transmittance = 1.0 - fresnel_reflectance(
+        np.clip(cos_incidence, 0.0, 1.0), n1=1.0, n2=refractive_index
+    )
+    secant = np.where(facing, 1.0 / np.where(facing, down, 1.0), 1.0).astype(np.float32)
+    return _Transmitted(
+        x=(ox + travel * dx).astype(np.float32),
+        y=(oy + travel * dy).astype(np.float32),
+        z=eta.astype(np.float32),
+        tan_x=np.where(facing, transmitted[:, 0] * secant, 0.0).astype(np.float32),
+        tan_y=np.where(facing, transmitted[:, 1] * secant, 0.0).astype(np.float32),
+        secant=secant,
+        transmittance=np.where(facing, transmittance, 0.0).astype(np.float32),
+    )
+
+
+def _hidden_fraction(surface_depth, occupancy, *, top, bottom, diffuse_attenuation):
+    """Fraction of a slab's backscatter lying behind the target along each line."""
+    K2 = 2.0 * diffuse_attenuation
+    behind_top = np.clip(surface_depth, top, bottom)
+    if K2 * (bottom - top) < 1e-6:
+        fraction = (bottom - behind_top) / (bottom - top)
+    else:
+        total = np.expm1(-K2 * (bottom - top))
+        fraction = np.expm1(-K2 * (bottom - behind_top)) / total * np.exp(-K2 * (behind_top - top))
+    return (occupancy * fraction).astype(np.float32)
+
+
+def _convolve(field, kernel):
+    """Periodic convolution: the field times a filter given on its rfft2 grid."""
+    return scipy.fft.irfft2(scipy.fft.rfft2(field) * kernel, s=field.shape)
+
+
+def _render_frame(setup: _Setup, geometry: _FrameGeometry, surface, frame: int):
+    n_w = setup.water.refractive_index
+    K = setup.water.diffuse_attenuation
+    laser = geometry.laser
+    down = _through_surface(laser.origins, laser.directions, surface, frame, n_w)
+    if geometry.monostatic:
+        up = down
+    else:
+        up = _through_surface(
+            geometry.pixel_origin, geometry.pixel_directions, surface, frame, n_w
+        )
+    power = laser.power * down.transmittance
+
+    def crossing(plane):
+        """Rays and lines of sight on a plane: (rays, sight, ray power, sight weight)."""
+        lx, ly, lextra = down.at_depth(plane.depth, K)
+        rays = plane.grid.locate(lx, ly)
+        if up is down:
+            return rays, rays, power * lextra, up.transmittance * lextra
+        px, py, pextra = up.at_depth(plane.depth, K)
+        return rays, plane.grid.locate(px, py), power * lextra, up.transmittance * pextra
+
+    pixels = setup.scene.receiver.pixels
+    images = np.zeros((len(setup.gates), pixels * pixels), dtype=np.float32)
+    mask = np.zeros(pixels * pixels, dtype=np.uint8)
+    impostor = geometry.impostor
+    if impostor is not None:
+        plane = geometry.target_plane
+        grid = plane.grid
+        rays, sight, ray_power, sight_weight = crossing(plane)
+        occupancy = grid.gather(impostor.occupancy, rays)
+        surface_depth = grid.gather(impostor.surface_depth, rays)
+        silhouette = occupancy if sight is rays else grid.gather(impostor.occupancy, sight)
+        mask = (silhouette > 0.5).astype(np.uint8)
+        irradiance = _convolve(grid.splat(rays, ray_power), plane.filter)
+        done = {}
+        for g, weights in enumerate(geometry.target_masks):
+            if weights is None:
+                continue
+            if id(weights) not in done:
+                radiance = _convolve(irradiance * weights, plane.filter)
+                done[id(weights)] = grid.gather(radiance, sight) * sight_weight
+            images[g] += done[id(weights)]
+    transmitted = {}
+    for g, plane in enumerate(geometry.gate_planes):
+        rays, sight, ray_power, sight_weight = crossing(plane)
+        if plane.hiding is not None:
+            if plane.hiding not in transmitted:
+                # rays lose the part of the slab behind the target (all of it, in its shadow)
+                hidden = occupancy
+                if plane.hiding != ("shadow",):
+                    top, bottom = plane.hiding
+                    hidden = _hidden_fraction(
+                        surface_depth, occupancy, top=top, bottom=bottom, diffuse_attenuation=K
+                    )
+                transmitted[plane.hiding] = np.sqrt(1.0 - hidden)
+            ray_power *= transmitted[plane.hiding]
+        radiance = _convolve(plane.grid.splat(rays, ray_power), plane.filter)
+        if plane.occlusion is not None:
+            radiance *= plane.occlusion
+        images[g] += plane.grid.gather(radiance, sight) * sight_weight
+    images *= np.float32(setup.scale)
+    return images.reshape(len(setup.gates), pixels, pixels), mask.reshape(pixels, pixels)
+
+
+def _dataset(scene, setup, times, expected, image, masks, surface):
+    gates = np.asarray(setup.gates)
+    position = np.stack([_platform_position(scene, t) for t in times])
+    unit_note = (
+        ("photoelectrons" if scene.noise.gain == 1.0 else "counts")
+        if scene.noise.photons > 0
+        else "1"
+    )
+    data_vars = {
+        "image": (
+            ("frame", "gate", "y", "x"),
+            image.astype(np.float32),
+            {"long_name": "gated receiver image with shot noise", "units": unit_note},
+        ),
+        "expected": (
+            ("frame", "gate", "y", "x"),
+            expected.astype(np.float32),
+            {
+                "long_name": "expected (noise-free) gated receiver image",
+                "units": "photoelectrons" if scene.noise.photons > 0 else "1",
+            },
+        ),
+        "target_mask": (
+            ("frame", "y", "x"),
+            masks.astype(np.uint8),
+            {"long_name": "pixel ray meets the target silhouette", "units": "1"},
+        ),
+        "target_present": (
+            (),
+            np.uint8(scene.target.shape != "none"),
+            {"long_name": "a target is in the scene", "units": "1"},
+        ),
+        "target_visibility": (
+            ("gate",),
+            np.asarray(setup.visibility, dtype=np.uint8),
+            {
+                "long_name": "target position relative to the gate",
+                "units": "1",
+                "flag_values": np.arange(4, dtype=np.uint8),
+                "flag_meanings": "none in_gate shadow below_gate",
+            },
+        ),
+    }
+    coords = {
+        "gate_top": ("gate", gates[:, 0], {"long_name": "gate top depth", "units": "m"}),
+        "gate_bottom": ("gate", gates[:, 1], {"long_name": "gate bottom depth", "units": "m"}),
+        "time": ("frame", np.asarray(times, dtype=float), {"long_name": "time", "units": "s"}),
+        "platform_x": ("frame", position[:, 0], {"long_name": "platform east", "units": "m"}),
+        "platform_y": ("frame", position[:, 1], {"long_name": "platform north", "units": "m"}),
+        "platform_z": ("frame", position[:, 2], {"long_name": "platform height", "units": "m"}),
+    }
+    if scene.save_surface:
+        n, spacing = scene.surface.grid_size, scene.surface.spacing
+        elevation = (
+            surface.elevation
+            if surface is not None
+            else np.zeros((len(times), n, n), dtype=np.float32)
+        )
+        data_vars["surface_elevation"] = (
+            ("frame", "sy", "sx"),
+            elevation.astype(np.float32),
+            {"long_name": "sea surface elevation", "units": "m"},
+        )
+        axis = np.arange(n) * spacing
+        coords["sx"] = ("sx", axis, {"long_name": "surface grid east", "units": "m"})
+        coords["sy"] = ("sy", axis, {"long_name": "surface grid north", "units": "m"})
+    return xr.Dataset(data_vars, coords=coords)

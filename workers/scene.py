@@ -1,0 +1,311 @@
+"""The parameters of one sample: a frozen, validated description of the scene.
+
+Every field carries its unit in its description, a default and a valid range. Angles that a
+person types are in degrees and named ``*_deg``; everything else is SI (metres, seconds,
+1/m). The nesting follows ``../shared/DESIGN.md`` §5 and is what sweep files address with
+dotted paths (``target.depth``).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from workers.water import PRESETS
+
+__all__ = [
+    "MLDC_GATES",
+    "Laser",
+    "Noise",
+    "Platform",
+    "Receiver",
+    "Scene",
+    "Sequence",
+    "SurfaceSpec",
+    "Target",
+    "Water",
+]
+
+FOOT = 0.3048
+"""One international foot in metres (exact)."""
+
+MLDC_GATES: tuple[tuple[float, float], ...] = tuple(
+    (top * FOOT, bottom * FOOT)
+    for top, bottom in ((12, 32), (16, 36), (20, 40), (25, 40), (35, 45), (40, 50))
+)
+"""The six ML(DC) receiver gates (top, bottom) in metres of depth.
+
+Carmona, Cérou & Blasco (2000), table 1: 12–32, 16–36, 20–40, 25–40, 35–45 and 40–50 ft.
+"""
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid", validate_default=True)
+
+
+PositiveFloat = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
+
+
+class SurfaceSpec(_Model):
+    """Sea surface: the wave spectrum and the periodic grid it is synthesised on."""
+
+    spectrum: Literal["elfouhaily", "phillips", "pierson_moskowitz", "jonswap", "flat"] = Field(
+        "elfouhaily",
+        description="Directional wave spectrum; `flat` is a mirror-flat sea.",
+    )
+    wind_speed: float = Field(
+        5.0, ge=0.5, le=30.0, description="Wind speed 10 m above the sea, U10 [m/s]."
+    )
+    wind_direction_deg: float = Field(
+        0.0,
+        ge=-360.0,
+        le=360.0,
+        description="Direction the wind blows towards, counter-clockwise from +x (east) [deg].",
+    )
+    fetch: float = Field(1.0e5, gt=0.0, le=1.0e7, description="Fetch, used by `jonswap` only [m].")
+    inverse_wave_age: float = Field(
+        0.84,
+        ge=0.84,
+        le=5.0,
+        description="Inverse wave age U10/c_p, used by `elfouhaily` only (0.84: fully "
+        "developed sea) [1].",
+    )
+    grid_size: int = Field(
+        256, ge=16, le=4096, description="Points per side of the periodic surface grid [1]."
+    )
+    spacing: float = Field(0.016, gt=0.0, le=10.0, description="Surface grid spacing [m].")
+    max_elevation: float | None = Field(
+        None,
+        gt=0.0,
+        le=20.0,
+        description="Optional rescaling (the paper's knob): max |elevation| over the frames "
+        "[m]. Off by default; it breaks the spectrum's variance.",
+    )
+
+    @model_validator(mode="after")
+    def _even_grid(self) -> SurfaceSpec:
+        if self.grid_size % 2:
+            raise ValueError("grid_size must be even (FFT synthesis)")
+        return self
+
+
+class Water(_Model):
+    """Inherent optical properties of the water column.
+
+    A `preset` (Petzold 1972, via Mobley 1994, table 3.10) gives absorption, scattering and
+    backscattering; any of the three given explicitly overrides it. With ``preset: null``
+    all three are required.
+    """
+
+    preset: Literal["clear_ocean", "coastal", "turbid_harbour"] | None = Field(
+        "coastal", description="Petzold water type, or null for explicit coefficients."
+    )
+    absorption: float | None = Field(
+        None, ge=0.0, le=20.0, description="Absorption coefficient a [1/m]."
+    )
+    scattering: float | None = Field(
+        None, ge=0.0, le=50.0, description="Scattering coefficient b [1/m]."
+    )
+    backscatter: float | None = Field(
+        None, ge=0.0, le=5.0, description="Backscattering coefficient b_b [1/m]."
+    )
+    phase_function: Literal["paper", "wells"] = Field(
+        "paper",
+        description="Small-angle phase function: `paper` (s ∝ θ^-3/2 (θ0²+θ²)^-1/2) or "
+        "`wells` (closed-form MTF exponent).",
+    )
+    theta0: float = Field(
+        0.12, gt=0.0, le=1.0, description="Phase-function angular scale θ0 [rad] (paper: 0.12)."
+    )
+    refractive_index: float = Field(
+        1.34, ge=1.0, le=2.0, description="Refractive index of sea water [1] (paper: 1.34)."
+    )
+
+    @model_validator(mode="after")
+    def _complete(self) -> Water:
+        if self.preset is None:
+            missing = [
+                name
+                for name in ("absorption", "scattering", "backscatter")
+                if getattr(self, name) is None
+            ]
+            if missing:
+                raise ValueError(f"with preset null, set {', '.join(missing)} explicitly")
+        coefficients = self.coefficients
+        if coefficients["backscatter"] > coefficients["scattering"]:
+            raise ValueError(
+                f"backscatter {coefficients['backscatter']} 1/m exceeds scattering "
+                f"{coefficients['scattering']} 1/m (backscattering is part of scattering)"
+            )
+        return self
+
+    @property
+    def coefficients(self) -> dict[str, float]:
+        """Absorption, scattering and backscatter [1/m]: the preset with overrides."""
+        values = dict(PRESETS[self.preset]) if self.preset is not None else {}
+        for name in ("absorption", "scattering", "backscatter"):
+            if getattr(self, name) is not None:
+                values[name] = getattr(self, name)
+        return values
+
+
+class Target(_Model):
+    """The object under the sea: a moored-mine sphere, a flat panel, or nothing."""
+
+    shape: Literal["sphere", "disk", "none"] = Field(
+        "sphere", description="`sphere`, `disk` (flat horizontal panel) or `none`."
+    )
+    radius: float = Field(0.3, gt=0.0, le=100.0, description="Sphere or disk radius [m].")
+    depth: float = Field(
+        5.0, gt=0.0, le=200.0, description="Depth of the sphere centre or of the disk [m]."
+    )
+    x: float | None = Field(
+        None,
+        ge=-1.0e4,
+        le=1.0e4,
+        description="East position [m]; null puts the target on the central ray "
+        "(refracted by a flat sea).",
+    )
+    y: float | None = Field(
+        None, ge=-1.0e4, le=1.0e4, description="North position [m]; null as for `x`."
+    )
+    reflectance: float = Field(
+        0.2, ge=0.0, le=1.0, description="Lambertian reflectance ρ [1] (the paper's 20 % is 0.2)."
+    )
+    shading: Literal["lambert", "paper"] = Field(
+        "lambert",
+        description="Impostor shading: `lambert` (cosine of sphere normal and ray) or `paper` "
+        "(the paper's area weights, `ponder`).",
+    )
+
+    @model_validator(mode="after")
+    def _submerged(self) -> Target:
+        if self.shape == "sphere" and self.depth <= self.radius:
+            raise ValueError(
+                f"a sphere of radius {self.radius} m at depth {self.depth} m breaks the surface; "
+                "depth must exceed radius"
+            )
+        return self
+
+
+class Platform(_Model):
+    """Where the sensor head is and where it points (laser and receiver share a boresight)."""
+
+    altitude: float = Field(34.0, gt=1.0, le=5000.0, description="Height above mean sea [m].")
+    nadir_deg: float = Field(
+        0.0, ge=0.0, le=60.0, description="Angle of the central ray from the vertical [deg]."
+    )
+    azimuth_deg: float = Field(
+        0.0,
+        ge=-360.0,
+        le=360.0,
+        description="Compass azimuth of the central ray, clockwise from north (+y) [deg]. "
+        "The image's top edge lies towards it.",
+    )
+
+
+class Laser(_Model):
+    """The illuminating laser: a Gaussian beam I0 = J exp(-r²/a²), r = a at the field edge."""
+
+    beam: Literal["divergent", "parallel"] = Field(
+        "divergent", description="`divergent` from the platform, or `parallel` rays."
+    )
+    field_of_view_deg: float | None = Field(
+        None,
+        gt=0.0,
+        le=60.0,
+        description="Full opening of the laser field [deg]; null: the receiver's.",
+    )
+    rays: int | None = Field(
+        None,
+        ge=8,
+        le=4096,
+        description="Rays per side of the laser's square ray lattice [1]; null: one per "
+        "receiver pixel spacing.",
+    )
+
+
+GateList = Annotated[
+    list[
+        tuple[Annotated[float, Field(ge=0.0, le=500.0)], Annotated[float, Field(ge=0.0, le=500.0)]]
+    ],
+    Field(min_length=1, max_length=32),
+]
+
+
+class Receiver(_Model):
+    """The gated pinhole cameras (one per gate, common boresight)."""
+
+    pixels: int = Field(128, ge=8, le=2048, description="Pixels per side of each image [1].")
+    field_of_view_deg: float = Field(
+        6.7, gt=0.1, le=60.0, description="Full field of view α [deg] (paper: 6.7)."
+    )
+    gates: Literal["mldc"] | GateList = Field(
+        "mldc",
+        description="`mldc` (the six ML(DC) gates) or a list of [top, bottom] depths [m].",
+    )
+
+    @model_validator(mode="after")
+    def _ordered_gates(self) -> Receiver:
+        if self.gates != "mldc":
+            for index, (top, bottom) in enumerate(self.gates):
+                if not top < bottom:
+                    raise ValueError(f"gate {index}: top {top} m must be above bottom {bottom} m")
+        return self
+
+    @property
+    def gate_depths(self) -> tuple[tuple[float, float], ...]:
+        """Gate slabs as (top, bottom) depths in metres."""
+        if self.gates == "mldc":
+            return MLDC_GATES
+        return tuple((float(top), float(bottom)) for top, bottom in self.gates)
+
+
+class Noise(_Model):
+    """Sensor noise: Poisson shot noise, optionally amplified by an ICCD."""
+
+    photons: float = Field(
+        13.0,
+        ge=0.0,
+        le=1.0e9,
+        description="Mean photoelectrons a pixel gets from a ρ = 1 Lambertian plane just under "
+        "a flat sea at nadir, no water path [1]; 0: no noise, signal in units of that plane.",
+    )
+    gain: float = Field(1.0, ge=1.0, le=1.0e6, description="ICCD gain, counts per photoelectron.")
+    excess_noise: float = Field(
+        1.0, ge=1.0, le=10.0, description="Excess-noise factor F of the intensifier [1]."
+    )
+
+
+class Sequence(_Model):
+    """A video: the same surface realisation evolving while the platform moves."""
+
+    frames: int = Field(1, ge=1, le=10000, description="Number of frames [1].")
+    interval: float = Field(0.1, gt=0.0, le=3600.0, description="Time between frames [s].")
+    velocity: tuple[float, float, float] = Field(
+        (0.0, 0.0, 0.0), description="Platform velocity (east, north, up) [m/s]."
+    )
+
+
+class Scene(_Model):
+    """Everything that defines one sample (except its random seed)."""
+
+    surface: SurfaceSpec = SurfaceSpec()
+    water: Water = Water()
+    target: Target = Target()
+    platform: Platform = Platform()
+    laser: Laser = Laser()
+    receiver: Receiver = Receiver()
+    noise: Noise = Noise()
+    sequence: Sequence = Sequence()
+    save_surface: bool = Field(
+        False, description="Store the surface elevation of every frame with the sample."
+    )
+
+    @model_validator(mode="after")
+    def _altitude_during_sequence(self) -> Scene:
+        climb = self.sequence.velocity[2] * self.sequence.interval * (self.sequence.frames - 1)
+        if self.platform.altitude + climb <= 1.0:
+            raise ValueError("the platform would reach the sea during the sequence")
+        return self
