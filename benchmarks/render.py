@@ -48,8 +48,10 @@ def measure(n, target, rounds):
         scipy_pairs.append(
             min(timed(lambda: scipy.fft.irfft2(scipy.fft.rfft2(a), s=a.shape)) for _ in range(5))
         )
-    return statistics.median(samples), statistics.median(numpy_pairs), statistics.median(
-        scipy_pairs
+    return (
+        statistics.median(samples),
+        statistics.median(numpy_pairs),
+        statistics.median(scipy_pairs),
     )
 
 
