@@ -218,11 +218,16 @@ def write_samples(
     url: str, start: int, samples: list[xr.Dataset], *, storage_options: dict | None = None
 ) -> None:
     """Write consecutive samples from `start` as whole chunks, then mark them complete."""
-    block = xr.concat(samples, dim="sample", coords="minimal", compat="override")
-    block = block.reset_coords([n for n in ("time", "platform_x", "platform_y", "platform_z")])
-    keep = [name for name in SAMPLE_VARIABLES if name in block] + (
-        ["surface_elevation"] if "surface_elevation" in block else []
+    frame_coords = ["time", "platform_x", "platform_y", "platform_z"]
+    block = xr.concat(
+        [sample.reset_coords(frame_coords) for sample in samples],
+        dim="sample",
+        data_vars="all",
+        coords="minimal",
+        compat="override",
+        join="override",
     )
+    keep = [name for name in (*SAMPLE_VARIABLES, "surface_elevation") if name in block]
     block = block[keep].drop_vars(
         [c for c in block.coords if "sample" not in block[c].dims], errors="ignore"
     )
