@@ -98,6 +98,7 @@ class RunResult:
     failed: list = field(default_factory=list)
     seconds: float = 0.0
     interrupted: bool = False
+    max_in_flight: int = 0
 
 
 class Progress:
@@ -213,6 +214,7 @@ def run_plan(
         )
         sizes[future.key] = (start, len(jobs))
         pending.add(future)
+        result.max_in_flight = max(result.max_in_flight, len(sizes))
         return True
 
     try:

@@ -4,16 +4,19 @@ The statistics dataset sits beside the store (`service.store.stats_url`). Its va
 over the realisations and frames of each point (samples not yet written are ignored):
 
 - ``image_mean``, ``image_std`` (point, gate, y, x): mean and standard deviation images;
-- ``target_signal``, ``background_signal`` (point, gate): mean counts inside and outside
-  the target mask;
-- ``target_contrast`` (point, gate): (target − background) / background;
-- ``cnr`` (point, gate): contrast-to-noise ratio, (target − background) / the standard
-  deviation of the background pixels;
+- ``target_signal``, ``background_signal`` (point, gate): mean expected (noise-free)
+  signal inside the target mask and in a ring of local background around it;
+- ``target_contrast`` (point, gate): (target − background) / background of the expected
+  images: what the physics leaves of the target, before noise;
+- ``cnr`` (point, gate): contrast-to-noise ratio of the noisy images, (target − background)
+  over the standard deviation of the background ring (shot noise and clutter);
 - ``visible_fraction`` (point, gate): fraction of samples and frames in which the target is
   in the gate and at least one pixel's ray meets it.
 """
 
 from __future__ import annotations
+
+import warnings
 
 import numpy as np
 import xarray as xr
@@ -21,6 +24,9 @@ import xarray as xr
 from service import store
 
 __all__ = ["compute_statistics", "write_statistics"]
+
+RING_FRACTION = 0.1
+"""Width of the background ring around the target mask, as a fraction of the image."""
 
 
 def compute_statistics(ds: xr.Dataset) -> xr.Dataset:
@@ -39,49 +45,51 @@ def compute_statistics(ds: xr.Dataset) -> xr.Dataset:
     realisations = int(ds.attrs["realisations"])
     points = int(ds.attrs["points"])
     written = ds["completed"].astype(bool)
+    units = ds["image"].attrs.get("units", "1")
     image = ds["image"].where(written)
-    by_point = {"sample": ("point", "realisation_")}
+    expected = ds["expected"].where(written)
+    mask = ds["target_mask"].astype(bool)
+    ring = _ring(mask)
+    space = ("y", "x")
+    over = ("realisation_", "frame")
 
     def per_point(array: xr.DataArray) -> xr.DataArray:
-        return array.coarsen(sample=realisations).construct(by_point)
+        return array.coarsen(sample=realisations).construct(sample=("point", "realisation_"))
 
+    target = per_point(expected.where(mask).mean(space))
+    background = per_point(expected.where(ring).mean(space))
+    noisy_difference = per_point(image.where(mask).mean(space) - image.where(ring).mean(space))
+    noise = per_point(image.where(ring).std(space))
+    visible = per_point((mask.any(space) & (ds["target_visibility"] == 1)).where(written))
     stacked = per_point(image)
-    over = ("realisation_", "frame")
-    mask = ds["target_mask"].astype(bool)
-    inside = image.where(mask)
-    outside = image.where(~mask)
-    space = ("y", "x")
-    target = per_point(inside.mean(space))
-    background = per_point(outside.mean(space))
-    noise = per_point(outside.std(space))
-    present = mask.any(space) & (ds["target_visibility"] == 1)
-    visible = per_point(present.where(written).astype(float))
     stats = xr.Dataset(
         {
             "image_mean": stacked.mean(over).assign_attrs(
-                long_name="mean image over realisations and frames",
-                units=image.attrs.get("units", "1"),
+                long_name="mean image over realisations and frames", units=units
             ),
             "image_std": stacked.std(over, ddof=1).assign_attrs(
-                long_name="standard deviation image over realisations and frames",
-                units=image.attrs.get("units", "1"),
+                long_name="standard deviation image over realisations and frames", units=units
             ),
             "target_signal": target.mean(over).assign_attrs(
-                long_name="mean counts inside the target mask", units=image.attrs.get("units", "1")
+                long_name="mean expected signal inside the target mask", units=units
             ),
             "background_signal": background.mean(over).assign_attrs(
-                long_name="mean counts outside the target mask",
-                units=image.attrs.get("units", "1"),
+                long_name="mean expected signal outside the target mask", units=units
             ),
-            "target_contrast": ((target - background) / background)
+            "target_contrast": ((target - background) / background.where(background > 0))
             .mean(over)
-            .assign_attrs(long_name="target contrast (T - B) / B", units="1"),
-            "cnr": ((target - background) / noise)
+            .assign_attrs(
+                long_name="target contrast (T - B) / B of the expected images", units="1"
+            ),
+            "cnr": (noisy_difference / noise.where(noise > 0))
             .mean(over)
-            .assign_attrs(long_name="contrast-to-noise ratio (T - B) / sd(B)", units="1"),
-            "visible_fraction": visible.mean(over).assign_attrs(
-                long_name="fraction of samples with the target in the gate and in view",
-                units="1",
+            .assign_attrs(
+                long_name="contrast-to-noise ratio (T - B) / sd(B) of the noisy images", units="1"
+            ),
+            "visible_fraction": visible.astype(float)
+            .mean(over)
+            .assign_attrs(
+                long_name="fraction of samples with the target in the gate and in view", units="1"
             ),
             "samples": per_point(written.astype(np.int32))
             .sum("realisation_")
@@ -104,6 +112,19 @@ def compute_statistics(ds: xr.Dataset) -> xr.Dataset:
     return stats
 
 
+def _ring(mask: xr.DataArray) -> xr.DataArray:
+    """The local background: pixels near the target mask but not in it.
+
+    Near means within `RING_FRACTION` of the image width (at least two pixels) in each
+    direction. A local background keeps the laser's bright centre and dim edges out of the
+    contrast.
+    """
+    width = max(2, round(RING_FRACTION * mask.sizes["x"]))
+    window = 2 * width + 1
+    near = mask.astype(np.uint8).rolling(y=window, x=window, center=True, min_periods=1).max()
+    return (near > 0) & ~mask
+
+
 def write_statistics(url: str, *, storage_options: dict | None = None) -> str:
     """(Re)compute the statistics of the store at `url` and write them beside it.
 
@@ -116,7 +137,10 @@ def write_statistics(url: str, *, storage_options: dict | None = None) -> str:
     stats = compute_statistics(ds)
     target = store.stats_url(url)
     store.remove_store(target, storage_options)
-    stats.chunk({"point": 1}).to_zarr(
-        target, mode="w", consolidated=False, zarr_format=3, storage_options=storage_options
-    )
+    with store.consolidated_v3(), warnings.catch_warnings():
+        # points without a target have empty masks: their contrasts are NaN, by design
+        warnings.simplefilter("ignore", RuntimeWarning)
+        stats.chunk({"point": 1}).to_zarr(
+            target, mode="w", consolidated=True, zarr_format=3, storage_options=storage_options
+        )
     return target

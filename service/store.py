@@ -9,6 +9,7 @@ complete that is not written.
 
 from __future__ import annotations
 
+import contextlib
 import warnings
 from importlib.metadata import PackageNotFoundError, version
 
@@ -47,7 +48,18 @@ SAMPLE_VARIABLES = (
 )
 CONVENTIONS = "CF-1.10"
 
-warnings.filterwarnings("ignore", message=".*does not have a Zarr V3 specification.*")
+
+@contextlib.contextmanager
+def consolidated_v3():
+    """Write consolidated metadata to a zarr v3 store without zarr's standing warning.
+
+    zarr-python warns that consolidated metadata is not yet part of the v3 specification;
+    we keep it because opening a store then costs one read (it matters on object storage),
+    and zarr-python, which we pin, reads it.
+    """
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Consolidated metadata is currently not part")
+        yield
 
 
 def package_version() -> str:
@@ -113,9 +125,10 @@ def sample_dataset(plan: Plan, sample: int) -> xr.Dataset:
 
 
 def _coordinate_array(values: list) -> np.ndarray:
+    """Numbers as numbers; anything else as variable-length strings (zarr's `string`)."""
     array = np.asarray(values)
-    if array.dtype == object:
-        array = np.asarray([str(v) for v in values])
+    if array.dtype.kind not in "biuf":
+        array = np.asarray([str(v) for v in values], dtype=object)
     return array
 
 
@@ -193,19 +206,20 @@ def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -
         realisations=realisations,
         points=len(plan.points),
     )
-    ds.to_zarr(
-        url,
-        mode="w-",
-        compute=False,
-        consolidated=False,
-        zarr_format=3,
-        storage_options=storage_options,
-    )
+    with consolidated_v3():
+        ds.to_zarr(
+            url,
+            mode="w-",
+            compute=False,
+            consolidated=True,
+            zarr_format=3,
+            storage_options=storage_options,
+        )
 
 
 def open_store(url: str, *, storage_options: dict | None = None) -> xr.Dataset:
     """Open a store lazily (dask arrays, one sample per chunk)."""
-    return xr.open_zarr(url, consolidated=False, storage_options=storage_options)
+    return xr.open_zarr(url, consolidated=True, storage_options=storage_options)
 
 
 def completed_samples(url: str, *, storage_options: dict | None = None) -> np.ndarray:

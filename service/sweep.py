@@ -18,7 +18,15 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Discriminator,
+    Field,
+    Tag,
+    ValidationError,
+    model_validator,
+)
 
 from workers.scene import Scene
 
@@ -33,7 +41,8 @@ __all__ = [
 
 MAX_FILE_BYTES = 1_000_000
 MAX_DEPTH = 20
-MAX_ALIASES = 100
+MAX_NODES = 1_000_000
+MAX_POINTS = 10_000_000
 DEFAULT_MAX_SAMPLES = 1_000_000
 DEFAULT_MAX_BYTES = 50 * 2**30
 
@@ -75,7 +84,7 @@ class Distribution(_Model):
             return self
         if self.min is None or self.max is None:
             raise ValueError(f"a {self.distribution} distribution needs min and max")
-        if not self.min < self.max:
+        if self.min > self.max or (self.min == self.max and self.distribution != "int_uniform"):
             raise ValueError("min must be below max")
         if self.distribution == "log_uniform" and self.min <= 0:
             raise ValueError("a log_uniform distribution needs min > 0")
@@ -94,7 +103,27 @@ class Distribution(_Model):
         ).tolist()
 
 
-Parameter = Values | Value | Distribution
+def _parameter_kind(data: Any) -> str | None:
+    for model, kind in ((Values, "list"), (Value, "fixed"), (Distribution, "random")):
+        if isinstance(data, model):
+            return kind
+    if isinstance(data, dict):
+        for key, kind in (("values", "list"), ("value", "fixed"), ("distribution", "random")):
+            if key in data:
+                return kind
+    return None
+
+
+Parameter = Annotated[
+    Annotated[Values, Tag("list")]
+    | Annotated[Value, Tag("fixed")]
+    | Annotated[Distribution, Tag("random")],
+    Discriminator(
+        _parameter_kind,
+        custom_error_type="parameter",
+        custom_error_message="a parameter needs values: [...], value: x or distribution: ...",
+    ),
+]
 
 
 class SweepSpec(_Model):
@@ -218,20 +247,33 @@ def human_bytes(n: float) -> str:
 
 
 def _check_structure(text: str) -> None:
-    """Refuse YAML that is too deep or uses many aliases, before building any object."""
-    depth = 0
-    aliases = 0
+    """Refuse YAML that nests too deep or expands too far, before building any object.
+
+    Aliases are counted at their expanded size, so an "alias bomb" (nested lists of
+    aliases that expand exponentially) is refused from the event stream alone.
+    """
+    sizes: dict[str, int] = {}
+    stack: list[list] = [[None, 0]]
     for event in yaml.parse(text, Loader=yaml.SafeLoader):
         if isinstance(event, yaml.CollectionStartEvent):
-            depth += 1
-            if depth > MAX_DEPTH:
+            stack.append([event.anchor, 0])
+            if len(stack) - 1 > MAX_DEPTH:
                 raise SweepError(f"the file nests deeper than {MAX_DEPTH} levels")
         elif isinstance(event, yaml.CollectionEndEvent):
-            depth -= 1
+            anchor, count = stack.pop()
+            if anchor is not None:
+                sizes[anchor] = count + 1
+            stack[-1][1] += count + 1
+        elif isinstance(event, yaml.ScalarEvent):
+            if event.anchor is not None:
+                sizes[event.anchor] = 1
+            stack[-1][1] += 1
         elif isinstance(event, yaml.AliasEvent):
-            aliases += 1
-            if aliases > MAX_ALIASES:
-                raise SweepError(f"the file uses more than {MAX_ALIASES} YAML aliases")
+            stack[-1][1] += sizes.get(event.anchor, 1)
+        if stack[-1][1] > MAX_NODES:
+            raise SweepError(
+                f"the file expands to more than {MAX_NODES:,} values (through YAML aliases?)"
+            )
 
 
 def _read_yaml(text: str) -> Any:
@@ -264,7 +306,7 @@ def _format_errors(error: ValidationError, prefix: str = "") -> str:
 
 
 def _is_union_tag(part) -> bool:
-    return part in {"Values", "Value", "Distribution"}
+    return part in {"list", "fixed", "random"} or str(part).startswith("function-after")
 
 
 def load_sweep(path) -> Plan:
@@ -380,7 +422,14 @@ def _expand(sweep: Sweep) -> list[dict[str, Any]]:
     }
     if spec.method == "zip":
         length = max(len(v) for v in lists.values())
-        lists = {path: v * length if len(v) == 1 else v for path, v in lists.items()}
-        return [{path: lists[path][i] for path in lists} for i in range(length)]
+        return [
+            {path: (v * length if len(v) == 1 else v)[i] for path, v in lists.items()}
+            for i in range(length)
+        ]
+    size = math.prod(len(v) for v in lists.values())
+    if size > MAX_POINTS:
+        raise SweepError(
+            f"sweep: the grid has {size:,} parameter points, over the limit of {MAX_POINTS:,}"
+        )
     combos = itertools.product(*lists.values())
     return [dict(zip(lists, combo, strict=True)) for combo in combos]

@@ -1,0 +1,262 @@
+"""The sweep service end to end on a dask LocalCluster: bytes, resume, CLI, README."""
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from service import store
+from service.cli import main
+from service.run import dask_client, execute, task_batches
+from service.sweep import load_sweep, parse_sweep
+from workers.render import render
+from workers.seeds import SampleSeed
+
+ROOT = Path(__file__).resolve().parent.parent
+
+SWEEP = """\
+name: small
+seed: 11
+realisations: 3
+output: small.zarr
+scene:
+  surface: {grid_size: 32, spacing: 0.1}
+  receiver: {pixels: 16, gates: [[2.0, 6.0], [5.0, 9.0]]}
+  noise: {photons: 100}
+sweep:
+  method: grid
+  parameters:
+    target.depth: {values: [3.0, 6.0]}
+    target.shape: {values: [sphere, none]}
+"""
+
+
+def write(path, text=SWEEP):
+    path.write_text(text)
+    return path
+
+
+def assert_same_store(a, b):
+    x, y = xr.open_zarr(a), xr.open_zarr(b)
+    assert set(x.variables) == set(y.variables)
+    for name in x.variables:
+        assert x[name].values.tobytes() == y[name].values.tobytes(), name
+    assert x.attrs == y.attrs
+
+
+@pytest.fixture(scope="module")
+def two_worker_store(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("two")
+    plan = load_sweep(write(folder / "sweep.yaml"))
+    url = str(folder / "small.zarr")
+    result = execute(plan, url, workers=2, batch_size=2, progress_stream=open(os.devnull, "w"))
+    assert result.written == plan.samples == 12 and not result.failed
+    return plan, url
+
+
+def test_samples_equal_render_of_the_same_scene_and_seed(two_worker_store):
+    plan, url = two_worker_store
+    ds = xr.open_zarr(url)
+    assert ds["completed"].values.all()
+    for sample in (0, 4, 11):
+        point, realisation = divmod(sample, plan.realisations)
+        alone = render(
+            plan.scenes[point],
+            seed=SampleSeed(root=plan.sweep.seed, point=point, realisation=realisation),
+        )
+        for name in ("image", "expected", "target_mask", "target_visibility", "target_present"):
+            assert ds[name][sample].values.tobytes() == alone[name].values.tobytes(), name
+        assert int(ds["point"][sample]) == point and int(ds["realisation"][sample]) == realisation
+        assert float(ds["target.depth"][sample]) == plan.points[point]["target.depth"]
+        assert str(ds["target.shape"][sample].values) == plan.points[point]["target.shape"]
+
+
+def test_one_and_two_workers_write_the_same_bytes(two_worker_store, tmp_path):
+    plan, url = two_worker_store
+    other = str(tmp_path / "one.zarr")
+    execute(plan, other, workers=1, batch_size=3, progress_stream=open(os.devnull, "w"))
+    assert_same_store(url, other)
+    assert_same_store(store.stats_url(url), store.stats_url(other))
+
+
+def test_store_metadata_and_statistics(two_worker_store):
+    plan, url = two_worker_store
+    ds = xr.open_zarr(url)
+    assert ds.attrs["sweep"] == SWEEP and ds.attrs["sweep_sha256"] == plan.digest
+    assert ds.attrs["Conventions"].startswith("CF-")
+    assert ds["image"].encoding["chunks"] == (1, 1, 2, 16, 16)
+    for name, variable in ds.variables.items():
+        if name not in ("point", "realisation", "target.depth", "target.shape"):
+            assert "units" in variable.attrs, name
+    stats = xr.open_zarr(store.stats_url(url))
+    assert stats.sizes["point"] == 4 and stats.sizes["gate"] == 2
+    assert stats["samples"].values.tolist() == [3, 3, 3, 3]
+    # the statistics equal a direct computation on the loaded store
+    image = ds["image"].values
+    assert np.allclose(stats["image_mean"].values[1], image[3:6].mean(axis=(0, 1)), rtol=1e-5)
+    # sphere at 3 m: in gate 2–6 m, above gate 5–9 m (its shadow); at 6 m: in both gates
+    visible = stats["visible_fraction"].values
+    assert visible[0].tolist() == [1.0, 0.0] and visible[2].tolist() == [1.0, 1.0]
+    contrast = stats["target_contrast"].values
+    assert np.isnan(contrast[1]).all()  # no target, no contrast
+    assert contrast[0, 0] > 0 and (contrast[2] > 0).all()  # the mine in a gate is bright
+    assert contrast[0, 1] < 0  # and darkens the gate below it
+
+
+def test_bounded_submission_and_batches(tmp_path):
+    plan = parse_sweep(SWEEP)
+    batches = list(task_batches(plan, [0, 1, 2, 3, 5, 6, 7, 11], 3))
+    assert [(start, len(jobs)) for start, jobs in batches] == [(0, 3), (3, 1), (5, 3), (11, 1)]
+    url = str(tmp_path / "b.zarr")
+    store.create_store(plan, url)
+    from service.run import run_plan
+
+    with dask_client(workers=1, scheduler=None) as client:
+        result = run_plan(
+            plan, url, client=client, batch_size=1, progress_stream=open(os.devnull, "w")
+        )
+    assert result.written == 12 and result.max_in_flight <= 2
+
+
+def run_cli(*args, cwd):
+    return subprocess.run(
+        [sys.executable, "-m", "service.cli", *args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        timeout=300,
+    )
+
+
+def test_interrupted_run_resumes_to_the_same_store(two_worker_store, tmp_path):
+    plan, url = two_worker_store
+    sweep = write(tmp_path / "sweep.yaml")
+    target = tmp_path / "interrupted.zarr"
+    process = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "service.cli",
+            "run",
+            str(sweep),
+            "--output",
+            str(target),
+            "--workers",
+            "1",
+            "--batch",
+            "1",
+        ],
+        cwd=tmp_path,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.monotonic() + 120
+    done = 0
+    while time.monotonic() < deadline and process.poll() is None:
+        if (target / "completed").exists():
+            try:
+                done = int(store.completed_samples(str(target)).sum())
+            except Exception:  # the store is being written; look again
+                done = 0
+            if done >= 2:
+                break
+        time.sleep(0.05)
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=120)
+    assert 2 <= done, err
+    partial = store.completed_samples(str(target))
+    assert process.returncode == 1 and "--resume" in err, err
+    assert 0 < partial.sum() < plan.samples
+    again = run_cli(
+        "run", str(sweep), "--output", str(target), "--resume", "--workers", "1", cwd=tmp_path
+    )
+    assert again.returncode == 0, again.stderr
+    assert "already complete" in again.stderr
+    assert_same_store(url, str(target))
+
+
+def test_existing_output_is_refused_and_left_unchanged(two_worker_store, tmp_path, capsys):
+    _, url = two_worker_store
+    sweep = write(tmp_path / "sweep.yaml")
+    before = {p: p.stat().st_mtime_ns for p in Path(url).rglob("*")}
+    assert main(["run", str(sweep), "--output", url]) == 2
+    assert "already exists" in capsys.readouterr().err
+    other = write(tmp_path / "other.yaml", SWEEP.replace("seed: 11", "seed: 12"))
+    assert main(["run", str(other), "--output", url, "--resume"]) == 2
+    assert "different sweep" in capsys.readouterr().err
+    assert before == {p: p.stat().st_mtime_ns for p in Path(url).rglob("*")}
+
+
+@pytest.mark.parametrize(
+    ("text", "fragment"),
+    [
+        (SWEEP.replace("realisations: 3", "realisations: 3\nflavour: x"), "flavour"),
+        (SWEEP.replace("seed: 11", "seed: eleven"), "seed"),
+        (
+            SWEEP.replace("target.depth: {values: [3.0, 6.0]}", "target.depth: {values: [-1]}"),
+            "scene.target.depth",
+        ),
+        (SWEEP.replace("target.depth", "target.deepness"), "target.deepness"),
+        (
+            SWEEP.replace("output: small.zarr", "output: small.zarr\nx: !!python/name:os.system"),
+            "plain YAML",
+        ),
+        ("\x00\x01binary", "not YAML"),
+    ],
+    ids=["unknown-key", "wrong-type", "out-of-range", "unknown-path", "python-tag", "binary"],
+)
+def test_cli_bad_input_exits_2_with_a_message_and_writes_nothing(tmp_path, text, fragment):
+    sweep = tmp_path / "bad.yaml"
+    sweep.write_text(text)
+    result = run_cli("run", str(sweep), cwd=tmp_path)
+    assert result.returncode == 2
+    assert fragment in result.stderr and "Traceback" not in result.stderr
+    assert not (tmp_path / "small.zarr").exists()
+
+
+def test_cli_refuses_oversized_sweeps_unless_told(tmp_path, capsys):
+    big = SWEEP.replace("realisations: 3", "realisations: 300000")
+    sweep = write(tmp_path / "big.yaml", big)
+    assert main(["validate", str(sweep)]) == 2
+    assert "--no-limits" in capsys.readouterr().err
+    assert main(["validate", str(sweep), "--no-limits"]) == 0
+    assert "1200000 samples" in capsys.readouterr().out
+
+
+def test_cli_validate_info_and_stats(two_worker_store, tmp_path, capsys):
+    _, url = two_worker_store
+    assert main(["validate", str(write(tmp_path / "s.yaml"))]) == 0
+    out = capsys.readouterr().out
+    assert "4 parameter points x 3 realisations = 12 samples" in out
+    assert main(["info", url]) == 0
+    out = capsys.readouterr().out
+    assert "12/12 complete" in out and "target.depth" in out
+    assert main(["stats", url]) == 0
+    assert main(["info", str(tmp_path / "nothing.zarr")]) == 2
+    assert "no store there" in capsys.readouterr().err
+
+
+def test_readme_training_example_runs(tmp_path, monkeypatch):
+    readme = (ROOT / "README.md").read_text()
+    code = re.search(r"Reading a store for training:\n\n```python\n(.*?)```", readme, re.S).group(
+        1
+    )
+    sweep = tmp_path / "quick.yaml"
+    sweep.write_text(
+        SWEEP.replace("name: small", "name: quickstart")
+        .replace("[3.0, 6.0]", "[3.0, 8.0]")
+        .replace("output: small.zarr", "output: quickstart.zarr")
+    )
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", str(sweep), "--workers", "1"]) == 0
+    exec(compile(code, "README.md", "exec"), {})

@@ -1,0 +1,193 @@
+"""Sweep files: schema, safe loading, expansion, seeds and plans."""
+
+import textwrap
+
+import pytest
+
+from service.sweep import SweepError, load_sweep, parse_sweep
+from workers.scene import Scene
+
+BASE = """\
+name: t
+seed: 3
+realisations: 2
+output: out.zarr
+scene:
+  receiver: {pixels: 16}
+  surface: {grid_size: 32, spacing: 0.1}
+"""
+
+
+def sweep(extra=""):
+    return parse_sweep(BASE + textwrap.dedent(extra))
+
+
+def test_grid_expands_the_cartesian_product_in_file_order():
+    plan = sweep(
+        """
+        sweep:
+          method: grid
+          parameters:
+            target.depth: {values: [3.0, 5.0]}
+            target.shape: {values: [sphere, none]}
+        """
+    )
+    assert plan.points == (
+        {"target.depth": 3.0, "target.shape": "sphere"},
+        {"target.depth": 3.0, "target.shape": "none"},
+        {"target.depth": 5.0, "target.shape": "sphere"},
+        {"target.depth": 5.0, "target.shape": "none"},
+    )
+    assert plan.samples == 8
+    assert plan.scenes[2].target.depth == 5.0 and plan.scenes[2].receiver.pixels == 16
+    assert all(isinstance(s, Scene) for s in plan.scenes)
+
+
+def test_zip_pairs_values_and_broadcasts_single_values():
+    plan = sweep(
+        """
+        sweep:
+          method: zip
+          parameters:
+            target.depth: {values: [3.0, 5.0, 7.0]}
+            platform.altitude: {values: [20.0, 30.0, 40.0]}
+            water.preset: {value: turbid_harbour}
+        """
+    )
+    assert [p["platform.altitude"] for p in plan.points] == [20.0, 30.0, 40.0]
+    assert {p["water.preset"] for p in plan.points} == {"turbid_harbour"}
+
+
+def test_random_draws_are_reproducible_and_within_bounds():
+    text = """
+        sweep:
+          method: random
+          count: 50
+          parameters:
+            target.depth: {distribution: uniform, min: 2.0, max: 8.0}
+            platform.altitude: {distribution: log_uniform, min: 20.0, max: 200.0}
+            receiver.pixels: {distribution: int_uniform, min: 16, max: 24}
+            target.shape: {values: [sphere, none]}
+        """
+    a, b = sweep(text), sweep(text)
+    assert a.points == b.points and a.digest == b.digest
+    depths = [p["target.depth"] for p in a.points]
+    assert all(2.0 <= d <= 8.0 for d in depths) and len(set(depths)) == 50
+    assert {p["target.shape"] for p in a.points} == {"sphere", "none"}
+    assert {p["receiver.pixels"] for p in a.points} <= set(range(16, 25))
+
+
+def test_digest_ignores_the_output_location_but_not_the_physics():
+    a = sweep()
+    b = parse_sweep(BASE.replace("out.zarr", "elsewhere.zarr"))
+    c = parse_sweep(BASE.replace("seed: 3", "seed: 4"))
+    assert a.digest == b.digest != c.digest
+
+
+def test_size_limits_name_the_number_and_the_way_out():
+    plan = sweep(
+        """
+        sweep:
+          parameters:
+            target.depth: {values: [1.0, 2.0, 3.0]}
+        """
+    )
+    with pytest.raises(SweepError, match=r"6 samples, over the limit of 5.*--no-limits"):
+        plan.check_limits(max_samples=5)
+    with pytest.raises(SweepError, match="would store about"):
+        plan.check_limits(max_bytes=1000)
+    plan.check_limits()
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        (BASE + "colour: red\n", r"colour: Extra inputs are not permitted"),
+        (BASE.replace("seed: 3", "seed: three"), r"seed: Input should be a valid integer"),
+        (BASE.replace("realisations: 2", "realisations: 0"), r"realisations: .*greater than"),
+        (BASE + "  target: {reflectance: 1.5}\n", r"scene\.target\.reflectance: .*less than"),
+        (BASE + "  target: {depth: deep}\n", r"scene\.target\.depth: .*valid number"),
+        (
+            BASE + "sweep:\n  parameters:\n    target.colour: {values: [1]}\n",
+            r"sweep\.parameters\.target\.colour: unknown path; target has",
+        ),
+        (
+            BASE + "sweep:\n  parameters:\n    target: {values: [1]}\n",
+            r"sweep\.parameters\.target: names a section",
+        ),
+        (
+            BASE + "sweep:\n  parameters:\n    target.depth: {values: []}\n",
+            r"values: List should have at least 1 item",
+        ),
+        (
+            BASE + "sweep:\n  parameters:\n    target.depth: {values: [5.0, 0.1]}\n",
+            r"parameter point 1 \(target\.depth=0\.1\):\nscene\.target",
+        ),
+        (
+            BASE + "sweep:\n  method: random\n  parameters:\n    target.depth: {values: [1.0]}\n",
+            r"method random needs a count",
+        ),
+        (
+            BASE
+            + "sweep:\n  parameters:\n    target.depth: {distribution: uniform, min: 1, max: 2}\n",
+            r"distributions need method random",
+        ),
+        (BASE + "extra: !!python/object/apply:os.system ['true']\n", r"not allowed|plain YAML"),
+        ("a: [1, 2\n", r"not valid YAML"),
+        ("- just\n- a list\n", r"must be a YAML mapping"),
+        ("", r"must be a YAML mapping"),
+        ("x:\n" + "".join("  " * i + "- \n" for i in range(1, 40)), r"nests deeper"),
+    ],
+    ids=[
+        "unknown-key",
+        "wrong-type",
+        "out-of-range-realisations",
+        "out-of-range-scene-value",
+        "wrong-type-scene-value",
+        "unknown-dotted-path",
+        "path-to-a-section",
+        "empty-values",
+        "invalid-expanded-point",
+        "random-without-count",
+        "distribution-on-grid",
+        "python-tag",
+        "broken-yaml",
+        "not-a-mapping",
+        "empty-file",
+        "deeply-nested",
+    ],
+)
+def test_bad_sweeps_say_where_and_why(text, message):
+    with pytest.raises(SweepError, match=message):
+        parse_sweep(text)
+
+
+def test_alias_bomb_is_refused_before_it_expands():
+    lines = ['a: &a ["lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol"]']
+    for i in range(1, 9):
+        refs = ", ".join([f"*{chr(96 + i)}"] * 9)
+        lines.append(f"{chr(97 + i)}: &{chr(97 + i)} [{refs}]")
+    with pytest.raises(SweepError, match="expands to more than"):
+        parse_sweep("\n".join(lines) + "\n")
+
+
+def test_files_that_are_not_yaml_text(tmp_path):
+    binary = tmp_path / "image.png"
+    binary.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\xff\xfe")
+    with pytest.raises(SweepError, match=r"not a UTF-8 text file|NUL"):
+        load_sweep(binary)
+    with pytest.raises(SweepError, match="No such file"):
+        load_sweep(tmp_path / "missing.yaml")
+    huge = tmp_path / "huge.yaml"
+    huge.write_text("a: " + "x" * 2_000_000)
+    with pytest.raises(SweepError, match="larger than"):
+        load_sweep(huge)
+
+
+def test_oversized_grid_is_refused_before_expansion():
+    params = "".join(
+        f"    target.{name}: {{values: {list(range(1, 60))}}}\n"
+        for name in ("depth", "radius", "reflectance", "x", "y")
+    )
+    with pytest.raises(SweepError, match="points"):
+        parse_sweep(BASE + "sweep:\n  parameters:\n" + params)
