@@ -36,7 +36,10 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--output", help="store path or fsspec URL (default: the file's output)")
     where = run.add_mutually_exclusive_group()
     where.add_argument(
-        "--workers", type=int, default=None, help="worker processes of the embedded cluster"
+        "--workers",
+        type=int,
+        default=None,
+        help="worker processes of the embedded cluster (default: one per core)",
     )
     where.add_argument("--scheduler", help="address of an existing dask scheduler")
     mode = run.add_mutually_exclusive_group()

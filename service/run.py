@@ -11,6 +11,7 @@ the same bytes.
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
 import time
 from collections.abc import Iterator
@@ -21,6 +22,7 @@ from distributed import Client, LocalCluster, as_completed
 from service import store
 from service.stats import write_statistics
 from service.sweep import Plan, SweepError
+from service.tuning import tune_allocator
 from workers.render import render
 from workers.scene import Scene
 from workers.seeds import SampleSeed
@@ -50,6 +52,7 @@ def render_batch(url, start, jobs, storage_options=None):
     tuple of int
         ``(start, count)``.
     """
+    tune_allocator()
     samples = [
         render(
             Scene.model_validate_json(scene),
@@ -159,7 +162,7 @@ def dask_client(*, workers: int | None, scheduler: str | None, security=None):
         return
     with (
         LocalCluster(
-            n_workers=workers or 1,
+            n_workers=workers or os.cpu_count() or 1,
             threads_per_worker=1,
             processes=True,
             host="127.0.0.1",
@@ -276,6 +279,6 @@ def execute(
             batch_size=batch_size,
             progress_stream=progress_stream,
         )
-    if not result.interrupted and not result.failed:
-        write_statistics(url, storage_options=storage_options)
+        if not result.interrupted and not result.failed:
+            write_statistics(url, storage_options=storage_options)
     return result

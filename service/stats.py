@@ -133,7 +133,11 @@ def write_statistics(url: str, *, storage_options: dict | None = None) -> str:
     str
         Where the statistics were written.
     """
-    ds = store.open_store(url, storage_options=storage_options)
+    probe = store.open_store(url, storage_options=storage_options)
+    # one dask chunk per parameter point: the graph grows with points, not samples
+    ds = store.open_store(
+        url, storage_options=storage_options, samples_per_chunk=int(probe.attrs["realisations"])
+    )
     stats = compute_statistics(ds)
     target = store.stats_url(url)
     store.remove_store(target, storage_options)

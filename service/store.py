@@ -10,6 +10,8 @@ complete that is not written.
 from __future__ import annotations
 
 import contextlib
+import functools
+import json
 import warnings
 from importlib.metadata import PackageNotFoundError, version
 
@@ -17,13 +19,14 @@ import dask.array as da
 import fsspec
 import numpy as np
 import xarray as xr
+import zarr
 
 from service.sweep import Plan, SweepError
-from workers.render import render
+from workers.render import render, sample_labels
 from workers.seeds import SampleSeed
 
 __all__ = [
-    "SAMPLE_VARIABLES",
+    "RENDERED_VARIABLES",
     "check_uniform",
     "completed_samples",
     "create_store",
@@ -35,17 +38,12 @@ __all__ = [
     "write_samples",
 ]
 
-SAMPLE_VARIABLES = (
-    "image",
-    "expected",
-    "target_mask",
-    "target_present",
-    "target_visibility",
-    "time",
-    "platform_x",
-    "platform_y",
-    "platform_z",
-)
+RENDERED_VARIABLES = ("image", "expected", "target_mask", "surface_elevation")
+"""Per-sample variables that tasks write; the rest of a sample is written with the template."""
+
+FLAT_CHUNK_KEYS = {"name": "default", "separator": "."}
+"""Chunk files named c.4.0.0.0.0 in the array's folder: one file per chunk, no folders to
+create (each folder costs as much as a small file on the file systems measured)."""
 CONVENTIONS = "CF-1.10"
 
 
@@ -147,29 +145,40 @@ def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -
     check_uniform(plan)
     probe = render(plan.scenes[0], seed=0)
     n = plan.samples
+    realisations = plan.realisations
     data_vars = {}
-    for name, variable in probe.data_vars.items():
-        shape = (n, *variable.shape)
-        chunks = (1, *variable.shape)
+    encoding = {}
+    for name in RENDERED_VARIABLES:
+        if name not in probe:
+            continue
+        variable = probe[name]
         fill = np.nan if variable.dtype.kind == "f" else 0
         data_vars[name] = (
             ("sample", *variable.dims),
-            da.full(shape, fill, chunks=chunks, dtype=variable.dtype),
+            da.full((n, *variable.shape), fill, chunks=(1, *variable.shape), dtype=variable.dtype),
             dict(variable.attrs),
         )
-    for name in ("time", "platform_x", "platform_y", "platform_z"):
-        coord = probe[name]
-        data_vars[name] = (
-            ("sample", *coord.dims),
-            da.full((n, *coord.shape), np.nan, chunks=(1, *coord.shape), dtype=coord.dtype),
-            dict(coord.attrs),
-        )
+        encoding[name] = {"chunk_key_encoding": FLAT_CHUNK_KEYS}
     data_vars["completed"] = (
         ("sample",),
         da.zeros(n, chunks=1, dtype=np.uint8),
         {"long_name": "sample rendered and written", "units": "1"},
     )
-    realisations = plan.realisations
+    encoding["completed"] = {"chunk_key_encoding": FLAT_CHUNK_KEYS}
+    # labels and the platform track follow from each point's scene: written once, here
+    track = ["time", "platform_x", "platform_y", "platform_z"]
+    labels = xr.concat(
+        [sample_labels(scene).reset_coords(track) for scene in plan.scenes],
+        dim="sample",
+        data_vars="all",
+    )
+    for name in ("target_present", "target_visibility", *track):
+        variable = labels[name]
+        data_vars[name] = (
+            variable.dims,
+            np.repeat(variable.values, realisations, axis=0),
+            dict(variable.attrs),
+        )
     coords = {
         "gate_top": probe["gate_top"],
         "gate_bottom": probe["gate_bottom"],
@@ -213,13 +222,26 @@ def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -
             compute=False,
             consolidated=True,
             zarr_format=3,
+            encoding=encoding,
             storage_options=storage_options,
         )
 
 
-def open_store(url: str, *, storage_options: dict | None = None) -> xr.Dataset:
-    """Open a store lazily (dask arrays, one sample per chunk)."""
-    return xr.open_zarr(url, consolidated=True, storage_options=storage_options)
+def open_store(
+    url: str, *, storage_options: dict | None = None, samples_per_chunk: int | None = None
+) -> xr.Dataset:
+    """Open a store lazily (dask arrays; one sample per dask chunk unless told otherwise)."""
+    if samples_per_chunk is None:
+        return xr.open_zarr(url, consolidated=True, storage_options=storage_options)
+    with warnings.catch_warnings():
+        # labels are stored in one chunk per array: splitting them for reading is intended
+        warnings.filterwarnings("ignore", message="The specified chunks separate")
+        return xr.open_zarr(
+            url,
+            consolidated=True,
+            storage_options=storage_options,
+            chunks={"sample": samples_per_chunk},
+        )
 
 
 def completed_samples(url: str, *, storage_options: dict | None = None) -> np.ndarray:
@@ -228,28 +250,31 @@ def completed_samples(url: str, *, storage_options: dict | None = None) -> np.nd
     return ds["completed"].values.astype(bool)
 
 
+@functools.lru_cache(maxsize=16)
+def _open_group(url: str, options: str):
+    """The store's zarr group, opened once per process (its metadata never changes)."""
+    storage_options = json.loads(options) or None
+    return zarr.open_group(
+        store=url,
+        mode="r+",
+        zarr_format=3,
+        use_consolidated=False,
+        storage_options=storage_options,
+    )
+
+
 def write_samples(
     url: str, start: int, samples: list[xr.Dataset], *, storage_options: dict | None = None
 ) -> None:
-    """Write consecutive samples from `start` as whole chunks, then mark them complete."""
-    frame_coords = ["time", "platform_x", "platform_y", "platform_z"]
-    block = xr.concat(
-        [sample.reset_coords(frame_coords) for sample in samples],
-        dim="sample",
-        data_vars="all",
-        coords="minimal",
-        compat="override",
-        join="override",
-    )
-    keep = [name for name in (*SAMPLE_VARIABLES, "surface_elevation") if name in block]
-    block = block[keep].drop_vars(
-        [c for c in block.coords if "sample" not in block[c].dims], errors="ignore"
-    )
-    region = {"sample": slice(start, start + len(samples))}
-    block.to_zarr(
-        url, region=region, mode="r+", consolidated=False, storage_options=storage_options
-    )
-    done = xr.Dataset({"completed": ("sample", np.ones(len(samples), dtype=np.uint8))})
-    done.to_zarr(
-        url, region=region, mode="r+", consolidated=False, storage_options=storage_options
-    )
+    """Write consecutive samples from `start` as whole chunks, then mark them complete.
+
+    Writes go straight to the zarr arrays the template created (one chunk per sample per
+    variable): xarray's region writes re-read the store's metadata on every call, which
+    cost more than rendering a small sample.
+    """
+    group = _open_group(url, json.dumps(storage_options or {}, sort_keys=True))
+    region = slice(start, start + len(samples))
+    names = [name for name in RENDERED_VARIABLES if name in samples[0]]
+    for name in names:
+        group[name][region] = np.stack([sample[name].values for sample in samples])
+    group["completed"][region] = np.ones(len(samples), dtype=np.uint8)

@@ -48,7 +48,7 @@ from workers.water import (
     slab_backscatter_reflectance,
 )
 
-__all__ = ["render"]
+__all__ = ["render", "sample_labels"]
 
 GUARD = 0.125
 """Guard band added on each side of an in-water plane, as a fraction of the image size."""
@@ -113,7 +113,7 @@ def render(scene: Scene, *, seed: int | SampleSeed) -> xr.Dataset:
         )
     else:
         image = expected.copy()
-    return _dataset(scene, setup, times, expected, image, np.stack(masks), surface)
+    return _dataset(scene, expected, image, np.stack(masks), surface)
 
 
 @dataclass(frozen=True)
@@ -547,33 +547,25 @@ def _render_frame(setup: _Setup, geometry: _FrameGeometry, surface, frame: int):
     return images.reshape(len(setup.gates), pixels, pixels), mask.reshape(pixels, pixels)
 
 
-def _dataset(scene, setup, times, expected, image, masks, surface):
+def sample_labels(scene: Scene) -> xr.Dataset:
+    """The part of a sample fixed by its scene alone, whatever the seed.
+
+    Parameters
+    ----------
+    scene : Scene
+        The sample's parameters.
+
+    Returns
+    -------
+    xarray.Dataset
+        ``target_present`` (), ``target_visibility`` (gate) and the coordinates
+        ``gate_top``, ``gate_bottom`` (gate), ``time`` and ``platform_x/y/z`` (frame).
+    """
+    setup = _setup(scene.model_dump_json())
     gates = np.asarray(setup.gates)
+    times = np.arange(scene.sequence.frames) * scene.sequence.interval
     position = np.stack([_platform_position(scene, t) for t in times])
-    unit_note = (
-        ("photoelectrons" if scene.noise.gain == 1.0 else "counts")
-        if scene.noise.photons > 0
-        else "1"
-    )
     data_vars = {
-        "image": (
-            ("frame", "gate", "y", "x"),
-            image.astype(np.float32),
-            {"long_name": "gated receiver image with shot noise", "units": unit_note},
-        ),
-        "expected": (
-            ("frame", "gate", "y", "x"),
-            expected.astype(np.float32),
-            {
-                "long_name": "expected (noise-free) gated receiver image",
-                "units": "photoelectrons" if scene.noise.photons > 0 else "1",
-            },
-        ),
-        "target_mask": (
-            ("frame", "y", "x"),
-            masks.astype(np.uint8),
-            {"long_name": "pixel ray meets the target silhouette", "units": "1"},
-        ),
         "target_present": (
             (),
             np.uint8(scene.target.shape != "none"),
@@ -593,24 +585,51 @@ def _dataset(scene, setup, times, expected, image, masks, surface):
     coords = {
         "gate_top": ("gate", gates[:, 0], {"long_name": "gate top depth", "units": "m"}),
         "gate_bottom": ("gate", gates[:, 1], {"long_name": "gate bottom depth", "units": "m"}),
-        "time": ("frame", np.asarray(times, dtype=float), {"long_name": "time", "units": "s"}),
+        "time": ("frame", times, {"long_name": "time", "units": "s"}),
         "platform_x": ("frame", position[:, 0], {"long_name": "platform east", "units": "m"}),
         "platform_y": ("frame", position[:, 1], {"long_name": "platform north", "units": "m"}),
         "platform_z": ("frame", position[:, 2], {"long_name": "platform height", "units": "m"}),
     }
+    return xr.Dataset(data_vars, coords=coords)
+
+
+def _dataset(scene, expected, image, masks, surface):
+    units = "1"
+    if scene.noise.photons > 0:
+        units = "photoelectrons" if scene.noise.gain == 1.0 else "counts"
+    frames = scene.sequence.frames
+    ds = sample_labels(scene)
+    ds["image"] = (
+        ("frame", "gate", "y", "x"),
+        image.astype(np.float32),
+        {"long_name": "gated receiver image with shot noise", "units": units},
+    )
+    ds["expected"] = (
+        ("frame", "gate", "y", "x"),
+        expected.astype(np.float32),
+        {
+            "long_name": "expected (noise-free) gated receiver image",
+            "units": "photoelectrons" if scene.noise.photons > 0 else "1",
+        },
+    )
+    ds["target_mask"] = (
+        ("frame", "y", "x"),
+        masks.astype(np.uint8),
+        {"long_name": "pixel ray meets the target silhouette", "units": "1"},
+    )
     if scene.save_surface:
         n, spacing = scene.surface.grid_size, scene.surface.spacing
         elevation = (
-            surface.elevation
-            if surface is not None
-            else np.zeros((len(times), n, n), dtype=np.float32)
+            surface.elevation if surface is not None else np.zeros((frames, n, n), np.float32)
         )
-        data_vars["surface_elevation"] = (
+        ds["surface_elevation"] = (
             ("frame", "sy", "sx"),
             elevation.astype(np.float32),
             {"long_name": "sea surface elevation", "units": "m"},
         )
         axis = np.arange(n) * spacing
-        coords["sx"] = ("sx", axis, {"long_name": "surface grid east", "units": "m"})
-        coords["sy"] = ("sy", axis, {"long_name": "surface grid north", "units": "m"})
-    return xr.Dataset(data_vars, coords=coords)
+        ds = ds.assign_coords(
+            sx=("sx", axis, {"long_name": "surface grid east", "units": "m"}),
+            sy=("sy", axis, {"long_name": "surface grid north", "units": "m"}),
+        )
+    return ds
