@@ -37,7 +37,7 @@ import xarray as xr
 from workers import spectra
 from workers.geometry import LaserRays, PinholeCamera, PlaneGrid, flat_sea_point
 from workers.noise import shot_noise
-from workers.optics import fresnel_reflectance, refract
+from workers.optics import fresnel_reflectance
 from workers.scene import Scene
 from workers.seeds import SampleSeed
 from workers.surface import synthesize
@@ -231,8 +231,8 @@ class _FrameGeometry:
     """Geometry of one frame: sensor rays, planes, filters and the target impostor."""
 
     position: np.ndarray
-    pixel_origin: np.ndarray
-    pixel_directions: np.ndarray
+    pixel_rays: tuple
+    laser_rays: tuple
     laser: LaserRays
     monostatic: bool
     gate_planes: tuple[_Plane, ...]
@@ -309,8 +309,8 @@ def _frame_geometry(key: str, frame: int) -> _FrameGeometry:
             )
         return _FrameGeometry(
             position=position,
-            pixel_origin=position.astype(np.float32),
-            pixel_directions=pixel_directions,
+            pixel_rays=_ray_components(position, pixel_directions),
+            laser_rays=_ray_components(laser.origins, laser.directions),
             laser=laser,
             monostatic=monostatic,
             gate_planes=tuple(gate_planes),
@@ -382,8 +382,8 @@ def _frame_geometry(key: str, frame: int) -> _FrameGeometry:
         masks.append(by_span[span])
     return _FrameGeometry(
         position=position,
-        pixel_origin=position.astype(np.float32),
-        pixel_directions=pixel_directions,
+        pixel_rays=_ray_components(position, pixel_directions),
+        laser_rays=_ray_components(laser.origins, laser.directions),
         laser=laser,
         monostatic=monostatic,
         gate_planes=tuple(gate_planes),
@@ -419,48 +419,87 @@ class _Transmitted:
         return x, y, extra
 
 
-def _through_surface(origin, direction, surface, frame, refractive_index):
-    """Intersect rays with the surface, refract them and get their Fresnel transmittance.
+def _ray_components(origins, directions):
+    """Rays as six contiguous float32 components (ox, oy, oz, dx, dy, dz).
 
-    Rays meeting a facet that faces away from them, and rays the surface would send back
-    up, transmit nothing.
+    An origin shared by every ray (a divergent beam, the pinhole) is kept as three
+    float32 scalars, which broadcast.
     """
-    ox, oy, oz = (origin[..., i] for i in range(3))
-    dx, dy, dz = (direction[..., i] for i in range(3))
+    origins = np.asarray(origins, dtype=np.float32).reshape(-1, 3)
+    directions = np.asarray(directions, dtype=np.float32).reshape(-1, 3)
+    if origins.shape[0] == 1 or np.all(origins == origins[0]):
+        o = tuple(np.float32(v) for v in origins[0])
+    else:
+        o = tuple(np.ascontiguousarray(origins[:, i]) for i in range(3))
+    return (*o, *(np.ascontiguousarray(directions[:, i]) for i in range(3)))
+
+
+def _through_surface(rays, surface, frame, refractive_index):
+    r"""Intersect rays with the surface, refract them and get their Fresnel transmittance.
+
+    Parameters
+    ----------
+    rays : tuple
+        ``(ox, oy, oz, dx, dy, dz)`` from `_ray_components` [m], [1].
+    surface : Surface or None
+        The sea surface (None: flat).
+    frame : int
+        Frame index into the surface.
+    refractive_index : float
+        Refractive index of the water [1].
+
+    Returns
+    -------
+    _Transmitted
+
+    Notes
+    -----
+    The hit is found by fixed-point iteration from z = 0: the ray's point at the height η
+    of the surface under its previous point; it contracts by |slope · tan(view)| per step
+    and stops when the surface under the new point differs from η by less than
+    `SURFACE_TOLERANCE` (so the hit is within the tolerance, about, of the exact one);
+    elevation and slopes are those sampled there. The interface is then refracted and
+    weighted inline, with the formulas of `workers.optics.refract` and
+    `workers.optics.fresnel_reflectance` specialised to air → water (n1 = 1 < n2, no total
+    internal reflection): with the upward normal :math:`n = (-s_x, -s_y, 1)/\sqrt{1 + s^2}`,
+    cos i = -ξ·n, k = 1 - (1 - cos² i)/n_w², the transmitted direction is
+    :math:`\xi/n_w + (\cos i/n_w - \sqrt{k})\,n`. Rays meeting a facet that faces away
+    from them (cos i <= 0), and rays the surface would send back up, transmit nothing.
+    """
+    ox, oy, oz, dx, dy, dz = rays
     travel = -oz / dz
     if surface is None:
         eta = np.zeros_like(travel)
         sx = sy = eta
     else:
-        # Fixed-point iteration from z = 0; it contracts by |slope · tan(view)| per step.
-        # Slopes are sampled with the last step: within the tolerance of the converged hit.
         eta = surface.elevation_at(ox + travel * dx, oy + travel * dy, frame)
         for _ in range(SURFACE_ITERATIONS):
-            update = (eta - oz) / dz
-            eta, sx, sy = surface.sample(ox + update * dx, oy + update * dy, frame)
-            converged = np.max(np.abs((update - travel) * dz)) < SURFACE_TOLERANCE
-            travel = update
+            travel = (eta - oz) / dz
+            height, sx, sy = surface.sample(ox + travel * dx, oy + travel * dy, frame)
+            converged = np.max(np.abs(height - eta)) < SURFACE_TOLERANCE
+            eta = height
             if converged:
                 break
-    normal = np.stack([-sx, -sy, np.ones_like(eta)], axis=-1)
-    normal /= np.sqrt(1.0 + sx * sx + sy * sy)[:, np.newaxis]
-    cos_incidence = -(dx * normal[:, 0] + dy * normal[:, 1] + dz * normal[:, 2])
-    transmitted, _ = refract(
-        np.broadcast_to(direction, normal.shape), normal, n1=1.0, n2=refractive_index
-    )
-    down = -transmitted[:, 2]
+    ratio = 1.0 / refractive_index
+    inverse_norm = 1.0 / np.sqrt(1.0 + sx * sx + sy * sy)
+    cos_incidence = (dx * sx + dy * sy - dz) * inverse_norm
+    cos_i = np.clip(cos_incidence, 0.0, 1.0)
+    cos_t = np.sqrt(1.0 - ratio * ratio * (1.0 - cos_i * cos_i))
+    coefficient = (ratio * cos_i - cos_t) * inverse_norm
+    down = -(ratio * dz + coefficient)
     facing = (cos_incidence > 0) & (down > 0)
-    transmittance = 1.0 - fresnel_reflectance(
-        np.clip(cos_incidence, 0.0, 1.0), n1=1.0, n2=refractive_index
-    )
-    secant = np.where(facing, 1.0 / np.where(facing, down, 1.0), 1.0).astype(np.float32)
+    secant = np.where(facing, 1.0 / np.where(facing, down, 1.0), 1.0)
+    n_w = refractive_index
+    r_s = (cos_i - n_w * cos_t) / (cos_i + n_w * cos_t)
+    r_p = (n_w * cos_i - cos_t) / (n_w * cos_i + cos_t)
+    transmittance = 1.0 - 0.5 * (r_s * r_s + r_p * r_p)
     return _Transmitted(
-        x=(ox + travel * dx).astype(np.float32),
-        y=(oy + travel * dy).astype(np.float32),
-        z=eta.astype(np.float32),
-        tan_x=np.where(facing, transmitted[:, 0] * secant, 0.0).astype(np.float32),
-        tan_y=np.where(facing, transmitted[:, 1] * secant, 0.0).astype(np.float32),
-        secant=secant,
+        x=np.asarray(ox + travel * dx, dtype=np.float32),
+        y=np.asarray(oy + travel * dy, dtype=np.float32),
+        z=np.asarray(eta, dtype=np.float32),
+        tan_x=np.where(facing, (ratio * dx - coefficient * sx) * secant, 0.0).astype(np.float32),
+        tan_y=np.where(facing, (ratio * dy - coefficient * sy) * secant, 0.0).astype(np.float32),
+        secant=secant.astype(np.float32),
         transmittance=np.where(facing, transmittance, 0.0).astype(np.float32),
     )
 
@@ -486,13 +525,11 @@ def _render_frame(setup: _Setup, geometry: _FrameGeometry, surface, frame: int):
     n_w = setup.water.refractive_index
     K = setup.water.diffuse_attenuation
     laser = geometry.laser
-    down = _through_surface(laser.origins, laser.directions, surface, frame, n_w)
+    down = _through_surface(geometry.laser_rays, surface, frame, n_w)
     if geometry.monostatic:
         up = down
     else:
-        up = _through_surface(
-            geometry.pixel_origin, geometry.pixel_directions, surface, frame, n_w
-        )
+        up = _through_surface(geometry.pixel_rays, surface, frame, n_w)
     power = laser.power * down.transmittance
 
     def crossing(plane):
