@@ -360,7 +360,7 @@ def _frame_geometry(key: str, frame: int) -> _FrameGeometry:
             target_plane.grid.gather(impostor.surface_depth, located),
             target_plane.grid.gather(impostor.occupancy, located),
         )
-        occlusion = _convolve(np.sqrt(1.0 - hidden), mtf / mtf[0, 0])
+        occlusion = _convolve(np.sqrt(np.maximum(1.0 - hidden, 0.0)), mtf / mtf[0, 0])
         gate_planes.append(
             _Plane(
                 grid=grid,
@@ -405,18 +405,70 @@ class _Transmitted:
     secant: np.ndarray
     transmittance: np.ndarray
 
-    def at_depth(self, depth: float, diffuse_attenuation: float):
-        """Where the rays cross the plane at `depth`, and their extra-path attenuation.
+    def on_axes(self, grid: PlaneGrid, diffuse_attenuation: float) -> _Projected:
+        """The rays in the horizontal axes of `grid`, ready to be crossed with any depth.
 
-        The MTF of a plane at depth z already attenuates by exp(-Kz); a ray entering at
-        height η with angle ϑ from the vertical travels (z + η)/cos ϑ, so it is further
-        attenuated by exp(-K((z + η)/cos ϑ - z)).
+        Parameters
+        ----------
+        grid : PlaneGrid
+            Any plane of the frame: they all share the image's axes.
+        diffuse_attenuation : float
+            K [1/m].
+
+        Returns
+        -------
+        _Projected
         """
-        drop = self.z + np.float32(depth)
-        x = self.x + drop * self.tan_x
-        y = self.y + drop * self.tan_y
-        extra = np.exp(np.float32(-diffuse_attenuation) * (drop * self.secant - np.float32(depth)))
-        return x, y, extra
+        (u0, u1), (v0, v1) = grid.axis_u, grid.axis_v
+        slope_u = self.tan_x * u0 + self.tan_y * u1
+        slope_v = self.tan_x * v0 + self.tan_y * v1
+        base_u = self.x * u0 + self.y * u1 + self.z * slope_u
+        base_v = self.x * v0 + self.y * v1 + self.z * slope_v
+        k = -diffuse_attenuation
+        return _Projected(
+            base_u=base_u,
+            slope_u=slope_u,
+            base_v=base_v,
+            slope_v=slope_v,
+            log_extra=(k * self.z) * self.secant,
+            log_extra_slope=k * (self.secant - 1.0),
+        )
+
+
+@dataclass(frozen=True)
+class _Projected:
+    r"""Rays after the surface, as affine functions of the depth z of a plane [m].
+
+    On a plane at depth z a ray that entered at height η with in-water slopes
+    (tan_x, tan_y) is at ``base + z·slope`` along each of the image's horizontal axes u
+    and v [m] (its entry point moved down by z + η along the slopes). The MTF of a plane
+    at depth z already attenuates by exp(-Kz); the ray travels (z + η)/cos ϑ, so it is
+    further attenuated by :math:`e^{-K((z + \eta)/\cos\vartheta - z)}
+    = \exp(\mathrm{log\_extra} + z\,\mathrm{log\_extra\_slope})`.
+    """
+
+    base_u: np.ndarray
+    slope_u: np.ndarray
+    base_v: np.ndarray
+    slope_v: np.ndarray
+    log_extra: np.ndarray
+    log_extra_slope: np.ndarray
+
+    def cross(self, grid: PlaneGrid):
+        """Located rays on `grid` (at its depth) and their extra-path attenuation."""
+        z = np.float32(grid.depth)
+        (o0, o1), (u0, u1), (v0, v1) = grid.origin, grid.axis_u, grid.axis_v
+        col = self.slope_u * z
+        col += self.base_u
+        col -= np.float32(o0 * u0 + o1 * u1)
+        col *= np.float32(1.0 / grid.spacing_u)
+        row = self.slope_v * z
+        row += self.base_v
+        row -= np.float32(o0 * v0 + o1 * v1)
+        row *= np.float32(1.0 / grid.spacing_v)
+        extra = self.log_extra_slope * z
+        extra += self.log_extra
+        return grid.locate_cells(row, col), np.exp(extra, out=extra)
 
 
 def _ray_components(origins, directions):
@@ -532,14 +584,17 @@ def _render_frame(setup: _Setup, geometry: _FrameGeometry, surface, frame: int):
         up = _through_surface(geometry.pixel_rays, surface, frame, n_w)
     power = laser.power * down.transmittance
 
+    axes_grid = (geometry.target_plane or geometry.gate_planes[0]).grid
+    down_axes = down.on_axes(axes_grid, K)
+    up_axes = down_axes if up is down else up.on_axes(axes_grid, K)
+
     def crossing(plane):
         """Rays and lines of sight on a plane: (rays, sight, ray power, sight weight)."""
-        lx, ly, lextra = down.at_depth(plane.depth, K)
-        rays = plane.grid.locate(lx, ly)
+        rays, lextra = down_axes.cross(plane.grid)
         if up is down:
             return rays, rays, power * lextra, up.transmittance * lextra
-        px, py, pextra = up.at_depth(plane.depth, K)
-        return rays, plane.grid.locate(px, py), power * lextra, up.transmittance * pextra
+        sight, pextra = up_axes.cross(plane.grid)
+        return rays, sight, power * lextra, up.transmittance * pextra
 
     pixels = setup.scene.receiver.pixels
     images = np.zeros((len(setup.gates), pixels * pixels), dtype=np.float32)
@@ -574,7 +629,7 @@ def _render_frame(setup: _Setup, geometry: _FrameGeometry, surface, frame: int):
                     hidden = _hidden_fraction(
                         surface_depth, occupancy, top=top, bottom=bottom, diffuse_attenuation=K
                     )
-                transmitted[plane.hiding] = np.sqrt(1.0 - hidden)
+                transmitted[plane.hiding] = np.sqrt(np.maximum(1.0 - hidden, 0.0))
             ray_power *= transmitted[plane.hiding]
         radiance = _convolve(plane.grid.splat(rays, ray_power), plane.filter)
         if plane.occlusion is not None:
