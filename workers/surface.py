@@ -162,7 +162,9 @@ class Surface:
         if frame not in self._wrapped:
             n = int(self.grid_size)
             padded = np.empty((3, n + 1, n + 1), np.float32)
-            for field, grid in zip(padded, (self.elevation, self.slope_x, self.slope_y)):
+            for field, grid in zip(
+                padded, (self.elevation, self.slope_x, self.slope_y), strict=True
+            ):
                 field[:n, :n] = grid[frame]
                 field[n, :n] = grid[frame, 0]
                 field[:, n] = field[:, 0]
