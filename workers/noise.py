@@ -13,7 +13,7 @@ _INVERSION_STEPS = 40
 """Most counts inversion can return: P(N > 40) < 1e-48 for λ <= 1, far below 2⁻⁵³."""
 
 
-def poisson_counts(expected, *, rng):
+def poisson_counts(expected, *, rng, dtype=np.int64):
     r"""Exact Poisson counts, fast when most means are small (dim gated images).
 
     Parameters
@@ -22,10 +22,12 @@ def poisson_counts(expected, *, rng):
         Mean counts λ >= 0 [photoelectrons], any shape.
     rng : numpy.random.Generator
         Source of randomness.
+    dtype : numpy dtype, optional
+        Of the result; float32 holds counts exactly up to 2²⁴.
 
     Returns
     -------
-    ndarray, int64
+    ndarray
         Counts :math:`n \sim \mathrm{Poisson}(\lambda)`, shape of `expected`.
 
     Notes
@@ -49,7 +51,7 @@ def poisson_counts(expected, *, rng):
     lam = np.asarray(expected, dtype=np.float64)
     shape = lam.shape
     lam = lam.ravel()
-    counts = np.zeros(lam.size, dtype=np.int64)
+    counts = np.zeros(lam.size, dtype=dtype)
     w = rng.random(lam.size)
     high = lam > INVERSION_LIMIT
     if high.any():
@@ -107,11 +109,13 @@ def shot_noise(expected, *, rng, gain=1.0, excess_noise=1.0):
     and other important characteristics of low light level imaging using charge
     multiplying CCDs. IEEE Trans. Electron Devices 50(1), 239–245.
     """
-    counts = poisson_counts(expected, rng=rng)
+    counts = poisson_counts(expected, rng=rng, dtype=np.float32)
     if excess_noise > 1.0:
         spread = excess_noise - 1.0
         amplified = np.zeros(counts.shape)
         lit = counts > 0
-        amplified[lit] = rng.gamma(counts[lit] / spread, gain * spread)
+        amplified[lit] = rng.gamma(counts[lit].astype(np.float64) / spread, gain * spread)
         return amplified.astype(np.float32)
-    return (gain * counts).astype(np.float32)
+    if gain != 1.0:
+        return (gain * counts.astype(np.float64)).astype(np.float32)
+    return counts

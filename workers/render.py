@@ -650,12 +650,12 @@ def _dataset(scene, setup, times, expected, image, masks, surface):
     data_vars = {
         "image": (
             ("frame", "gate", "y", "x"),
-            image.astype(np.float32),
+            image.astype(np.float32, copy=False),
             {"long_name": "gated receiver image with shot noise", "units": unit_note},
         ),
         "expected": (
             ("frame", "gate", "y", "x"),
-            expected.astype(np.float32),
+            expected.astype(np.float32, copy=False),
             {
                 "long_name": "expected (noise-free) gated receiver image",
                 "units": "photoelectrons" if scene.noise.photons > 0 else "1",
