@@ -509,11 +509,12 @@ class PlaneGrid:
 
         Notes
         -----
-        One ``np.bincount`` over the four corners of every point, accumulated in float64.
+        One ``np.bincount`` over the four corners of every point: the float32 corner
+        weights are accumulated in float64.
         """
         rows, cols = self.shape
         density = np.multiply(power, 1.0 / (self.spacing_u * self.spacing_v), dtype=np.float32)
-        weight = np.multiply(located.weights, density, dtype=np.float64)
+        weight = located.weights * density
         total = np.bincount(located.corners.ravel(), weights=weight.ravel(), minlength=rows * cols)
         return total.astype(np.float32).reshape(rows, cols)
 

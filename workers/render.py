@@ -622,14 +622,20 @@ def _render_frame(setup: _Setup, geometry: _FrameGeometry, surface, frame: int):
         rays, sight, ray_power, sight_weight = crossing(plane)
         if plane.hiding is not None:
             if plane.hiding not in transmitted:
-                # rays lose the part of the slab behind the target (all of it, in its shadow)
-                hidden = occupancy
+                # rays lose the part of the slab behind the target (all of it, in its
+                # shadow); only rays that meet the target's silhouette lose anything
+                if "lit" not in transmitted:
+                    transmitted["lit"] = np.flatnonzero(occupancy)
+                lit = transmitted["lit"]
+                hidden = occupancy[lit]
                 if plane.hiding != ("shadow",):
                     top, bottom = plane.hiding
                     hidden = _hidden_fraction(
-                        surface_depth, occupancy, top=top, bottom=bottom, diffuse_attenuation=K
+                        surface_depth[lit], hidden, top=top, bottom=bottom, diffuse_attenuation=K
                     )
-                transmitted[plane.hiding] = np.sqrt(np.maximum(1.0 - hidden, 0.0))
+                factor = np.ones_like(occupancy)
+                factor[lit] = np.sqrt(np.maximum(1.0 - hidden, 0.0))
+                transmitted[plane.hiding] = factor
             ray_power *= transmitted[plane.hiding]
         radiance = _convolve(plane.grid.splat(rays, ray_power), plane.filter)
         if plane.occlusion is not None:
