@@ -509,14 +509,17 @@ def _through_surface(rays, surface, frame, refractive_index):
     The hit is found by fixed-point iteration from z = 0: the ray's point at the height η
     of the surface under its previous point; it contracts by |slope · tan(view)| per step
     and stops when the surface under the new point differs from η by less than
-    `SURFACE_TOLERANCE` (so the hit is within the tolerance, about, of the exact one);
-    elevation and slopes are those sampled there. The interface is then refracted and
-    weighted inline, with the formulas of `workers.optics.refract` and
-    `workers.optics.fresnel_reflectance` specialised to air → water (n1 = 1 < n2, no total
-    internal reflection): with the upward normal :math:`n = (-s_x, -s_y, 1)/\sqrt{1 + s^2}`,
-    cos i = -ξ·n, k = 1 - (1 - cos² i)/n_w², the transmitted direction is
-    :math:`\xi/n_w + (\cos i/n_w - \sqrt{k})\,n`. Rays meeting a facet that faces away
-    from them (cos i <= 0), and rays the surface would send back up, transmit nothing.
+    `SURFACE_TOLERANCE` (so the hit is within the tolerance, about, of the exact one).
+    Elevation and slopes are those sampled there (the slopes only once, at the end).
+
+    The interface is refracted and weighted inline with the formulas of
+    `workers.optics.refract` and `workers.optics.fresnel_reflectance`, specialised to
+    air → water (n1 = 1 < n2, no total internal reflection): with the upward normal
+    :math:`n = (-s_x, -s_y, 1)/\sqrt{1 + s^2}`, cos i = -ξ·n and
+    k = 1 - (1 - cos² i)/n_w², the transmitted direction is
+    :math:`\xi/n_w + (\cos i/n_w - \sqrt{k})\,n`. Rays meeting a facet that faces
+    away from them (cos i <= 0), and rays the surface would send back up, transmit
+    nothing.
     """
     ox, oy, oz, dx, dy, dz = rays
     travel = -oz / dz
@@ -527,11 +530,13 @@ def _through_surface(rays, surface, frame, refractive_index):
         eta = surface.elevation_at(ox + travel * dx, oy + travel * dy, frame)
         for _ in range(SURFACE_ITERATIONS):
             travel = (eta - oz) / dz
-            height, sx, sy = surface.sample(ox + travel * dx, oy + travel * dy, frame)
+            x, y = ox + travel * dx, oy + travel * dy
+            height = surface.elevation_at(x, y, frame)
             converged = np.max(np.abs(height - eta)) < SURFACE_TOLERANCE
             eta = height
             if converged:
                 break
+        sx, sy = surface.slopes_at(x, y, frame)
     ratio = 1.0 / refractive_index
     inverse_norm = 1.0 / np.sqrt(1.0 + sx * sx + sy * sy)
     cos_incidence = (dx * sx + dy * sy - dz) * inverse_norm

@@ -210,6 +210,13 @@ class Surface:
         """Bilinear, periodically wrapped elevation alone at world points, m (see `sample`)."""
         return self._sample(self._wrapped_fields(frame)[:1], x, y)[0]
 
+    def slopes_at(self, x, y, frame=0):
+        """Bilinear, periodically wrapped slopes ∂η/∂x, ∂η/∂y alone at world points [1].
+
+        See `sample`; the values are those it returns.
+        """
+        return self._sample(self._wrapped_fields(frame)[1:], x, y)
+
     def _sample(self, grids, x, y):
         x, y = np.broadcast_arrays(x, y)
         shape = x.shape
