@@ -338,7 +338,7 @@ def test_elevation_at_and_slopes_at_equal_sample_across_blocks_and_wraps(n):
     assert_array_equal(slope_x, sx)
     assert_array_equal(slope_y, sy)
     # bilinear on the unpadded grid, wrapped by hand
-    tx, ty = x / np.float32(0.3), y / np.float32(0.3)
+    tx, ty = x * np.float32(1 / 0.3), y * np.float32(1 / 0.3)  # as Surface locates points
     j, i = np.floor(tx).astype(int), np.floor(ty).astype(int)
     fx, fy = tx - j, ty - i
     grid = fields[0, 1]
