@@ -35,3 +35,33 @@ def test_same_seed_same_counts_and_zero_mean_gives_zero():
     b = shot_noise(lam, rng=np.random.default_rng(2))
     assert a.tobytes() == b.tobytes()
     assert a[0] == 0
+
+
+@pytest.mark.parametrize("lam", [1e-3, 0.2, 1.0, 1.7], ids=lambda v: f"lambda{v:g}")
+def test_poisson_counts_follow_the_poisson_law(lam):
+    # Pearson's χ² over the classes with at least 20 expected counts, against its 1e-4
+    # quantile: both sides of INVERSION_LIMIT (inversion and numpy's sampler).
+    from scipy import stats
+
+    from workers.noise import poisson_counts
+
+    n = 1_000_000
+    counts = poisson_counts(np.full(n, lam), rng=np.random.default_rng(3))
+    k = np.arange(counts.max() + 1)
+    observed = np.bincount(counts)
+    expected = stats.poisson.pmf(k, lam) * n
+    keep = expected >= 20
+    chi2 = ((observed[keep] - expected[keep]) ** 2 / expected[keep]).sum()
+    assert chi2 < stats.chi2.isf(1e-4, max(keep.sum() - 1, 1))
+    assert observed[~keep].sum() < 5 * max(expected[~keep].sum(), 1.0)
+
+
+def test_poisson_counts_mixed_means_keep_shape_and_order():
+    from workers.noise import poisson_counts
+
+    lam = np.array([[0.0, 1e-3, 0.5], [1.0, 5.0, 300.0]])
+    draws = np.stack([poisson_counts(lam, rng=np.random.default_rng(s)) for s in range(4000)])
+    assert draws.shape == (4000, 2, 3) and draws.dtype == np.int64
+    assert np.all(draws[:, 0, 0] == 0)
+    sd = np.sqrt(lam / 4000)
+    assert np.all(np.abs(draws.mean(axis=0) - lam) <= 5 * sd + 1e-12)

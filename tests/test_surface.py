@@ -320,3 +320,29 @@ def test_elevation_at_equals_the_elevation_of_sample():
     )
     x, y = np.random.default_rng(1).uniform(-3, 3, (2, 1000))
     assert surface.elevation_at(x, y).tobytes() == surface.sample(x, y)[0].tobytes()
+
+
+@pytest.mark.parametrize("n", [8, 12])
+def test_elevation_at_and_slopes_at_equal_sample_across_blocks_and_wraps(n):
+    rng = np.random.default_rng(4)
+    fields = rng.standard_normal((3, 2, n, n)).astype(np.float32)
+    surface = Surface(
+        elevation=fields[0], slope_x=fields[1], slope_y=fields[2], spacing=0.3, grid_size=n
+    )
+    # more points than one block, far outside the first period and negative
+    x = rng.uniform(-50.0, 50.0, 70_000).astype(np.float32)
+    y = rng.uniform(-50.0, 50.0, 70_000).astype(np.float32)
+    eta, sx, sy = surface.sample(x, y, frame=1)
+    assert_array_equal(surface.elevation_at(x, y, frame=1), eta)
+    slope_x, slope_y = surface.slopes_at(x, y, frame=1)
+    assert_array_equal(slope_x, sx)
+    assert_array_equal(slope_y, sy)
+    # bilinear on the unpadded grid, wrapped by hand
+    tx, ty = x * np.float32(1 / 0.3), y * np.float32(1 / 0.3)  # as Surface locates points
+    j, i = np.floor(tx).astype(int), np.floor(ty).astype(int)
+    fx, fy = tx - j, ty - i
+    grid = fields[0, 1]
+    expected = (1 - fy) * ((1 - fx) * grid[i % n, j % n] + fx * grid[i % n, (j + 1) % n]) + fy * (
+        (1 - fx) * grid[(i + 1) % n, j % n] + fx * grid[(i + 1) % n, (j + 1) % n]
+    )
+    assert_allclose(eta, expected, rtol=1e-5, atol=1e-5)

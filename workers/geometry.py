@@ -302,12 +302,22 @@ def flat_sea_point(*, origin, direction, depth, refractive_index):
 
 
 class Located(NamedTuple):
-    """Points located on a `PlaneGrid`: lower-left cell (flat index), fractions, validity."""
+    """Points located on a `PlaneGrid`: the four cells around each and bilinear weights.
 
-    index: np.ndarray
-    row: np.ndarray
-    col: np.ndarray
-    valid: np.ndarray
+    Attributes
+    ----------
+    corners : ndarray, shape (4, ...), intp
+        Flat indices of the cells (row, col), (row, col + 1), (row + 1, col) and
+        (row + 1, col + 1), with (row, col) the cell whose centre is the nearest below
+        and left of the point; 0 for points outside the grid. The trailing axes are
+        the shape of the located points.
+    weights : ndarray, shape (4, ...), float32
+        Bilinear weights of those cells [1]: they sum to 1 for points inside the grid
+        and are 0 for points outside.
+    """
+
+    corners: np.ndarray
+    weights: np.ndarray
 
 
 def _fast_length(n):
@@ -431,7 +441,7 @@ class PlaneGrid:
         return x, y
 
     def locate(self, x, y):
-        """Cells and bilinear fractions of world points, for `splat` and `gather`.
+        """Cells and bilinear weights of world points, for `splat` and `gather`.
 
         Parameters
         ----------
@@ -443,13 +453,44 @@ class PlaneGrid:
         Located
             Reusable for every splat and gather at these points.
         """
-        rows, cols = self.shape
         row, col = self.cell_coordinates(x, y)
+        return self.locate_cells(row, col)
+
+    def locate_cells(self, row, col):
+        """`locate` for points given by fractional cell coordinates (float32 arrays).
+
+        Parameters
+        ----------
+        row, col : ndarray
+            Fractional (row, column) of the points, as from `cell_coordinates` [1].
+
+        Returns
+        -------
+        Located
+        """
+        rows, cols = self.shape
         r0 = np.floor(row)
         c0 = np.floor(col)
         valid = (r0 >= 0) & (r0 < rows - 1) & (c0 >= 0) & (c0 < cols - 1)
-        index = np.where(valid, r0 * cols + c0, 0).astype(np.intp)
-        return Located(index=index, row=row - r0, col=col - c0, valid=valid)
+        shape = valid.shape
+        corners = np.empty((4, *shape), dtype=np.intp)
+        base = r0 * cols
+        base += c0
+        corners[0] = np.where(valid, base, 0)
+        np.add(corners[0], 1, out=corners[1])
+        np.add(corners[0], cols, out=corners[2])
+        np.add(corners[0], cols + 1, out=corners[3])
+        fraction_row = np.subtract(row, r0, dtype=np.float32)
+        right = np.subtract(col, c0, dtype=np.float32)
+        right *= valid
+        left = valid.astype(np.float32)
+        left -= right
+        weights = np.empty((4, *shape), dtype=np.float32)
+        np.multiply(left, fraction_row, out=weights[2])
+        np.subtract(left, weights[2], out=weights[0])
+        np.multiply(right, fraction_row, out=weights[3])
+        np.subtract(right, weights[3], out=weights[1])
+        return Located(corners=corners, weights=weights)
 
     def splat(self, located, power):
         """Spread point powers bilinearly onto the cells: an irradiance map.
@@ -465,37 +506,29 @@ class PlaneGrid:
         -------
         ndarray, shape `shape`, float32
             Power per unit horizontal area. Rays outside the grid are dropped.
+
+        Notes
+        -----
+        One ``np.bincount`` over the four corners of every point: the float32 corner
+        weights are accumulated in float64.
         """
         rows, cols = self.shape
-        n = located.index.size
-        w = np.where(located.valid, power, 0.0) * (1.0 / (self.spacing_u * self.spacing_v))
-        right = w * located.col
-        left = w - right
-        index = np.empty((4, n), dtype=np.intp)
-        index[0] = located.index
-        np.add(located.index, 1, out=index[1])
-        np.add(located.index, cols, out=index[2])
-        np.add(located.index, cols + 1, out=index[3])
-        weight = np.empty((4, n), dtype=np.float64)
-        np.multiply(left, located.row, out=weight[2])
-        np.subtract(left, weight[2], out=weight[0])
-        np.multiply(right, located.row, out=weight[3])
-        np.subtract(right, weight[3], out=weight[1])
-        total = np.bincount(index.ravel(), weights=weight.ravel(), minlength=rows * cols)
+        density = np.multiply(power, 1.0 / (self.spacing_u * self.spacing_v), dtype=np.float32)
+        weight = located.weights * density
+        total = np.bincount(located.corners.ravel(), weights=weight.ravel(), minlength=rows * cols)
         return total.astype(np.float32).reshape(rows, cols)
 
     def gather(self, field, located):
-        """Bilinear interpolation of a cell field at located points (0 outside the grid)."""
-        cols = self.shape[1]
-        flat = field.ravel()
-        i = located.index
-        top = flat[i]
-        top += (flat[i + 1] - top) * located.col
-        bottom = flat[i + cols]
-        bottom += (flat[i + cols + 1] - bottom) * located.col
-        top += (bottom - top) * located.row
-        top[~located.valid] = 0.0
-        return top
+        """Bilinear interpolation of a cell field at located points (0 outside the grid).
+
+        Returns
+        -------
+        ndarray
+            The shape of the located points, in the dtype of `field`.
+        """
+        values = field.ravel().take(located.corners)
+        values *= located.weights
+        return values.sum(axis=0)
 
     def frequency(self):
         """Spatial-frequency magnitude on the rfft2 grid of the cells [cycles/m]."""

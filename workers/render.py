@@ -37,7 +37,7 @@ import xarray as xr
 from workers import spectra
 from workers.geometry import LaserRays, PinholeCamera, PlaneGrid, flat_sea_point
 from workers.noise import shot_noise
-from workers.optics import fresnel_reflectance, refract
+from workers.optics import fresnel_reflectance
 from workers.scene import Scene
 from workers.seeds import SampleSeed
 from workers.surface import synthesize
@@ -231,8 +231,8 @@ class _FrameGeometry:
     """Geometry of one frame: sensor rays, planes, filters and the target impostor."""
 
     position: np.ndarray
-    pixel_origin: np.ndarray
-    pixel_directions: np.ndarray
+    pixel_rays: tuple
+    laser_rays: tuple
     laser: LaserRays
     monostatic: bool
     gate_planes: tuple[_Plane, ...]
@@ -309,8 +309,8 @@ def _frame_geometry(key: str, frame: int) -> _FrameGeometry:
             )
         return _FrameGeometry(
             position=position,
-            pixel_origin=position.astype(np.float32),
-            pixel_directions=pixel_directions,
+            pixel_rays=_ray_components(position, pixel_directions),
+            laser_rays=_ray_components(laser.origins, laser.directions),
             laser=laser,
             monostatic=monostatic,
             gate_planes=tuple(gate_planes),
@@ -360,7 +360,7 @@ def _frame_geometry(key: str, frame: int) -> _FrameGeometry:
             target_plane.grid.gather(impostor.surface_depth, located),
             target_plane.grid.gather(impostor.occupancy, located),
         )
-        occlusion = _convolve(np.sqrt(1.0 - hidden), mtf / mtf[0, 0])
+        occlusion = _convolve(np.sqrt(np.maximum(1.0 - hidden, 0.0)), mtf / mtf[0, 0])
         gate_planes.append(
             _Plane(
                 grid=grid,
@@ -382,8 +382,8 @@ def _frame_geometry(key: str, frame: int) -> _FrameGeometry:
         masks.append(by_span[span])
     return _FrameGeometry(
         position=position,
-        pixel_origin=position.astype(np.float32),
-        pixel_directions=pixel_directions,
+        pixel_rays=_ray_components(position, pixel_directions),
+        laser_rays=_ray_components(laser.origins, laser.directions),
         laser=laser,
         monostatic=monostatic,
         gate_planes=tuple(gate_planes),
@@ -405,62 +405,158 @@ class _Transmitted:
     secant: np.ndarray
     transmittance: np.ndarray
 
-    def at_depth(self, depth: float, diffuse_attenuation: float):
-        """Where the rays cross the plane at `depth`, and their extra-path attenuation.
+    def on_axes(self, grid: PlaneGrid, diffuse_attenuation: float) -> _Projected:
+        """The rays in the horizontal axes of `grid`, ready to be crossed with any depth.
 
-        The MTF of a plane at depth z already attenuates by exp(-Kz); a ray entering at
-        height η with angle ϑ from the vertical travels (z + η)/cos ϑ, so it is further
-        attenuated by exp(-K((z + η)/cos ϑ - z)).
+        Parameters
+        ----------
+        grid : PlaneGrid
+            Any plane of the frame: they all share the image's axes.
+        diffuse_attenuation : float
+            K [1/m].
+
+        Returns
+        -------
+        _Projected
         """
-        drop = self.z + np.float32(depth)
-        x = self.x + drop * self.tan_x
-        y = self.y + drop * self.tan_y
-        extra = np.exp(np.float32(-diffuse_attenuation) * (drop * self.secant - np.float32(depth)))
-        return x, y, extra
+        (u0, u1), (v0, v1) = grid.axis_u, grid.axis_v
+        slope_u = self.tan_x * u0 + self.tan_y * u1
+        slope_v = self.tan_x * v0 + self.tan_y * v1
+        base_u = self.x * u0 + self.y * u1 + self.z * slope_u
+        base_v = self.x * v0 + self.y * v1 + self.z * slope_v
+        k = -diffuse_attenuation
+        return _Projected(
+            base_u=base_u,
+            slope_u=slope_u,
+            base_v=base_v,
+            slope_v=slope_v,
+            log_extra=(k * self.z) * self.secant,
+            log_extra_slope=k * (self.secant - 1.0),
+        )
 
 
-def _through_surface(origin, direction, surface, frame, refractive_index):
-    """Intersect rays with the surface, refract them and get their Fresnel transmittance.
+@dataclass(frozen=True)
+class _Projected:
+    r"""Rays after the surface, as affine functions of the depth z of a plane [m].
 
-    Rays meeting a facet that faces away from them, and rays the surface would send back
-    up, transmit nothing.
+    On a plane at depth z a ray that entered at height η with in-water slopes
+    (tan_x, tan_y) is at ``base + z·slope`` along each of the image's horizontal axes u
+    and v [m] (its entry point moved down by z + η along the slopes). The MTF of a plane
+    at depth z already attenuates by exp(-Kz); the ray travels (z + η)/cos ϑ, so it is
+    further attenuated by :math:`e^{-K((z + \eta)/\cos\vartheta - z)}
+    = \exp(\mathrm{log\_extra} + z\,\mathrm{log\_extra\_slope})`.
     """
-    ox, oy, oz = (origin[..., i] for i in range(3))
-    dx, dy, dz = (direction[..., i] for i in range(3))
+
+    base_u: np.ndarray
+    slope_u: np.ndarray
+    base_v: np.ndarray
+    slope_v: np.ndarray
+    log_extra: np.ndarray
+    log_extra_slope: np.ndarray
+
+    def cross(self, grid: PlaneGrid):
+        """Located rays on `grid` (at its depth) and their extra-path attenuation."""
+        z = np.float32(grid.depth)
+        (o0, o1), (u0, u1), (v0, v1) = grid.origin, grid.axis_u, grid.axis_v
+        col = self.slope_u * z
+        col += self.base_u
+        col -= np.float32(o0 * u0 + o1 * u1)
+        col *= np.float32(1.0 / grid.spacing_u)
+        row = self.slope_v * z
+        row += self.base_v
+        row -= np.float32(o0 * v0 + o1 * v1)
+        row *= np.float32(1.0 / grid.spacing_v)
+        extra = self.log_extra_slope * z
+        extra += self.log_extra
+        return grid.locate_cells(row, col), np.exp(extra, out=extra)
+
+
+def _ray_components(origins, directions):
+    """Rays as six contiguous float32 components (ox, oy, oz, dx, dy, dz).
+
+    An origin shared by every ray (a divergent beam, the pinhole) is kept as three
+    float32 scalars, which broadcast.
+    """
+    origins = np.asarray(origins, dtype=np.float32).reshape(-1, 3)
+    directions = np.asarray(directions, dtype=np.float32).reshape(-1, 3)
+    if origins.shape[0] == 1 or np.all(origins == origins[0]):
+        o = tuple(np.float32(v) for v in origins[0])
+    else:
+        o = tuple(np.ascontiguousarray(origins[:, i]) for i in range(3))
+    return (*o, *(np.ascontiguousarray(directions[:, i]) for i in range(3)))
+
+
+def _through_surface(rays, surface, frame, refractive_index):
+    r"""Intersect rays with the surface, refract them and get their Fresnel transmittance.
+
+    Parameters
+    ----------
+    rays : tuple
+        ``(ox, oy, oz, dx, dy, dz)`` from `_ray_components` [m], [1].
+    surface : Surface or None
+        The sea surface (None: flat).
+    frame : int
+        Frame index into the surface.
+    refractive_index : float
+        Refractive index of the water [1].
+
+    Returns
+    -------
+    _Transmitted
+
+    Notes
+    -----
+    The hit is found by fixed-point iteration from z = 0: the ray's point at the height η
+    of the surface under its previous point; it contracts by |slope · tan(view)| per step
+    and stops when the surface under the new point differs from η by less than
+    `SURFACE_TOLERANCE` (so the hit is within the tolerance, about, of the exact one).
+    Elevation and slopes are those sampled there (the slopes only once, at the end).
+
+    The interface is refracted and weighted inline with the formulas of
+    `workers.optics.refract` and `workers.optics.fresnel_reflectance`, specialised to
+    air → water (n1 = 1 < n2, no total internal reflection): with the upward normal
+    :math:`n = (-s_x, -s_y, 1)/\sqrt{1 + s^2}`, cos i = -ξ·n and
+    k = 1 - (1 - cos² i)/n_w², the transmitted direction is
+    :math:`\xi/n_w + (\cos i/n_w - \sqrt{k})\,n`. Rays meeting a facet that faces
+    away from them (cos i <= 0), and rays the surface would send back up, transmit
+    nothing.
+    """
+    ox, oy, oz, dx, dy, dz = rays
     travel = -oz / dz
     if surface is None:
         eta = np.zeros_like(travel)
         sx = sy = eta
     else:
-        # Fixed-point iteration from z = 0; it contracts by |slope · tan(view)| per step.
-        # Slopes are sampled with the last step: within the tolerance of the converged hit.
         eta = surface.elevation_at(ox + travel * dx, oy + travel * dy, frame)
         for _ in range(SURFACE_ITERATIONS):
-            update = (eta - oz) / dz
-            eta, sx, sy = surface.sample(ox + update * dx, oy + update * dy, frame)
-            converged = np.max(np.abs((update - travel) * dz)) < SURFACE_TOLERANCE
-            travel = update
+            travel = (eta - oz) / dz
+            x, y = ox + travel * dx, oy + travel * dy
+            height = surface.elevation_at(x, y, frame)
+            converged = np.max(np.abs(height - eta)) < SURFACE_TOLERANCE
+            eta = height
             if converged:
                 break
-    normal = np.stack([-sx, -sy, np.ones_like(eta)], axis=-1)
-    normal /= np.sqrt(1.0 + sx * sx + sy * sy)[:, np.newaxis]
-    cos_incidence = -(dx * normal[:, 0] + dy * normal[:, 1] + dz * normal[:, 2])
-    transmitted, _ = refract(
-        np.broadcast_to(direction, normal.shape), normal, n1=1.0, n2=refractive_index
-    )
-    down = -transmitted[:, 2]
+        sx, sy = surface.slopes_at(x, y, frame)
+    ratio = 1.0 / refractive_index
+    inverse_norm = 1.0 / np.sqrt(1.0 + sx * sx + sy * sy)
+    cos_incidence = (dx * sx + dy * sy - dz) * inverse_norm
+    cos_i = np.clip(cos_incidence, 0.0, 1.0)
+    cos_t = np.sqrt(1.0 - ratio * ratio * (1.0 - cos_i * cos_i))
+    coefficient = (ratio * cos_i - cos_t) * inverse_norm
+    down = -(ratio * dz + coefficient)
     facing = (cos_incidence > 0) & (down > 0)
-    transmittance = 1.0 - fresnel_reflectance(
-        np.clip(cos_incidence, 0.0, 1.0), n1=1.0, n2=refractive_index
-    )
-    secant = np.where(facing, 1.0 / np.where(facing, down, 1.0), 1.0).astype(np.float32)
+    secant = np.where(facing, 1.0 / np.where(facing, down, 1.0), 1.0)
+    n_w = refractive_index
+    r_s = (cos_i - n_w * cos_t) / (cos_i + n_w * cos_t)
+    r_p = (n_w * cos_i - cos_t) / (n_w * cos_i + cos_t)
+    transmittance = 1.0 - 0.5 * (r_s * r_s + r_p * r_p)
     return _Transmitted(
-        x=(ox + travel * dx).astype(np.float32),
-        y=(oy + travel * dy).astype(np.float32),
-        z=eta.astype(np.float32),
-        tan_x=np.where(facing, transmitted[:, 0] * secant, 0.0).astype(np.float32),
-        tan_y=np.where(facing, transmitted[:, 1] * secant, 0.0).astype(np.float32),
-        secant=secant,
+        x=np.asarray(ox + travel * dx, dtype=np.float32),
+        y=np.asarray(oy + travel * dy, dtype=np.float32),
+        z=np.asarray(eta, dtype=np.float32),
+        tan_x=np.where(facing, (ratio * dx - coefficient * sx) * secant, 0.0).astype(np.float32),
+        tan_y=np.where(facing, (ratio * dy - coefficient * sy) * secant, 0.0).astype(np.float32),
+        secant=secant.astype(np.float32),
         transmittance=np.where(facing, transmittance, 0.0).astype(np.float32),
     )
 
@@ -486,23 +582,24 @@ def _render_frame(setup: _Setup, geometry: _FrameGeometry, surface, frame: int):
     n_w = setup.water.refractive_index
     K = setup.water.diffuse_attenuation
     laser = geometry.laser
-    down = _through_surface(laser.origins, laser.directions, surface, frame, n_w)
+    down = _through_surface(geometry.laser_rays, surface, frame, n_w)
     if geometry.monostatic:
         up = down
     else:
-        up = _through_surface(
-            geometry.pixel_origin, geometry.pixel_directions, surface, frame, n_w
-        )
+        up = _through_surface(geometry.pixel_rays, surface, frame, n_w)
     power = laser.power * down.transmittance
+
+    axes_grid = (geometry.target_plane or geometry.gate_planes[0]).grid
+    down_axes = down.on_axes(axes_grid, K)
+    up_axes = down_axes if up is down else up.on_axes(axes_grid, K)
 
     def crossing(plane):
         """Rays and lines of sight on a plane: (rays, sight, ray power, sight weight)."""
-        lx, ly, lextra = down.at_depth(plane.depth, K)
-        rays = plane.grid.locate(lx, ly)
+        rays, lextra = down_axes.cross(plane.grid)
         if up is down:
             return rays, rays, power * lextra, up.transmittance * lextra
-        px, py, pextra = up.at_depth(plane.depth, K)
-        return rays, plane.grid.locate(px, py), power * lextra, up.transmittance * pextra
+        sight, pextra = up_axes.cross(plane.grid)
+        return rays, sight, power * lextra, up.transmittance * pextra
 
     pixels = setup.scene.receiver.pixels
     images = np.zeros((len(setup.gates), pixels * pixels), dtype=np.float32)
@@ -530,14 +627,20 @@ def _render_frame(setup: _Setup, geometry: _FrameGeometry, surface, frame: int):
         rays, sight, ray_power, sight_weight = crossing(plane)
         if plane.hiding is not None:
             if plane.hiding not in transmitted:
-                # rays lose the part of the slab behind the target (all of it, in its shadow)
-                hidden = occupancy
+                # rays lose the part of the slab behind the target (all of it, in its
+                # shadow); only rays that meet the target's silhouette lose anything
+                if "lit" not in transmitted:
+                    transmitted["lit"] = np.flatnonzero(occupancy)
+                lit = transmitted["lit"]
+                hidden = occupancy[lit]
                 if plane.hiding != ("shadow",):
                     top, bottom = plane.hiding
                     hidden = _hidden_fraction(
-                        surface_depth, occupancy, top=top, bottom=bottom, diffuse_attenuation=K
+                        surface_depth[lit], hidden, top=top, bottom=bottom, diffuse_attenuation=K
                     )
-                transmitted[plane.hiding] = np.sqrt(1.0 - hidden)
+                factor = np.ones_like(occupancy)
+                factor[lit] = np.sqrt(np.maximum(1.0 - hidden, 0.0))
+                transmitted[plane.hiding] = factor
             ray_power *= transmitted[plane.hiding]
         radiance = _convolve(plane.grid.splat(rays, ray_power), plane.filter)
         if plane.occlusion is not None:
@@ -601,12 +704,12 @@ def _dataset(scene, expected, image, masks, surface):
     ds = sample_labels(scene)
     ds["image"] = (
         ("frame", "gate", "y", "x"),
-        image.astype(np.float32),
+        image.astype(np.float32, copy=False),
         {"long_name": "gated receiver image with shot noise", "units": units},
     )
     ds["expected"] = (
         ("frame", "gate", "y", "x"),
-        expected.astype(np.float32),
+        expected.astype(np.float32, copy=False),
         {
             "long_name": "expected (noise-free) gated receiver image",
             "units": "photoelectrons" if scene.noise.photons > 0 else "1",

@@ -17,11 +17,13 @@ import scipy.fft
 
 from workers.spectra import Spectrum, dispersion
 
-# Points per block in Surface.sample. The temporaries of a block (64 KiB for an index
-# array) stay below glibc's 128 KiB mmap threshold, so they are reused from the heap
-# instead of being mapped afresh: page faults on fresh mappings were measured to make
-# a 262144-point call four times slower.
-_SAMPLE_BLOCK = 8192
+# Points per block in Surface.sample. The temporaries of a block (256 KiB for an index
+# array) are reused from the heap when glibc's mmap threshold is raised
+# (service.tuning.tune_allocator, or glibc's own dynamic threshold after the first free);
+# page faults on fresh mappings were measured to make a 262144-point call four times
+# slower. Larger blocks pay less per-call overhead: 32768 was measured 1.5 times faster
+# than 8192 for 65536 points with the tuned allocator.
+_SAMPLE_BLOCK = 32768
 
 
 def _wavenumbers(grid_size: int, spacing: float) -> np.ndarray:
@@ -148,6 +150,26 @@ class Surface:
             frames = array.shape[0]
             array.flags.writeable = False
             object.__setattr__(self, name, array)
+        object.__setattr__(self, "_wrapped", {})
+
+    def _wrapped_fields(self, frame):
+        """Elevation and slopes of `frame`, each padded to (N + 1, N + 1) and flattened.
+
+        Row N and column N repeat row 0 and column 0, so the four corners of a cell need
+        no wrapping. Made on first use and kept (4(N + 1)² bytes per field and frame).
+        """
+        frame = int(frame)
+        if frame not in self._wrapped:
+            n = int(self.grid_size)
+            padded = np.empty((3, n + 1, n + 1), np.float32)
+            for field, grid in zip(
+                padded, (self.elevation, self.slope_x, self.slope_y), strict=True
+            ):
+                field[:n, :n] = grid[frame]
+                field[n, :n] = grid[frame, 0]
+                field[:, n] = field[:, 0]
+            self._wrapped[frame] = tuple(field.ravel() for field in padded)
+        return self._wrapped[frame]
 
     def sample(self, x, y, frame=0):
         r"""Bilinear, periodically wrapped elevation and slopes at world points.
@@ -177,21 +199,29 @@ class Surface:
         Coordinates are converted to float32 first, so a point is located to about
         6×10⁻⁸ |x| (0.06 mm at 1 km). The slopes are interpolated spectral slopes, not
         the derivative of the interpolated elevation. A power-of-two N wraps indices
-        with a bit mask, any other N with a (slower) remainder. Points are processed
-        in blocks of 8192 to keep the temporaries small.
+        with a bit mask, any other N with a (slower) remainder; a copy of each frame
+        with its first row and column repeated after the last (made on first use and
+        kept) gives the other three corners without wrapping. Points are processed in
+        blocks of 32768 to keep the temporaries small.
         """
-        return self._sample((self.elevation, self.slope_x, self.slope_y), x, y, frame)
+        return self._sample(self._wrapped_fields(frame), x, y)
 
     def elevation_at(self, x, y, frame=0):
         """Bilinear, periodically wrapped elevation alone at world points, m (see `sample`)."""
-        return self._sample((self.elevation,), x, y, frame)[0]
+        return self._sample(self._wrapped_fields(frame)[:1], x, y)[0]
 
-    def _sample(self, fields, x, y, frame):
+    def slopes_at(self, x, y, frame=0):
+        """Bilinear, periodically wrapped slopes ∂η/∂x, ∂η/∂y alone at world points [1].
+
+        See `sample`; the values are those it returns.
+        """
+        return self._sample(self._wrapped_fields(frame)[1:], x, y)
+
+    def _sample(self, grids, x, y):
         x, y = np.broadcast_arrays(x, y)
         shape = x.shape
         x = x.ravel()
         y = y.ravel()
-        grids = [grid[frame].ravel() for grid in fields]
         out = np.empty((len(grids), x.size), np.float32)
         for start in range(0, x.size, _SAMPLE_BLOCK):
             block = slice(start, start + _SAMPLE_BLOCK)
@@ -199,7 +229,7 @@ class Surface:
         return tuple(values.reshape(shape) for values in out)
 
     def _interpolate(self, grids, x, y, out):
-        """Bilinear interpolation of the flattened ``grids`` at (x, y) into ``out``."""
+        """Bilinear interpolation of the wrapped, flattened ``grids`` at (x, y) into ``out``."""
         n = self.grid_size
         inverse = np.float32(1.0 / self.spacing)
         tx = np.multiply(x, inverse, dtype=np.float32)
@@ -210,16 +240,14 @@ class Surface:
         ty -= row
         column = column.astype(np.intp)
         row = row.astype(np.intp)
-        next_column = column + 1
-        next_row = row + 1
-        for index in (column, row, next_column, next_row):
+        for index in (column, row):
             if n & (n - 1) == 0:
                 np.bitwise_and(index, n - 1, out=index)
             else:
                 np.remainder(index, n, out=index)
-        row *= n
-        next_row *= n
-        corners = (row + column, row + next_column, next_row + column, next_row + next_column)
+        row *= n + 1
+        row += column
+        corners = (row, row + 1, row + (n + 1), row + (n + 2))
         for values, result in zip(grids, out, strict=True):
             low, low_right, high, high_right = (values.take(corner) for corner in corners)
             low_right -= low
