@@ -60,7 +60,7 @@ def render_batch(url, start, jobs, storage_options=None):
         )
         for scene, root, point, realisation in jobs
     ]
-    store.write_samples(url, start, samples, storage_options=storage_options)
+    store.write_samples(store.open_group(url, storage_options), start, samples)
     return start, len(samples)
 
 

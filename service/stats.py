@@ -1,7 +1,10 @@
-"""Statistics of a sweep, per parameter point and gate, with dask reductions.
+"""Statistics of a sweep, per parameter point and gate.
 
-The statistics dataset sits beside the store (`service.store.stats_url`). Its variables,
-over the realisations and frames of each point (samples not yet written are ignored):
+The statistics dataset sits beside the store (`service.store.stats_url`). One dask task per
+group of parameter points reads those points' samples (never the whole store), reduces them
+over realisations and frames with numpy, and writes its points' whole chunks of the
+statistics store, exactly as rendering tasks write the sample store. Samples not yet
+written are ignored. Variables:
 
 - ``image_mean``, ``image_std`` (point, gate, y, x): mean and standard deviation images;
 - ``target_signal``, ``background_signal`` (point, gate): mean expected (noise-free)
@@ -11,98 +14,132 @@ over the realisations and frames of each point (samples not yet written are igno
 - ``cnr`` (point, gate): contrast-to-noise ratio of the noisy images, (target − background)
   over the standard deviation of the background ring (shot noise and clutter);
 - ``visible_fraction`` (point, gate): fraction of samples and frames in which the target is
-  in the gate and at least one pixel's ray meets it.
+  in the gate and at least one pixel's ray meets it;
+- ``samples`` (point): realisations written.
 """
 
 from __future__ import annotations
 
 import warnings
 
+import dask
+import dask.array as da
 import numpy as np
 import xarray as xr
+from scipy.ndimage import maximum_filter
 
 from service import store
 
-__all__ = ["compute_statistics", "write_statistics"]
+__all__ = ["RING_FRACTION", "point_statistics", "write_statistics"]
 
 RING_FRACTION = 0.1
 """Width of the background ring around the target mask, as a fraction of the image."""
 
+POINTS_PER_TASK = 8
 
-def compute_statistics(ds: xr.Dataset) -> xr.Dataset:
-    """The statistics of an opened store (lazy; nothing is loaded whole).
+_PER_GATE = {
+    "target_signal": "mean expected signal inside the target mask",
+    "background_signal": "mean expected signal in the background ring around the mask",
+    "target_contrast": "target contrast (T - B) / B of the expected images",
+    "cnr": "contrast-to-noise ratio (T - B) / sd(B) of the noisy images",
+    "visible_fraction": "fraction of samples with the target in the gate and in view",
+}
+
+
+def _masked_mean(values, mask):
+    """Mean of `values` (..., gate, y, x) over pixels where `mask` (..., y, x) holds."""
+    weights = mask[..., np.newaxis, :, :]
+    count = weights.sum(axis=(-2, -1))
+    total = (values * weights).sum(axis=(-2, -1))
+    return np.divide(total, count, out=np.full(total.shape, np.nan), where=count > 0)
+
+
+def point_statistics(image, expected, mask, visibility):
+    """The statistics of one parameter point from its written samples.
 
     Parameters
     ----------
-    ds : xarray.Dataset
-        A store opened with `service.store.open_store`.
+    image, expected : ndarray, shape (samples, frames, gates, y, x)
+        Noisy and noise-free images.
+    mask : ndarray of bool, shape (samples, frames, y, x)
+        Pixels whose ray meets the target.
+    visibility : ndarray, shape (samples, gates)
+        Target position relative to each gate (1: in the gate).
 
     Returns
     -------
-    xarray.Dataset
-        Dask-backed statistics, one entry per parameter point.
+    dict of ndarray
+        ``image_mean``, ``image_std`` (gates, y, x) and the (gates,) entries of
+        `_PER_GATE`, float32; NaN where undefined (no target, fewer than two samples).
     """
-    realisations = int(ds.attrs["realisations"])
-    points = int(ds.attrs["points"])
-    written = ds["completed"].astype(bool)
-    units = ds["image"].attrs.get("units", "1")
-    image = ds["image"].where(written)
-    expected = ds["expected"].where(written)
-    mask = ds["target_mask"].astype(bool)
-    ring = _ring(mask)
-    space = ("y", "x")
-    over = ("realisation_", "frame")
-
-    def per_point(array: xr.DataArray) -> xr.DataArray:
-        return array.coarsen(sample=realisations).construct(sample=("point", "realisation_"))
-
-    target = per_point(expected.where(mask).mean(space))
-    background = per_point(expected.where(ring).mean(space))
-    noisy_difference = per_point(image.where(mask).mean(space) - image.where(ring).mean(space))
-    noise = per_point(image.where(ring).std(space))
-    visible = per_point((mask.any(space) & (ds["target_visibility"] == 1)).where(written))
-    stacked = per_point(image)
-    stats = xr.Dataset(
-        {
-            "image_mean": stacked.mean(over).assign_attrs(
-                long_name="mean image over realisations and frames", units=units
+    n = image.shape[0] * image.shape[1]
+    flat = image.reshape(n, *image.shape[2:]).astype(np.float64)
+    stats = {
+        "image_mean": flat.mean(axis=0) if n else np.full(image.shape[2:], np.nan),
+        "image_std": flat.std(axis=0, ddof=1) if n > 1 else np.full(image.shape[2:], np.nan),
+    }
+    width = max(2, round(RING_FRACTION * mask.shape[-1]))
+    near = maximum_filter(mask, size=(1, 1, 2 * width + 1, 2 * width + 1), mode="constant")
+    ring = near & ~mask
+    target = _masked_mean(expected, mask)
+    background = _masked_mean(expected, ring)
+    difference = _masked_mean(image, mask) - _masked_mean(image, ring)
+    spread = np.sqrt(np.maximum(_masked_mean(image**2, ring) - _masked_mean(image, ring) ** 2, 0))
+    visible = mask.any(axis=(-2, -1))[..., np.newaxis] & (visibility[:, np.newaxis, :] == 1)
+    with warnings.catch_warnings():
+        # no target, or no background ring: those entries are NaN by design
+        warnings.simplefilter("ignore", RuntimeWarning)
+        per_gate = {
+            "target_signal": np.nanmean(target, axis=(0, 1)),
+            "background_signal": np.nanmean(background, axis=(0, 1)),
+            "target_contrast": np.nanmean(
+                (target - background) / np.where(background > 0, background, np.nan), axis=(0, 1)
             ),
-            "image_std": stacked.std(over, ddof=1).assign_attrs(
-                long_name="standard deviation image over realisations and frames", units=units
-            ),
-            "target_signal": target.mean(over).assign_attrs(
-                long_name="mean expected signal inside the target mask", units=units
-            ),
-            "background_signal": background.mean(over).assign_attrs(
-                long_name="mean expected signal outside the target mask", units=units
-            ),
-            "target_contrast": ((target - background) / background.where(background > 0))
-            .mean(over)
-            .assign_attrs(
-                long_name="target contrast (T - B) / B of the expected images", units="1"
-            ),
-            "cnr": (noisy_difference / noise.where(noise > 0))
-            .mean(over)
-            .assign_attrs(
-                long_name="contrast-to-noise ratio (T - B) / sd(B) of the noisy images", units="1"
-            ),
-            "visible_fraction": visible.astype(float)
-            .mean(over)
-            .assign_attrs(
-                long_name="fraction of samples with the target in the gate and in view", units="1"
-            ),
-            "samples": per_point(written.astype(np.int32))
-            .sum("realisation_")
-            .assign_attrs(long_name="realisations written", units="1"),
+            "cnr": np.nanmean(difference / np.where(spread > 0, spread, np.nan), axis=(0, 1)),
+            "visible_fraction": visible.mean(axis=(0, 1)),
         }
-    )
+    stats.update(per_gate)
+    return {name: np.asarray(value, dtype=np.float32) for name, value in stats.items()}
+
+
+def _template(ds: xr.Dataset) -> xr.Dataset:
+    points = int(ds.attrs["points"])
+    realisations = int(ds.attrs["realisations"])
+    gates, ny, nx = ds.sizes["gate"], ds.sizes["y"], ds.sizes["x"]
+    units = ds["image"].attrs.get("units", "1")
+    data_vars = {
+        "image_mean": (
+            ("point", "gate", "y", "x"),
+            da.full((points, gates, ny, nx), np.nan, chunks=(1, gates, ny, nx), dtype=np.float32),
+            {"long_name": "mean image over realisations and frames", "units": units},
+        ),
+        "image_std": (
+            ("point", "gate", "y", "x"),
+            da.full((points, gates, ny, nx), np.nan, chunks=(1, gates, ny, nx), dtype=np.float32),
+            {"long_name": "standard deviation image over realisations and frames", "units": units},
+        ),
+        "samples": (
+            ("point",),
+            da.zeros(points, chunks=1, dtype=np.int32),
+            {"long_name": "realisations written", "units": "1"},
+        ),
+    }
+    for name, long_name in _PER_GATE.items():
+        data_vars[name] = (
+            ("point", "gate"),
+            da.full((points, gates), np.nan, chunks=(1, gates), dtype=np.float32),
+            {"long_name": long_name, "units": "1" if "signal" not in name else units},
+        )
     first = np.arange(points) * realisations
-    coords = {"point": ("point", np.arange(points))}
+    coords = {
+        "point": ("point", np.arange(points)),
+        "gate_top": ds["gate_top"],
+        "gate_bottom": ds["gate_bottom"],
+    }
     for name, coord in ds.coords.items():
         if coord.dims == ("sample",) and name not in ("point", "realisation"):
             coords[name] = ("point", coord.values[first], dict(coord.attrs))
-    stats = stats.drop_vars([c for c in stats.coords if c not in ("gate_top", "gate_bottom")])
-    stats = stats.assign_coords(coords)
+    stats = xr.Dataset(data_vars, coords=coords)
     stats.attrs.update(
         title=ds.attrs.get("title", "") + " statistics",
         Conventions=store.CONVENTIONS,
@@ -112,39 +149,64 @@ def compute_statistics(ds: xr.Dataset) -> xr.Dataset:
     return stats
 
 
-def _ring(mask: xr.DataArray) -> xr.DataArray:
-    """The local background: pixels near the target mask but not in it.
-
-    Near means within `RING_FRACTION` of the image width (at least two pixels) in each
-    direction. A local background keeps the laser's bright centre and dim edges out of the
-    contrast.
-    """
-    width = max(2, round(RING_FRACTION * mask.sizes["x"]))
-    window = 2 * width + 1
-    near = mask.astype(np.uint8).rolling(y=window, x=window, center=True, min_periods=1).max()
-    return (near > 0) & ~mask
+def _reduce_points(url, target, points, realisations, storage_options):
+    """Read the samples of `points`, reduce them, write their statistics chunks."""
+    source = store.open_group(url, storage_options)
+    sink = store.open_group(target, storage_options)
+    for point in points:
+        rows = slice(point * realisations, (point + 1) * realisations)
+        written = np.flatnonzero(source["completed"][rows])
+        if written.size == 0:
+            continue
+        first = point * realisations
+        picks = [first + int(i) for i in written]
+        stats = point_statistics(
+            image=source["image"].get_orthogonal_selection((picks,)),
+            expected=source["expected"].get_orthogonal_selection((picks,)),
+            mask=source["target_mask"].get_orthogonal_selection((picks,)).astype(bool),
+            visibility=source["target_visibility"].get_orthogonal_selection((picks,)),
+        )
+        for name, value in stats.items():
+            sink[name][point] = value
+        sink["samples"][point] = written.size
+    return len(points)
 
 
 def write_statistics(url: str, *, storage_options: dict | None = None) -> str:
     """(Re)compute the statistics of the store at `url` and write them beside it.
+
+    Runs on the dask client in use (the sweep's cluster), or on local threads.
 
     Returns
     -------
     str
         Where the statistics were written.
     """
-    probe = store.open_store(url, storage_options=storage_options)
-    # one dask chunk per parameter point: the graph grows with points, not samples
-    ds = store.open_store(
-        url, storage_options=storage_options, samples_per_chunk=int(probe.attrs["realisations"])
-    )
-    stats = compute_statistics(ds)
+    ds = store.open_store(url, storage_options=storage_options)
     target = store.stats_url(url)
     store.remove_store(target, storage_options)
-    with store.consolidated_v3(), warnings.catch_warnings():
-        # points without a target have empty masks: their contrasts are NaN, by design
-        warnings.simplefilter("ignore", RuntimeWarning)
-        stats.chunk({"point": 1}).to_zarr(
-            target, mode="w", consolidated=True, zarr_format=3, storage_options=storage_options
+    template = _template(ds)
+    with store.consolidated_v3():
+        template.to_zarr(
+            target,
+            mode="w-",
+            compute=False,
+            consolidated=True,
+            zarr_format=3,
+            encoding={name: {"chunk_key_encoding": store.FLAT_CHUNK_KEYS} for name in template},
+            storage_options=storage_options,
         )
+    points = int(ds.attrs["points"])
+    realisations = int(ds.attrs["realisations"])
+    tasks = [
+        dask.delayed(_reduce_points)(
+            url,
+            target,
+            list(range(start, min(start + POINTS_PER_TASK, points))),
+            realisations,
+            storage_options,
+        )
+        for start in range(0, points, POINTS_PER_TASK)
+    ]
+    dask.compute(*tasks)
     return target

@@ -10,8 +10,6 @@ complete that is not written.
 from __future__ import annotations
 
 import contextlib
-import functools
-import json
 import warnings
 from importlib.metadata import PackageNotFoundError, version
 
@@ -30,6 +28,7 @@ __all__ = [
     "check_uniform",
     "completed_samples",
     "create_store",
+    "open_group",
     "open_store",
     "remove_store",
     "sample_dataset",
@@ -250,10 +249,8 @@ def completed_samples(url: str, *, storage_options: dict | None = None) -> np.nd
     return ds["completed"].values.astype(bool)
 
 
-@functools.lru_cache(maxsize=16)
-def _open_group(url: str, options: str):
-    """The store's zarr group, opened once per process (its metadata never changes)."""
-    storage_options = json.loads(options) or None
+def open_group(url: str, storage_options: dict | None = None):
+    """A store's zarr group, for whole-chunk writes into arrays the template created."""
     return zarr.open_group(
         store=url,
         mode="r+",
@@ -263,18 +260,15 @@ def _open_group(url: str, options: str):
     )
 
 
-def write_samples(
-    url: str, start: int, samples: list[xr.Dataset], *, storage_options: dict | None = None
-) -> None:
-    """Write consecutive samples from `start` as whole chunks, then mark them complete.
+def write_samples(group, start: int, samples: list[xr.Dataset]) -> None:
+    """Write consecutive rendered samples' whole chunks, then mark them complete.
 
     Writes go straight to the zarr arrays the template created (one chunk per sample per
-    variable): xarray's region writes re-read the store's metadata on every call, which
-    cost more than rendering a small sample.
+    variable), one call per variable for the whole batch: xarray's region writes re-read
+    the store's metadata on every call, which costs more than rendering a small sample.
     """
-    group = _open_group(url, json.dumps(storage_options or {}, sort_keys=True))
     region = slice(start, start + len(samples))
-    names = [name for name in RENDERED_VARIABLES if name in samples[0]]
-    for name in names:
-        group[name][region] = np.stack([sample[name].values for sample in samples])
+    for name in RENDERED_VARIABLES:
+        if name in samples[0]:
+            group[name][region] = np.stack([sample[name].values for sample in samples])
     group["completed"][region] = np.ones(len(samples), dtype=np.uint8)
