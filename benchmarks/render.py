@@ -1,7 +1,8 @@
 """Render speed: time per sample over the time of one rfft2+irfft2 pair of the same size.
 
-Both are measured in the same run, interleaved round by round, and the medians are
-compared (the machines are shared and noisy: the ratio is the figure to quote). The
+Both are measured in the same run, interleaved round by round (one render, one pair of
+each FFT), each timed once per round the same way, and the medians are compared (the
+machines are shared and noisy: the ratio is the figure to quote). The
 reference pair is numpy.fft on float32 (scipy.fft's, faster, is printed too; the renderer
 uses scipy.fft). Usage: ``python benchmarks/render.py [--sizes 128 256 512]``.
 """
@@ -42,12 +43,8 @@ def measure(n, target, rounds):
     samples, numpy_pairs, scipy_pairs = [], [], []
     for seed in range(1, rounds + 1):
         samples.append(timed(lambda seed=seed: render(s, seed=seed)))
-        numpy_pairs.append(
-            min(timed(lambda: np.fft.irfft2(np.fft.rfft2(a), s=a.shape)) for _ in range(5))
-        )
-        scipy_pairs.append(
-            min(timed(lambda: scipy.fft.irfft2(scipy.fft.rfft2(a), s=a.shape)) for _ in range(5))
-        )
+        numpy_pairs.append(timed(lambda: np.fft.irfft2(np.fft.rfft2(a), s=a.shape)))
+        scipy_pairs.append(timed(lambda: scipy.fft.irfft2(scipy.fft.rfft2(a), s=a.shape)))
     return (
         statistics.median(samples),
         statistics.median(numpy_pairs),
@@ -58,7 +55,7 @@ def measure(n, target, rounds):
 def main():
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--sizes", type=int, nargs="+", default=[128, 256, 512])
-    parser.add_argument("--rounds", type=int, default=15)
+    parser.add_argument("--rounds", type=int, default=25)
     args = parser.parse_args()
     print(f"allocator tuned: {tune_allocator()}; six ML(DC) gates, 0.3 m sphere at 5 m")
     print(

@@ -19,7 +19,7 @@ import numpy as np
 import xarray as xr
 import zarr
 
-from service.sweep import Plan, SweepError
+from service.sweep import Plan, SweepError, field_units
 from workers.render import render, sample_labels
 from workers.seeds import SampleSeed
 
@@ -200,7 +200,7 @@ def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -
         coords[path] = (
             "sample",
             np.repeat(values, realisations),
-            {"long_name": f"swept scene parameter {path}"},
+            {"long_name": f"swept scene parameter {path}", "units": field_units(path)},
         )
     ds = xr.Dataset(data_vars, coords=coords)
     ds.attrs.update(

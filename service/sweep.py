@@ -13,6 +13,7 @@ import hashlib
 import itertools
 import json
 import math
+import re
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
@@ -34,9 +35,11 @@ __all__ = [
     "Plan",
     "Sweep",
     "SweepError",
+    "field_units",
     "human_bytes",
     "load_sweep",
     "parse_sweep",
+    "scene_field",
 ]
 
 MAX_FILE_BYTES = 1_000_000
@@ -341,7 +344,7 @@ def parse_sweep(text: str) -> Plan:
     except ValidationError as error:
         raise SweepError(_format_errors(error, "scene")) from None
     for path in sweep.sweep.parameters:
-        _check_path(path)
+        scene_field(path)
     points = _expand(sweep)
     if not points:
         raise SweepError("sweep: the sweep expands to no parameter point")
@@ -366,24 +369,36 @@ def parse_sweep(text: str) -> Plan:
     return Plan(sweep=sweep, text=text, digest=digest, points=tuple(points), scenes=tuple(scenes))
 
 
-def _check_path(path: str) -> None:
-    """A dotted path must name a leaf field of the scene."""
+def scene_field(path: str):
+    """The pydantic field a dotted path names in the scene (a leaf value).
+
+    Raises
+    ------
+    SweepError
+        If the path names no field, or a section rather than a value.
+    """
     model: Any = Scene
     parts = path.split(".")
+    field = None
     for depth, part in enumerate(parts):
         fields = getattr(model, "model_fields", None)
         if fields is None or part not in fields:
             known = ", ".join(sorted(fields)) if fields else "nothing (a leaf value)"
             where = ".".join(parts[:depth]) or "the scene"
             raise SweepError(f"sweep.parameters.{path}: unknown path; {where} has {known}")
-        annotation = fields[part].annotation
-        model = (
-            annotation
-            if isinstance(annotation, type) and issubclass(annotation, BaseModel)
-            else None
-        )
+        field = fields[part]
+        annotation = field.annotation
+        is_model = isinstance(annotation, type) and issubclass(annotation, BaseModel)
+        model = annotation if is_model else None
     if model is not None:
         raise SweepError(f"sweep.parameters.{path}: names a section, not a value")
+    return field
+
+
+def field_units(path: str) -> str:
+    """The unit a scene field's description gives in brackets at its end ('1' if none)."""
+    found = re.search(r"\[([^\]]+)\]\.?\s*$", scene_field(path).description or "")
+    return found.group(1) if found else "1"
 
 
 def _assign(data: dict, path: str, value: Any) -> None:

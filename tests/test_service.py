@@ -93,8 +93,8 @@ def test_store_metadata_and_statistics(two_worker_store):
     assert ds.attrs["Conventions"].startswith("CF-")
     assert ds["image"].encoding["chunks"] == (1, 1, 2, 16, 16)
     for name, variable in ds.variables.items():
-        if name not in ("point", "realisation", "target.depth", "target.shape"):
-            assert "units" in variable.attrs, name
+        assert "units" in variable.attrs and "long_name" in variable.attrs, name
+    assert ds["target.depth"].attrs["units"] == "m"
     stats = xr.open_zarr(store.stats_url(url))
     assert stats.sizes["point"] == 4 and stats.sizes["gate"] == 2
     assert stats["samples"].values.tolist() == [3, 3, 3, 3]

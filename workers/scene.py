@@ -272,7 +272,7 @@ class Noise(_Model):
         description="Mean photoelectrons a pixel gets from a ρ = 1 Lambertian plane just under "
         "a flat sea at nadir, no water path [1]; 0: no noise, signal in units of that plane.",
     )
-    gain: float = Field(1.0, ge=1.0, le=1.0e6, description="ICCD gain, counts per photoelectron.")
+    gain: float = Field(1.0, ge=1.0, le=1.0e6, description="ICCD gain [counts/photoelectron].")
     excess_noise: float = Field(
         1.0, ge=1.0, le=10.0, description="Excess-noise factor F of the intensifier [1]."
     )
