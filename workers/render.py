@@ -295,91 +295,63 @@ def _frame_geometry(key: str, frame: int) -> _FrameGeometry:
         )
         return grid, water.mtf(grid.frequency(), distance=depth).astype(np.float32)
 
-    def gate_filter(reflectance, mtf):
-        return (np.float32(reflectance) * mtf * mtf).astype(np.float32)
-
     t = scene.target
     pixel_directions = camera.pixel_directions().reshape(-1, 3).astype(np.float32)
-    if t.shape == "none":
-        gate_planes = []
-        for depth, reflectance in zip(setup.reference_depths, setup.reflectances, strict=True):
-            grid, mtf = grid_and_mtf(depth)
-            gate_planes.append(
-                _Plane(grid=grid, depth=depth, filter=gate_filter(reflectance, mtf))
-            )
-        return _FrameGeometry(
-            position=position,
-            pixel_rays=_ray_components(position, pixel_directions),
-            laser_rays=_ray_components(laser.origins, laser.directions),
-            laser=laser,
-            monostatic=monostatic,
-            gate_planes=tuple(gate_planes),
-            target_plane=None,
-            impostor=None,
-            target_masks=(None,) * len(setup.gates),
+    target_plane = impostor = None
+    masks = (None,) * len(setup.gates)
+    if t.shape != "none":
+        grid, mtf = grid_and_mtf(t.depth)
+        target_plane = _Plane(grid=grid, depth=t.depth, filter=mtf)
+        if t.x is None or t.y is None:
+            centre = flat_sea_point(
+                origin=_platform_position(scene, 0.0),
+                direction=camera.rotation[2],
+                depth=t.depth,
+                refractive_index=n_w,
+            )[:2]
+        else:
+            centre = (t.x, t.y)
+        impostor = Impostor.build(
+            grid=target_plane.grid,
+            shape=t.shape,
+            centre=(float(centre[0]), float(centre[1])),
+            radius=t.radius,
+            reflectance=t.reflectance,
+            shading=t.shading,
+            refracted_nadir=setup.refracted_nadir,
         )
-    grid, mtf = grid_and_mtf(t.depth)
-    target_plane = _Plane(grid=grid, depth=t.depth, filter=mtf)
-    if t.x is None or t.y is None:
-        centre = flat_sea_point(
-            origin=_platform_position(scene, 0.0),
-            direction=camera.rotation[2],
-            depth=t.depth,
-            refractive_index=n_w,
-        )[:2]
-    else:
-        centre = (t.x, t.y)
-    impostor = Impostor.build(
-        grid=target_plane.grid,
-        shape=t.shape,
-        centre=(float(centre[0]), float(centre[1])),
-        radius=t.radius,
-        reflectance=t.reflectance,
-        shading=t.shading,
-        refracted_nadir=setup.refracted_nadir,
-    )
+        masks = _target_masks(setup, impostor)
     gate_planes = []
     for (top, bottom), depth, reflectance, visibility in zip(
         setup.gates, setup.reference_depths, setup.reflectances, setup.visibility, strict=True
     ):
         grid, mtf = grid_and_mtf(depth)
-        if visibility == VISIBILITY["below_gate"]:
-            gate_planes.append(
-                _Plane(grid=grid, depth=depth, filter=gate_filter(reflectance, mtf))
-            )
+        filter_ = (np.float32(reflectance) * mtf * mtf).astype(np.float32)
+        if impostor is None or visibility == VISIBILITY["below_gate"]:
+            gate_planes.append(_Plane(grid=grid, depth=depth, filter=filter_))
             continue
-        hide = functools.partial(
-            _hidden_fraction, top=top, bottom=bottom, diffuse_attenuation=water.diffuse_attenuation
-        )
         # The line of sight through a gate-plane cell crossed the target plane nearer the
         # platform, by the depth difference times the tangent of the in-water angle.
         x, y = grid.cell_centres()
         back = (depth - t.depth) * np.tan(setup.refracted_nadir)
         located = target_plane.grid.locate(x + back * grid.axis_v[0], y + back * grid.axis_v[1])
-        hidden = hide(
+        hidden = _hidden_fraction(
             target_plane.grid.gather(impostor.surface_depth, located),
             target_plane.grid.gather(impostor.occupancy, located),
+            top=top,
+            bottom=bottom,
+            diffuse_attenuation=water.diffuse_attenuation,
         )
         occlusion = _convolve(np.sqrt(np.maximum(1.0 - hidden, 0.0)), mtf / mtf[0, 0])
         gate_planes.append(
             _Plane(
                 grid=grid,
                 depth=depth,
-                filter=gate_filter(reflectance, mtf),
+                filter=filter_,
                 hiding=("shadow",) if visibility == VISIBILITY["shadow"] else (top, bottom),
                 occlusion=occlusion.astype(np.float32),
             )
         )
-    # Reflectance of the part of the target inside each gate; gates that cut the target the
-    # same way share one array (and so one convolution per sample).
-    masks, by_span = [], {}
-    for top, bottom in setup.gates:
-        span = (max(top, impostor.top), min(bottom, impostor.bottom))
-        if span not in by_span:
-            inside = (impostor.surface_depth >= top) & (impostor.surface_depth <= bottom)
-            weight = np.where(inside, impostor.weight, 0.0).astype(np.float32)
-            by_span[span] = weight if weight.any() else None
-        masks.append(by_span[span])
     return _FrameGeometry(
         position=position,
         pixel_rays=_ray_components(position, pixel_directions),
@@ -389,8 +361,25 @@ def _frame_geometry(key: str, frame: int) -> _FrameGeometry:
         gate_planes=tuple(gate_planes),
         target_plane=target_plane,
         impostor=impostor,
-        target_masks=tuple(masks),
+        target_masks=masks,
     )
+
+
+def _target_masks(setup: _Setup, impostor: Impostor) -> tuple[np.ndarray | None, ...]:
+    """Reflectance of the part of the target inside each gate (None: nothing inside).
+
+    Gates that cut the target the same way share one array, and so one convolution per
+    sample.
+    """
+    masks, by_span = [], {}
+    for top, bottom in setup.gates:
+        span = (max(top, impostor.top), min(bottom, impostor.bottom))
+        if span not in by_span:
+            inside = (impostor.surface_depth >= top) & (impostor.surface_depth <= bottom)
+            weight = np.where(inside, impostor.weight, 0.0).astype(np.float32)
+            by_span[span] = weight if weight.any() else None
+        masks.append(by_span[span])
+    return tuple(masks)
 
 
 @dataclass(frozen=True)
@@ -562,15 +551,23 @@ def _through_surface(rays, surface, frame, refractive_index):
 
 
 def _hidden_fraction(surface_depth, occupancy, *, top, bottom, diffuse_attenuation):
-    """Fraction of a slab's backscatter lying behind the target along each line."""
-    K2 = 2.0 * diffuse_attenuation
-    behind_top = np.clip(surface_depth, top, bottom)
-    if K2 * (bottom - top) < 1e-6:
-        fraction = (bottom - behind_top) / (bottom - top)
-    else:
-        total = np.expm1(-K2 * (bottom - top))
-        fraction = np.expm1(-K2 * (bottom - behind_top)) / total * np.exp(-K2 * (behind_top - top))
-    return (occupancy * fraction).astype(np.float32)
+    """Fraction of a slab's backscatter lying behind the target along each line.
+
+    Lines through the target's silhouette (weighted by `occupancy`) lose the part of the
+    single-scattering integral deeper than the target's surface.
+    """
+    behind = np.clip(surface_depth, top, bottom)
+
+    def slab(upper):
+        return slab_backscatter_reflectance(
+            backscatter_pi=1.0,
+            diffuse_attenuation=diffuse_attenuation,
+            top=upper,
+            bottom=bottom,
+            reference=top,
+        )
+
+    return (occupancy * (slab(behind) / slab(top))).astype(np.float32)
 
 
 def _convolve(field, kernel):
