@@ -62,10 +62,19 @@ def _parser() -> argparse.ArgumentParser:
     stats = commands.add_parser("stats", help="(re)compute a store's statistics dataset")
     stats.add_argument("store", help="store path or URL")
     stats.add_argument("--storage-options", type=json.loads, default=None)
+    preview = commands.add_parser("preview", help="draw one sample's gated images")
+    preview.add_argument("sweep", help="sweep YAML file")
+    preview.add_argument("--sample", type=int, default=0, help="sample index (default 0)")
+    preview.add_argument("--output", required=True, help="FILE.png, or FILE.gif for a sequence")
+
+    plot = commands.add_parser("plot", help="plot a store's statistics")
+    plot.add_argument("store", help="store path or URL")
+    plot.add_argument("--output", required=True, help="FILE.png")
+    plot.add_argument("--storage-options", type=json.loads, default=None)
     return parser
 
 
-def _plan_lines(plan, batch: int = 4) -> list[str]:
+def _plan_lines(plan, batch: int = 4, url: str | None = None) -> list[str]:
     tasks = -(-plan.realisations // batch) * len(plan.points)
     lines = [
         f"sweep {plan.sweep.name!r}: {len(plan.points)} parameter points x "
@@ -74,7 +83,7 @@ def _plan_lines(plan, batch: int = 4) -> list[str]:
         f"  storage: about {human_bytes(plan.total_bytes())} uncompressed "
         f"({human_bytes(plan.sample_bytes())} per sample)",
         f"  swept: {', '.join(plan.swept) or '(nothing)'}",
-        f"  output: {plan.sweep.output}",
+        f"  output: {url or plan.sweep.output}",
     ]
     return lines
 
@@ -100,7 +109,7 @@ def _cmd_run(args) -> int:
         plan.check_limits()
     store.check_uniform(plan)
     url = args.output or plan.sweep.output
-    print("\n".join(_plan_lines(plan, args.batch)), file=sys.stderr)
+    print("\n".join(_plan_lines(plan, args.batch, url)), file=sys.stderr)
     result = execute(
         plan,
         url,
@@ -167,6 +176,32 @@ def _cmd_stats(args) -> int:
     return EXIT_OK
 
 
+def _cmd_preview(args) -> int:
+    from service.plots import render_preview, save_preview
+
+    plan = load_sweep(args.sweep)
+    ds = render_preview(plan, args.sample)
+    point = divmod(args.sample, plan.realisations)[0]
+    values = ", ".join(f"{k}={v}" for k, v in plan.points[point].items())
+    title = f"{plan.sweep.name}, sample {args.sample}" + (f" ({values})" if values else "")
+    frames = save_preview(ds, args.output, title=title)
+    print(f"{args.output}: {frames} frame(s)", file=sys.stderr)
+    return EXIT_OK
+
+
+def _cmd_plot(args) -> int:
+    from service.plots import plot_statistics
+
+    _open(args)
+    stats_path = store.stats_url(args.store)
+    if not store.store_exists(stats_path, args.storage_options):
+        raise SweepError(f"{args.store}: no statistics yet; run `oceanlidar stats` first")
+    stats = store.open_store(stats_path, storage_options=args.storage_options)
+    plot_statistics(stats, args.output)
+    print(args.output, file=sys.stderr)
+    return EXIT_OK
+
+
 def main(argv=None) -> int:
     """Entry point of the ``oceanlidar`` console script."""
     args = _parser().parse_args(argv)
@@ -175,6 +210,8 @@ def main(argv=None) -> int:
         "validate": _cmd_validate,
         "info": _cmd_info,
         "stats": _cmd_stats,
+        "preview": _cmd_preview,
+        "plot": _cmd_plot,
     }
     try:
         return commands[args.command](args)

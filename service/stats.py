@@ -133,8 +133,8 @@ def _template(ds: xr.Dataset) -> xr.Dataset:
     first = np.arange(points) * realisations
     coords = {
         "point": ("point", np.arange(points)),
-        "gate_top": ds["gate_top"],
-        "gate_bottom": ds["gate_bottom"],
+        "gate_top": ds["gate_top"].load(),
+        "gate_bottom": ds["gate_bottom"].load(),
     }
     for name, coord in ds.coords.items():
         if coord.dims == ("sample",) and name not in ("point", "realisation"):

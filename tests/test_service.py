@@ -97,6 +97,7 @@ def test_store_metadata_and_statistics(two_worker_store):
     assert ds["target.depth"].attrs["units"] == "m"
     stats = xr.open_zarr(store.stats_url(url))
     assert stats.sizes["point"] == 4 and stats.sizes["gate"] == 2
+    assert stats["gate_top"].values.tolist() == [2.0, 5.0]
     assert stats["samples"].values.tolist() == [3, 3, 3, 3]
     # the statistics equal a direct computation on the loaded store
     image = ds["image"].values

@@ -1,0 +1,17 @@
+#!/usr/bin/env bash
+# Regenerate the README gallery from the configs, with the commands a user would type.
+# Usage: bash docs/gallery/make.sh   (from the repository root, oceanlidar installed)
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+out=docs/gallery
+oceanlidar preview configs/paper/example1.yaml --output $out/example1.gif
+oceanlidar preview configs/paper/example2.yaml --output $out/example2.gif
+oceanlidar preview configs/paper/example3.yaml --sample 0 --output $out/example3-mine.png
+oceanlidar preview configs/paper/example3.yaml --sample 4 --output $out/example3-no-mine.png
+oceanlidar preview configs/paper/example4.yaml --sample 0 --output $out/example4-mine.png
+oceanlidar preview configs/paper/example4.yaml --sample 4 --output $out/example4-no-mine.png
+oceanlidar preview configs/paper/mldc-strip.yaml --output $out/mldc-strip.png
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+oceanlidar run configs/quickstart.yaml --output "$work/quickstart.zarr"
+oceanlidar plot "$work/quickstart.zarr" --output $out/quickstart-statistics.png

@@ -1,0 +1,164 @@
+"""Pictures of samples and of statistics.
+
+The gated strip of one sample (PNG, or an animated GIF of a sequence) and the statistics
+of a sweep against its swept parameters.
+
+Matplotlib runs headless (Agg); nothing here is needed to simulate, only to look.
+"""
+
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt
+import numpy as np
+import xarray as xr
+from PIL import Image
+
+from service.sweep import Plan, SweepError
+from workers.render import render
+from workers.seeds import SampleSeed
+
+__all__ = ["plot_statistics", "preview_figure", "render_preview", "save_preview"]
+
+PANEL_INCHES = 2.2
+DPI = 100
+
+
+def render_preview(plan: Plan, sample: int) -> xr.Dataset:
+    """Render sample `sample` of a sweep exactly as the service would, with its surface."""
+    if not 0 <= sample < plan.samples:
+        raise SweepError(f"--sample {sample}: the sweep has samples 0..{plan.samples - 1}")
+    point, realisation = divmod(sample, plan.realisations)
+    scene = plan.scenes[point]
+    if not scene.save_surface:
+        scene = scene.model_copy(update={"save_surface": True})
+    return render(
+        scene, seed=SampleSeed(root=plan.sweep.seed, point=point, realisation=realisation)
+    )
+
+
+def preview_figure(ds: xr.Dataset, *, frame: int = 0, title: str = ""):
+    """The gated images of one frame side by side, deeper to the right, and the sea.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        One rendered sample (`workers.render.render`) with ``surface_elevation``.
+    frame : int
+        Frame to draw.
+    title : str
+        Figure title.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        One panel per gate (colour bar in the image's units) and one for the surface
+        elevation (m), with the platform's position and the target's mask outline.
+    """
+    gates = ds.sizes["gate"]
+    figure, axes = plt.subplots(
+        1,
+        gates + 1,
+        figsize=(PANEL_INCHES * (gates + 1), PANEL_INCHES + 0.6),
+        dpi=DPI,
+        squeeze=False,
+    )
+    axes = axes[0]
+    images = ds["image"].isel(frame=frame).values
+    units = ds["image"].attrs.get("units", "1")
+    mask = ds["target_mask"].isel(frame=frame).values
+    for g in range(gates):
+        top, bottom = float(ds.gate_top[g]), float(ds.gate_bottom[g])
+        shown = axes[g].imshow(images[g], cmap="gray", interpolation="nearest")
+        if mask.any():
+            axes[g].contour(mask, levels=[0.5], colors="tab:red", linewidths=0.5, alpha=0.5)
+        axes[g].set_title(f"gate {g + 1}: {top:.1f}–{bottom:.1f} m", fontsize=8)
+        axes[g].set_xticks([])
+        axes[g].set_yticks([])
+        bar = figure.colorbar(shown, ax=axes[g], fraction=0.046, pad=0.02)
+        bar.ax.tick_params(labelsize=6)
+        bar.set_label(units, fontsize=6)
+    sea = axes[gates]
+    elevation = ds["surface_elevation"].isel(frame=frame)
+    extent = [float(ds.sx[0]), float(ds.sx[-1]), float(ds.sy[0]), float(ds.sy[-1])]
+    shown = sea.imshow(elevation.values, origin="lower", extent=extent, cmap="ocean")
+    # the sea is periodic: the platform's ground point is drawn on the patch it maps to
+    patch = ds.sizes["sx"] * float(ds.sx[1] - ds.sx[0])
+    ground = (float(ds.platform_x[frame]) % patch, float(ds.platform_y[frame]) % patch)
+    sea.plot(*ground, marker="+", color="tab:red", markersize=10)
+    sea.set_title(
+        f"sea, t = {float(ds.time[frame]):.1f} s, platform {float(ds.platform_z[frame]):.0f} m",
+        fontsize=8,
+    )
+    sea.tick_params(labelsize=6)
+    bar = figure.colorbar(shown, ax=sea, fraction=0.046, pad=0.02)
+    bar.ax.tick_params(labelsize=6)
+    bar.set_label("elevation (m)", fontsize=6)
+    if title:
+        figure.suptitle(title, fontsize=9)
+    figure.tight_layout()
+    return figure
+
+
+def _pixels(figure) -> Image.Image:
+    figure.canvas.draw()
+    picture = Image.fromarray(np.asarray(figure.canvas.buffer_rgba())).convert("RGB")
+    plt.close(figure)
+    return picture
+
+
+def save_preview(ds: xr.Dataset, path: str, *, title: str = "") -> int:
+    """Write a PNG of the first frame, or an animated GIF of every frame.
+
+    Returns
+    -------
+    int
+        Frames written.
+    """
+    lower = path.lower()
+    if lower.endswith(".gif"):
+        frames = [
+            _pixels(preview_figure(ds, frame=frame, title=title))
+            for frame in range(ds.sizes["frame"])
+        ]
+        frames[0].save(path, save_all=True, append_images=frames[1:], duration=200, loop=0)
+        return len(frames)
+    if lower.endswith(".png"):
+        _pixels(preview_figure(ds, frame=0, title=title)).save(path)
+        return 1
+    raise SweepError(f"--output {path}: write a .png (one frame) or a .gif (all frames)")
+
+
+def plot_statistics(stats: xr.Dataset, path: str) -> None:
+    """Target contrast and contrast-to-noise ratio against each swept parameter, per gate."""
+    swept = [name for name in stats.coords if "." in str(name)]
+    if not swept:
+        raise SweepError("the store sweeps no parameter: nothing to plot against")
+    figure, axes = plt.subplots(
+        2, len(swept), figsize=(3.2 * len(swept), 5.0), dpi=DPI, squeeze=False
+    )
+    for column, name in enumerate(swept):
+        values = stats[name].values
+        numeric = values.dtype.kind in "biuf"
+        labels = values if numeric else np.asarray([str(v) for v in values])
+        for row, quantity in enumerate(("target_contrast", "cnr")):
+            ax = axes[row, column]
+            data = stats[quantity].values
+            for g in range(stats.sizes["gate"]):
+                top, bottom = float(stats.gate_top[g]), float(stats.gate_bottom[g])
+                if numeric:
+                    order = np.argsort(labels, kind="stable")
+                    ax.plot(labels[order], data[order, g], ".", label=f"{top:.1f}–{bottom:.1f} m")
+                else:
+                    ax.plot(labels, data[:, g], "o", label=f"{top:.1f}–{bottom:.1f} m")
+            ax.set_xlabel(f"{name} ({stats[name].attrs.get('units', '1')})", fontsize=8)
+            ax.set_ylabel("target contrast" if row == 0 else "CNR", fontsize=8)
+            ax.axhline(0.0, color="0.7", linewidth=0.5)
+            ax.tick_params(labelsize=7)
+    axes[0, 0].legend(fontsize=6, title="gate", title_fontsize=6)
+    figure.tight_layout()
+    figure.savefig(path, dpi=DPI)
+    plt.close(figure)

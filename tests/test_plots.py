@@ -1,0 +1,117 @@
+"""Pictures (preview, plot) and the paper's examples."""
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from service.cli import main
+from service.plots import DPI, PANEL_INCHES, preview_figure, render_preview
+from service.run import execute
+from service.sweep import load_sweep, parse_sweep
+
+PAPER = Path(__file__).resolve().parent.parent / "configs" / "paper"
+
+
+def image_axes(figure):
+    return [ax for ax in figure.axes if ax.get_images()]
+
+
+def test_preview_png_has_one_panel_per_gate_and_the_sea(tmp_path, capsys):
+    target = tmp_path / "strip.png"
+    assert main(["preview", str(PAPER / "mldc-strip.yaml"), "--output", str(target)]) == 0
+    with Image.open(target) as picture:
+        picture.verify()
+    with Image.open(target) as picture:
+        assert picture.size == (round(PANEL_INCHES * 7 * DPI), round((PANEL_INCHES + 0.6) * DPI))
+    ds = render_preview(load_sweep(PAPER / "mldc-strip.yaml"), 0)
+    figure = preview_figure(ds)
+    assert len(image_axes(figure)) == 7
+    titles = [ax.get_title() for ax in image_axes(figure)]
+    assert titles[0] == "gate 1: 3.7–9.8 m" and titles[-1].startswith("sea")
+
+
+def test_preview_gif_animates_every_frame(tmp_path):
+    target = tmp_path / "example1.gif"
+    assert main(["preview", str(PAPER / "example1.yaml"), "--output", str(target)]) == 0
+    with Image.open(target) as picture:
+        assert picture.format == "GIF" and picture.n_frames == 26
+        first = np.asarray(picture.convert("RGB"))
+        picture.seek(25)
+        last = np.asarray(picture.convert("RGB"))
+    assert not np.array_equal(first, last)
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--sample", "99"], "samples 0..7"),
+        (["--output", "x.jpg"], ".png"),
+    ],
+    ids=["sample-out-of-range", "unknown-format"],
+)
+def test_preview_bad_arguments_exit_2(tmp_path, capsys, args, message):
+    argv = ["preview", str(PAPER / "example3.yaml"), "--output", str(tmp_path / "x.png"), *args]
+    assert main(argv) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_plot_draws_contrast_and_cnr_against_each_swept_parameter(tmp_path):
+    text = (PAPER / "example3.yaml").read_text()
+    text = text.replace("grid_size: 256, spacing: 0.016", "grid_size: 64, spacing: 0.064")
+    text = text.replace("pixels: 128", "pixels: 32").replace("realisations: 4", "realisations: 2")
+    text = text.replace(
+        "    target.shape: {values: [sphere, none]}",
+        "    target.shape: {values: [sphere, none]}\n    target.depth: {values: [3.0, 5.0]}",
+    )
+    plan = parse_sweep(text)
+    url = str(tmp_path / "s.zarr")
+    execute(plan, url, workers=1, progress_stream=open(os.devnull, "w"))
+    target = tmp_path / "stats.png"
+    assert main(["plot", url, "--output", str(target)]) == 0
+    with Image.open(target) as picture:
+        picture.verify()
+    with Image.open(target) as picture:
+        assert picture.size == (round(3.2 * 2 * DPI), round(5.0 * DPI))
+
+
+def expected_pair(config):
+    plan = load_sweep(PAPER / config)
+    with_mine = render_preview(plan, 0)  # point 0: sphere
+    without = render_preview(plan, plan.realisations)  # point 1: none, same sea
+    assert (
+        with_mine.surface_elevation.values.tobytes() == without.surface_elevation.values.tobytes()
+    )
+    mask = with_mine.target_mask.values[0].astype(bool)
+    assert mask.sum() > 20
+    return with_mine.expected.values[0, 0], without.expected.values[0, 0], mask
+
+
+def test_example3_the_mine_raises_the_signal_inside_its_mask():
+    a, b, mask = expected_pair("example3.yaml")
+    assert a[mask].mean() > 1.5 * b[mask].mean()
+    assert np.allclose(a[~mask].mean(), b[~mask].mean(), rtol=0.1)
+
+
+def test_example4_the_target_darkens_the_deeper_gate_inside_its_mask():
+    a, b, mask = expected_pair("example4.yaml")
+    assert a[mask].mean() < 0.7 * b[mask].mean()
+
+
+@pytest.mark.parametrize("config", ["example1.yaml", "example2.yaml"])
+def test_sequence_frames_evolve_with_the_sea_and_the_platform(config):
+    ds = render_preview(load_sweep(PAPER / config), 0)
+    z = ds.platform_z.values
+    assert z[0] == 16.0 and np.all(np.diff(z) > 0)
+    if config == "example1.yaml":
+        assert z[-1] == pytest.approx(66.0)
+        assert np.all(ds.platform_x.values == 0.0)
+    else:
+        assert np.all(np.diff(ds.platform_x.values) > 0)
+    eta = ds.surface_elevation.values
+    assert not np.array_equal(eta[0], eta[5])
+    assert np.abs(eta).max() == pytest.approx(0.1, rel=1e-5)  # the paper's maximum elevation
+    images = ds.expected.values[:, 0]
+    assert not np.array_equal(images[0], images[1])
