@@ -18,6 +18,17 @@ __all__ = ["main"]
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
 
 
+def _json_object(text: str) -> dict:
+    """Parse --storage-options: a JSON object."""
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise argparse.ArgumentTypeError(f"not JSON: {error}") from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError("must be a JSON object, e.g. '{\"anon\": false}'")
+    return value
+
+
 class _Parser(argparse.ArgumentParser):
     def error(self, message):
         self.print_usage(sys.stderr)
@@ -48,7 +59,7 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--batch", type=int, default=4, help="samples per task (default 4)")
     run.add_argument("--no-limits", action="store_true", help="lift the sweep size limits")
     run.add_argument(
-        "--storage-options", type=json.loads, default=None, help="fsspec options as JSON"
+        "--storage-options", type=_json_object, default=None, help="fsspec options as JSON"
     )
 
     validate = commands.add_parser("validate", help="check a sweep and print its plan")
@@ -57,11 +68,11 @@ def _parser() -> argparse.ArgumentParser:
 
     info = commands.add_parser("info", help="what a store holds and how complete it is")
     info.add_argument("store", help="store path or URL")
-    info.add_argument("--storage-options", type=json.loads, default=None)
+    info.add_argument("--storage-options", type=_json_object, default=None)
 
     stats = commands.add_parser("stats", help="(re)compute a store's statistics dataset")
     stats.add_argument("store", help="store path or URL")
-    stats.add_argument("--storage-options", type=json.loads, default=None)
+    stats.add_argument("--storage-options", type=_json_object, default=None)
     preview = commands.add_parser("preview", help="draw one sample's gated images")
     preview.add_argument("sweep", help="sweep YAML file")
     preview.add_argument("--sample", type=int, default=0, help="sample index (default 0)")
@@ -70,7 +81,7 @@ def _parser() -> argparse.ArgumentParser:
     plot = commands.add_parser("plot", help="plot a store's statistics")
     plot.add_argument("store", help="store path or URL")
     plot.add_argument("--output", required=True, help="FILE.png")
-    plot.add_argument("--storage-options", type=json.loads, default=None)
+    plot.add_argument("--storage-options", type=_json_object, default=None)
     return parser
 
 

@@ -11,6 +11,8 @@ the same bytes.
 from __future__ import annotations
 
 import contextlib
+import hashlib
+import logging
 import os
 import sys
 import time
@@ -167,7 +169,7 @@ def dask_client(*, workers: int | None, scheduler: str | None, security=None):
             processes=True,
             host="127.0.0.1",
             dashboard_address=None,
-            silence_logs=40,
+            silence_logs=logging.CRITICAL,
         ) as cluster,
         Client(cluster) as client,
     ):
@@ -199,6 +201,8 @@ def run_plan(
     started = time.monotonic()
     pending = as_completed()
     sizes = {}
+    # task keys name the sweep and the store: concurrent runs never share a task
+    run_id = hashlib.sha256(f"{plan.digest} {url}".encode()).hexdigest()[:16]
 
     def submit_next() -> bool:
         try:
@@ -211,7 +215,7 @@ def run_plan(
             start,
             jobs,
             storage_options,
-            key=f"oceanlidar-{plan.digest[:12]}-{start}-{len(jobs)}",
+            key=f"oceanlidar-{run_id}-{start}-{len(jobs)}",
             retries=RETRIES,
             pure=False,
         )
@@ -258,15 +262,25 @@ def execute(
     """Create (or reopen) the store, run the missing samples and write the statistics."""
     exists = store.store_exists(url, storage_options)
     if exists and resume:
+        if not store.is_oceanlidar_store(url, storage_options):
+            raise SweepError(f"{url} is not an oceanlidar store; cannot resume into it")
         previous = store.open_store(url, storage_options=storage_options)
         if previous.attrs.get("sweep_sha256") != plan.digest:
             raise SweepError(
                 f"{url} holds a different sweep (its hash differs); refusing to resume into it"
             )
+        written_by = previous.attrs.get("oceanlidar_version")
+        if written_by != store.package_version():
+            raise SweepError(
+                f"{url} was written by oceanlidar {written_by}, this is "
+                f"{store.package_version()}: samples would differ; resume with that version "
+                "or start again with --overwrite"
+            )
     elif exists and not overwrite:
         raise SweepError(f"{url} already exists; pass --resume to complete it or --overwrite")
     elif exists:
         store.remove_store(url, storage_options)
+        store.remove_store(store.stats_url(url), storage_options)
     if not (exists and resume):
         store.create_store(plan, url, storage_options=storage_options)
     with dask_client(workers=workers, scheduler=scheduler) as client:

@@ -107,6 +107,7 @@ def _template(ds: xr.Dataset) -> xr.Dataset:
     realisations = int(ds.attrs["realisations"])
     gates, ny, nx = ds.sizes["gate"], ds.sizes["y"], ds.sizes["x"]
     units = ds["image"].attrs.get("units", "1")
+    signal_units = ds["expected"].attrs.get("units", "1")
     data_vars = {
         "image_mean": (
             ("point", "gate", "y", "x"),
@@ -128,7 +129,7 @@ def _template(ds: xr.Dataset) -> xr.Dataset:
         data_vars[name] = (
             ("point", "gate"),
             da.full((points, gates), np.nan, chunks=(1, gates), dtype=np.float32),
-            {"long_name": long_name, "units": "1" if "signal" not in name else units},
+            {"long_name": long_name, "units": signal_units if "signal" in name else "1"},
         )
     first = np.arange(points) * realisations
     coords = {

@@ -10,6 +10,7 @@ complete that is not written.
 from __future__ import annotations
 
 import contextlib
+import json
 import warnings
 from importlib.metadata import PackageNotFoundError, version
 
@@ -76,8 +77,10 @@ def stats_url(url: str) -> str:
 
 
 def _fs(url: str, storage_options: dict | None):
-    fs, path = fsspec.core.url_to_fs(url, **(storage_options or {}))
-    return fs, path
+    try:
+        return fsspec.core.url_to_fs(url, **(storage_options or {}))
+    except (TypeError, ValueError, ImportError) as error:
+        raise SweepError(f"{url}: cannot open with these storage options ({error})") from None
 
 
 def store_exists(url: str, storage_options: dict | None = None) -> bool:
@@ -86,11 +89,23 @@ def store_exists(url: str, storage_options: dict | None = None) -> bool:
     return fs.exists(path)
 
 
+def is_oceanlidar_store(url: str, storage_options: dict | None = None) -> bool:
+    """Whether `url` holds a zarr group written by oceanlidar (a sweep or its statistics)."""
+    try:
+        group = zarr.open_group(store=url, mode="r", storage_options=storage_options)
+    except Exception:
+        return False
+    return "sweep_sha256" in group.attrs
+
+
 def remove_store(url: str, storage_options: dict | None = None) -> None:
-    """Delete the store at `url` (used by ``--overwrite`` only)."""
+    """Delete the oceanlidar store at `url` (``--overwrite``); refuse anything else."""
     fs, path = _fs(url, storage_options)
-    if fs.exists(path):
-        fs.rm(path, recursive=True)
+    if not fs.exists(path):
+        return
+    if not is_oceanlidar_store(url, storage_options):
+        raise SweepError(f"{url} exists and is not an oceanlidar store; refusing to delete it")
+    fs.rm(path, recursive=True)
 
 
 def check_uniform(plan: Plan) -> None:
@@ -122,11 +137,10 @@ def sample_dataset(plan: Plan, sample: int) -> xr.Dataset:
 
 
 def _coordinate_array(values: list) -> np.ndarray:
-    """Numbers as numbers; anything else as variable-length strings (zarr's `string`)."""
-    array = np.asarray(values)
-    if array.dtype.kind not in "biuf":
-        array = np.asarray([str(v) for v in values], dtype=object)
-    return array
+    """Numbers as numbers; anything else (names, lists) as strings (zarr's `string`)."""
+    if all(isinstance(v, bool | int | float) for v in values):
+        return np.asarray(values)
+    return np.asarray([v if isinstance(v, str) else json.dumps(v) for v in values], dtype=object)
 
 
 def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -> None:

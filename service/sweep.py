@@ -84,9 +84,19 @@ class Distribution(_Model):
         if self.distribution == "normal":
             if self.mu is None or self.sigma is None:
                 raise ValueError("a normal distribution needs mu and sigma")
+            if self.min is not None or self.max is not None:
+                raise ValueError("a normal distribution takes mu and sigma, not min and max")
+            if not np.isfinite(self.mu + 10 * self.sigma):
+                raise ValueError("mu and sigma must be finite and moderate")
             return self
+        if self.mu is not None or self.sigma is not None:
+            raise ValueError(f"a {self.distribution} distribution takes min and max")
         if self.min is None or self.max is None:
             raise ValueError(f"a {self.distribution} distribution needs min and max")
+        if not np.isfinite(self.max - self.min):
+            raise ValueError("min and max must be finite, and their difference too")
+        if self.distribution == "int_uniform" and math.ceil(self.min) > math.floor(self.max):
+            raise ValueError("an int_uniform distribution needs an integer between min and max")
         if self.min > self.max or (self.min == self.max and self.distribution != "int_uniform"):
             raise ValueError("min must be below max")
         if self.distribution == "log_uniform" and self.min <= 0:
@@ -365,6 +375,8 @@ def parse_sweep(text: str) -> Plan:
                 ) from None
         scenes.append(cache[key])
     canonical = sweep.model_dump(mode="json", exclude={"output"})
+    # parameters in file order: grid expansion and random draws follow it
+    canonical["sweep"]["parameters"] = list(canonical["sweep"]["parameters"].items())
     digest = hashlib.sha256(json.dumps(canonical, sort_keys=True).encode()).hexdigest()
     return Plan(sweep=sweep, text=text, digest=digest, points=tuple(points), scenes=tuple(scenes))
 

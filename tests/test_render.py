@@ -300,3 +300,40 @@ def test_hidden_fraction_is_the_share_of_the_slab_integral_behind_the_target(K):
     weight = np.exp(-2 * K * z)
     expected = [weight[z >= d].sum() / weight.sum() for d in depths]
     assert_allclose(got, expected, atol=1e-4)
+
+
+@pytest.mark.parametrize("nadir", [0.0, 30.0, 45.0, 60.0], ids=lambda a: f"nadir{a:g}")
+def test_oblique_water_backscatter_is_the_single_scattering_integral(nadir):
+    # Along a line of sight at angle ϑ in the water, with the laser along the same line:
+    # horizontal irradiance J cosθ t e^(-Kl), normal irradiance that over cosϑ, return
+    # β(π) dl with dl = dz/cosϑ, so the pixel sees (units of the white plane, J = 1)
+    # π β t² (cosθ/cosϑ) [e^(-2K top/cosϑ) - e^(-2K bottom/cosϑ)] / (2K) / t0².
+    from workers.water import WaterOptics
+
+    water = clear_water(absorption=0.15, scattering=0.01, backscatter=0.01)
+    gate = (2.0, 6.0)
+    s = scene(
+        surface={"spectrum": "flat"},
+        water=water,
+        laser={"beam": "parallel"},
+        target={"shape": "none"},
+        receiver={"gates": [list(gate)]},
+        platform={"nadir_deg": nadir},
+    )
+    optics = WaterOptics(absorption=0.15, scattering=0.01, backscatter=0.01)
+    K = optics.diffuse_attenuation
+    theta = np.radians(nadir)
+    cos_w = np.cos(np.arcsin(np.sin(theta) / N_WATER))
+    t = 1.0 - fresnel_reflectance(np.cos(theta), n1=1.0, n2=N_WATER)
+    slab = (np.exp(-2 * K * gate[0] / cos_w) - np.exp(-2 * K * gate[1] / cos_w)) / (2 * K)
+    expected = np.pi * optics.backscatter_pi * t**2 * np.cos(theta) / cos_w * slab / T0**2
+    value = centre(render(s, seed=1).expected.values[0, 0])
+    assert_allclose(value, expected, rtol=0.01)
+
+
+def test_visibility_follows_the_visible_surface_of_the_sphere():
+    # A sphere at 10.0-11.0 m seen from above shows its cap 10.0-10.5 m: a gate from
+    # 10.67 m only sees its shadow, though the sphere's bottom reaches into it.
+    s = target_scene(depth=10.5, gates=((10.67, 13.72), (9.0, 10.2), (11.2, 12.0)))
+    s = s.model_copy(update={"target": s.target.model_copy(update={"radius": 0.5})})
+    assert render(s, seed=1).target_visibility.values.tolist() == [2, 1, 2]

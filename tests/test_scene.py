@@ -73,3 +73,29 @@ def test_scene_is_frozen():
 def test_backscatter_cannot_exceed_scattering():
     with pytest.raises(ValidationError, match="backscatter"):
         Scene.model_validate({"water": {"preset": "clear_ocean", "backscatter": 0.5}})
+
+
+@pytest.mark.parametrize(
+    ("data", "message"),
+    [
+        ({"target": {"x": 1.0}}, "both x and y"),
+        (
+            {
+                "laser": {"field_of_view_deg": 60},
+                "receiver": {"field_of_view_deg": 1, "pixels": 512},
+            },
+            "rays per side",
+        ),
+        (
+            {
+                "laser": {"field_of_view_deg": 0.2, "rays": 4096},
+                "receiver": {"field_of_view_deg": 40},
+            },
+            "would span",
+        ),
+    ],
+    ids=["half-set-position", "too-many-rays", "too-fine-lattice"],
+)
+def test_scenes_that_would_mislead_or_exhaust_memory_are_refused(data, message):
+    with pytest.raises(ValidationError, match=message):
+        Scene.model_validate(data)

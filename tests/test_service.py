@@ -261,3 +261,38 @@ def test_readme_training_example_runs(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert main(["run", str(sweep), "--workers", "1"]) == 0
     exec(compile(code, "README.md", "exec"), {})
+
+
+def test_overwrite_never_deletes_what_is_not_a_store(tmp_path, capsys):
+    victim = tmp_path / "thesis"
+    (victim / "chapter").mkdir(parents=True)
+    (victim / "chapter" / "one.tex").write_text("precious")
+    sweep = write(tmp_path / "s.yaml")
+    assert main(["run", str(sweep), "--output", str(victim), "--overwrite"]) == 2
+    assert "not an oceanlidar store" in capsys.readouterr().err
+    assert (victim / "chapter" / "one.tex").read_text() == "precious"
+    assert main(["run", str(sweep), "--output", str(victim), "--resume"]) == 2
+    assert "not an oceanlidar store" in capsys.readouterr().err
+
+
+def test_list_valued_parameters_become_string_coordinates(tmp_path):
+    plan = parse_sweep(
+        SWEEP.replace(
+            "    target.shape: {values: [sphere, none]}",
+            "    sequence.velocity: {values: [[0, 0, 0], [1, 0, 0]]}",
+        )
+    )
+    url = str(tmp_path / "v.zarr")
+    store.create_store(plan, url)
+    ds = xr.open_zarr(url)
+    assert ds["sequence.velocity"].values[0] == "[0, 0, 0]"
+    assert ds["sequence.velocity"].values[-1] == "[1, 0, 0]"
+
+
+@pytest.mark.parametrize("options", ["[1]", "not json"], ids=["array", "garbage"])
+def test_storage_options_must_be_a_json_object(tmp_path, options):
+    result = run_cli("validate", str(write(tmp_path / "s.yaml")), cwd=tmp_path)
+    assert result.returncode == 0
+    result = run_cli("info", str(tmp_path / "x.zarr"), "--storage-options", options, cwd=tmp_path)
+    assert result.returncode == 2 and "storage-options" in result.stderr
+    assert "Traceback" not in result.stderr

@@ -191,3 +191,29 @@ def test_oversized_grid_is_refused_before_expansion():
     )
     with pytest.raises(SweepError, match="points"):
         parse_sweep(BASE + "sweep:\n  parameters:\n" + params)
+
+
+def test_digest_follows_the_order_of_the_parameters():
+    first = "    target.depth: {values: [3.0, 5.0]}\n    target.shape: {values: [sphere, none]}\n"
+    second = "    target.shape: {values: [sphere, none]}\n    target.depth: {values: [3.0, 5.0]}\n"
+    a = parse_sweep(BASE + "sweep:\n  parameters:\n" + first)
+    b = parse_sweep(BASE + "sweep:\n  parameters:\n" + second)
+    assert a.points != b.points and a.digest != b.digest
+
+
+@pytest.mark.parametrize(
+    ("spec", "message"),
+    [
+        ("{distribution: int_uniform, min: 16.5, max: 16.7}", "integer between"),
+        ("{distribution: uniform, min: -1e308, max: 1e308}", "finite"),
+        ("{distribution: normal, mu: 1, sigma: 1, min: 0}", "not min and max"),
+        ("{distribution: uniform, min: 1, max: 2, sigma: 1}", "takes min and max"),
+    ],
+    ids=["no-integer", "overflow", "normal-with-min", "uniform-with-sigma"],
+)
+def test_distribution_parameters_are_checked(spec, message):
+    text = (
+        BASE + f"sweep:\n  method: random\n  count: 3\n  parameters:\n    target.depth: {spec}\n"
+    )
+    with pytest.raises(SweepError, match=message):
+        parse_sweep(text)

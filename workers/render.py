@@ -23,6 +23,11 @@ The image-formation model (DESIGN §3.5), per frame:
    exact without scattering and gives a full shadow when the target is above the gate.
 5. Images are scaled so that a ρ = 1 Lambertian plane just under a flat sea at nadir gives
    `noise.photons` counts, then Poisson shot noise is drawn.
+
+Approximations beyond the paper's, at oblique views: the Wells spread is computed for the
+vertical range to each plane (it underestimates the blur by about 1/cos ϑ in the water),
+while attenuation follows each ray's slant path; a gate's volume return uses the refracted
+central ray's angle for its 1/cos²ϑ gain and slant attenuation.
 """
 
 from __future__ import annotations
@@ -141,13 +146,20 @@ def _setup(key: str) -> _Setup:
     )
     water = WaterOptics(**coefficients)
     gates = scene.receiver.gate_depths
-    K = water.diffuse_attenuation
+    refracted_nadir = float(
+        np.arcsin(np.sin(np.radians(scene.platform.nadir_deg)) / w.refractive_index)
+    )
+    # Seen at an angle ϑ in the water, a slab's volume return grows as 1/cos²ϑ (the normal
+    # irradiance is E/cosϑ and the path through dz is dz/cosϑ) and fades as e^(-2Kz/cosϑ).
+    secant = 1.0 / np.cos(refracted_nadir)
+    K = water.diffuse_attenuation * secant
     references = tuple(
         slab_backscatter_centroid(diffuse_attenuation=K, top=top, bottom=bottom)
         for top, bottom in gates
     )
     reflectances = tuple(
-        slab_backscatter_reflectance(
+        secant**2
+        * slab_backscatter_reflectance(
             backscatter_pi=water.backscatter_pi,
             diffuse_attenuation=K,
             top=top,
@@ -159,9 +171,6 @@ def _setup(key: str) -> _Setup:
     t0 = 1.0 - float(fresnel_reflectance(1.0, n1=1.0, n2=w.refractive_index))
     photons = scene.noise.photons
     scale = (photons if photons > 0 else 1.0) / t0**2
-    refracted_nadir = float(
-        np.arcsin(np.sin(np.radians(scene.platform.nadir_deg)) / w.refractive_index)
-    )
     return _Setup(
         scene=scene,
         water=water,
@@ -171,7 +180,10 @@ def _setup(key: str) -> _Setup:
         reflectances=reflectances,
         scale=scale,
         refracted_nadir=refracted_nadir,
-        visibility=tuple(_visibility(scene, top, bottom) for top, bottom in gates),
+        visibility=tuple(
+            _visibility(scene, top, bottom, refracted_nadir=refracted_nadir)
+            for top, bottom in gates
+        ),
     )
 
 
@@ -189,17 +201,28 @@ def _spectrum(scene: Scene):
     return spectra.Jonswap(**common, fetch=s.fetch)
 
 
-def _target_extent(scene: Scene):
+def _visible_extent(scene: Scene, *, refracted_nadir: float):
+    """Depths of the target's surface that the sensor sees (its lit, upper side) [m].
+
+    A sphere viewed along the refracted central ray shows the cap facing it: from its top,
+    d - r, down to d + r sin ϑ at its limb. A disk lies at its depth.
+    """
     t = scene.target
     if t.shape == "sphere":
-        return t.depth - t.radius, t.depth + t.radius
+        return t.depth - t.radius, t.depth + t.radius * np.sin(refracted_nadir)
     return t.depth, t.depth
 
 
-def _visibility(scene: Scene, top: float, bottom: float) -> int:
+def _visibility(scene: Scene, top: float, bottom: float, *, refracted_nadir: float) -> int:
+    """Label of the target against a gate: none, in the gate, shadowing it, or below it.
+
+    "In the gate" means part of the target's visible surface lies in the slab; a target
+    whose visible surface lies above the slab shadows it (even where its far side reaches
+    into the slab, that side is dark and hides the water behind it).
+    """
     if scene.target.shape == "none":
         return VISIBILITY["none"]
-    upper, lower = _target_extent(scene)
+    upper, lower = _visible_extent(scene, refracted_nadir=refracted_nadir)
     if lower < top:
         return VISIBILITY["shadow"]
     if upper > bottom:
@@ -263,9 +286,7 @@ def _frame_geometry(key: str, frame: int) -> _FrameGeometry:
         pixels=r.pixels,
     )
     laser_fov = np.radians(scene.laser.field_of_view_deg or r.field_of_view_deg)
-    rays = scene.laser.rays or max(
-        8, round(r.pixels * np.tan(0.5 * laser_fov) / np.tan(0.5 * camera.field_of_view))
-    )
+    rays = scene.laser_rays
     reference_range = p.altitude / np.cos(np.radians(p.nadir_deg))
     laser = LaserRays.from_platform(
         position=position,

@@ -8,6 +8,7 @@ dotted paths (``target.depth``).
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -26,6 +27,12 @@ __all__ = [
     "Target",
     "Water",
 ]
+
+MAX_RAYS = 4096
+"""Most laser rays per side (16.8 million rays)."""
+
+MAX_PLANE_CELLS = 8192
+"""Most cells per side of an in-water plane (a 0.5 GiB float64 splat)."""
 
 FOOT = 0.3048
 """One international foot in metres (exact)."""
@@ -74,7 +81,7 @@ class SurfaceSpec(_Model):
     grid_size: int = Field(
         256, ge=16, le=4096, description="Points per side of the periodic surface grid [1]."
     )
-    spacing: float = Field(0.016, gt=0.0, le=10.0, description="Surface grid spacing [m].")
+    spacing: float = Field(0.016, ge=1e-4, le=10.0, description="Surface grid spacing [m].")
     max_elevation: float | None = Field(
         None,
         gt=0.0,
@@ -181,6 +188,10 @@ class Target(_Model):
 
     @model_validator(mode="after")
     def _submerged(self) -> Target:
+        if (self.x is None) != (self.y is None):
+            raise ValueError(
+                "set both x and y, or neither (the target then sits on the central ray)"
+            )
         if self.shape == "sphere" and self.depth <= self.radius:
             raise ValueError(
                 f"a sphere of radius {self.radius} m at depth {self.depth} m breaks the surface; "
@@ -302,6 +313,41 @@ class Scene(_Model):
     save_surface: bool = Field(
         False, description="Store the surface elevation of every frame with the sample."
     )
+
+    @property
+    def laser_rays(self) -> int:
+        """Rays per side of the laser lattice: `laser.rays`, or the pixels' angular pitch."""
+        if self.laser.rays is not None:
+            return self.laser.rays
+        return max(
+            8, round(self.receiver.pixels * self._laser_half_width / self._receiver_half_width)
+        )
+
+    @property
+    def _receiver_half_width(self) -> float:
+        return math.tan(0.5 * math.radians(self.receiver.field_of_view_deg))
+
+    @property
+    def _laser_half_width(self) -> float:
+        degrees = self.laser.field_of_view_deg or self.receiver.field_of_view_deg
+        return math.tan(0.5 * math.radians(degrees))
+
+    @model_validator(mode="after")
+    def _bounded_work(self) -> Scene:
+        rays = self.laser_rays
+        if rays > MAX_RAYS:
+            raise ValueError(
+                f"laser: {rays} rays per side (the laser field over the receiver's pixel "
+                f"pitch) exceeds {MAX_RAYS}; set laser.rays or a narrower laser field"
+            )
+        cells = 1.25 * rays * self._receiver_half_width / self._laser_half_width
+        if cells > MAX_PLANE_CELLS:
+            raise ValueError(
+                f"laser: the receiver's field would span {cells:.0f} cells of the laser's ray "
+                f"lattice (limit {MAX_PLANE_CELLS}); use fewer laser.rays or a wider laser "
+                "field"
+            )
+        return self
 
     @model_validator(mode="after")
     def _altitude_during_sequence(self) -> Scene:
