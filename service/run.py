@@ -189,20 +189,59 @@ def run_plan(
     """Render every missing sample of `plan` into the store at `url`.
 
     The store must exist (`service.store.create_store`). With `resume`, samples already
-    marked complete are skipped.
+    marked complete are skipped. Batches that fail (after dask's retries, or because a
+    worker died under them) are run again one sample at a time, one task in flight, so a
+    sample that kills its worker is reported alone and the samples that merely shared its
+    worker complete.
     """
     done = store.completed_samples(url, storage_options=storage_options)
     todo = [i for i in range(plan.samples) if not (resume and done[i])]
     result = RunResult(total=plan.samples, skipped=plan.samples - len(todo))
     progress = Progress(plan.samples, result.skipped, stream=progress_stream)
     threads = sum(client.nthreads().values()) or 1
-    window = max(2, IN_FLIGHT_PER_THREAD * threads)
-    batches = task_batches(plan, todo, batch_size)
-    started = time.monotonic()
-    pending = as_completed()
-    sizes = {}
     # task keys name the sweep and the store: concurrent runs never share a task
     run_id = hashlib.sha256(f"{plan.digest} {url}".encode()).hexdigest()[:16]
+    started = time.monotonic()
+    window = max(2, IN_FLIGHT_PER_THREAD * threads)
+    failed: list = []
+    try:
+        _submit_bounded(
+            client,
+            url,
+            task_batches(plan, todo, batch_size),
+            window,
+            storage_options,
+            f"{run_id}-batch",
+            result,
+            progress,
+            failed,
+        )
+        singles = [sample for start, count, _ in failed for sample in range(start, start + count)]
+        failed.clear()
+        _submit_bounded(
+            client,
+            url,
+            task_batches(plan, singles, 1),
+            1,
+            storage_options,
+            f"{run_id}-alone",
+            result,
+            progress,
+            failed,
+        )
+    except KeyboardInterrupt:
+        result.interrupted = True
+    finally:
+        progress.close()
+        result.seconds = time.monotonic() - started
+    result.failed = failed
+    return result
+
+
+def _submit_bounded(client, url, batches, window, storage_options, tag, result, progress, failed):
+    """Submit `batches` keeping at most `window` tasks in flight; record what happened."""
+    pending = as_completed()
+    sizes = {}
 
     def submit_next() -> bool:
         try:
@@ -215,7 +254,7 @@ def run_plan(
             start,
             jobs,
             storage_options,
-            key=f"oceanlidar-{run_id}-{start}-{len(jobs)}",
+            key=f"oceanlidar-{tag}-{start}-{len(jobs)}",
             retries=RETRIES,
             pure=False,
         )
@@ -234,17 +273,13 @@ def run_plan(
                 result.written += count
                 progress.update(count)
             else:
-                result.failed.append((start, count, repr(future.exception())))
+                failed.append((start, count, repr(future.exception())))
             future.release()
             submit_next()
     except KeyboardInterrupt:
-        result.interrupted = True
         for future in list(pending.futures):
             future.cancel()
-    finally:
-        progress.close()
-        result.seconds = time.monotonic() - started
-    return result
+        raise
 
 
 def execute(

@@ -1,0 +1,164 @@
+"""Runs on a separately started dask cluster (loopback only): same bytes, faults reported."""
+
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import xarray as xr
+from distributed import Client
+from distributed.diagnostics.plugin import WorkerPlugin
+
+from service.run import run_plan
+from service.store import create_store
+from service.sweep import parse_sweep
+
+ROOT = Path(__file__).resolve().parent.parent
+BIN = Path(sys.executable).parent
+
+SWEEP = """\
+name: cluster
+seed: 5
+realisations: 3
+output: c.zarr
+scene:
+  surface: {grid_size: 32, spacing: 0.1}
+  receiver: {pixels: 16, gates: [[2.0, 6.0]]}
+  noise: {photons: 100}
+sweep:
+  parameters:
+    target.shape: {values: [sphere, none]}
+"""
+
+
+def free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory):
+    """`dask scheduler` and two `dask worker` processes, on 127.0.0.1 only."""
+    folder = tmp_path_factory.mktemp("cluster")
+    port = free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    # workers import this module too (the crash plugin below)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "tests")])}
+    scheduler = subprocess.Popen(
+        [
+            str(BIN / "dask"),
+            "scheduler",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(port),
+            "--no-dashboard",
+        ],
+        cwd=folder,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    workers = [
+        subprocess.Popen(
+            [
+                str(BIN / "dask"),
+                "worker",
+                address,
+                "--host",
+                "127.0.0.1",
+                "--nthreads",
+                "1",
+                "--no-dashboard",
+                "--name",
+                f"w{i}",
+            ],
+            cwd=folder,
+            env=env,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        for i in range(2)
+    ]
+    try:
+        with Client(address, timeout="60s") as client:
+            client.wait_for_workers(2, timeout=60)
+        yield address
+    finally:
+        for process in [*workers, scheduler]:
+            process.terminate()
+        for process in [*workers, scheduler]:
+            process.wait(timeout=30)
+
+
+def test_run_on_an_external_scheduler_writes_the_embedded_bytes(cluster, tmp_path):
+    sweep = tmp_path / "s.yaml"
+    sweep.write_text(SWEEP)
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    for name, extra in (("external", ["--scheduler", cluster]), ("embedded", ["--workers", "1"])):
+        result = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "service.cli",
+                "run",
+                str(sweep),
+                "--output",
+                str(tmp_path / f"{name}.zarr"),
+                "--batch",
+                "1",
+                *extra,
+            ],
+            cwd=tmp_path,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        assert result.returncode == 0, result.stderr
+    a, b = xr.open_zarr(tmp_path / "external.zarr"), xr.open_zarr(tmp_path / "embedded.zarr")
+    for name in a.variables:
+        assert a[name].values.tobytes() == b[name].values.tobytes(), name
+
+
+class CrashOnSample(WorkerPlugin):
+    """Kill the worker process whenever it starts the task of one sample."""
+
+    def __init__(self, sample):
+        self.sample = sample
+
+    def setup(self, worker):
+        self.worker = worker
+
+    def transition(self, key, start, finish, **kwargs):
+        if finish == "executing" and str(key).endswith(f"-{self.sample}-1"):
+            os._exit(1)
+
+
+def test_a_sample_that_kills_its_worker_is_reported_and_the_rest_complete(cluster, tmp_path):
+    plan = parse_sweep(SWEEP)
+    url = str(tmp_path / "crash.zarr")
+    create_store(plan, url)
+    with Client(cluster, timeout="60s") as client:
+        client.register_plugin(CrashOnSample(4), name="crash-on-sample-4")
+        try:
+            result = run_plan(
+                plan, url, client=client, batch_size=1, progress_stream=open(os.devnull, "w")
+            )
+        finally:
+            client.unregister_worker_plugin("crash-on-sample-4")
+        client.wait_for_workers(2, timeout=120)
+    assert [(start, count) for start, count, _ in result.failed] == [(4, 1)]
+    assert "KilledWorker" in result.failed[0][2]
+    done = xr.open_zarr(url)["completed"].values
+    assert done.tolist() == [1, 1, 1, 1, 0, 1]
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:  # the nannies restart the killed workers
+        with Client(cluster, timeout="30s") as client:
+            if len(client.scheduler_info()["workers"]) == 2:
+                break
+        time.sleep(1)
