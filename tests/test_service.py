@@ -296,3 +296,18 @@ def test_storage_options_must_be_a_json_object(tmp_path, options):
     result = run_cli("info", str(tmp_path / "x.zarr"), "--storage-options", options, cwd=tmp_path)
     assert result.returncode == 2 and "storage-options" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_the_embedded_cluster_listens_on_loopback_only():
+    import psutil
+
+    with dask_client(workers=2, scheduler=None):
+        me = psutil.Process()
+        listening = [
+            connection.laddr
+            for process in [me, *me.children(recursive=True)]
+            for connection in process.net_connections(kind="inet")
+            if connection.status == psutil.CONN_LISTEN
+        ]
+    assert listening, "the cluster should listen somewhere"
+    assert {address.ip for address in listening} == {"127.0.0.1"}
