@@ -167,6 +167,12 @@ class Kriging:
     power_mirror: np.ndarray
     omega_half: np.ndarray
 
+    def __post_init__(self):
+        for value in vars(self).values():
+            for array in value if isinstance(value, tuple) else (value,):
+                if isinstance(array, np.ndarray):
+                    array.flags.writeable = False
+
     def correction(self, elevation_at, rng: np.random.Generator):
         r"""Spectral correction that conditions one unconditional realisation.
 
