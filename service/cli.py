@@ -195,7 +195,8 @@ def _cmd_preview(args) -> int:
     point = divmod(args.sample, plan.realisations)[0]
     values = ", ".join(f"{k}={v}" for k, v in plan.points[point].items())
     title = f"{plan.sweep.name}, sample {args.sample}" + (f" ({values})" if values else "")
-    frames = save_preview(ds, args.output, title=title)
+    measurements = plan.scenes[point].surface.conditioning.points
+    frames = save_preview(ds, args.output, title=title, measurements=measurements)
     print(f"{args.output}: {frames} frame(s)", file=sys.stderr)
     return EXIT_OK
 

@@ -40,7 +40,7 @@ def render_preview(plan: Plan, sample: int) -> xr.Dataset:
     )
 
 
-def preview_figure(ds: xr.Dataset, *, frame: int = 0, title: str = ""):
+def preview_figure(ds: xr.Dataset, *, frame: int = 0, title: str = "", measurements=None):
     """The gated images of one frame side by side, deeper to the right, and the sea.
 
     Parameters
@@ -51,12 +51,16 @@ def preview_figure(ds: xr.Dataset, *, frame: int = 0, title: str = ""):
         Frame to draw.
     title : str
         Figure title.
+    measurements : array_like or None
+        Points the surface was conditioned on, one [x, y, ...] row each (m); drawn as
+        red dots on the sea.
 
     Returns
     -------
     matplotlib.figure.Figure
         One panel per gate (colour bar in the image's units) and one for the surface
-        elevation (m), with the platform's position and the target's mask outline.
+        elevation (m), with the platform's position, the measured points and the
+        target's mask outline.
     """
     gates = ds.sizes["gate"]
     figure, axes = plt.subplots(
@@ -89,6 +93,16 @@ def preview_figure(ds: xr.Dataset, *, frame: int = 0, title: str = ""):
     patch = ds.sizes["sx"] * float(ds.sx[1] - ds.sx[0])
     ground = (float(ds.platform_x[frame]) % patch, float(ds.platform_y[frame]) % patch)
     sea.plot(*ground, marker="+", color="tab:red", markersize=10)
+    if measurements is not None and len(measurements):
+        measured = np.asarray([point[:2] for point in measurements], dtype=float)
+        sea.plot(
+            measured[:, 0],
+            measured[:, 1],
+            linestyle="none",
+            marker=".",
+            markersize=3,
+            color="tab:red",
+        )
     sea.set_title(
         f"sea, t = {float(ds.time[frame]):.1f} s, platform {float(ds.platform_z[frame]):.0f} m",
         fontsize=8,
@@ -110,8 +124,10 @@ def _pixels(figure) -> Image.Image:
     return picture
 
 
-def save_preview(ds: xr.Dataset, path: str, *, title: str = "") -> int:
+def save_preview(ds: xr.Dataset, path: str, *, title: str = "", measurements=None) -> int:
     """Write a PNG of the first frame, or an animated GIF of every frame.
+
+    ``title`` and ``measurements`` are passed to `preview_figure`.
 
     Returns
     -------
@@ -121,13 +137,14 @@ def save_preview(ds: xr.Dataset, path: str, *, title: str = "") -> int:
     lower = path.lower()
     if lower.endswith(".gif"):
         frames = [
-            _pixels(preview_figure(ds, frame=frame, title=title))
+            _pixels(preview_figure(ds, frame=frame, title=title, measurements=measurements))
             for frame in range(ds.sizes["frame"])
         ]
         frames[0].save(path, save_all=True, append_images=frames[1:], duration=200, loop=0)
         return len(frames)
     if lower.endswith(".png"):
-        _pixels(preview_figure(ds, frame=0, title=title)).save(path)
+        figure = preview_figure(ds, frame=0, title=title, measurements=measurements)
+        _pixels(figure).save(path)
         return 1
     raise SweepError(f"--output {path}: write a .png (one frame) or a .gif (all frames)")
 

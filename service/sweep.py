@@ -9,12 +9,14 @@ Sample ``s`` is realisation ``s % realisations`` of point ``s // realisations``.
 from __future__ import annotations
 
 import copy
+import csv
 import hashlib
 import itertools
 import json
 import math
 import re
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
@@ -39,6 +41,7 @@ __all__ = [
     "human_bytes",
     "load_sweep",
     "parse_sweep",
+    "read_measurements",
     "scene_field",
 ]
 
@@ -337,14 +340,30 @@ def load_sweep(path) -> Plan:
         raise SweepError(f"{path}: not a UTF-8 text file") from None
     except OSError as error:
         raise SweepError(f"{path}: {error.strerror}") from None
-    return parse_sweep(text)
+    return parse_sweep(text, folder=Path(path).parent)
 
 
-def parse_sweep(text: str) -> Plan:
-    """Validate and expand sweep YAML text (see `load_sweep`)."""
+def parse_sweep(text: str, *, folder=None) -> Plan:
+    """Validate and expand sweep YAML text (see `load_sweep`).
+
+    Parameters
+    ----------
+    text : str
+        The sweep file's text.
+    folder : path-like or None, optional
+        Folder that relative paths in the sweep are relative to (`load_sweep` passes the
+        sweep file's); None: the current directory.
+
+    Notes
+    -----
+    A ``scene.surface.conditioning.file`` is read here (`read_measurements`) and replaced
+    by the ``points`` it holds, so the workers see inline points only and the sweep's
+    digest covers the measured values, not just the file name.
+    """
     data = _read_yaml(text)
     if not isinstance(data, dict):
         raise SweepError("the file must be a YAML mapping with name, seed, output and scene")
+    _inline_measurements(data, Path(folder) if folder is not None else Path())
     try:
         sweep = Sweep.model_validate(data)
     except ValidationError as error:
@@ -379,6 +398,88 @@ def parse_sweep(text: str) -> Plan:
     canonical["sweep"]["parameters"] = list(canonical["sweep"]["parameters"].items())
     digest = hashlib.sha256(json.dumps(canonical, sort_keys=True).encode()).hexdigest()
     return Plan(sweep=sweep, text=text, digest=digest, points=tuple(points), scenes=tuple(scenes))
+
+
+def _inline_measurements(data: dict, folder: Path) -> None:
+    """Replace ``scene.surface.conditioning.file`` in `data` by the points it holds."""
+    scene = data.get("scene")
+    surface = scene.get("surface") if isinstance(scene, dict) else None
+    conditioning = surface.get("conditioning") if isinstance(surface, dict) else None
+    if not isinstance(conditioning, dict) or "file" not in conditioning:
+        return
+    place = "scene.surface.conditioning"
+    name = conditioning.pop("file")
+    if name is None:
+        return
+    if not isinstance(name, str) or not name:
+        raise SweepError(f"{place}.file: must be the path of a CSV file, got {name!r}")
+    if conditioning.get("points") is not None:
+        raise SweepError(f"{place}: give points or file, not both")
+    conditioning["points"] = read_measurements(folder / name, place=f"{place}.file")
+
+
+def read_measurements(path, *, place: str = "measurements") -> list[list[float]]:
+    """Measured elevations from a CSV file.
+
+    The first line names the columns, ``x,y,elevation`` or ``x,y,elevation,time``
+    (m, m, m, s); then one point a line. Blank lines and lines starting with ``#`` are
+    skipped.
+
+    Parameters
+    ----------
+    path : path-like
+        The CSV file.
+    place : str, optional
+        Where the file was named, for error messages.
+
+    Returns
+    -------
+    list of list of float
+        One [x, y, elevation(, time)] per point, as ``surface.conditioning.points``
+        takes them.
+
+    Raises
+    ------
+    SweepError
+        If the file cannot be read, is larger than the sweep-file limit, or a line is
+        not the header's number of finite numbers.
+    """
+    try:
+        if Path(path).stat().st_size > MAX_FILE_BYTES:
+            raise SweepError(f"{place}: {path} is larger than {MAX_FILE_BYTES:,} bytes")
+        with open(path, encoding="utf-8", newline="") as handle:
+            lines = [
+                (number, row)
+                for number, row in enumerate(csv.reader(handle), start=1)
+                if row and "".join(row).strip() and not row[0].lstrip().startswith("#")
+            ]
+    except UnicodeDecodeError:
+        raise SweepError(f"{place}: {path} is not a UTF-8 text file") from None
+    except (OSError, csv.Error) as error:
+        reason = getattr(error, "strerror", None) or str(error)
+        raise SweepError(f"{place}: {path}: {reason}") from None
+    columns = ["x", "y", "elevation", "time"]
+    header = [name.strip().lower() for name in lines[0][1]] if lines else []
+    if header not in (columns[:3], columns):
+        raise SweepError(
+            f"{place}: {path} must start with the header line x,y,elevation or "
+            f"x,y,elevation,time, got {','.join(header) or 'nothing'}"
+        )
+    points = []
+    for number, row in lines[1:]:
+        try:
+            values = [float(value) for value in row]
+        except ValueError:
+            values = []
+        if len(values) != len(header) or not all(math.isfinite(v) for v in values):
+            raise SweepError(
+                f"{place}: {path} line {number}: expected {len(header)} finite numbers "
+                f"({','.join(header)}), got {','.join(row)!r}"
+            )
+        points.append(values)
+    if not points:
+        raise SweepError(f"{place}: {path} holds no points")
+    return points
 
 
 def scene_field(path: str):

@@ -39,7 +39,7 @@ import numpy as np
 import scipy.fft
 import xarray as xr
 
-from workers import spectra
+from workers.conditioning import Kriging
 from workers.geometry import LaserRays, PinholeCamera, PlaneGrid, flat_sea_point
 from workers.noise import shot_noise
 from workers.optics import fresnel_reflectance
@@ -102,6 +102,7 @@ def render(scene: Scene, *, seed: int | SampleSeed) -> xr.Dataset:
             rng=seed.surface_rng(),
             times=tuple(times),
             max_elevation=scene.surface.max_elevation,
+            conditioning=setup.conditioning,
         )
     expected = []
     masks = []
@@ -128,6 +129,7 @@ class _Setup:
     scene: Scene
     water: WaterOptics
     spectrum: object
+    conditioning: Kriging | None
     gates: tuple[tuple[float, float], ...]
     reference_depths: tuple[float, ...]
     reflectances: tuple[float, ...]
@@ -174,7 +176,8 @@ def _setup(key: str) -> _Setup:
     return _Setup(
         scene=scene,
         water=water,
-        spectrum=_spectrum(scene),
+        spectrum=scene.surface.wave_spectrum(),
+        conditioning=scene.surface.kriging(),
         gates=gates,
         reference_depths=references,
         reflectances=reflectances,
@@ -185,20 +188,6 @@ def _setup(key: str) -> _Setup:
             for top, bottom in gates
         ),
     )
-
-
-def _spectrum(scene: Scene):
-    s = scene.surface
-    common = {"wind_speed": s.wind_speed, "wind_direction": np.radians(s.wind_direction_deg)}
-    if s.spectrum == "flat":
-        return None
-    if s.spectrum == "elfouhaily":
-        return spectra.Elfouhaily(**common, inverse_wave_age=s.inverse_wave_age)
-    if s.spectrum == "phillips":
-        return spectra.Phillips(**common)
-    if s.spectrum == "pierson_moskowitz":
-        return spectra.PiersonMoskowitz(**common)
-    return spectra.Jonswap(**common, fetch=s.fetch)
 
 
 def _visible_extent(scene: Scene, *, refracted_nadir: float):

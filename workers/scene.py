@@ -11,12 +11,16 @@ from __future__ import annotations
 import math
 from typing import Annotated, Literal
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from workers import spectra
+from workers.conditioning import Kriging, kriging
 from workers.water import PRESETS
 
 __all__ = [
     "MLDC_GATES",
+    "Conditioning",
     "Laser",
     "Noise",
     "Platform",
@@ -52,6 +56,32 @@ class _Model(BaseModel):
 
 
 PositiveFloat = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
+
+Measurement = Annotated[
+    list[Annotated[float, Field(allow_inf_nan=False)]], Field(min_length=3, max_length=4)
+]
+
+
+class Conditioning(_Model):
+    """Measured elevations every surface of the scene honours (conditioning by kriging).
+
+    A measurement is of the elevation the renderer sees at (x, y): the bilinear
+    interpolation of the surface grid. Points lie on the surface patch [0, N·spacing) in
+    x and y (the grid repeats with that period; a point elsewhere is refused with its
+    equivalent on the patch). Sweep files may give ``file: points.csv`` instead of
+    ``points``; the service reads it (see `service.sweep`). See `workers.conditioning`.
+    """
+
+    points: list[Measurement] | None = Field(
+        None,
+        max_length=1000,
+        description="Measured points [x, y, elevation] or [x, y, elevation, time], time "
+        "on the frames' clock (default 0, the first frame); null: no conditioning "
+        "[m, m, m, s].",
+    )
+    noise: float = Field(
+        0.0, ge=0.0, le=10.0, description="Measurement noise standard deviation [m]."
+    )
 
 
 class SurfaceSpec(_Model):
@@ -89,12 +119,65 @@ class SurfaceSpec(_Model):
         description="Optional rescaling (the paper's knob): max |elevation| over the frames "
         "[m]. Off by default; it breaks the spectrum's variance.",
     )
+    conditioning: Conditioning = Conditioning()
 
     @model_validator(mode="after")
     def _even_grid(self) -> SurfaceSpec:
         if self.grid_size % 2:
             raise ValueError("grid_size must be even (FFT synthesis)")
         return self
+
+    @model_validator(mode="after")
+    def _conditioning(self) -> SurfaceSpec:
+        if not self.conditioning.points:
+            return self
+        if self.spectrum == "flat":
+            raise ValueError("conditioning: a flat sea cannot honour measured elevations")
+        if self.max_elevation is not None:
+            raise ValueError(
+                "conditioning: max_elevation would rescale the measured elevations away; "
+                "leave it null"
+            )
+        try:
+            self.kriging()
+        except ValueError as error:
+            raise ValueError(f"conditioning.points: {error}") from None
+        return self
+
+    def wave_spectrum(self) -> spectra.Spectrum | None:
+        """The wave spectrum these settings describe (None for a flat sea)."""
+        common = {
+            "wind_speed": self.wind_speed,
+            "wind_direction": np.radians(self.wind_direction_deg),
+        }
+        if self.spectrum == "flat":
+            return None
+        if self.spectrum == "elfouhaily":
+            return spectra.Elfouhaily(**common, inverse_wave_age=self.inverse_wave_age)
+        if self.spectrum == "phillips":
+            return spectra.Phillips(**common)
+        if self.spectrum == "pierson_moskowitz":
+            return spectra.PiersonMoskowitz(**common)
+        return spectra.Jonswap(**common, fetch=self.fetch)
+
+    def kriging(self) -> Kriging | None:
+        """The kriging system of `conditioning` (cached), or None without points.
+
+        Raises
+        ------
+        ValueError
+            For points off the grid, duplicates or a singular system
+            (`workers.conditioning.kriging`).
+        """
+        if not self.conditioning.points:
+            return None
+        return kriging(
+            self.wave_spectrum(),
+            grid_size=self.grid_size,
+            spacing=self.spacing,
+            points=tuple(tuple(point) for point in self.conditioning.points),
+            noise=self.conditioning.noise,
+        )
 
 
 class Water(_Model):

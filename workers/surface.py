@@ -11,11 +11,15 @@ import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.fft
 
 from workers.spectra import Spectrum, dispersion
+
+if TYPE_CHECKING:
+    from workers.conditioning import Kriging
 
 # Points per block in Surface.sample. The temporaries of a block (256 KiB for an index
 # array) are reused from the heap when glibc's mmap threshold is raised
@@ -269,6 +273,7 @@ def synthesize(
     rng: np.random.Generator,
     times: Sequence[float] = (0.0,),
     max_elevation: float | None = None,
+    conditioning: Kriging | None = None,
 ) -> Surface:
     r"""One random realisation of the sea surface, at one or more times.
 
@@ -313,6 +318,13 @@ def synthesize(
         If given, m (> 0): the realisation (elevation and slopes, all frames) is
         rescaled so that max |η| over all frames equals it (the "maximum wave
         elevation" of Carmona et al. 2000). Off by default.
+    conditioning : workers.conditioning.Kriging or None, optional
+        Measured elevations the realisation must honour, from
+        :func:`workers.conditioning.kriging` for this spectrum and grid. The
+        unconditional draw is corrected by kriging its residual at the data, the
+        measurement noise drawn from ``rng`` after the 2N² normals, so that without it
+        the draws (and bytes) are unchanged. Exclusive with ``max_elevation``, which
+        would rescale the data away.
 
     Returns
     -------
@@ -327,7 +339,8 @@ def synthesize(
     travelling waves; their variance is still Ψ Δk². Rescaling by ``max_elevation``
     changes the variance of the realisation away from Σ Ψ Δk²: the surface then no
     longer follows the spectrum's amplitude, only its shape. The per-(spectrum, grid)
-    arrays are cached (16 entries); a frame costs three inverse real FFTs of N × N.
+    arrays are cached (16 entries); a frame costs three inverse real FFTs of N × N, and
+    conditioning one inverse and one forward real FFT per distinct measurement time.
 
     References
     ----------
@@ -344,6 +357,15 @@ def synthesize(
         raise ValueError(f"times must be a non-empty sequence of finite seconds, got {times}")
     if max_elevation is not None and not (math.isfinite(max_elevation) and max_elevation > 0):
         raise ValueError(f"max_elevation must be a positive number of metres, got {max_elevation}")
+    if conditioning is not None:
+        if max_elevation is not None:
+            raise ValueError("conditioning and max_elevation exclude each other")
+        if (conditioning.spectrum, conditioning.grid_size, conditioning.spacing) != (
+            spectrum,
+            n,
+            float(spacing),
+        ):
+            raise ValueError("conditioning was built for another spectrum or grid")
     setup = _setup(spectrum, n, float(spacing))
 
     h0 = np.empty((n, n), np.complex64)
@@ -352,11 +374,12 @@ def synthesize(
     forward = np.ascontiguousarray(h0[:, : n // 2 + 1])
     backward = np.conj(h0.ravel().take(setup.mirror)).reshape(forward.shape)
 
-    fields = np.empty((3, times.size, n, n), np.float32)
     rotation = np.empty(forward.shape, np.complex64)
     spectrum_t = np.empty(forward.shape, np.complex64)
     product = np.empty(forward.shape, np.complex64)
-    for frame, time in enumerate(times):
+
+    def at_time(time):
+        """h̃(k, t) on the half-plane, into `spectrum_t` (uses `rotation`, `product`)."""
         cycles = setup.omega * (time / (2.0 * np.pi))
         cycles -= np.floor(cycles)
         phase = (2.0 * np.pi * cycles).astype(np.float32)
@@ -365,7 +388,18 @@ def synthesize(
         np.multiply(backward, rotation, out=spectrum_t)
         np.conjugate(rotation, out=rotation)
         np.multiply(forward, rotation, out=product)
-        spectrum_t += product
+        return np.add(spectrum_t, product, out=spectrum_t)
+
+    if conditioning is not None:
+        ahead, behind = conditioning.correction(
+            lambda time: scipy.fft.irfft2(at_time(time), s=(n, n), norm="forward"), rng
+        )
+        forward += ahead
+        backward += behind
+
+    fields = np.empty((3, times.size, n, n), np.float32)
+    for frame, time in enumerate(times):
+        at_time(time)
         # One transform per field: scipy's batched irfft2 is several times slower.
         for component, derivative in enumerate(setup.derivative):
             np.multiply(derivative, spectrum_t, out=product)

@@ -11,6 +11,8 @@ oceanlidar preview configs/paper/example3.yaml --sample 4 --output $out/example3
 oceanlidar preview configs/paper/example4.yaml --sample 0 --output $out/example4-mine.png
 oceanlidar preview configs/paper/example4.yaml --sample 4 --output $out/example4-no-mine.png
 oceanlidar preview configs/paper/mldc-strip.yaml --output $out/mldc-strip.png
+oceanlidar preview configs/conditioned.yaml --sample 0 --output $out/conditioned-0.png
+oceanlidar preview configs/conditioned.yaml --sample 1 --output $out/conditioned-1.png
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
 oceanlidar run configs/quickstart.yaml --output "$work/quickstart.zarr"
