@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 
 from service import store
@@ -53,6 +54,10 @@ def _parser() -> argparse.ArgumentParser:
         help="worker processes of the embedded cluster (default: one per core)",
     )
     where.add_argument("--scheduler", help="address of an existing dask scheduler")
+    tls = run.add_argument_group("TLS (for tls:// schedulers; else dask's configuration)")
+    tls.add_argument("--tls-ca-file", help="CA certificate(s), PEM")
+    tls.add_argument("--tls-cert", help="client certificate, PEM")
+    tls.add_argument("--tls-key", help="client private key, PEM")
     mode = run.add_mutually_exclusive_group()
     mode.add_argument("--resume", action="store_true", help="complete an interrupted run")
     mode.add_argument("--overwrite", action="store_true", help="replace an existing store")
@@ -108,8 +113,28 @@ def _cmd_validate(args) -> int:
     return EXIT_OK
 
 
+def _security(args):
+    """A `distributed.Security` from the TLS flags (all three, encryption required)."""
+    given = [args.tls_ca_file, args.tls_cert, args.tls_key]
+    if not any(given):
+        return None
+    if not all(given):
+        raise SweepError("--tls-ca-file, --tls-cert and --tls-key go together")
+    for path in given:
+        if not os.path.isfile(path):
+            raise SweepError(f"{path}: no such file")
+    from distributed import Security
+
+    return Security(
+        tls_ca_file=args.tls_ca_file,
+        tls_client_cert=args.tls_cert,
+        tls_client_key=args.tls_key,
+        require_encryption=True,
+    )
+
+
 def _cmd_run(args) -> int:
-    from service.run import execute
+    from service.run import ClusterError, execute
 
     if args.workers is not None and args.workers < 1:
         raise SweepError("--workers must be at least 1")
@@ -121,16 +146,21 @@ def _cmd_run(args) -> int:
     store.check_uniform(plan)
     url = args.output or plan.sweep.output
     print("\n".join(_plan_lines(plan, args.batch, url)), file=sys.stderr)
-    result = execute(
-        plan,
-        url,
-        workers=args.workers,
-        scheduler=args.scheduler,
-        resume=args.resume,
-        overwrite=args.overwrite,
-        storage_options=args.storage_options,
-        batch_size=args.batch,
-    )
+    try:
+        result = execute(
+            plan,
+            url,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            security=_security(args),
+            resume=args.resume,
+            overwrite=args.overwrite,
+            storage_options=args.storage_options,
+            batch_size=args.batch,
+        )
+    except ClusterError as error:
+        print(f"oceanlidar run: error: {error}", file=sys.stderr)
+        return EXIT_FAILURE
     rate = result.written / result.seconds if result.seconds > 0 else 0.0
     print(
         f"{url}: wrote {result.written} samples in {result.seconds:.1f} s ({rate:.2f} samples/s)"

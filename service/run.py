@@ -19,6 +19,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
+import numpy as np
 from distributed import Client, LocalCluster, as_completed
 
 from service import store
@@ -29,7 +30,7 @@ from workers.render import render
 from workers.scene import Scene
 from workers.seeds import SampleSeed
 
-__all__ = ["RunResult", "render_batch", "run_plan", "task_batches"]
+__all__ = ["ClusterError", "RunResult", "execute", "render_batch", "run_plan", "task_batches"]
 
 IN_FLIGHT_PER_THREAD = 2
 RETRIES = 2
@@ -91,6 +92,10 @@ def task_batches(plan: Plan, todo, batch_size: int) -> Iterator[tuple[int, list]
         previous = sample
     if run:
         yield start, run
+
+
+class ClusterError(RuntimeError):
+    """The dask cluster cannot be reached or used."""
 
 
 @dataclass
@@ -157,9 +162,19 @@ def _duration(seconds: float) -> str:
 
 @contextlib.contextmanager
 def dask_client(*, workers: int | None, scheduler: str | None, security=None):
-    """A client for an existing scheduler, or for an embedded LocalCluster on 127.0.0.1."""
+    """A client for an existing scheduler, or for an embedded LocalCluster on 127.0.0.1.
+
+    `security` (a `distributed.Security`) defaults to dask's configuration, where TLS
+    files and ``require-encryption`` can be set (``DASK_DISTRIBUTED__COMM__...``).
+    """
     if scheduler is not None:
-        with Client(scheduler, security=security, timeout="30s") as client:
+        try:
+            client = Client(scheduler, security=security, timeout="30s")
+        except (OSError, TimeoutError, ValueError) as error:
+            raise ClusterError(
+                f"cannot connect to the scheduler at {scheduler}: {error}"
+            ) from None
+        with client:
             yield client
         return
     with (
@@ -194,8 +209,11 @@ def run_plan(
     sample that kills its worker is reported alone and the samples that merely shared its
     worker complete.
     """
-    done = store.completed_samples(url, storage_options=storage_options)
-    todo = [i for i in range(plan.samples) if not (resume and done[i])]
+    if resume:
+        done = store.completed_samples(url, storage_options=storage_options)
+        todo = np.flatnonzero(~done)
+    else:
+        todo = range(plan.samples)  # lazy: the client holds no per-sample list
     result = RunResult(total=plan.samples, skipped=plan.samples - len(todo))
     progress = Progress(plan.samples, result.skipped, stream=progress_stream)
     threads = sum(client.nthreads().values()) or 1
@@ -288,6 +306,7 @@ def execute(
     *,
     workers: int | None = None,
     scheduler: str | None = None,
+    security=None,
     resume: bool = False,
     overwrite: bool = False,
     storage_options: dict | None = None,
@@ -313,12 +332,15 @@ def execute(
             )
     elif exists and not overwrite:
         raise SweepError(f"{url} already exists; pass --resume to complete it or --overwrite")
-    elif exists:
-        store.remove_store(url, storage_options)
-        store.remove_store(store.stats_url(url), storage_options)
-    if not (exists and resume):
-        store.create_store(plan, url, storage_options=storage_options)
-    with dask_client(workers=workers, scheduler=scheduler) as client:
+    elif exists and not store.is_oceanlidar_store(url, storage_options):
+        raise SweepError(f"{url} exists and is not an oceanlidar store; refusing to delete it")
+    # connect before touching storage: an unreachable cluster leaves everything as it was
+    with dask_client(workers=workers, scheduler=scheduler, security=security) as client:
+        if exists and not resume:
+            store.remove_store(url, storage_options)
+            store.remove_store(store.stats_url(url), storage_options)
+        if not (exists and resume):
+            store.create_store(plan, url, storage_options=storage_options)
         result = run_plan(
             plan,
             url,

@@ -23,7 +23,6 @@ from __future__ import annotations
 import warnings
 
 import dask
-import dask.array as da
 import numpy as np
 import xarray as xr
 from scipy.ndimage import maximum_filter
@@ -111,24 +110,24 @@ def _template(ds: xr.Dataset) -> xr.Dataset:
     data_vars = {
         "image_mean": (
             ("point", "gate", "y", "x"),
-            da.full((points, gates, ny, nx), np.nan, chunks=(1, gates, ny, nx), dtype=np.float32),
+            store.lazy_array((points, gates, ny, nx), np.nan, np.float32),
             {"long_name": "mean image over realisations and frames", "units": units},
         ),
         "image_std": (
             ("point", "gate", "y", "x"),
-            da.full((points, gates, ny, nx), np.nan, chunks=(1, gates, ny, nx), dtype=np.float32),
+            store.lazy_array((points, gates, ny, nx), np.nan, np.float32),
             {"long_name": "standard deviation image over realisations and frames", "units": units},
         ),
         "samples": (
             ("point",),
-            da.zeros(points, chunks=1, dtype=np.int32),
+            store.lazy_array((points,), 0, np.int32),
             {"long_name": "realisations written", "units": "1"},
         ),
     }
     for name, long_name in _PER_GATE.items():
         data_vars[name] = (
             ("point", "gate"),
-            da.full((points, gates), np.nan, chunks=(1, gates), dtype=np.float32),
+            store.lazy_array((points, gates), np.nan, np.float32),
             {"long_name": long_name, "units": signal_units if "signal" in name else "1"},
         )
     first = np.arange(points) * realisations
@@ -194,7 +193,7 @@ def write_statistics(url: str, *, storage_options: dict | None = None) -> str:
             compute=False,
             consolidated=True,
             zarr_format=3,
-            encoding={name: {"chunk_key_encoding": store.FLAT_CHUNK_KEYS} for name in template},
+            encoding={name: store.one_per_chunk(template[name].shape[1:]) for name in template},
             storage_options=storage_options,
         )
     points = int(ds.attrs["points"])

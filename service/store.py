@@ -29,6 +29,8 @@ __all__ = [
     "check_uniform",
     "completed_samples",
     "create_store",
+    "lazy_array",
+    "one_per_chunk",
     "open_group",
     "open_store",
     "remove_store",
@@ -81,6 +83,20 @@ def _fs(url: str, storage_options: dict | None):
         return fsspec.core.url_to_fs(url, **(storage_options or {}))
     except (TypeError, ValueError, ImportError) as error:
         raise SweepError(f"{url}: cannot open with these storage options ({error})") from None
+
+
+def lazy_array(shape: tuple, fill, dtype) -> da.Array:
+    """A dask array standing for data the template does not write (few, large chunks).
+
+    The zarr chunking comes from `one_per_chunk`: a dask graph with one chunk per sample
+    would grow with the sweep (10⁶ samples: gigabytes in the client).
+    """
+    return da.full(shape, fill, dtype=dtype, chunks=(min(shape[0], 65536), *shape[1:]))
+
+
+def one_per_chunk(shape: tuple) -> dict:
+    """Zarr encoding: one leading index (sample or point) per chunk, flat chunk keys."""
+    return {"chunks": (1, *shape), "chunk_key_encoding": FLAT_CHUNK_KEYS}
 
 
 def store_exists(url: str, storage_options: dict | None = None) -> bool:
@@ -168,16 +184,16 @@ def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -
         fill = np.nan if variable.dtype.kind == "f" else 0
         data_vars[name] = (
             ("sample", *variable.dims),
-            da.full((n, *variable.shape), fill, chunks=(1, *variable.shape), dtype=variable.dtype),
+            lazy_array((n, *variable.shape), fill, variable.dtype),
             dict(variable.attrs),
         )
-        encoding[name] = {"chunk_key_encoding": FLAT_CHUNK_KEYS}
+        encoding[name] = one_per_chunk(variable.shape)
     data_vars["completed"] = (
         ("sample",),
-        da.zeros(n, chunks=1, dtype=np.uint8),
+        lazy_array((n,), 0, np.uint8),
         {"long_name": "sample rendered and written", "units": "1"},
     )
-    encoding["completed"] = {"chunk_key_encoding": FLAT_CHUNK_KEYS}
+    encoding["completed"] = one_per_chunk(())
     # labels and the platform track follow from each point's scene: written once, here
     track = ["time", "platform_x", "platform_y", "platform_z"]
     labels = xr.concat(

@@ -1,0 +1,216 @@
+"""A TLS-only dask cluster on loopback: certificates made here, plaintext refused."""
+
+import datetime
+import ipaddress
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import xarray as xr
+
+from service.run import execute
+from service.sweep import parse_sweep
+
+x509 = pytest.importorskip("cryptography.x509")
+from cryptography.hazmat.primitives import hashes, serialization  # noqa: E402
+from cryptography.hazmat.primitives.asymmetric import ec  # noqa: E402
+from cryptography.x509.oid import NameOID  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+BIN = Path(sys.executable).parent
+
+SWEEP = """\
+name: tls
+seed: 4
+realisations: 2
+output: tls.zarr
+scene:
+  surface: {grid_size: 32, spacing: 0.1}
+  receiver: {pixels: 16, gates: [[2.0, 6.0]]}
+  noise: {photons: 100}
+"""
+
+
+def certificates(folder: Path):
+    """A CA, and one certificate it signs for 127.0.0.1 (scheduler, workers, client)."""
+    now = datetime.datetime.now(datetime.UTC)
+
+    def name(common):
+        return x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, common)])
+
+    def write(path, key, cert):
+        (folder / f"{path}.key").write_bytes(
+            key.private_bytes(
+                serialization.Encoding.PEM,
+                serialization.PrivateFormat.PKCS8,
+                serialization.NoEncryption(),
+            )
+        )
+        (folder / f"{path}.pem").write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+
+    ca_key = ec.generate_private_key(ec.SECP256R1())
+    ca = (
+        x509.CertificateBuilder()
+        .subject_name(name("oceanlidar test CA"))
+        .issuer_name(name("oceanlidar test CA"))
+        .public_key(ca_key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now - datetime.timedelta(minutes=5))
+        .not_valid_after(now + datetime.timedelta(days=1))
+        .add_extension(x509.BasicConstraints(ca=True, path_length=None), critical=True)
+        .sign(ca_key, hashes.SHA256())
+    )
+    write("ca", ca_key, ca)
+    key = ec.generate_private_key(ec.SECP256R1())
+    cert = (
+        x509.CertificateBuilder()
+        .subject_name(name("127.0.0.1"))
+        .issuer_name(ca.subject)
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now - datetime.timedelta(minutes=5))
+        .not_valid_after(now + datetime.timedelta(days=1))
+        .add_extension(
+            x509.SubjectAlternativeName(
+                [x509.DNSName("localhost"), x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]
+            ),
+            critical=False,
+        )
+        .sign(ca_key, hashes.SHA256())
+    )
+    write("node", key, cert)
+    return folder / "ca.pem", folder / "node.pem", folder / "node.key"
+
+
+@pytest.fixture(scope="module")
+def tls_cluster(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("tls")
+    ca, cert, key = certificates(folder)
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    address = f"tls://127.0.0.1:{port}"
+    env = {
+        **os.environ,
+        "PYTHONPATH": str(ROOT),
+        "DASK_DISTRIBUTED__COMM__REQUIRE_ENCRYPTION": "True",
+    }
+    files = ["--tls-ca-file", str(ca), "--tls-cert", str(cert), "--tls-key", str(key)]
+    processes = [
+        subprocess.Popen(
+            [
+                str(BIN / "dask"),
+                "scheduler",
+                "--protocol",
+                "tls",
+                "--host",
+                "127.0.0.1",
+                "--port",
+                str(port),
+                "--no-dashboard",
+                *files,
+            ],
+            env=env,
+            cwd=folder,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+    ]
+    processes += [
+        subprocess.Popen(
+            [
+                str(BIN / "dask"),
+                "worker",
+                address,
+                "--host",
+                "127.0.0.1",
+                "--nthreads",
+                "1",
+                "--no-dashboard",
+                *files,
+            ],
+            env=env,
+            cwd=folder,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        for _ in range(2)
+    ]
+    try:
+        yield address, port, [str(ca), str(cert), str(key)]
+    finally:
+        for process in processes:
+            process.terminate()
+        for process in processes:
+            process.wait(timeout=30)
+
+
+def test_a_sweep_over_tls_writes_the_embedded_bytes(tls_cluster, tmp_path):
+    address, _, (ca, cert, key) = tls_cluster
+    sweep = tmp_path / "s.yaml"
+    sweep.write_text(SWEEP)
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "service.cli",
+            "run",
+            str(sweep),
+            "--scheduler",
+            address,
+            "--tls-ca-file",
+            ca,
+            "--tls-cert",
+            cert,
+            "--tls-key",
+            key,
+            "--output",
+            str(tmp_path / "tls.zarr"),
+        ],
+        cwd=tmp_path,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr
+    local = str(tmp_path / "local.zarr")
+    execute(parse_sweep(SWEEP), local, workers=1, progress_stream=open(os.devnull, "w"))
+    a, b = xr.open_zarr(tmp_path / "tls.zarr"), xr.open_zarr(local)
+    for name in ("image", "expected", "target_mask", "completed"):
+        assert a[name].values.tobytes() == b[name].values.tobytes(), name
+
+
+def test_a_plaintext_client_is_refused_and_nothing_is_written(tls_cluster, tmp_path):
+    _, port, _ = tls_cluster
+    sweep = tmp_path / "s.yaml"
+    sweep.write_text(SWEEP)
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "service.cli",
+            "run",
+            str(sweep),
+            "--scheduler",
+            f"tcp://127.0.0.1:{port}",
+            "--output",
+            str(tmp_path / "plain.zarr"),
+        ],
+        cwd=tmp_path,
+        env={
+            **os.environ,
+            "PYTHONPATH": str(ROOT),
+            "DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT": "5s",
+        },
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 1
+    assert "cannot connect to the scheduler" in result.stderr
+    assert "Traceback" not in result.stderr
+    assert not (tmp_path / "plain.zarr").exists()
