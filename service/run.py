@@ -33,6 +33,8 @@ from workers.seeds import SampleSeed
 __all__ = ["ClusterError", "RunResult", "execute", "render_batch", "run_plan", "task_batches"]
 
 IN_FLIGHT_PER_THREAD = 2
+WINDOW_REFRESH = 5.0
+"""Seconds between looks at the cluster's threads, to resize the in-flight window."""
 RETRIES = 2
 
 
@@ -281,10 +283,13 @@ def _submit_bounded(client, url, batches, window, storage_options, tag, result, 
         result.max_in_flight = max(result.max_in_flight, len(sizes))
         return True
 
+    def fill(limit: int) -> None:
+        while len(sizes) < limit and submit_next():
+            pass
+
+    checked = time.monotonic()
     try:
-        for _ in range(window):
-            if not submit_next():
-                break
+        fill(window)
         for future in pending:
             start, count = sizes.pop(future.key)
             if future.status == "finished":
@@ -293,7 +298,11 @@ def _submit_bounded(client, url, batches, window, storage_options, tag, result, 
             else:
                 failed.append((start, count, repr(future.exception())))
             future.release()
-            submit_next()
+            if window > 1 and time.monotonic() - checked > WINDOW_REFRESH:
+                # workers join and leave: keep a few tasks per thread present now
+                checked = time.monotonic()
+                window = max(2, IN_FLIGHT_PER_THREAD * sum(client.nthreads().values()))
+            fill(window)
     except KeyboardInterrupt:
         for future in list(pending.futures):
             future.cancel()
