@@ -1,5 +1,13 @@
 """Shared test helpers."""
 
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import xarray as xr
+
 from workers.geometry import LaserRays, PlaneGrid
 
 
@@ -20,3 +28,69 @@ def plane_grid(camera, *, depth, refractive_index=1.34, guard=0.125):
         refractive_index=refractive_index,
         guard=guard,
     )
+
+
+ROOT = Path(__file__).resolve().parent.parent
+
+TINY_SCENE = """\
+name: {name}
+seed: {seed}
+realisations: {realisations}
+output: {output}
+scene:
+  surface: {{grid_size: 32, spacing: 0.1}}
+  receiver: {{pixels: 16, gates: [[2.0, 6.0]]}}
+  noise: {{photons: 100}}
+"""
+"""A sweep of tiny samples of the default scene alone (one parameter point)."""
+
+TINY_SWEEP = (
+    TINY_SCENE
+    + """\
+sweep:
+  parameters:
+    target.shape: {{values: [sphere, none]}}
+"""
+)
+"""A sweep of tiny samples (a sphere and no target) for service tests."""
+
+
+def free_port():
+    """A TCP port free on 127.0.0.1 now."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def _cli(args, env):
+    """The command line and environment of `oceanlidar ARGS` in a fresh process."""
+    command = [sys.executable, "-m", "service.cli", *map(str, args)]
+    return command, {**os.environ, "PYTHONPATH": str(ROOT), **(env or {})}
+
+
+def run_cli(*args, cwd, env=None, timeout=300):
+    """Run `oceanlidar ARGS` as a user would, in a fresh process."""
+    command, env = _cli(args, env)
+    return subprocess.run(
+        command, cwd=cwd, capture_output=True, text=True, env=env, timeout=timeout
+    )
+
+
+def start_cli(*args, cwd, env=None, **popen):
+    """Start `oceanlidar ARGS` in a fresh process and return it (a `subprocess.Popen`)."""
+    command, env = _cli(args, env)
+    return subprocess.Popen(command, cwd=cwd, env=env, **popen)
+
+
+SAMPLE_VARIABLES = ("image", "expected", "target_mask", "target_visibility", "completed")
+
+
+def assert_same_samples(a, b, *, storage_options=None, names=SAMPLE_VARIABLES):
+    """Two stores hold byte-identical samples (and completion records).
+
+    `names`: the variables compared; None compares every variable of `a`.
+    """
+    x = xr.open_zarr(a, storage_options=storage_options)
+    y = xr.open_zarr(b)
+    for name in x.variables if names is None else names:
+        assert x[name].values.tobytes() == y[name].values.tobytes(), name

@@ -2,7 +2,6 @@
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -11,6 +10,7 @@ from pathlib import Path
 
 import pytest
 import xarray as xr
+from conftest import ROOT, TINY_SWEEP, assert_same_samples, free_port, run_cli, start_cli
 from distributed import Client
 from distributed.diagnostics.plugin import WorkerPlugin
 
@@ -18,28 +18,14 @@ from service.run import execute, run_plan
 from service.store import create_store
 from service.sweep import parse_sweep
 
-ROOT = Path(__file__).resolve().parent.parent
 BIN = Path(sys.executable).parent
 
-SWEEP = """\
-name: cluster
-seed: 5
-realisations: 3
-output: c.zarr
-scene:
-  surface: {grid_size: 32, spacing: 0.1}
-  receiver: {pixels: 16, gates: [[2.0, 6.0]]}
-  noise: {photons: 100}
-sweep:
-  parameters:
-    target.shape: {values: [sphere, none]}
-"""
+
+def sweep_text(realisations=3):
+    return TINY_SWEEP.format(name="cluster", seed=5, realisations=realisations, output="c.zarr")
 
 
-def free_port():
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+SWEEP = sweep_text()
 
 
 @pytest.fixture(scope="module")
@@ -100,31 +86,11 @@ def cluster(tmp_path_factory):
 def test_run_on_an_external_scheduler_writes_the_embedded_bytes(cluster, tmp_path):
     sweep = tmp_path / "s.yaml"
     sweep.write_text(SWEEP)
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
     for name, extra in (("external", ["--scheduler", cluster]), ("embedded", ["--workers", "1"])):
-        result = subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "service.cli",
-                "run",
-                str(sweep),
-                "--output",
-                str(tmp_path / f"{name}.zarr"),
-                "--batch",
-                "1",
-                *extra,
-            ],
-            cwd=tmp_path,
-            env=env,
-            capture_output=True,
-            text=True,
-            timeout=300,
-        )
+        output = tmp_path / f"{name}.zarr"
+        result = run_cli("run", sweep, "--output", output, "--batch", 1, *extra, cwd=tmp_path)
         assert result.returncode == 0, result.stderr
-    a, b = xr.open_zarr(tmp_path / "external.zarr"), xr.open_zarr(tmp_path / "embedded.zarr")
-    for name in a.variables:
-        assert a[name].values.tobytes() == b[name].values.tobytes(), name
+    assert_same_samples(tmp_path / "external.zarr", tmp_path / "embedded.zarr", names=None)
 
 
 class CrashOnSample(WorkerPlugin):
@@ -166,14 +132,8 @@ def test_a_sample_that_kills_its_worker_is_reported_and_the_rest_complete(cluste
         time.sleep(1)
 
 
-def assert_same_samples(a, b):
-    x, y = xr.open_zarr(a), xr.open_zarr(b)
-    for name in ("image", "expected", "target_mask", "completed"):
-        assert x[name].values.tobytes() == y[name].values.tobytes(), name
-
-
 def test_a_worker_killed_mid_sweep_changes_no_byte(cluster, tmp_path):
-    plan = parse_sweep(SWEEP.replace("realisations: 3", "realisations: 8"))
+    plan = parse_sweep(sweep_text(realisations=8))
     url = str(tmp_path / "killed.zarr")
     create_store(plan, url)
     with Client(cluster, timeout="60s") as client:
@@ -202,24 +162,11 @@ def test_a_worker_killed_mid_sweep_changes_no_byte(cluster, tmp_path):
 
 def test_a_killed_client_resumes_to_the_same_bytes(cluster, tmp_path):
     sweep = tmp_path / "s.yaml"
-    sweep.write_text(SWEEP.replace("realisations: 3", "realisations: 8"))
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    sweep.write_text(sweep_text(realisations=8))
     target = tmp_path / "client.zarr"
-    command = [
-        sys.executable,
-        "-m",
-        "service.cli",
-        "run",
-        str(sweep),
-        "--output",
-        str(target),
-        "--scheduler",
-        cluster,
-        "--batch",
-        "1",
-    ]
-    process = subprocess.Popen(
-        command, cwd=tmp_path, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    command = ["run", sweep, "--output", target, "--scheduler", cluster, "--batch", 1]
+    process = start_cli(
+        *command, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
     )
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and process.poll() is None:
@@ -232,9 +179,7 @@ def test_a_killed_client_resumes_to_the_same_bytes(cluster, tmp_path):
     process.send_signal(signal.SIGKILL)
     process.wait(timeout=30)
     assert 0 < xr.open_zarr(target)["completed"].values.sum() < 16
-    again = subprocess.run(
-        [*command, "--resume"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300
-    )
+    again = run_cli(*command, "--resume", cwd=tmp_path)
     assert again.returncode == 0, again.stderr
     reference = str(tmp_path / "reference.zarr")
     execute(

@@ -2,7 +2,6 @@
 
 import json
 import os
-import socket
 import subprocess
 import sys
 import time
@@ -10,6 +9,7 @@ from pathlib import Path
 
 import pytest
 import xarray as xr
+from conftest import TINY_SWEEP, assert_same_samples, free_port, run_cli
 
 from service.run import execute, render_batch, task_batches
 from service.store import create_store
@@ -18,30 +18,15 @@ from service.sweep import parse_sweep
 boto3 = pytest.importorskip("boto3")
 pytest.importorskip("s3fs")
 
-ROOT = Path(__file__).resolve().parent.parent
 BIN = Path(sys.executable).parent
 
-SWEEP = """\
-name: s3
-seed: 9
-realisations: 3
-output: s3://oceanlidar/run.zarr
-scene:
-  surface: {grid_size: 32, spacing: 0.1}
-  receiver: {pixels: 16, gates: [[2.0, 6.0]]}
-  noise: {photons: 100}
-sweep:
-  parameters:
-    target.shape: {values: [sphere, none]}
-"""
+SWEEP = TINY_SWEEP.format(name="s3", seed=9, realisations=3, output="s3://oceanlidar/run.zarr")
 
 
 @pytest.fixture(scope="module")
 def s3(tmp_path_factory):
     """A moto S3 server on 127.0.0.1 with an empty bucket; yields fsspec storage options."""
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
+    port = free_port()
     server = subprocess.Popen(
         [str(BIN / "moto_server"), "-H", "127.0.0.1", "-p", str(port)],
         stdout=subprocess.DEVNULL,
@@ -76,13 +61,6 @@ def s3(tmp_path_factory):
         server.wait(timeout=30)
 
 
-def same_samples(a, b, storage_options):
-    x = xr.open_zarr(a, storage_options=storage_options)
-    y = xr.open_zarr(b)
-    for name in ("image", "expected", "target_mask", "target_visibility", "completed"):
-        assert x[name].values.tobytes() == y[name].values.tobytes(), name
-
-
 def test_a_sweep_to_s3_resumes_to_the_bytes_of_a_local_run(s3, tmp_path):
     plan = parse_sweep(SWEEP)
     url = "s3://oceanlidar/run.zarr"
@@ -92,29 +70,14 @@ def test_a_sweep_to_s3_resumes_to_the_bytes_of_a_local_run(s3, tmp_path):
     render_batch(url, start, jobs, s3)
     sweep = tmp_path / "s3.yaml"
     sweep.write_text(SWEEP)
-    result = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "service.cli",
-            "run",
-            str(sweep),
-            "--resume",
-            "--workers",
-            "1",
-            "--storage-options",
-            json.dumps(s3),
-        ],
-        cwd=tmp_path,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-        capture_output=True,
-        text=True,
-        timeout=300,
+    options = json.dumps(s3)
+    result = run_cli(
+        "run", sweep, "--resume", "--workers", 1, "--storage-options", options, cwd=tmp_path
     )
     assert result.returncode == 0, result.stderr
     assert "2 already complete" in result.stderr
     local = str(tmp_path / "local.zarr")
     execute(plan, local, workers=1, progress_stream=open(os.devnull, "w"))
-    same_samples(url, local, s3)
+    assert_same_samples(url, local, storage_options=s3)
     stats = xr.open_zarr("s3://oceanlidar/run.stats.zarr", storage_options=s3)
     assert stats["samples"].values.tolist() == [3, 3]

@@ -34,6 +34,22 @@ def clear_water(absorption=0.1, scattering=0.0, backscatter=0.0):
     }
 
 
+SLIGHTLY_TURBID = {"absorption": 0.15, "scattering": 0.01, "backscatter": 0.01}
+"""Water for the single-scattering backscatter checks (scene and oracle alike)."""
+
+
+def water_column(gate, **sections):
+    """A flat sea over SLIGHTLY_TURBID water, no target, one gate, a parallel laser."""
+    return scene(
+        surface={"spectrum": "flat"},
+        water=clear_water(**SLIGHTLY_TURBID),
+        laser={"beam": "parallel"},
+        target={"shape": "none"},
+        receiver={"gates": [list(gate)]},
+        **sections,
+    )
+
+
 def centre(image):
     """Mean of the four central pixels of (..., y, x)."""
     n = image.shape[-1] // 2
@@ -93,15 +109,8 @@ def test_flat_sea_water_backscatter_is_the_single_scattering_lidar_integral(gate
     # π β(π) ∫ e^(-2Kz) dz over the gate (units of the ρ = 1 plane under the surface).
     from workers.water import WaterOptics
 
-    water = clear_water(absorption=0.15, scattering=0.01, backscatter=0.01)
-    s = scene(
-        surface={"spectrum": "flat"},
-        water=water,
-        laser={"beam": "parallel"},
-        target={"shape": "none"},
-        receiver={"gates": [list(gate)]},
-    )
-    optics = WaterOptics(absorption=0.15, scattering=0.01, backscatter=0.01)
+    s = water_column(gate)
+    optics = WaterOptics(**SLIGHTLY_TURBID)
     K, (top, bottom) = optics.diffuse_attenuation, gate
     integral = (np.exp(-2 * K * top) - np.exp(-2 * K * bottom)) / (2 * K)
     value = centre(render(s, seed=1).expected.values[0, 0])
@@ -310,17 +319,9 @@ def test_oblique_water_backscatter_is_the_single_scattering_integral(nadir):
     # π β t² (cosθ/cosϑ) [e^(-2K top/cosϑ) - e^(-2K bottom/cosϑ)] / (2K) / t0².
     from workers.water import WaterOptics
 
-    water = clear_water(absorption=0.15, scattering=0.01, backscatter=0.01)
     gate = (2.0, 6.0)
-    s = scene(
-        surface={"spectrum": "flat"},
-        water=water,
-        laser={"beam": "parallel"},
-        target={"shape": "none"},
-        receiver={"gates": [list(gate)]},
-        platform={"nadir_deg": nadir},
-    )
-    optics = WaterOptics(absorption=0.15, scattering=0.01, backscatter=0.01)
+    s = water_column(gate, platform={"nadir_deg": nadir})
+    optics = WaterOptics(**SLIGHTLY_TURBID)
     K = optics.diffuse_attenuation
     theta = np.radians(nadir)
     cos_w = np.cos(np.arcsin(np.sin(theta) / N_WATER))

@@ -4,13 +4,13 @@ import os
 import re
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 import xarray as xr
+from conftest import ROOT, run_cli, start_cli
 
 from service import store
 from service.cli import main
@@ -18,8 +18,6 @@ from service.run import dask_client, execute, task_batches
 from service.sweep import load_sweep, parse_sweep
 from workers.render import render
 from workers.seeds import SampleSeed
-
-ROOT = Path(__file__).resolve().parent.parent
 
 SWEEP = """\
 name: small
@@ -126,37 +124,20 @@ def test_bounded_submission_and_batches(tmp_path):
     assert result.written == 12 and result.max_in_flight <= 2
 
 
-def run_cli(*args, cwd):
-    return subprocess.run(
-        [sys.executable, "-m", "service.cli", *args],
-        cwd=cwd,
-        capture_output=True,
-        text=True,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-        timeout=300,
-    )
-
-
 def test_interrupted_run_resumes_to_the_same_store(two_worker_store, tmp_path):
     plan, url = two_worker_store
     sweep = write(tmp_path / "sweep.yaml")
     target = tmp_path / "interrupted.zarr"
-    process = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "service.cli",
-            "run",
-            str(sweep),
-            "--output",
-            str(target),
-            "--workers",
-            "1",
-            "--batch",
-            "1",
-        ],
+    process = start_cli(
+        "run",
+        sweep,
+        "--output",
+        target,
+        "--workers",
+        1,
+        "--batch",
+        1,
         cwd=tmp_path,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

@@ -64,14 +64,17 @@ def nadir_grid(depth, pixels=64, fov_deg=6.7):
     return plane_grid(cam, depth=depth)
 
 
+def centred_impostor(grid, **properties):
+    """`Impostor.build` with the target at the centre of `grid`."""
+    x, y = grid.cell_centres()
+    return Impostor.build(grid=grid, centre=(float(x.mean()), float(y.mean())), **properties)
+
+
 def test_lambert_sphere_at_nadir():
     grid = nadir_grid(5.0)
-    x, y = grid.cell_centres()
-    centre = (float(x.mean()), float(y.mean()))
-    imp = Impostor.build(
-        grid=grid,
+    imp = centred_impostor(
+        grid,
         shape="sphere",
-        centre=centre,
         radius=0.6,
         reflectance=0.5,
         shading="lambert",
@@ -87,11 +90,9 @@ def test_lambert_sphere_at_nadir():
 
 def test_paper_shading_sums_to_two_pi_r_squared_times_reflectance():
     grid = nadir_grid(5.0)
-    x, y = grid.cell_centres()
-    imp = Impostor.build(
-        grid=grid,
+    imp = centred_impostor(
+        grid,
         shape="sphere",
-        centre=(float(x.mean()), float(y.mean())),
         radius=0.6,
         reflectance=0.2,
         shading="paper",
@@ -104,11 +105,9 @@ def test_paper_shading_sums_to_two_pi_r_squared_times_reflectance():
 def test_oblique_sphere_silhouette_is_stretched_along_the_view():
     theta_t = np.arcsin(np.sin(np.radians(40)) / 1.34)
     grid = nadir_grid(5.0)
-    x, y = grid.cell_centres()
-    imp = Impostor.build(
-        grid=grid,
+    imp = centred_impostor(
+        grid,
         shape="sphere",
-        centre=(float(x.mean()), float(y.mean())),
         radius=0.6,
         reflectance=0.2,
         shading="lambert",
@@ -120,11 +119,9 @@ def test_oblique_sphere_silhouette_is_stretched_along_the_view():
 
 def test_disk_is_a_flat_lambertian_panel():
     grid = nadir_grid(4.0)
-    x, y = grid.cell_centres()
-    imp = Impostor.build(
-        grid=grid,
+    imp = centred_impostor(
+        grid,
         shape="disk",
-        centre=(float(x.mean()), float(y.mean())),
         radius=1.0,
         reflectance=0.3,
         shading="paper",

@@ -3,13 +3,12 @@
 import datetime
 import ipaddress
 import os
-import socket
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
-import xarray as xr
+from conftest import ROOT, TINY_SCENE, assert_same_samples, free_port, run_cli
 
 from service.run import execute
 from service.sweep import parse_sweep
@@ -19,19 +18,9 @@ from cryptography.hazmat.primitives import hashes, serialization  # noqa: E402
 from cryptography.hazmat.primitives.asymmetric import ec  # noqa: E402
 from cryptography.x509.oid import NameOID  # noqa: E402
 
-ROOT = Path(__file__).resolve().parent.parent
 BIN = Path(sys.executable).parent
 
-SWEEP = """\
-name: tls
-seed: 4
-realisations: 2
-output: tls.zarr
-scene:
-  surface: {grid_size: 32, spacing: 0.1}
-  receiver: {pixels: 16, gates: [[2.0, 6.0]]}
-  noise: {photons: 100}
-"""
+SWEEP = TINY_SCENE.format(name="tls", seed=4, realisations=2, output="tls.zarr")
 
 
 def certificates(folder: Path):
@@ -89,9 +78,7 @@ def certificates(folder: Path):
 def tls_cluster(tmp_path_factory):
     folder = tmp_path_factory.mktemp("tls")
     ca, cert, key = certificates(folder)
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
+    port = free_port()
     address = f"tls://127.0.0.1:{port}"
     env = {
         **os.environ,
@@ -152,63 +139,28 @@ def test_a_sweep_over_tls_writes_the_embedded_bytes(tls_cluster, tmp_path):
     address, _, (ca, cert, key) = tls_cluster
     sweep = tmp_path / "s.yaml"
     sweep.write_text(SWEEP)
-    result = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "service.cli",
-            "run",
-            str(sweep),
-            "--scheduler",
-            address,
-            "--tls-ca-file",
-            ca,
-            "--tls-cert",
-            cert,
-            "--tls-key",
-            key,
-            "--output",
-            str(tmp_path / "tls.zarr"),
-        ],
-        cwd=tmp_path,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    tls = ["--tls-ca-file", ca, "--tls-cert", cert, "--tls-key", key]
+    output = tmp_path / "tls.zarr"
+    result = run_cli("run", sweep, "--scheduler", address, *tls, "--output", output, cwd=tmp_path)
     assert result.returncode == 0, result.stderr
     local = str(tmp_path / "local.zarr")
     execute(parse_sweep(SWEEP), local, workers=1, progress_stream=open(os.devnull, "w"))
-    a, b = xr.open_zarr(tmp_path / "tls.zarr"), xr.open_zarr(local)
-    for name in ("image", "expected", "target_mask", "completed"):
-        assert a[name].values.tobytes() == b[name].values.tobytes(), name
+    assert_same_samples(output, local)
 
 
 def test_a_plaintext_client_is_refused_and_nothing_is_written(tls_cluster, tmp_path):
     _, port, _ = tls_cluster
     sweep = tmp_path / "s.yaml"
     sweep.write_text(SWEEP)
-    result = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "service.cli",
-            "run",
-            str(sweep),
-            "--scheduler",
-            f"tcp://127.0.0.1:{port}",
-            "--output",
-            str(tmp_path / "plain.zarr"),
-        ],
+    result = run_cli(
+        "run",
+        sweep,
+        "--scheduler",
+        f"tcp://127.0.0.1:{port}",
+        "--output",
+        tmp_path / "plain.zarr",
         cwd=tmp_path,
-        env={
-            **os.environ,
-            "PYTHONPATH": str(ROOT),
-            "DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT": "5s",
-        },
-        capture_output=True,
-        text=True,
-        timeout=300,
+        env={"DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT": "5s"},
     )
     assert result.returncode == 1
     assert "cannot connect to the scheduler" in result.stderr
