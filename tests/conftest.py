@@ -1,5 +1,6 @@
 """Shared test helpers."""
 
+import contextlib
 import os
 import socket
 import subprocess
@@ -94,3 +95,47 @@ def assert_same_samples(a, b, *, storage_options=None, names=SAMPLE_VARIABLES):
     y = xr.open_zarr(b)
     for name in x.variables if names is None else names:
         assert x[name].values.tobytes() == y[name].values.tobytes(), name
+
+
+@contextlib.contextmanager
+def dask_processes(folder, *, workers=2, protocol="tcp", options=(), env=None):
+    """`dask scheduler` and `dask worker` processes on 127.0.0.1 only (HTTP servers too).
+
+    Yields the scheduler address. The processes are terminated, then killed if they linger,
+    whatever happens in the test.
+    """
+    port = free_port()
+    address = f"{protocol}://127.0.0.1:{port}"
+    environment = {**os.environ, **(env or {})}
+    loopback = ["--host", "127.0.0.1", "--no-dashboard", "--dashboard-address", "127.0.0.1:0"]
+    dask = str(Path(sys.executable).parent / "dask")
+    processes = [
+        subprocess.Popen(
+            [dask, "scheduler", "--protocol", protocol, "--port", str(port), *loopback, *options],
+            cwd=folder,
+            env=environment,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+    ]
+    try:
+        processes += [
+            subprocess.Popen(
+                [dask, "worker", address, "--nthreads", "1", *loopback, *options],
+                cwd=folder,
+                env=environment,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )
+            for _ in range(workers)
+        ]
+        yield address
+    finally:
+        for process in processes:
+            process.terminate()
+        for process in processes:
+            try:
+                process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait(timeout=10)

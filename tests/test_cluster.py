@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 import xarray as xr
-from conftest import ROOT, TINY_SWEEP, assert_same_samples, free_port, run_cli, start_cli
+from conftest import ROOT, TINY_SWEEP, assert_same_samples, dask_processes, run_cli, start_cli
 from distributed import Client
 from distributed.diagnostics.plugin import WorkerPlugin
 
@@ -31,56 +31,12 @@ SWEEP = sweep_text()
 @pytest.fixture(scope="module")
 def cluster(tmp_path_factory):
     """`dask scheduler` and two `dask worker` processes, on 127.0.0.1 only."""
-    folder = tmp_path_factory.mktemp("cluster")
-    port = free_port()
-    address = f"tcp://127.0.0.1:{port}"
     # workers import this module too (the crash plugin below)
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "tests")])}
-    scheduler = subprocess.Popen(
-        [
-            str(BIN / "dask"),
-            "scheduler",
-            "--host",
-            "127.0.0.1",
-            "--port",
-            str(port),
-            "--no-dashboard",
-        ],
-        cwd=folder,
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    workers = [
-        subprocess.Popen(
-            [
-                str(BIN / "dask"),
-                "worker",
-                address,
-                "--host",
-                "127.0.0.1",
-                "--nthreads",
-                "1",
-                "--no-dashboard",
-                "--name",
-                f"w{i}",
-            ],
-            cwd=folder,
-            env=env,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-        for i in range(2)
-    ]
-    try:
+    path = os.pathsep.join([str(ROOT), str(ROOT / "tests")])
+    with dask_processes(tmp_path_factory.mktemp("cluster"), env={"PYTHONPATH": path}) as address:
         with Client(address, timeout="60s") as client:
             client.wait_for_workers(2, timeout=60)
         yield address
-    finally:
-        for process in [*workers, scheduler]:
-            process.terminate()
-        for process in [*workers, scheduler]:
-            process.wait(timeout=30)
 
 
 def test_run_on_an_external_scheduler_writes_the_embedded_bytes(cluster, tmp_path):
@@ -186,3 +142,15 @@ def test_a_killed_client_resumes_to_the_same_bytes(cluster, tmp_path):
         parse_sweep(sweep.read_text()), reference, workers=1, progress_stream=open(os.devnull, "w")
     )
     assert_same_samples(str(target), reference)
+
+
+def test_the_started_cluster_listens_on_loopback_only(cluster):
+    import psutil
+
+    addresses = {
+        connection.laddr.ip
+        for process in psutil.Process().children(recursive=True)
+        for connection in process.net_connections(kind="inet")
+        if connection.status == psutil.CONN_LISTEN
+    }
+    assert addresses == {"127.0.0.1"}

@@ -282,13 +282,18 @@ def test_storage_options_must_be_a_json_object(tmp_path, options):
 def test_the_embedded_cluster_listens_on_loopback_only():
     import psutil
 
-    with dask_client(workers=2, scheduler=None):
-        me = psutil.Process()
-        listening = [
-            connection.laddr
+    me = psutil.Process()
+
+    def listening():
+        return {
+            (process.pid, connection.laddr)
             for process in [me, *me.children(recursive=True)]
             for connection in process.net_connections(kind="inet")
             if connection.status == psutil.CONN_LISTEN
-        ]
-    assert listening, "the cluster should listen somewhere"
-    assert {address.ip for address in listening} == {"127.0.0.1"}
+        }
+
+    before = listening()
+    with dask_client(workers=2, scheduler=None):
+        opened = listening() - before
+    assert opened, "the cluster should listen somewhere"
+    assert {address.ip for _, address in opened} == {"127.0.0.1"}

@@ -3,12 +3,11 @@
 import datetime
 import ipaddress
 import os
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
-from conftest import ROOT, TINY_SCENE, assert_same_samples, free_port, run_cli
+from conftest import ROOT, TINY_SCENE, assert_same_samples, dask_processes, run_cli
 
 from service.run import execute
 from service.sweep import parse_sweep
@@ -78,61 +77,10 @@ def certificates(folder: Path):
 def tls_cluster(tmp_path_factory):
     folder = tmp_path_factory.mktemp("tls")
     ca, cert, key = certificates(folder)
-    port = free_port()
-    address = f"tls://127.0.0.1:{port}"
-    env = {
-        **os.environ,
-        "PYTHONPATH": str(ROOT),
-        "DASK_DISTRIBUTED__COMM__REQUIRE_ENCRYPTION": "True",
-    }
     files = ["--tls-ca-file", str(ca), "--tls-cert", str(cert), "--tls-key", str(key)]
-    processes = [
-        subprocess.Popen(
-            [
-                str(BIN / "dask"),
-                "scheduler",
-                "--protocol",
-                "tls",
-                "--host",
-                "127.0.0.1",
-                "--port",
-                str(port),
-                "--no-dashboard",
-                *files,
-            ],
-            env=env,
-            cwd=folder,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-    ]
-    processes += [
-        subprocess.Popen(
-            [
-                str(BIN / "dask"),
-                "worker",
-                address,
-                "--host",
-                "127.0.0.1",
-                "--nthreads",
-                "1",
-                "--no-dashboard",
-                *files,
-            ],
-            env=env,
-            cwd=folder,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-        for _ in range(2)
-    ]
-    try:
-        yield address, port, [str(ca), str(cert), str(key)]
-    finally:
-        for process in processes:
-            process.terminate()
-        for process in processes:
-            process.wait(timeout=30)
+    env = {"PYTHONPATH": str(ROOT), "DASK_DISTRIBUTED__COMM__REQUIRE_ENCRYPTION": "True"}
+    with dask_processes(folder, protocol="tls", options=files, env=env) as address:
+        yield address, int(address.rsplit(":", 1)[1]), [str(ca), str(cert), str(key)]
 
 
 def test_a_sweep_over_tls_writes_the_embedded_bytes(tls_cluster, tmp_path):
