@@ -337,6 +337,14 @@ def paper_mtf_exponent(psi, *, theta0):
     return exponent[()]
 
 
+def _slab(top, bottom, diffuse_attenuation):
+    """Slab bounds and K as float64 arrays, checked (top <= bottom, K >= 0)."""
+    top, bottom, k = (np.asarray(v, dtype=np.float64) for v in (top, bottom, diffuse_attenuation))
+    if np.any(bottom < top) or np.any(k < 0):
+        raise ValueError("need top <= bottom and diffuse_attenuation >= 0")
+    return top, bottom, k
+
+
 def slab_backscatter_reflectance(*, backscatter_pi, diffuse_attenuation, top, bottom, reference):
     r"""Effective Lambertian reflectance of the water backscatter from a depth slab.
 
@@ -383,9 +391,7 @@ def slab_backscatter_reflectance(*, backscatter_pi, diffuse_attenuation, top, bo
     Carmona, R., Cérou, F. & Blasco, B. (2000). Lidar imaging through the ocean surface,
     §4.6 "Backscattering in the Gated Region".
     """
-    top, bottom, k = (np.asarray(v, dtype=np.float64) for v in (top, bottom, diffuse_attenuation))
-    if np.any(bottom < top) or np.any(k < 0):
-        raise ValueError("need top <= bottom and diffuse_attenuation >= 0")
+    top, bottom, k = _slab(top, bottom, diffuse_attenuation)
     thickness = bottom - top
     slab = thickness * special.exprel(-2 * k * thickness)
     return (np.pi * backscatter_pi * slab * np.exp(-2 * k * (top - reference)))[()]
@@ -425,9 +431,7 @@ def slab_backscatter_centroid(*, diffuse_attenuation, top, bottom):
     Carmona, R., Cérou, F. & Blasco, B. (2000). Lidar imaging through the ocean surface,
     §4.6 "Backscattering in the Gated Region".
     """
-    top, bottom, k = (np.asarray(v, dtype=np.float64) for v in (top, bottom, diffuse_attenuation))
-    if np.any(bottom < top) or np.any(k < 0):
-        raise ValueError("need top <= bottom and diffuse_attenuation >= 0")
+    top, bottom, k = _slab(top, bottom, diffuse_attenuation)
     thickness = bottom - top
     x = 2 * k * thickness
     small = x < 1e-3
