@@ -117,23 +117,6 @@ def test_flat_sea_water_backscatter_is_the_single_scattering_lidar_integral(gate
     assert_allclose(value, np.pi * optics.backscatter_pi * integral, rtol=0.01)
 
 
-def test_forward_scattering_conserves_the_diffuse_attenuation_law():
-    # A laser much wider than the receiver's field lights a uniform plane; the small-angle
-    # spread then moves light around without changing the interior level, which falls as
-    # e^(-2Kd) with K = c - b_f = a + b_b (Wells: MTF(0) = e^-Kz).
-    water = clear_water(absorption=0.1, scattering=0.3, backscatter=0.0)
-    base = dict(
-        FLAT_DISK,
-        water=water,
-        laser={"beam": "parallel", "field_of_view_deg": 40.0},
-        receiver={"gates": [[0.5, 12.0]], "field_of_view_deg": 3.0},
-    )
-    s = scene(**base, target={"shape": "disk", "radius": 20.0, "depth": 4.0, "reflectance": 1.0})
-    value = centre(render(s, seed=1).expected.values[0, 0])
-    profile = 1.0  # beam profile at the centre; the field sees |r/a| < 0.08
-    assert_allclose(value, profile * np.exp(-2 * 0.1 * 4.0), rtol=0.03)
-
-
 ROUGH = {
     "surface": {"spectrum": "elfouhaily", "wind_speed": 5.0},
     "water": {"preset": "clear_ocean"},
@@ -338,3 +321,95 @@ def test_visibility_follows_the_visible_surface_of_the_sphere():
     s = target_scene(depth=10.5, gates=((10.67, 13.72), (9.0, 10.2), (11.2, 12.0)))
     s = s.model_copy(update={"target": s.target.model_copy(update={"radius": 0.5})})
     assert render(s, seed=1).target_visibility.values.tolist() == [2, 1, 2]
+
+
+def test_a_sphere_is_attenuated_from_its_surface_not_its_centre():
+    # Flat sea, nadir, no scattering, K = 0.2 /m: the centre pixel of a white Lambertian
+    # sphere of radius 2 m at 6 m sees its top (4 m, normal incidence): the same as a white
+    # disk at 4 m. Attenuating at the centre depth makes it e^(-2K·2) = 0.45 times darker.
+    flat = {**FLAT_DISK, "water": clear_water(absorption=0.2)}
+    sphere = scene(
+        **flat, target={"shape": "sphere", "radius": 2.0, "depth": 6.0, "reflectance": 1.0}
+    )
+    disk = scene(**flat, target={"shape": "disk", "radius": 5.0, "depth": 4.0, "reflectance": 1.0})
+    a = centre(render(sphere, seed=1).expected.values[0, 0])
+    b = centre(render(disk, seed=1).expected.values[0, 0])
+    assert_allclose(a, b, rtol=0.01)
+
+
+def test_a_gate_opens_on_slant_range_at_oblique_views():
+    # 30° nadir, flat sea, no water return: a wide disk at 5 m, a gate whose bottom is
+    # 5.3 m along the central ray. Lines of sight towards the far edge (top rows) travel
+    # longer in the air, so in the same time they reach less deep: where the gate's bottom
+    # passes above 5 m the disk drops out of the gate. Closed form of the gate bottom for
+    # the pixel ray at incidence θ (n = 1.34, H = 34 m):
+    #   d(θ) = [H/cos θ_c + n·5.3/cos ϑ_c - H/cos θ] cos ϑ / n,  sin ϑ = sin θ / n.
+    s = scene(
+        surface={"spectrum": "flat"},
+        water=clear_water(absorption=0.05),
+        laser={"beam": "divergent", "field_of_view_deg": 30.0},
+        target={"shape": "disk", "radius": 40.0, "depth": 5.0, "reflectance": 0.5},
+        receiver={"gates": [[3.0, 5.3]]},
+        platform={"nadir_deg": 30.0},
+    )
+    image = render(s, seed=1).expected.values[0, 0]
+    n, H, pixels = N_WATER, 34.0, 32
+    theta_c = np.radians(30.0)
+    tangents = (np.arange(pixels) + 0.5 - pixels / 2) * (2 * np.tan(np.radians(3.35)) / pixels)
+    theta = theta_c - np.arctan(tangents)  # row 0 is the far edge: the largest incidence
+    cos_w = np.sqrt(1 - (np.sin(theta) / n) ** 2)
+    cos_c = np.sqrt(1 - (np.sin(theta_c) / n) ** 2)
+    bottom = (H / np.cos(theta_c) + n * 5.3 / cos_c - H / np.cos(theta)) * cos_w / n
+    # by hand for the edge rows (θ = 33.25°, 26.75°): the far edge reaches 1.04 m less
+    # deep than the centre, the near edge 0.91 m deeper
+    assert_allclose(bottom[[0, -1]], [4.26, 6.21], atol=0.01)
+    visible = image[:, pixels // 2] > 0.5 * image[:, pixels // 2].max()
+    expected = bottom >= 5.0
+    assert expected.any() and not expected.all()
+    assert np.count_nonzero(visible != expected) <= 1
+
+
+def test_a_target_on_a_gate_bottom_renders():
+    # float32 rounding of a depth onto a gate's bottom made the hidden-fraction slab
+    # inverted ("need top <= bottom"): the quickstart with target.depth 10.0 crashed.
+    s = scene(
+        **ROUGH,
+        target={"shape": "sphere", "depth": 10.0, "radius": 0.3, "reflectance": 0.2},
+        platform={"altitude": 34.0},
+    )
+    ds = render(s, seed=0)
+    assert np.isfinite(ds.expected.values).all()
+
+
+def test_a_small_target_far_below_marks_a_pixel():
+    # At 500 m the default mine (0.3 m) is about one pixel: its mask is never empty.
+    s = scene(
+        surface={"spectrum": "flat"},
+        water={"preset": "clear_ocean"},
+        target={"shape": "sphere", "depth": 3.0, "radius": 0.3, "reflectance": 0.5},
+        platform={"altitude": 500.0},
+        receiver={"pixels": 64},
+    )
+    ds = render(s, seed=0)
+    assert 1 <= ds.target_mask.values.sum() <= 4
+    assert ds.target_visibility.values[0] != 0
+
+
+def test_a_limb_reaching_into_a_gate_is_a_shadow_not_in_gate():
+    # Sphere 2.5–3.5 m seen at 45° nadir (31.8° in the water): its visible cap reaches
+    # down to 3.26 m at the limb, so a gate from 3.2 m holds a sliver of limb; the pixels
+    # show the sphere hiding the gate's water (net darker), so the label is shadow.
+    s = scene(
+        surface={"spectrum": "flat"},
+        water={"preset": "coastal"},
+        target={"shape": "sphere", "depth": 3.0, "radius": 0.5, "reflectance": 0.2},
+        receiver={"gates": [[3.2, 6.0]], "pixels": 64},
+        platform={"nadir_deg": 45.0},
+    )
+    ds = render(s, seed=0)
+    without = render(
+        s.model_copy(update={"target": s.target.model_copy(update={"shape": "none"})}), seed=0
+    )
+    mask = ds.target_mask.values[0].astype(bool)
+    assert ds.expected.values[0, 0][mask].sum() < without.expected.values[0, 0][mask].sum()
+    assert ds.target_visibility.values.tolist() == [2]

@@ -20,6 +20,7 @@ __all__ = [
     "Located",
     "PinholeCamera",
     "PlaneGrid",
+    "fast_length",
     "flat_sea_point",
     "footprint_length",
     "pan_tilt_rotation",
@@ -225,7 +226,9 @@ class LaserRays:
         return self.origins[index].astype(float), self.directions[index].astype(float)
 
     @classmethod
-    def from_platform(cls, *, position, rotation, beam, field_of_view, rays, reference_range):
+    def from_platform(
+        cls, *, position, rotation, beam, field_of_view, rays, reference_range, margin=0
+    ):
         r"""Build the lattice for a laser on the platform.
 
         Parameters
@@ -237,36 +240,94 @@ class LaserRays:
         beam : {'divergent', 'parallel'}
             Rays fan out from `position`, or run parallel to the axis.
         field_of_view : float
-            Full opening of the illuminated square [rad].
+            Full opening of the square the beam's 1/e radius spans [rad]; `rays` rays
+            per side sample it.
         rays : int
-            Rays per side.
+            Rays per side across the field.
         reference_range : float
             Range along the axis at which the beam cross-section has irradiance
             :math:`J e^{-r^2/a^2}` with J = 1 [m].
+        margin : int, optional
+            Rays added on every side at the same pitch, beyond the field (default 0): the
+            Gaussian beam goes on outside it.
 
         Notes
         -----
         :math:`I_0 = J e^{-r^2/a^2}` (paper §4.1), r the distance from the axis in a plane
         across the beam, a its value at the middle of the field's edge (the paper takes
-        :math:`0 \le r/a \le 1` over the field). Rays sample the square field on a lattice
+        :math:`0 \le r/a \le 1` over the field). Rays sample the square on a lattice
         uniform in the tangent plane, so at the reference range each carries the power of
         an equal cross-section cell. A divergent beam's irradiance then falls as the inverse
-        square of range, and refraction and the sea surface redistribute it.
+        square of range, and refraction and the sea surface redistribute it. The beam holds
+        :math:`\pi a^2 J` in all; the field's square holds erf(1)² = 71 % of it.
         """
         half = np.tan(0.5 * field_of_view)
         step = 2.0 * half / rays
-        offsets = (np.arange(rays) + 0.5 - 0.5 * rays) * step
+        offsets = (np.arange(rays + 2 * margin) + 0.5 - 0.5 * rays - margin) * step
         u, v = np.meshgrid(offsets, offsets)
-        profile = np.exp(-(u**2 + v**2) / half**2).ravel()
-        power = profile * (reference_range * step) ** 2
+        return cls._from_offsets(
+            u.ravel(),
+            v.ravel(),
+            position=position,
+            rotation=rotation,
+            beam=beam,
+            half=half,
+            step=step,
+            reference_range=reference_range,
+            rays=rays + 2 * margin,
+        )
+
+    @classmethod
+    def beam_tail(
+        cls, *, position, rotation, beam, field_of_view, reference_range, inner, step, extent
+    ):
+        """The beam outside a square of the tangent plane, on a lattice of its own.
+
+        Parameters
+        ----------
+        position, rotation, beam, field_of_view, reference_range
+            As for `from_platform`.
+        inner : float
+            Half-width of the square left out, in tangent units [1].
+        step : float
+            Lattice pitch in tangent units [1].
+        extent : float
+            Half-width of the lattice in units of the beam's 1/e radius [1].
+
+        Returns
+        -------
+        LaserRays
+            Rays with |u| or |v| beyond `inner`, out to `extent` radii (`rays` is 0).
+        """
+        half = np.tan(0.5 * field_of_view)
+        count = int(np.ceil(extent * half / step))
+        offsets = (np.arange(2 * count) + 0.5 - count) * step
+        u, v = np.meshgrid(offsets, offsets)
+        keep = (np.maximum(np.abs(u), np.abs(v)) > inner).ravel()
+        return cls._from_offsets(
+            u.ravel()[keep],
+            v.ravel()[keep],
+            position=position,
+            rotation=rotation,
+            beam=beam,
+            half=half,
+            step=step,
+            reference_range=reference_range,
+            rays=0,
+        )
+
+    @classmethod
+    def _from_offsets(cls, u, v, *, position, rotation, beam, half, step, reference_range, rays):
+        """Rays through tangent offsets (u, v) of the boresight, each a step × step cell."""
+        power = np.exp(-(u**2 + v**2) / half**2) * (reference_range * step) ** 2
         position = np.asarray(position, dtype=float)
+        tangents = np.stack([u, v, np.ones_like(u)], axis=-1)
         if beam == "divergent":
-            directions = _lattice_directions(rotation, offsets).reshape(-1, 3)
+            directions = (tangents / np.linalg.norm(tangents, axis=-1, keepdims=True)) @ rotation
             origins = np.broadcast_to(position, directions.shape)
         else:
-            directions = np.broadcast_to(rotation[2], (rays * rays, 3))
-            lateral = np.stack([u.ravel(), v.ravel()], axis=-1) @ rotation[:2]
-            origins = position + reference_range * lateral
+            directions = np.broadcast_to(rotation[2], tangents.shape)
+            origins = position + reference_range * (tangents[:, :2] @ rotation[:2])
         return cls(origins=origins, directions=directions, power=power, rays=rays)
 
 
@@ -320,7 +381,7 @@ class Located(NamedTuple):
     weights: np.ndarray
 
 
-def _fast_length(n):
+def fast_length(n):
     """Smallest even 5-smooth integer >= n (a fast FFT length)."""
     m = max(int(n), 2)
     while True:
@@ -364,7 +425,7 @@ class PlaneGrid:
     shape: tuple[int, int]
 
     @classmethod
-    def covering(cls, *, camera, lattice, depth, refractive_index, guard):
+    def covering(cls, *, camera, lattice, depth, refractive_index, guard, multiple=1):
         """The grid that covers the camera's flat-sea footprint at `depth`.
 
         Parameters
@@ -381,9 +442,11 @@ class PlaneGrid:
             Depth of the plane [m].
         refractive_index : float
             Refractive index of the water [1].
-        guard : float
-            Guard band on every side, as a fraction of the image size, so that light
-            spread by scattering does not wrap around the periodic FFT convolution.
+        guard : int
+            Guard band on every side [cells]: light spread near the image's edge stays
+            on the grid.
+        multiple : int, optional
+            The grid's rows and columns are multiples of it (for `workers.spread.Levels`).
         """
         rotation = camera.rotation
         axis_u = rotation[0, :2] / np.linalg.norm(rotation[0, :2])
@@ -403,9 +466,8 @@ class PlaneGrid:
         spacing_v = float(np.dot(below - centre, axis_v))
         su = (points - centre) @ axis_u / spacing_u
         sv = (points - centre) @ axis_v / spacing_v
-        pad = max(4.0, guard * camera.pixels)
-        cols = _fast_length(np.ceil(su.max() - su.min()) + 2 * pad)
-        rows = _fast_length(np.ceil(sv.max() - sv.min()) + 2 * pad)
+        cols = multiple * fast_length(np.ceil((su.max() - su.min() + 2 * guard) / multiple))
+        rows = multiple * fast_length(np.ceil((sv.max() - sv.min() + 2 * guard) / multiple))
         first_u = 0.5 * (su.max() + su.min()) - 0.5 * (cols - 1)
         first_v = 0.5 * (sv.max() + sv.min()) - 0.5 * (rows - 1)
         corner = centre + first_u * spacing_u * axis_u + first_v * spacing_v * axis_v

@@ -2,21 +2,27 @@
 
 `render` is the seam between the physics and the service: it returns one sample as an
 `xarray.Dataset` holding exactly the variables of one ``sample`` of the store
-(``../shared/DESIGN.md`` §4), without the ``sample`` dimension.
+(``docs/model.md``), without the ``sample`` dimension.
 
-The image-formation model (DESIGN §3.5), per frame:
+The image-formation model, per frame:
 
 1. Laser rays and pixel rays are intersected with the real surface, refracted (Snell) and
-   weighted by the Fresnel transmittance.
-2. Each gate is a slab [top, bottom]. Its single-scattering water backscatter is an
-   effective Lambertian reflectance on a reference plane at the slab's centroid depth.
-   Laser rays are splatted where they cross that plane (each with the attenuation of its
-   extra slant path), convolved with the Wells point-spread function twice (down, then up:
-   one product with MTF² in Fourier space), and gathered where each pixel's ray crosses
-   the plane, times the exit transmittance.
-3. The target is an impostor on the plane through its centre: downwelling irradiance there
-   (one MTF) times its reflectance map, restricted to the part of the target inside the
-   gate, spread up (one MTF) and gathered.
+   weighted by the Fresnel transmittance. The laser is a Gaussian beam: rays sample it at
+   the pixels' pitch over the image and a guard band around it, and its tail beyond that
+   (out to `BEAM_EXTENT` times its 1/e radius) is refracted by the mean, flat sea onto the
+   coarse level of each plane (`workers.spread`).
+2. Each gate opens and closes on slant range (`workers.gates`): every line of sight gates
+   its own depth slab. A gate's single-scattering water backscatter is an effective
+   Lambertian reflectance map on a reference plane at the central slab's centroid depth:
+   laser rays are splatted where they cross that plane (each with the attenuation of its
+   extra slant path), spread by the Wells point-spread function (linearly, without
+   wrap-around: `workers.spread.Spread`), multiplied by the reflectance of the slab each
+   cell's line of sight gates, spread again on the way up and gathered where each pixel's
+   ray crosses the plane, times the exit transmittance.
+3. The target is an impostor on the plane through its centre: downwelling irradiance
+   there times its reflectance map, attenuated from each cell's true depth on the target
+   (not from the centre plane), restricted to the part of the target inside the gate,
+   spread up and gathered.
 4. Where a ray or a pixel's line of sight meets the target, the water behind the target is
    neither lit nor seen: the slab's backscatter is reduced by the fraction lying behind the
    target's surface, half on the way down and half on the way up (square roots), which is
@@ -26,8 +32,9 @@ The image-formation model (DESIGN §3.5), per frame:
 
 Approximations beyond the paper's, at oblique views: the Wells spread is computed for the
 vertical range to each plane (it underestimates the blur by about 1/cos ϑ in the water),
-while attenuation follows each ray's slant path; a gate's volume return uses the refracted
-central ray's angle for its 1/cos²ϑ gain and slant attenuation.
+while attenuation follows each ray's slant path; a gate's reflectance map is placed on
+one plane, so the blur of a slab that slant gating moves up or down across the image is
+taken at the central slab's depth.
 """
 
 from __future__ import annotations
@@ -36,15 +43,23 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.fft
 import xarray as xr
 
 from workers.conditioning import Kriging
-from workers.geometry import LaserRays, PinholeCamera, PlaneGrid, flat_sea_point
+from workers.gates import central_paths, sight_lines, slab_bounds
+from workers.geometry import LaserRays, Located, PinholeCamera, PlaneGrid, flat_sea_point
 from workers.noise import shot_noise
 from workers.optics import fresnel_reflectance
 from workers.scene import Scene
 from workers.seeds import SampleSeed
+from workers.spread import (
+    NEAR_SUPPORT,
+    SPREAD_FRACTION,
+    Levels,
+    Spread,
+    coarse_factor,
+    encircled_radius,
+)
 from workers.surface import synthesize
 from workers.target import Impostor
 from workers.water import (
@@ -56,7 +71,13 @@ from workers.water import (
 __all__ = ["render", "sample_labels"]
 
 GUARD = 0.125
-"""Guard band added on each side of an in-water plane, as a fraction of the image size."""
+"""Least guard band on each side of an in-water plane, as a fraction of the image size."""
+
+BEAM_EXTENT = 2.5
+"""Half-width of the traced beam in units of its 1/e radius (e^-6.25: 0.2 % lies beyond)."""
+
+TAIL_STEP = 2
+"""Pitch of the beam tail's lattice, in laser-lattice steps."""
 
 SURFACE_ITERATIONS = 8
 """Most fixed-point refinements of each ray's hit on the wavy surface (start at z = 0)."""
@@ -132,10 +153,9 @@ class _Setup:
     conditioning: Kriging | None
     gates: tuple[tuple[float, float], ...]
     reference_depths: tuple[float, ...]
-    reflectances: tuple[float, ...]
     scale: float
     refracted_nadir: float
-    visibility: tuple[int, ...]
+    secant: float
 
 
 @functools.lru_cache(maxsize=32)
@@ -151,24 +171,14 @@ def _setup(key: str) -> _Setup:
     refracted_nadir = float(
         np.arcsin(np.sin(np.radians(scene.platform.nadir_deg)) / w.refractive_index)
     )
-    # Seen at an angle ϑ in the water, a slab's volume return grows as 1/cos²ϑ (the normal
-    # irradiance is E/cosϑ and the path through dz is dz/cosϑ) and fades as e^(-2Kz/cosϑ).
     secant = 1.0 / np.cos(refracted_nadir)
-    K = water.diffuse_attenuation * secant
     references = tuple(
-        slab_backscatter_centroid(diffuse_attenuation=K, top=top, bottom=bottom)
-        for top, bottom in gates
-    )
-    reflectances = tuple(
-        secant**2
-        * slab_backscatter_reflectance(
-            backscatter_pi=water.backscatter_pi,
-            diffuse_attenuation=K,
-            top=top,
-            bottom=bottom,
-            reference=reference,
+        float(
+            slab_backscatter_centroid(
+                diffuse_attenuation=water.diffuse_attenuation * secant, top=top, bottom=bottom
+            )
         )
-        for (top, bottom), reference in zip(gates, references, strict=True)
+        for top, bottom in gates
     )
     t0 = 1.0 - float(fresnel_reflectance(1.0, n1=1.0, n2=w.refractive_index))
     photons = scene.noise.photons
@@ -180,62 +190,126 @@ def _setup(key: str) -> _Setup:
         conditioning=scene.surface.kriging(),
         gates=gates,
         reference_depths=references,
-        reflectances=reflectances,
         scale=scale,
         refracted_nadir=refracted_nadir,
-        visibility=tuple(
-            _visibility(scene, top, bottom, refracted_nadir=refracted_nadir)
-            for top, bottom in gates
-        ),
+        secant=float(secant),
     )
 
 
-def _visible_extent(scene: Scene, *, refracted_nadir: float):
-    """Depths of the target's surface that the sensor sees (its lit, upper side) [m].
+@dataclass(frozen=True)
+class _Sensor:
+    """Camera, laser and the flat-sea gate timing of one frame (no plane yet)."""
 
-    A sphere viewed along the refracted central ray shows the cap facing it: from its top,
-    d - r, down to d + r sin ϑ at its limb. A disk lies at its depth.
+    position: np.ndarray
+    camera: PinholeCamera
+    laser_fov: float
+    laser_rays: int
+    reference_range: float
+    lattice: tuple
+    paths: np.ndarray
+
+
+def _sensor(setup: _Setup, frame: int) -> _Sensor:
+    scene = setup.scene
+    p, r = scene.platform, scene.receiver
+    position = _platform_position(scene, frame * scene.sequence.interval)
+    camera = PinholeCamera(
+        position=tuple(position),
+        nadir=np.radians(p.nadir_deg),
+        azimuth=np.radians(p.azimuth_deg),
+        field_of_view=np.radians(r.field_of_view_deg),
+        pixels=r.pixels,
+    )
+    laser_fov = float(np.radians(scene.laser.field_of_view_deg or r.field_of_view_deg))
+    reference_range = p.altitude / np.cos(np.radians(p.nadir_deg))
+    probe = LaserRays.from_platform(
+        position=position,
+        rotation=camera.rotation,
+        beam=scene.laser.beam,
+        field_of_view=laser_fov,
+        rays=scene.laser_rays,
+        reference_range=reference_range,
+    )
+    paths = central_paths(
+        altitude=float(position[2]),
+        nadir=np.radians(p.nadir_deg),
+        refractive_index=scene.water.refractive_index,
+        gates=setup.gates,
+    )
+    return _Sensor(
+        position=position,
+        camera=camera,
+        laser_fov=laser_fov,
+        laser_rays=scene.laser_rays,
+        reference_range=reference_range,
+        lattice=probe.central(),
+        paths=paths,
+    )
+
+
+def _gate_bounds(sensor: _Sensor, grid: PlaneGrid, paths, refractive_index):
+    """Gated depth bounds (top, bottom) and the in-water secant of each cell's sight line."""
+    x, y = grid.cell_centres()
+    air, cos_water = sight_lines(
+        position=sensor.position, x=x, y=y, depth=grid.depth, refractive_index=refractive_index
+    )
+    top, bottom = slab_bounds(
+        paths=paths, air=air, cos_water=cos_water, refractive_index=refractive_index
+    )
+    return top, bottom, 1.0 / cos_water
+
+
+def _gate_reflectance(water: WaterOptics, sensor: _Sensor, grid: PlaneGrid, paths):
+    r"""Backscatter reflectance map of a gate on `grid`, referred to the grid's depth.
+
+    Each cell's line of sight at in-water angle ϑ gates the slab [top, bottom]; its volume
+    return grows as sec²ϑ (normal irradiance E/cos ϑ, path dz/cos ϑ) and fades as
+    :math:`e^{-2K\sec\vartheta\,(z - z_{plane})}` (`slab_backscatter_reflectance`).
     """
-    t = scene.target
-    if t.shape == "sphere":
-        return t.depth - t.radius, t.depth + t.radius * np.sin(refracted_nadir)
-    return t.depth, t.depth
-
-
-def _visibility(scene: Scene, top: float, bottom: float, *, refracted_nadir: float) -> int:
-    """Label of the target against a gate: none, in the gate, shadowing it, or below it.
-
-    "In the gate" means part of the target's visible surface lies in the slab; a target
-    whose visible surface lies above the slab shadows it (even where its far side reaches
-    into the slab, that side is dark and hides the water behind it).
-    """
-    if scene.target.shape == "none":
-        return VISIBILITY["none"]
-    upper, lower = _visible_extent(scene, refracted_nadir=refracted_nadir)
-    if lower < top:
-        return VISIBILITY["shadow"]
-    if upper > bottom:
-        return VISIBILITY["below_gate"]
-    return VISIBILITY["in_gate"]
+    top, bottom, secant = _gate_bounds(sensor, grid, paths, water.refractive_index)
+    reflectance = secant**2 * slab_backscatter_reflectance(
+        backscatter_pi=water.backscatter_pi,
+        diffuse_attenuation=water.diffuse_attenuation * secant,
+        top=top,
+        bottom=bottom,
+        reference=grid.depth,
+    )
+    return reflectance.astype(np.float32)
 
 
 @dataclass(frozen=True)
 class _Plane:
-    """An in-water plane with its Fourier filter and, for gates, the target's occlusion.
+    """An in-water plane: its two-level grid, spread, and the beam tail landing on it.
 
-    `filter` is the whole round trip for a gate plane (reflectance × MTF², down and up) and
-    one way (MTF) for the target plane. Where the target hides part of a gate's water,
-    `hiding` names the slab whose backscatter rays lose behind the target (gates the
-    target shadows whole share the key ``"shadow"``, so one computation per sample), and
-    `occlusion` (on this plane's grid) is the square root of the fraction not hidden, seen
-    back through the upwelling point-spread function.
+    For a gate, `reflectance` holds the backscatter map (fine, coarse); where the target
+    hides part of the gate's water, `bounds` holds the gate's slab bounds on the target
+    plane's grid (for the rays that meet the target) and `occlusion` the square root of
+    the fraction not hidden, seen back through the upwelling point-spread function.
     """
 
-    grid: PlaneGrid
-    depth: float
-    filter: np.ndarray
-    hiding: tuple | None = None
+    levels: Levels
+    spread: Spread
+    tail: np.ndarray | None
+    reflectance: tuple[np.ndarray, np.ndarray] | None = None
+    bounds: tuple[np.ndarray, np.ndarray] | None = None
     occlusion: np.ndarray | None = None
+
+    @property
+    def grid(self) -> PlaneGrid:
+        """The fine grid."""
+        return self.levels.fine
+
+
+@dataclass(frozen=True)
+class _TargetLight:
+    """The target's reflectance maps per gate: gates cutting it alike share one map.
+
+    Each map is a pair (fine, coarse); the coarse one holds the part of a large target
+    outside the fine grid (None when the target lies within it).
+    """
+
+    weights: tuple[tuple[np.ndarray, np.ndarray | None], ...]
+    gates: tuple[tuple[int, ...], ...]
 
 
 @dataclass(frozen=True)
@@ -245,12 +319,12 @@ class _FrameGeometry:
     position: np.ndarray
     pixel_rays: tuple
     laser_rays: tuple
-    laser: LaserRays
-    monostatic: bool
+    laser_power: np.ndarray
+    pixel_index: np.ndarray | None
     gate_planes: tuple[_Plane, ...]
     target_plane: _Plane | None
     impostor: Impostor | None
-    target_masks: tuple[np.ndarray | None, ...]
+    target_light: _TargetLight | None
 
 
 def _platform_position(scene: Scene, time: float) -> np.ndarray:
@@ -261,135 +335,236 @@ def _platform_position(scene: Scene, time: float) -> np.ndarray:
     return start + time * np.asarray(scene.sequence.velocity, dtype=float)
 
 
+def _fine_grid(sensor: _Sensor, depth: float, n_w: float, *, guard: int, multiple: int):
+    return PlaneGrid.covering(
+        camera=sensor.camera,
+        lattice=sensor.lattice,
+        depth=depth,
+        refractive_index=n_w,
+        guard=guard,
+        multiple=multiple,
+    )
+
+
+def _plane_levels(setup: _Setup, sensor: _Sensor, depth: float) -> tuple[Levels, int]:
+    """The two-level grid of a plane, and its fine guard band [cells]."""
+    n_w = setup.water.refractive_index
+    bare = _fine_grid(sensor, depth, n_w, guard=0, multiple=1)
+    spacing = min(bare.spacing_u, bare.spacing_v)
+    margin = encircled_radius(setup.water, distance=depth, fraction=SPREAD_FRACTION)
+    span = max(bare.shape) * spacing
+    factor = coarse_factor(spacing=spacing, extent=span + 2 * margin)
+    guard = max(int(np.ceil(GUARD * sensor.camera.pixels)), NEAR_SUPPORT * factor)
+    fine = _fine_grid(sensor, depth, n_w, guard=guard, multiple=factor)
+    return Levels.around(fine, factor=factor, margin=margin), guard
+
+
+def _beam_tail(setup: _Setup, sensor: _Sensor, levels: Levels, tail: LaserRays):
+    """The beam tail's irradiance on the coarse grid under the mean (flat) sea."""
+    if tail.power.size == 0:
+        return None
+    water, grid = setup.water, levels.coarse
+    n_w = water.refractive_index
+    points = flat_sea_point(
+        origin=tail.origins, direction=tail.directions, depth=grid.depth, refractive_index=n_w
+    )
+    cos_air = np.clip(-tail.directions[:, 2], 0.0, 1.0)
+    cos_water = np.sqrt(1.0 - (1.0 - cos_air**2) / n_w**2)
+    transmittance = 1.0 - fresnel_reflectance(cos_air, n1=1.0, n2=n_w)
+    extra = np.exp(-water.diffuse_attenuation * grid.depth * (1.0 / cos_water - 1.0))
+    power = (tail.power * transmittance * extra).astype(np.float32)
+    return grid.splat(grid.locate(points[:, 0], points[:, 1]), power)
+
+
 @functools.lru_cache(maxsize=64)
 def _frame_geometry(key: str, frame: int) -> _FrameGeometry:
     setup = _setup(key)
     scene = setup.scene
-    p, r, n_w = scene.platform, scene.receiver, scene.water.refractive_index
-    position = _platform_position(scene, frame * scene.sequence.interval)
-    camera = PinholeCamera(
-        position=tuple(position),
-        nadir=np.radians(p.nadir_deg),
-        azimuth=np.radians(p.azimuth_deg),
-        field_of_view=np.radians(r.field_of_view_deg),
-        pixels=r.pixels,
-    )
-    laser_fov = np.radians(scene.laser.field_of_view_deg or r.field_of_view_deg)
-    rays = scene.laser_rays
-    reference_range = p.altitude / np.cos(np.radians(p.nadir_deg))
+    water = setup.water
+    sensor = _sensor(setup, frame)
+    camera, r = sensor.camera, scene.receiver
+    t = scene.target
+    depths = ([t.depth] if t.shape != "none" else []) + list(setup.reference_depths)
+    built = [_plane_levels(setup, sensor, depth) for depth in depths]
+    # the laser lattice covers the largest guard band, within the beam's extent
+    rays = sensor.laser_rays
+    margin = max(guard for _, guard in built) + 2
+    margin = min(margin, int(np.ceil(0.5 * (BEAM_EXTENT - 1.0) * rays)))
     laser = LaserRays.from_platform(
-        position=position,
+        position=sensor.position,
         rotation=camera.rotation,
         beam=scene.laser.beam,
-        field_of_view=laser_fov,
+        field_of_view=sensor.laser_fov,
         rays=rays,
-        reference_range=reference_range,
+        reference_range=sensor.reference_range,
+        margin=margin,
     )
-    lattice = laser.central()
-    laser = LaserRays(
-        origins=np.ascontiguousarray(laser.origins, dtype=np.float32),
-        directions=np.ascontiguousarray(laser.directions, dtype=np.float32),
-        power=laser.power.astype(np.float32),
-        rays=rays,
+    step = 2.0 * np.tan(0.5 * sensor.laser_fov) / rays
+    tail = LaserRays.beam_tail(
+        position=sensor.position,
+        rotation=camera.rotation,
+        beam=scene.laser.beam,
+        field_of_view=sensor.laser_fov,
+        reference_range=sensor.reference_range,
+        inner=(0.5 * rays + margin) * step,
+        step=TAIL_STEP * step,
+        extent=BEAM_EXTENT,
     )
     # The default laser (divergent, the receiver's field, one ray per pixel) shares the
-    # pixels' lattice of directions: its rays are the pixels' lines of sight, traced once.
+    # pixels' lattice of directions: the pixels' lines of sight are its central block.
     monostatic = bool(
-        scene.laser.beam == "divergent" and rays == r.pixels and laser_fov == camera.field_of_view
+        scene.laser.beam == "divergent"
+        and rays == r.pixels
+        and sensor.laser_fov == camera.field_of_view
     )
-    water = setup.water
+    pixel_index = None
+    if monostatic:
+        side = rays + 2 * margin
+        block = np.arange(margin, margin + rays)
+        pixel_index = (block[:, None] * side + block[None, :]).ravel()
 
-    def grid_and_mtf(depth):
-        grid = PlaneGrid.covering(
-            camera=camera, lattice=lattice, depth=depth, refractive_index=n_w, guard=GUARD
+    planes = []
+    for (levels, _), depth in zip(built, depths, strict=True):
+        spread = Spread.build(
+            water=water, levels=levels, distance=depth, truncation=scene.water.psf_truncation
         )
-        return grid, water.mtf(grid.frequency(), distance=depth).astype(np.float32)
-
-    t = scene.target
-    pixel_directions = camera.pixel_directions().reshape(-1, 3).astype(np.float32)
-    target_plane = impostor = None
-    masks = (None,) * len(setup.gates)
+        planes.append(
+            _Plane(levels=levels, spread=spread, tail=_beam_tail(setup, sensor, levels, tail))
+        )
+    target_plane = impostor = target_light = None
     if t.shape != "none":
-        grid, mtf = grid_and_mtf(t.depth)
-        target_plane = _Plane(grid=grid, depth=t.depth, filter=mtf)
-        if t.x is None or t.y is None:
-            centre = flat_sea_point(
-                origin=_platform_position(scene, 0.0),
-                direction=camera.rotation[2],
-                depth=t.depth,
-                refractive_index=n_w,
-            )[:2]
-        else:
-            centre = (t.x, t.y)
-        impostor = Impostor.build(
-            grid=target_plane.grid,
-            shape=t.shape,
-            centre=(float(centre[0]), float(centre[1])),
-            radius=t.radius,
-            reflectance=t.reflectance,
-            shading=t.shading,
-            refracted_nadir=setup.refracted_nadir,
-        )
-        masks = _target_masks(setup, impostor)
+        target_plane, planes = planes[0], planes[1:]
+        impostor = _impostor(setup, target_plane.grid)
+        target_light = _target_light(setup, sensor, target_plane.levels)
     gate_planes = []
-    for (top, bottom), depth, reflectance, visibility in zip(
-        setup.gates, setup.reference_depths, setup.reflectances, setup.visibility, strict=True
-    ):
-        grid, mtf = grid_and_mtf(depth)
-        filter_ = (np.float32(reflectance) * mtf * mtf).astype(np.float32)
-        if impostor is None or visibility == VISIBILITY["below_gate"]:
-            gate_planes.append(_Plane(grid=grid, depth=depth, filter=filter_))
-            continue
-        # The line of sight through a gate-plane cell crossed the target plane nearer the
-        # platform, by the depth difference times the tangent of the in-water angle.
-        x, y = grid.cell_centres()
-        back = (depth - t.depth) * np.tan(setup.refracted_nadir)
-        located = target_plane.grid.locate(x + back * grid.axis_v[0], y + back * grid.axis_v[1])
-        hidden = _hidden_fraction(
-            target_plane.grid.gather(impostor.surface_depth, located),
-            target_plane.grid.gather(impostor.occupancy, located),
-            top=top,
-            bottom=bottom,
-            diffuse_attenuation=water.diffuse_attenuation,
+    for g, plane in enumerate(planes):
+        paths = sensor.paths[g]
+        reflectance = (
+            _gate_reflectance(water, sensor, plane.grid, paths),
+            _gate_reflectance(water, sensor, plane.levels.coarse, paths),
         )
-        occlusion = _convolve(np.sqrt(np.maximum(1.0 - hidden, 0.0)), mtf / mtf[0, 0])
-        gate_planes.append(
-            _Plane(
-                grid=grid,
-                depth=depth,
-                filter=filter_,
-                hiding=("shadow",) if visibility == VISIBILITY["shadow"] else (top, bottom),
-                occlusion=occlusion.astype(np.float32),
-            )
+        plane = _Plane(
+            levels=plane.levels, spread=plane.spread, tail=plane.tail, reflectance=reflectance
         )
+        if impostor is not None:
+            plane = _with_hiding(setup, sensor, plane, paths, target_plane.grid, impostor)
+        gate_planes.append(plane)
+    pixel_directions = camera.pixel_directions().reshape(-1, 3)
     return _FrameGeometry(
-        position=position,
-        pixel_rays=_ray_components(position, pixel_directions),
+        position=sensor.position,
+        pixel_rays=_ray_components(sensor.position, pixel_directions),
         laser_rays=_ray_components(laser.origins, laser.directions),
-        laser=laser,
-        monostatic=monostatic,
+        laser_power=laser.power.astype(np.float32),
+        pixel_index=pixel_index,
         gate_planes=tuple(gate_planes),
         target_plane=target_plane,
         impostor=impostor,
-        target_masks=masks,
+        target_light=target_light,
     )
 
 
-def _target_masks(setup: _Setup, impostor: Impostor) -> tuple[np.ndarray | None, ...]:
-    """Reflectance of the part of the target inside each gate (None: nothing inside).
+def _target_centre(setup: _Setup, camera: PinholeCamera) -> tuple[float, float]:
+    t = setup.scene.target
+    if t.x is not None and t.y is not None:
+        return float(t.x), float(t.y)
+    centre = flat_sea_point(
+        origin=_platform_position(setup.scene, 0.0),
+        direction=camera.rotation[2],
+        depth=t.depth,
+        refractive_index=setup.water.refractive_index,
+    )
+    return float(centre[0]), float(centre[1])
 
-    Gates that cut the target the same way share one array, and so one convolution per
-    sample.
+
+def _impostor(setup: _Setup, grid: PlaneGrid) -> Impostor:
+    t = setup.scene.target
+    camera = _sensor(setup, 0).camera
+    return Impostor.build(
+        grid=grid,
+        shape=t.shape,
+        centre=_target_centre(setup, camera),
+        radius=t.radius,
+        reflectance=t.reflectance,
+        shading=t.shading,
+        refracted_nadir=setup.refracted_nadir,
+    )
+
+
+def _target_light(setup, sensor, levels: Levels) -> _TargetLight:
+    r"""Reflectance of the part of the target each gate holds, from its true depth.
+
+    The target plane's light carries the attenuation of the plane through the target's
+    centre; a cell whose line meets the target's surface at depth z_s (above the centre
+    plane, on the lit cap) is reached by a path shorter by (z_c − z_s) sec ϑ each way, so
+    its weight is multiplied by :math:`e^{2K\sec\vartheta\,(z_c - z_s)}`.
     """
-    masks, by_span = [], {}
-    for top, bottom in setup.gates:
-        span = (max(top, impostor.top), min(bottom, impostor.bottom))
-        if span not in by_span:
-            inside = (impostor.surface_depth >= top) & (impostor.surface_depth <= bottom)
-            weight = np.where(inside, impostor.weight, 0.0).astype(np.float32)
-            by_span[span] = weight if weight.any() else None
-        masks.append(by_span[span])
-    return tuple(masks)
+    water = setup.water
+
+    def lit(grid, impostor):
+        depth = np.asarray(impostor.surface_depth, dtype=np.float64)
+        lift = np.exp(2 * water.diffuse_attenuation * setup.secant * (grid.depth - depth))
+        return depth, impostor.weight * lift
+
+    fine_impostor = _impostor(setup, levels.fine)
+    coarse_impostor = _impostor(setup, levels.coarse)
+    outside = coarse_impostor.occupancy.copy()
+    outside[levels.block] = 0.0
+    levels_lit = [(levels.fine, fine_impostor, *lit(levels.fine, fine_impostor))]
+    if outside.any():
+        levels_lit.append((levels.coarse, coarse_impostor, *lit(levels.coarse, coarse_impostor)))
+    maps, members = {}, {}
+    for g, paths in enumerate(sensor.paths):
+        pair, signature = [], b""
+        for grid, impostor, depth, weight in levels_lit:
+            top, bottom, _ = _gate_bounds(sensor, grid, paths, water.refractive_index)
+            inside = (depth >= top) & (depth <= bottom) & (impostor.occupancy > 0)
+            if grid is levels.coarse:
+                inside[levels.block] = False
+            pair.append(np.where(inside, weight, 0.0).astype(np.float32))
+            signature += inside.tobytes()
+        if not any(m.any() for m in pair):
+            continue
+        if signature not in maps:
+            maps[signature] = (pair[0], pair[1] if len(pair) > 1 else None)
+            members[signature] = []
+        members[signature].append(g)
+    return _TargetLight(
+        weights=tuple(maps.values()), gates=tuple(tuple(m) for m in members.values())
+    )
+
+
+def _with_hiding(setup, sensor, plane, paths, target_grid, impostor) -> _Plane:
+    """`plane` with the target's hiding of the gate's water, if it hides any."""
+    water = setup.water
+    k = water.diffuse_attenuation * setup.secant
+    top_t, bottom_t, _ = _gate_bounds(sensor, target_grid, paths, water.refractive_index)
+    grid = plane.grid
+    # The line of sight through a gate-plane cell crossed the target plane nearer the
+    # platform, by the depth difference times the tangent of the in-water angle.
+    x, y = grid.cell_centres()
+    back = (grid.depth - target_grid.depth) * np.tan(setup.refracted_nadir)
+    located = target_grid.locate(x + back * grid.axis_v[0], y + back * grid.axis_v[1])
+    top, bottom, _ = _gate_bounds(sensor, grid, paths, water.refractive_index)
+    hidden = _hidden_fraction(
+        target_grid.gather(impostor.surface_depth, located),
+        target_grid.gather(impostor.occupancy, located),
+        top=top,
+        bottom=bottom,
+        diffuse_attenuation=k,
+    )
+    if not hidden.any():
+        return plane
+    deficit = (1.0 - np.sqrt(np.maximum(1.0 - hidden, 0.0))).astype(np.float32)
+    seen, _ = plane.spread(deficit, far_out=False)
+    occlusion = 1.0 - seen / np.float32(np.exp(-water.diffuse_attenuation * grid.depth))
+    return _Plane(
+        levels=plane.levels,
+        spread=plane.spread,
+        tail=plane.tail,
+        reflectance=plane.reflectance,
+        bounds=(top_t.astype(np.float32), bottom_t.astype(np.float32)),
+        occlusion=occlusion.astype(np.float32),
+    )
 
 
 @dataclass(frozen=True)
@@ -403,6 +578,10 @@ class _Transmitted:
     tan_y: np.ndarray
     secant: np.ndarray
     transmittance: np.ndarray
+
+    def take(self, index: np.ndarray) -> _Transmitted:
+        """The rays at `index` (e.g. the pixels' block of the laser lattice)."""
+        return _Transmitted(**{name: getattr(self, name)[index] for name in _TRANSMITTED})
 
     def on_axes(self, grid: PlaneGrid, diffuse_attenuation: float) -> _Projected:
         """The rays in the horizontal axes of `grid`, ready to be crossed with any depth.
@@ -453,8 +632,20 @@ class _Projected:
     log_extra: np.ndarray
     log_extra_slope: np.ndarray
 
-    def cross(self, grid: PlaneGrid):
-        """Located rays on `grid` (at its depth) and their extra-path attenuation."""
+    def cross(self, levels: Levels):
+        """Rays on a plane (at its depth) and their extra-path attenuation.
+
+        Returns
+        -------
+        fine : Located
+            The rays on the fine grid (zero weight outside it).
+        extra : ndarray
+            Attenuation of each ray's extra slant path [1].
+        outside : tuple or None
+            ``(index, located)``: the rays that miss the fine grid, located on the coarse
+            grid; None when every ray lands on the fine grid.
+        """
+        grid = levels.fine
         z = np.float32(grid.depth)
         (o0, o1), (u0, u1), (v0, v1) = grid.origin, grid.axis_u, grid.axis_v
         col = self.slope_u * z
@@ -467,7 +658,13 @@ class _Projected:
         row *= np.float32(1.0 / grid.spacing_v)
         extra = self.log_extra_slope * z
         extra += self.log_extra
-        return grid.locate_cells(row, col), np.exp(extra, out=extra)
+        rows, cols = grid.shape
+        missing = np.flatnonzero((row < 0) | (row >= rows - 1) | (col < 0) | (col >= cols - 1))
+        outside = None
+        if missing.size:
+            coarse_row, coarse_col = levels.to_coarse(row[missing], col[missing])
+            outside = (missing, levels.coarse.locate_cells(coarse_row, coarse_col))
+        return grid.locate_cells(row, col), np.exp(extra, out=extra), outside
 
 
 def _ray_components(origins, directions):
@@ -560,13 +757,20 @@ def _through_surface(rays, surface, frame, refractive_index):
     )
 
 
+_TRANSMITTED = ("x", "y", "z", "tan_x", "tan_y", "secant", "transmittance")
+
+
 def _hidden_fraction(surface_depth, occupancy, *, top, bottom, diffuse_attenuation):
     """Fraction of a slab's backscatter lying behind the target along each line.
 
     Lines through the target's silhouette (weighted by `occupancy`) lose the part of the
-    single-scattering integral deeper than the target's surface.
+    single-scattering integral deeper than the target's surface. `top` and `bottom` are
+    the slab's bounds (scalars, or one per line: slant-range gates). Computed in float64,
+    so a float32 depth on a gate bound stays inside the slab.
     """
-    behind = np.clip(surface_depth, top, bottom)
+    top = np.asarray(top, dtype=np.float64)
+    bottom = np.maximum(np.asarray(bottom, dtype=np.float64), top)
+    behind = np.clip(np.asarray(surface_depth, dtype=np.float64), top, bottom)
 
     def slab(upper):
         return slab_backscatter_reflectance(
@@ -577,84 +781,162 @@ def _hidden_fraction(surface_depth, occupancy, *, top, bottom, diffuse_attenuati
             reference=top,
         )
 
-    return (occupancy * (slab(behind) / slab(top))).astype(np.float32)
+    part, whole = np.broadcast_arrays(slab(behind), slab(top))
+    share = np.divide(part, whole, out=np.zeros(part.shape), where=whole > 0)
+    return (occupancy * share).astype(np.float32)
 
 
-def _convolve(field, kernel):
-    """Periodic convolution: the field times a filter given on its rfft2 grid."""
-    return scipy.fft.irfft2(scipy.fft.rfft2(field) * kernel, s=field.shape)
+def _target_mask(silhouette: np.ndarray) -> np.ndarray:
+    """Pixels the target covers: at least half, or the most covered if none reaches half.
+
+    `silhouette` is the share of each pixel's line of sight inside the target's outline
+    (the rasterised silhouette at the pixel's crossing of the target plane). A target
+    smaller than a pixel still marks the pixel(s) it covers most, so a target in view
+    never has an empty mask.
+    """
+    mask = silhouette >= 0.5
+    if not mask.any() and silhouette.max(initial=0.0) > 0:
+        mask = silhouette >= silhouette.max()
+    return mask.astype(np.uint8)
 
 
 def _render_frame(setup: _Setup, geometry: _FrameGeometry, surface, frame: int):
     n_w = setup.water.refractive_index
     K = setup.water.diffuse_attenuation
-    laser = geometry.laser
     down = _through_surface(geometry.laser_rays, surface, frame, n_w)
-    if geometry.monostatic:
-        up = down
+    if geometry.pixel_index is not None:
+        up = down.take(geometry.pixel_index)
     else:
         up = _through_surface(geometry.pixel_rays, surface, frame, n_w)
-    power = laser.power * down.transmittance
+    power = geometry.laser_power * down.transmittance
 
     axes_grid = (geometry.target_plane or geometry.gate_planes[0]).grid
     down_axes = down.on_axes(axes_grid, K)
-    up_axes = down_axes if up is down else up.on_axes(axes_grid, K)
+    up_axes = up.on_axes(axes_grid, K)
 
-    def crossing(plane):
-        """Rays and lines of sight on a plane: (rays, sight, ray power, sight weight)."""
-        rays, lextra = down_axes.cross(plane.grid)
-        if up is down:
-            return rays, rays, power * lextra, up.transmittance * lextra
-        sight, pextra = up_axes.cross(plane.grid)
-        return rays, sight, power * lextra, up.transmittance * pextra
+    def sources(plane, rays, outside, ray_power):
+        """The rays' power on the plane: fine splat, and the coarse light outside it."""
+        fine = plane.grid.splat(rays, ray_power)
+        coarse = plane.tail
+        if outside is not None:
+            index, located = outside
+            spilled = plane.levels.coarse.splat(located, ray_power[index])
+            coarse = spilled if coarse is None else coarse + spilled
+        return fine, coarse
+
+    def sight_on(plane):
+        located, extra, _ = up_axes.cross(plane.levels)
+        return located, up.transmittance * extra
 
     pixels = setup.scene.receiver.pixels
     images = np.zeros((len(setup.gates), pixels * pixels), dtype=np.float32)
     mask = np.zeros(pixels * pixels, dtype=np.uint8)
     impostor = geometry.impostor
+    lit = np.empty(0, dtype=np.intp)
     if impostor is not None:
         plane = geometry.target_plane
         grid = plane.grid
-        rays, sight, ray_power, sight_weight = crossing(plane)
+        rays, extra, outside = down_axes.cross(plane.levels)
+        target_rays = rays
+        sight, sight_weight = sight_on(plane)
         occupancy = grid.gather(impostor.occupancy, rays)
         surface_depth = grid.gather(impostor.surface_depth, rays)
-        silhouette = occupancy if sight is rays else grid.gather(impostor.occupancy, sight)
-        mask = (silhouette > 0.5).astype(np.uint8)
-        irradiance = _convolve(grid.splat(rays, ray_power), plane.filter)
-        done = {}
-        for g, weights in enumerate(geometry.target_masks):
-            if weights is None:
-                continue
-            if id(weights) not in done:
-                radiance = _convolve(irradiance * weights, plane.filter)
-                done[id(weights)] = grid.gather(radiance, sight) * sight_weight
-            images[g] += done[id(weights)]
-    transmitted = {}
+        lit = np.flatnonzero(occupancy)
+        mask = _target_mask(grid.gather(impostor.occupancy, sight))
+        irradiance, beyond = plane.spread(*sources(plane, rays, outside, power * extra))
+        light = geometry.target_light
+        for (weights, coarse), gates in zip(light.weights, light.gates, strict=True):
+            radiance, _ = plane.spread(
+                irradiance * weights, None if coarse is None else beyond * coarse, far_out=False
+            )
+            seen = grid.gather(radiance, sight) * sight_weight
+            for g in gates:
+                images[g] += seen
     for g, plane in enumerate(geometry.gate_planes):
-        rays, sight, ray_power, sight_weight = crossing(plane)
-        if plane.hiding is not None:
-            if plane.hiding not in transmitted:
-                # rays lose the part of the slab behind the target (all of it, in its
-                # shadow); only rays that meet the target's silhouette lose anything
-                if "lit" not in transmitted:
-                    transmitted["lit"] = np.flatnonzero(occupancy)
-                lit = transmitted["lit"]
-                hidden = occupancy[lit]
-                if plane.hiding != ("shadow",):
-                    top, bottom = plane.hiding
-                    hidden = _hidden_fraction(
-                        surface_depth[lit], hidden, top=top, bottom=bottom, diffuse_attenuation=K
-                    )
-                factor = np.ones_like(occupancy)
-                factor[lit] = np.sqrt(np.maximum(1.0 - hidden, 0.0))
-                transmitted[plane.hiding] = factor
-            ray_power *= transmitted[plane.hiding]
-        radiance = _convolve(plane.grid.splat(rays, ray_power), plane.filter)
+        rays, extra, outside = down_axes.cross(plane.levels)
+        sight, sight_weight = sight_on(plane)
+        ray_power = power * extra
+        if plane.bounds is not None and lit.size:
+            # rays that meet the target lose the part of the slab behind it
+            on_target = Located(target_rays.corners[:, lit], target_rays.weights[:, lit])
+            top, bottom = (geometry.target_plane.grid.gather(b, on_target) for b in plane.bounds)
+            hidden = _hidden_fraction(
+                surface_depth[lit],
+                occupancy[lit],
+                top=top,
+                bottom=bottom,
+                diffuse_attenuation=K * setup.secant,
+            )
+            ray_power[lit] *= np.sqrt(np.maximum(1.0 - hidden, 0.0))
+        fine, coarse = plane.spread(*sources(plane, rays, outside, ray_power))
+        reflectance_fine, reflectance_coarse = plane.reflectance
+        radiance, _ = plane.spread(
+            fine * reflectance_fine, coarse * reflectance_coarse, far_out=False
+        )
         if plane.occlusion is not None:
             radiance *= plane.occlusion
         images[g] += plane.grid.gather(radiance, sight) * sight_weight
     images *= np.float32(setup.scale)
     return images.reshape(len(setup.gates), pixels, pixels), mask.reshape(pixels, pixels)
+
+
+@functools.lru_cache(maxsize=256)
+def _visibility(key: str) -> tuple[int, ...]:
+    r"""Label of the target against each gate, from what a flat sea's pixels would show.
+
+    On the first frame's target plane under a flat sea, without blur, two sums run over the
+    target's silhouette, in units of a white plane just under the surface:
+
+    - the target's return in the gate, :math:`T = \sum w\,e^{-2K\sec\vartheta\,z_s}` over
+      the cells whose surface depth z_s lies in the slab the cell's line of sight gates;
+    - the gate's water the target hides, :math:`H = \sum o\,\pi\beta(\pi)\sec^2\vartheta
+      \int_{\max(z_s, top)}^{bottom} e^{-2K\sec\vartheta\,z}dz`.
+
+    The rule: no target, or no part of its silhouette in the image: ``none``; T > H (the
+    target shows brighter than the water it hides): ``in_gate``; otherwise, if it hides
+    any of the slab (geometrically, whatever β(π)): ``shadow``; else ``below_gate`` (its
+    visible surface lies below the slab: the pixels show nothing of it).
+    """
+    setup = _setup(key)
+    scene = setup.scene
+    count = len(setup.gates)
+    if scene.target.shape == "none":
+        return (VISIBILITY["none"],) * count
+    water = setup.water
+    sensor = _sensor(setup, 0)
+    grid = _fine_grid(sensor, scene.target.depth, water.refractive_index, guard=4, multiple=1)
+    impostor = _impostor(setup, grid)
+    sights = flat_sea_point(
+        origin=sensor.position,
+        direction=sensor.camera.pixel_directions().reshape(-1, 3),
+        depth=grid.depth,
+        refractive_index=water.refractive_index,
+    )
+    if not grid.gather(impostor.occupancy, grid.locate(sights[:, 0], sights[:, 1])).any():
+        return (VISIBILITY["none"],) * count
+    k = water.diffuse_attenuation * setup.secant
+    occupancy = impostor.occupancy.astype(np.float64)
+    depth = np.where(occupancy > 0, impostor.surface_depth, grid.depth).astype(np.float64)
+    labels = []
+    for paths in sensor.paths:
+        top, bottom, _ = _gate_bounds(sensor, grid, paths, water.refractive_index)
+        inside = (depth >= top) & (depth <= bottom) & (occupancy > 0)
+        shown = float(np.sum(impostor.weight * inside * np.exp(-2 * k * depth)))
+        slab = setup.secant**2 * slab_backscatter_reflectance(
+            backscatter_pi=1.0,
+            diffuse_attenuation=k,
+            top=np.clip(depth, top, np.maximum(bottom, top)),
+            bottom=np.maximum(bottom, top),
+            reference=0.0,
+        )
+        behind = float(np.sum(occupancy * slab))
+        if shown > water.backscatter_pi * behind:
+            labels.append(VISIBILITY["in_gate"])
+        elif behind > 0:
+            labels.append(VISIBILITY["shadow"])
+        else:
+            labels.append(VISIBILITY["below_gate"])
+    return tuple(labels)
 
 
 def sample_labels(scene: Scene) -> xr.Dataset:
@@ -683,7 +965,7 @@ def sample_labels(scene: Scene) -> xr.Dataset:
         ),
         "target_visibility": (
             ("gate",),
-            np.asarray(setup.visibility, dtype=np.uint8),
+            np.asarray(_visibility(scene.model_dump_json()), dtype=np.uint8),
             {
                 "long_name": "target position relative to the gate",
                 "units": "1",

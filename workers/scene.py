@@ -211,6 +211,14 @@ class Water(_Model):
     refractive_index: float = Field(
         1.34, ge=1.0, le=2.0, description="Refractive index of sea water [1] (paper: 1.34)."
     )
+    psf_truncation: float | None = Field(
+        None,
+        ge=0.5,
+        lt=1.0,
+        description="Share of the scattered light at which the point-spread function is "
+        "cut off, light scattered further being dropped (the paper cuts at 0.95); null: "
+        "the whole function [1].",
+    )
 
     @model_validator(mode="after")
     def _complete(self) -> Water:
