@@ -12,7 +12,7 @@ import xarray as xr
 from workers.geometry import LaserRays, PlaneGrid
 
 
-def plane_grid(camera, *, depth, refractive_index=1.34, guard=0.125):
+def plane_grid(camera, *, depth, refractive_index=1.34, guard=4):
     """The renderer's plane grid for `camera` lit by the default (matching) laser."""
     laser = LaserRays.from_platform(
         position=camera.position,

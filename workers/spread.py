@@ -321,8 +321,9 @@ class Spread:
         far filter is divided by the transfer function of the fine-to-coarse block mean
         and of the bilinear return, about [sinc(f_u Δ_u) sinc(f_v Δ_v) / sinc(f_u δ_u)
         sinc(f_v δ_v)]³ (δ the fine spacing; 1 when the levels coincide), so the two
-        levels add up to the MTF within the coarse band. With `truncation`, the far kernel is cut in
-        space at `encircled_radius` of that share (the near kernel lies well inside it).
+        levels add up to the MTF within the coarse band. With `truncation`, the far kernel
+        is cut in space at `encircled_radius` of that share (the near kernel lies well
+        inside it).
         """
         fine, coarse = levels.fine, levels.coarse
         delta = max(coarse.spacing_u, coarse.spacing_v)
