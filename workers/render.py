@@ -11,14 +11,14 @@ The image-formation model, per frame:
    the pixels' pitch over the image and a guard band around it, and its tail beyond that
    (out to `BEAM_EXTENT` times its 1/e radius) is refracted by the mean, flat sea onto the
    coarse level of each plane (`workers.spread`).
-2. Each gate opens and closes on slant range (`workers.gates`): every line of sight gates
-   its own depth slab. A gate's single-scattering water backscatter is an effective
-   Lambertian reflectance map on a reference plane at the central slab's centroid depth:
-   laser rays are splatted where they cross that plane (each with the attenuation of its
-   extra slant path), spread by the Wells point-spread function (linearly, without
-   wrap-around: `workers.spread.Spread`), multiplied by the reflectance of the slab each
-   cell's line of sight gates, spread again on the way up and gathered where each pixel's
-   ray crosses the plane, times the exit transmittance.
+2. Each gate opens and closes on slant range (`workers.gates`). A gate's single-scattering
+   water backscatter is an effective Lambertian reflectance on a reference plane at the
+   central slab's centroid depth: laser rays are splatted where they cross that plane
+   (each with the attenuation of its extra slant path), spread by the Wells point-spread
+   function down and up in one product (reflectance × MTF², linear, without wrap-around:
+   `workers.spread.Spread`) and gathered where each pixel's ray crosses the plane, times
+   the exit transmittance. The slant-range timing enters as one gain per laser ray and per
+   pixel, from its air path (`_delay`): a ray longer in the air gates a shallower slab.
 3. The target is an impostor on the plane through its centre: downwelling irradiance
    there times its reflectance map, attenuated from each cell's true depth on the target
    (not from the centre plane), restricted to the part of the target inside the gate,
@@ -32,9 +32,9 @@ The image-formation model, per frame:
 
 Approximations beyond the paper's, at oblique views: the Wells spread is computed for the
 vertical range to each plane (it underestimates the blur by about 1/cos ϑ in the water),
-while attenuation follows each ray's slant path; a gate's reflectance map is placed on
-one plane, so the blur of a slab that slant gating moves up or down across the image is
-taken at the central slab's depth.
+while attenuation follows each ray's slant path; a gate's slab is weighted with the central
+ray's in-water angle and blurred at the central slab's depth wherever slant gating moves
+it; the target's own cells are gated on their lines of sight.
 """
 
 from __future__ import annotations
@@ -153,6 +153,8 @@ class _Setup:
     conditioning: Kriging | None
     gates: tuple[tuple[float, float], ...]
     reference_depths: tuple[float, ...]
+    reflectances: tuple[float, ...]
+    delay_caps: tuple[float, ...]
     scale: float
     refracted_nadir: float
     secant: float
@@ -180,6 +182,22 @@ def _setup(key: str) -> _Setup:
         )
         for top, bottom in gates
     )
+    # Seen at an angle ϑ in the water, a slab's volume return grows as 1/cos²ϑ (the normal
+    # irradiance is E/cosϑ and the path through dz is dz/cosϑ) and fades as e^(-2Kz/cosϑ).
+    K = water.diffuse_attenuation * secant
+    reflectances = tuple(
+        float(
+            secant**2
+            * slab_backscatter_reflectance(
+                backscatter_pi=water.backscatter_pi,
+                diffuse_attenuation=K,
+                top=top,
+                bottom=bottom,
+                reference=reference,
+            )
+        )
+        for (top, bottom), reference in zip(gates, references, strict=True)
+    )
     t0 = 1.0 - float(fresnel_reflectance(1.0, n1=1.0, n2=w.refractive_index))
     photons = scene.noise.photons
     scale = (photons if photons > 0 else 1.0) / t0**2
@@ -190,6 +208,8 @@ def _setup(key: str) -> _Setup:
         conditioning=scene.surface.kriging(),
         gates=gates,
         reference_depths=references,
+        reflectances=reflectances,
+        delay_caps=tuple(float(w.refractive_index * top * secant) for top, _ in gates),
         scale=scale,
         refracted_nadir=refracted_nadir,
         secant=float(secant),
@@ -207,6 +227,11 @@ class _Sensor:
     reference_range: float
     lattice: tuple
     paths: np.ndarray
+
+    @property
+    def central_air(self) -> float:
+        """Air path of the central ray to mean sea level [m]."""
+        return float(self.position[2] / np.cos(self.camera.nadir))
 
 
 def _sensor(setup: _Setup, frame: int) -> _Sensor:
@@ -259,38 +284,19 @@ def _gate_bounds(sensor: _Sensor, grid: PlaneGrid, paths, refractive_index):
     return top, bottom, 1.0 / cos_water
 
 
-def _gate_reflectance(water: WaterOptics, sensor: _Sensor, grid: PlaneGrid, paths):
-    r"""Backscatter reflectance map of a gate on `grid`, referred to the grid's depth.
-
-    Each cell's line of sight at in-water angle ϑ gates the slab [top, bottom]; its volume
-    return grows as sec²ϑ (normal irradiance E/cos ϑ, path dz/cos ϑ) and fades as
-    :math:`e^{-2K\sec\vartheta\,(z - z_{plane})}` (`slab_backscatter_reflectance`).
-    """
-    top, bottom, secant = _gate_bounds(sensor, grid, paths, water.refractive_index)
-    reflectance = secant**2 * slab_backscatter_reflectance(
-        backscatter_pi=water.backscatter_pi,
-        diffuse_attenuation=water.diffuse_attenuation * secant,
-        top=top,
-        bottom=bottom,
-        reference=grid.depth,
-    )
-    return reflectance.astype(np.float32)
-
-
 @dataclass(frozen=True)
 class _Plane:
     """An in-water plane: its two-level grid, spread, and the beam tail landing on it.
 
-    For a gate, `reflectance` holds the backscatter map (fine, coarse); where the target
-    hides part of the gate's water, `bounds` holds the gate's slab bounds on the target
-    plane's grid (for the rays that meet the target) and `occlusion` the square root of
-    the fraction not hidden, seen back through the upwelling point-spread function.
+    For a gate, `spread` is the round trip (the slab's reflectance times MTF²); where the
+    target hides part of the gate's water, `bounds` holds the gate's slab bounds on the
+    target plane's grid (for the rays that meet the target) and `occlusion` the square root
+    of the fraction not hidden, seen back through the upwelling point-spread function.
     """
 
     levels: Levels
     spread: Spread
     tail: np.ndarray | None
-    reflectance: tuple[np.ndarray, np.ndarray] | None = None
     bounds: tuple[np.ndarray, np.ndarray] | None = None
     occlusion: np.ndarray | None = None
 
@@ -317,6 +323,7 @@ class _FrameGeometry:
     """Geometry of one frame: sensor rays, planes, filters and the target impostor."""
 
     position: np.ndarray
+    central_air: float
     pixel_rays: tuple
     laser_rays: tuple
     laser_power: np.ndarray
@@ -346,12 +353,16 @@ def _fine_grid(sensor: _Sensor, depth: float, n_w: float, *, guard: int, multipl
     )
 
 
-def _plane_levels(setup: _Setup, sensor: _Sensor, depth: float) -> tuple[Levels, int]:
-    """The two-level grid of a plane, and its fine guard band [cells]."""
+def _plane_levels(setup: _Setup, sensor: _Sensor, depth: float, passes: int) -> tuple[Levels, int]:
+    """The two-level grid of a plane, and its fine guard band [cells].
+
+    The coarse margin holds `SPREAD_FRACTION` of the scattered light one way, twice that
+    radius for a round trip (two independent spreads).
+    """
     n_w = setup.water.refractive_index
     bare = _fine_grid(sensor, depth, n_w, guard=0, multiple=1)
     spacing = min(bare.spacing_u, bare.spacing_v)
-    margin = encircled_radius(setup.water, distance=depth, fraction=SPREAD_FRACTION)
+    margin = passes * encircled_radius(setup.water, distance=depth, fraction=SPREAD_FRACTION)
     span = max(bare.shape) * spacing
     factor = coarse_factor(spacing=spacing, extent=span + 2 * margin)
     guard = max(int(np.ceil(GUARD * sensor.camera.pixels)), NEAR_SUPPORT * factor)
@@ -359,8 +370,11 @@ def _plane_levels(setup: _Setup, sensor: _Sensor, depth: float) -> tuple[Levels,
     return Levels.around(fine, factor=factor, margin=margin), guard
 
 
-def _beam_tail(setup: _Setup, sensor: _Sensor, levels: Levels, tail: LaserRays):
-    """The beam tail's irradiance on the coarse grid under the mean (flat) sea."""
+def _beam_tail(setup: _Setup, sensor: _Sensor, levels: Levels, tail: LaserRays, cap=None):
+    """The beam tail's irradiance on the coarse grid under the mean (flat) sea.
+
+    With `cap` (a gate's delay cap [m]), each ray carries its gate delay (`_delay`).
+    """
     if tail.power.size == 0:
         return None
     water, grid = setup.water, levels.coarse
@@ -372,7 +386,11 @@ def _beam_tail(setup: _Setup, sensor: _Sensor, levels: Levels, tail: LaserRays):
     cos_water = np.sqrt(1.0 - (1.0 - cos_air**2) / n_w**2)
     transmittance = 1.0 - fresnel_reflectance(cos_air, n1=1.0, n2=n_w)
     extra = np.exp(-water.diffuse_attenuation * grid.depth * (1.0 / cos_water - 1.0))
-    power = (tail.power * transmittance * extra).astype(np.float32)
+    power = tail.power * transmittance * extra
+    if cap is not None:
+        air = -(tail.origins[:, 2]) / tail.directions[:, 2]
+        power = power * _delay(air - sensor.central_air, setup, cap)
+    power = power.astype(np.float32)
     return grid.splat(grid.locate(points[:, 0], points[:, 1]), power)
 
 
@@ -385,7 +403,11 @@ def _frame_geometry(key: str, frame: int) -> _FrameGeometry:
     camera, r = sensor.camera, scene.receiver
     t = scene.target
     depths = ([t.depth] if t.shape != "none" else []) + list(setup.reference_depths)
-    built = [_plane_levels(setup, sensor, depth) for depth in depths]
+    passes = ([1] if t.shape != "none" else []) + [2] * len(setup.gates)
+    built = [
+        _plane_levels(setup, sensor, depth, count)
+        for depth, count in zip(depths, passes, strict=True)
+    ]
     # the laser lattice covers the largest guard band, within the beam's extent
     rays = sensor.laser_rays
     margin = max(guard for _, guard in built) + 2
@@ -423,13 +445,22 @@ def _frame_geometry(key: str, frame: int) -> _FrameGeometry:
         block = np.arange(margin, margin + rays)
         pixel_index = (block[:, None] * side + block[None, :]).ravel()
 
+    gains = ([1.0] if t.shape != "none" else []) + list(setup.reflectances)
+    caps = ([None] if t.shape != "none" else []) + list(setup.delay_caps)
     planes = []
-    for (levels, _), depth in zip(built, depths, strict=True):
+    for (levels, _), depth, count, gain, cap in zip(
+        built, depths, passes, gains, caps, strict=True
+    ):
         spread = Spread.build(
-            water=water, levels=levels, distance=depth, truncation=scene.water.psf_truncation
+            water=water,
+            levels=levels,
+            distance=depth,
+            truncation=scene.water.psf_truncation,
+            passes=count,
+            gain=gain,
         )
         planes.append(
-            _Plane(levels=levels, spread=spread, tail=_beam_tail(setup, sensor, levels, tail))
+            _Plane(levels=levels, spread=spread, tail=_beam_tail(setup, sensor, levels, tail, cap))
         )
     target_plane = impostor = target_light = None
     if t.shape != "none":
@@ -439,19 +470,13 @@ def _frame_geometry(key: str, frame: int) -> _FrameGeometry:
     gate_planes = []
     for g, plane in enumerate(planes):
         paths = sensor.paths[g]
-        reflectance = (
-            _gate_reflectance(water, sensor, plane.grid, paths),
-            _gate_reflectance(water, sensor, plane.levels.coarse, paths),
-        )
-        plane = _Plane(
-            levels=plane.levels, spread=plane.spread, tail=plane.tail, reflectance=reflectance
-        )
         if impostor is not None:
             plane = _with_hiding(setup, sensor, plane, paths, target_plane.grid, impostor)
         gate_planes.append(plane)
     pixel_directions = camera.pixel_directions().reshape(-1, 3)
     return _FrameGeometry(
         position=sensor.position,
+        central_air=sensor.central_air,
         pixel_rays=_ray_components(sensor.position, pixel_directions),
         laser_rays=_ray_components(laser.origins, laser.directions),
         laser_power=laser.power.astype(np.float32),
@@ -555,13 +580,19 @@ def _with_hiding(setup, sensor, plane, paths, target_grid, impostor) -> _Plane:
     if not hidden.any():
         return plane
     deficit = (1.0 - np.sqrt(np.maximum(1.0 - hidden, 0.0))).astype(np.float32)
-    seen, _ = plane.spread(deficit, far_out=False)
+    # seen back through the one-way (upwelling) spread, normalised to keep its level
+    upwelling = Spread.build(
+        water=water,
+        levels=plane.levels,
+        distance=grid.depth,
+        truncation=setup.scene.water.psf_truncation,
+    )
+    seen, _ = upwelling(deficit, far_out=False)
     occlusion = 1.0 - seen / np.float32(np.exp(-water.diffuse_attenuation * grid.depth))
     return _Plane(
         levels=plane.levels,
         spread=plane.spread,
         tail=plane.tail,
-        reflectance=plane.reflectance,
         bounds=(top_t.astype(np.float32), bottom_t.astype(np.float32)),
         occlusion=occlusion.astype(np.float32),
     )
@@ -571,6 +602,7 @@ def _with_hiding(setup, sensor, plane, paths, target_grid, impostor) -> _Plane:
 class _Transmitted:
     """Rays after the surface: entry point, in-water slopes, Fresnel transmittance."""
 
+    air: np.ndarray
     x: np.ndarray
     y: np.ndarray
     z: np.ndarray
@@ -747,6 +779,7 @@ def _through_surface(rays, surface, frame, refractive_index):
     r_p = (n_w * cos_i - cos_t) / (n_w * cos_i + cos_t)
     transmittance = 1.0 - 0.5 * (r_s * r_s + r_p * r_p)
     return _Transmitted(
+        air=np.asarray(travel, dtype=np.float32),
         x=np.asarray(ox + travel * dx, dtype=np.float32),
         y=np.asarray(oy + travel * dy, dtype=np.float32),
         z=np.asarray(eta, dtype=np.float32),
@@ -757,7 +790,7 @@ def _through_surface(rays, surface, frame, refractive_index):
     )
 
 
-_TRANSMITTED = ("x", "y", "z", "tan_x", "tan_y", "secant", "transmittance")
+_TRANSMITTED = ("air", "x", "y", "z", "tan_x", "tan_y", "secant", "transmittance")
 
 
 def _hidden_fraction(surface_depth, occupancy, *, top, bottom, diffuse_attenuation):
@@ -786,6 +819,40 @@ def _hidden_fraction(surface_depth, occupancy, *, top, bottom, diffuse_attenuati
     return (occupancy * share).astype(np.float32)
 
 
+def _delay(excess, setup: _Setup, cap=None):
+    r"""Gain of a gate's water return for a ray that spent `excess` longer in the air.
+
+    A gate closes at a fixed time, so a ray whose air path (laser ray down, pixel's line of
+    sight up) is longer by τ than the central ray's reaches τ/n less far in the water within
+    the gate: half the round trip's shift of the slab, 0.5·τ cos ϑ/n in depth, for each of
+    the two paths. The slab's single-scattering return,
+    :math:`\propto e^{-2K\secartheta\,(z_{top} + \delta)}`, then gains
+    :math:`e^{K	au/n}` per path, exactly for a slab that stays under the surface, so the
+    gate's slant-range timing is one factor on each laser ray and each pixel. `cap` is the
+    excess that lifts the gate's top to the surface (n·top·sec ϑ [m]); beyond it the slab
+    is held at the surface.
+
+    Parameters
+    ----------
+    excess : float or ndarray
+        Air path less the central ray's [m].
+    setup : _Setup
+        The scene.
+    cap : float, optional
+        Largest excess counted [m].
+
+    Returns
+    -------
+    ndarray
+        The gain [1], float32.
+    """
+    rate = setup.water.diffuse_attenuation / setup.water.refractive_index
+    excess = np.asarray(excess, dtype=np.float32)
+    if cap is not None:
+        excess = np.minimum(excess, np.float32(cap))
+    return np.exp(np.float32(rate) * excess)
+
+
 def _target_mask(silhouette: np.ndarray) -> np.ndarray:
     """Pixels the target covers: at least half, or the most covered if none reaches half.
 
@@ -810,6 +877,8 @@ def _render_frame(setup: _Setup, geometry: _FrameGeometry, surface, frame: int):
         up = _through_surface(geometry.pixel_rays, surface, frame, n_w)
     power = geometry.laser_power * down.transmittance
 
+    down_delay = _delay(down.air - np.float32(geometry.central_air), setup)
+    up_delay = _delay(up.air - np.float32(geometry.central_air), setup)
     axes_grid = (geometry.target_plane or geometry.gate_planes[0]).grid
     down_axes = down.on_axes(axes_grid, K)
     up_axes = up.on_axes(axes_grid, K)
@@ -868,14 +937,14 @@ def _render_frame(setup: _Setup, geometry: _FrameGeometry, surface, frame: int):
                 diffuse_attenuation=K * setup.secant,
             )
             ray_power[lit] *= np.sqrt(np.maximum(1.0 - hidden, 0.0))
-        fine, coarse = plane.spread(*sources(plane, rays, outside, ray_power))
-        reflectance_fine, reflectance_coarse = plane.reflectance
-        radiance, _ = plane.spread(
-            fine * reflectance_fine, coarse * reflectance_coarse, far_out=False
-        )
+        cap = setup.delay_caps[g]
+        ray_power *= np.minimum(down_delay, _delay(cap, setup))
+        radiance, _ = plane.spread(*sources(plane, rays, outside, ray_power), far_out=False)
         if plane.occlusion is not None:
             radiance *= plane.occlusion
-        images[g] += plane.grid.gather(radiance, sight) * sight_weight
+        seen = plane.grid.gather(radiance, sight) * sight_weight
+        seen *= np.minimum(up_delay, _delay(cap, setup))
+        images[g] += seen
     images *= np.float32(setup.scale)
     return images.reshape(len(setup.gates), pixels, pixels), mask.reshape(pixels, pixels)
 

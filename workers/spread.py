@@ -68,7 +68,7 @@ _HANKEL_X = np.linspace(0.0, 200.0, 4001)
 """Quadrature nodes of the encircled-energy integral in x = 2πfR [1]."""
 
 
-def scattered_mtf(water: WaterOptics, frequency, *, distance):
+def scattered_mtf(water: WaterOptics, frequency, *, distance, passes=1):
     r"""Scattered part of the Wells MTF: the MTF less its unscattered share e^(−cz).
 
     Parameters
@@ -79,16 +79,18 @@ def scattered_mtf(water: WaterOptics, frequency, *, distance):
         Spatial frequency magnitude f on the plane [cycles/m].
     distance : float
         Water path z from the source plane [m].
+    passes : int, optional
+        1 for one way; 2 for the round trip down and up the same path (MTF²).
 
     Returns
     -------
     float or ndarray
-        :math:`e^{-cz}\left(e^{b_f z D(fz)} - 1\right)` [1], float64; at f = 0 it is
-        :math:`e^{-Kz} - e^{-cz}`, the scattered share of the light.
+        :math:`e^{-pcz}\left(e^{p\,b_f z D(fz)} - 1\right)` [1] for p passes, float64; at
+        f = 0 and p = 1 it is :math:`e^{-Kz} - e^{-cz}`, the scattered share of the light.
     """
     psi = np.abs(np.asarray(frequency, dtype=np.float64)) * distance
-    exponent = water.forward_scattering * distance * water.mtf_exponent(psi)
-    return (np.exp(-water.attenuation * distance) * np.expm1(exponent))[()]
+    exponent = passes * water.forward_scattering * distance * water.mtf_exponent(psi)
+    return (np.exp(-passes * water.attenuation * distance) * np.expm1(exponent))[()]
 
 
 @functools.lru_cache(maxsize=256)
@@ -293,7 +295,14 @@ class Spread:
 
     @classmethod
     def build(
-        cls, *, water: WaterOptics, levels: Levels, distance: float, truncation: float | None
+        cls,
+        *,
+        water: WaterOptics,
+        levels: Levels,
+        distance: float,
+        truncation: float | None,
+        passes: int = 1,
+        gain: float = 1.0,
     ) -> Spread:
         r"""The filters of the water path `distance` for the plane `levels`.
 
@@ -309,6 +318,10 @@ class Spread:
             If set, the share of the scattered light at which the point-spread function
             is cut off (the paper truncates it at 0.95): light scattered further is
             dropped. None keeps the whole function.
+        passes : int, optional
+            1: one way (MTF); 2: down and up the same path in one product (MTF²).
+        gain : float, optional
+            A factor on the whole filter, e.g. a uniform reflectance between the passes.
 
         Returns
         -------
@@ -330,8 +343,8 @@ class Spread:
         cutoff = 1.0 / (4.0 * delta)
         f_fine = fine.frequency()
         low = np.exp(-((f_fine / cutoff) ** 2))
-        mtf = water.mtf(f_fine, distance=distance).astype(np.float64)
-        near = mtf - scattered_mtf(water, f_fine, distance=distance) * low
+        mtf = water.mtf(f_fine, distance=distance).astype(np.float64) ** passes
+        near = mtf - scattered_mtf(water, f_fine, distance=distance, passes=passes) * low
         rows, cols = coarse.shape
         fv = np.fft.fftfreq(rows, d=coarse.spacing_v)[:, None]
         fu = np.fft.rfftfreq(cols, d=coarse.spacing_u)[None, :]
@@ -342,9 +355,9 @@ class Spread:
             * np.sinc(fv * coarse.spacing_v)
             / np.sinc(fv * fine.spacing_v)
         ) ** 3
-        scattered = scattered_mtf(water, f_coarse, distance=distance)
+        scattered = scattered_mtf(water, f_coarse, distance=distance, passes=passes)
         far = scattered * np.exp(-((f_coarse / cutoff) ** 2)) / transfer
-        unscattered = np.exp(-water.attenuation * distance)
+        unscattered = np.exp(-passes * water.attenuation * distance)
         if truncation is not None:
             radius = encircled_radius(water, distance=distance, fraction=truncation)
             kernel = scipy.fft.irfft2(far, s=coarse.shape)
@@ -358,9 +371,9 @@ class Spread:
             scattered = scipy.fft.rfft2(kernel).real
         return cls(
             levels=levels,
-            near=near.astype(np.float32),
-            far=far.astype(np.float32),
-            whole=(unscattered + scattered).astype(np.float32),
+            near=(gain * near).astype(np.float32),
+            far=(gain * far).astype(np.float32),
+            whole=(gain * (unscattered + scattered)).astype(np.float32),
         )
 
     def __call__(self, fine: np.ndarray, coarse: np.ndarray | None = None, *, far_out=True):
