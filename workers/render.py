@@ -22,7 +22,7 @@ The image-formation model (DESIGN §3.5), per frame:
    target's surface, half on the way down and half on the way up (square roots), which is
    exact without scattering and gives a full shadow when the target is above the gate.
 5. Images are scaled so that a ρ = 1 Lambertian plane just under a flat sea at nadir gives
-   `noise.photons` counts, then Poisson shot noise is drawn.
+   `radiometry.white_plane_photons` counts, then Poisson shot noise is drawn.
 
 Approximations beyond the paper's, at oblique views: the Wells spread is computed for the
 vertical range to each plane (it underestimates the blur by about 1/cos ϑ in the water),
@@ -113,7 +113,7 @@ def render(scene: Scene, *, seed: int | SampleSeed) -> xr.Dataset:
         masks.append(mask)
     expected = np.stack(expected)
     noise = scene.noise
-    if noise.photons > 0:
+    if scene.radiometry.white_plane_photons > 0:
         image = shot_noise(
             expected, rng=seed.noise_rng(), gain=noise.gain, excess_noise=noise.excess_noise
         )
@@ -171,7 +171,7 @@ def _setup(key: str) -> _Setup:
         for (top, bottom), reference in zip(gates, references, strict=True)
     )
     t0 = 1.0 - float(fresnel_reflectance(1.0, n1=1.0, n2=w.refractive_index))
-    photons = scene.noise.photons
+    photons = scene.radiometry.white_plane_photons
     scale = (photons if photons > 0 else 1.0) / t0**2
     return _Setup(
         scene=scene,
@@ -705,7 +705,7 @@ def sample_labels(scene: Scene) -> xr.Dataset:
 
 def _dataset(scene, expected, image, masks, surface):
     units = "1"
-    if scene.noise.photons > 0:
+    if scene.radiometry.white_plane_photons > 0:
         units = "photoelectrons" if scene.noise.gain == 1.0 else "counts"
     frames = scene.sequence.frames
     ds = sample_labels(scene)
@@ -719,7 +719,7 @@ def _dataset(scene, expected, image, masks, surface):
         expected.astype(np.float32, copy=False),
         {
             "long_name": "expected (noise-free) gated receiver image",
-            "units": "photoelectrons" if scene.noise.photons > 0 else "1",
+            "units": "photoelectrons" if scene.radiometry.white_plane_photons > 0 else "1",
         },
     )
     ds["target_mask"] = (

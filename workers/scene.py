@@ -24,6 +24,7 @@ __all__ = [
     "Laser",
     "Noise",
     "Platform",
+    "Radiometry",
     "Receiver",
     "Scene",
     "Sequence",
@@ -356,16 +357,25 @@ class Receiver(_Model):
         return tuple((float(top), float(bottom)) for top, bottom in self.gates)
 
 
-class Noise(_Model):
-    """Sensor noise: Poisson shot noise, optionally amplified by an ICCD."""
+class Radiometry(_Model):
+    """How the renderer's signal becomes photoelectrons."""
 
-    photons: float = Field(
+    mode: Literal["normalised"] = Field(
+        "normalised",
+        description="`normalised`: the brightness is fixed per scene by `white_plane_photons`.",
+    )
+    white_plane_photons: float = Field(
         13.0,
         ge=0.0,
         le=1.0e9,
         description="Mean photoelectrons a pixel gets from a ρ = 1 Lambertian plane just under "
         "a flat sea at nadir, no water path [1]; 0: no noise, signal in units of that plane.",
     )
+
+
+class Noise(_Model):
+    """Sensor noise: Poisson shot noise, optionally amplified by an ICCD."""
+
     gain: float = Field(1.0, ge=1.0, le=1.0e6, description="ICCD gain [counts/photoelectron].")
     excess_noise: float = Field(
         1.0, ge=1.0, le=10.0, description="Excess-noise factor F of the intensifier [1]."
@@ -391,6 +401,7 @@ class Scene(_Model):
     platform: Platform = Platform()
     laser: Laser = Laser()
     receiver: Receiver = Receiver()
+    radiometry: Radiometry = Radiometry()
     noise: Noise = Noise()
     sequence: Sequence = Sequence()
     save_surface: bool = Field(
