@@ -148,7 +148,7 @@ def test_module_lidar_equation_is_the_closed_form():
 
 def test_signal_falls_as_the_apparent_range_squared_between_30_and_90_m():
     # The flagship sweep's altitude range: ((90 n + d) / (30 n + d))² = 7.72 at d = 5 m
-    # (9 at d = 0); the per-scene normalisation this mode replaces gave 0.98.
+    # (9 at d = 0); the per-scene normalisation gives 0.86 (brighter higher up).
     low = centre(render(disk_scene(30.0), seed=1).expected.values[0, 0])
     high = centre(render(disk_scene(90.0), seed=1).expected.values[0, 0])
     assert_allclose(low / high, ((90 * N_WATER + 5.0) / (30 * N_WATER + 5.0)) ** 2, rtol=0.01)
