@@ -41,7 +41,7 @@ output: {output}
 scene:
   surface: {{grid_size: 32, spacing: 0.1}}
   receiver: {{pixels: 16, gates: [[2.0, 6.0]]}}
-  noise: {{photons: 100}}
+  radiometry: {{mode: normalised, white_plane_photons: 100}}
 """
 """A sweep of tiny samples of the default scene alone (one parameter point)."""
 

@@ -18,7 +18,7 @@ def scene(**sections):
     base = {
         "surface": {"grid_size": 64, "spacing": 0.064},
         "receiver": {"pixels": 32},
-        "noise": {"photons": 0},
+        "radiometry": {"mode": "normalised", "white_plane_photons": 0},
     }
     for key, value in sections.items():
         base[key] = {**base.get(key, {}), **value} if isinstance(value, dict) else value
@@ -158,13 +158,19 @@ def test_target_in_gate_brightens_below_gate_is_invisible_above_gate_shadows():
 
 
 def test_same_seed_same_bytes_and_surface_depends_on_the_seed_only():
-    s = target_scene(save_surface=True, noise={"photons": 20})
+    s = target_scene(
+        save_surface=True, radiometry={"mode": "normalised", "white_plane_photons": 20}
+    )
     a = render(s, seed=SampleSeed(root=5, point=0, realisation=2))
     b = render(s, seed=SampleSeed(root=5, point=0, realisation=2))
     for name in a.data_vars:
         assert a[name].values.tobytes() == b[name].values.tobytes(), name
     other_point = render(
-        target_scene(shape="none", save_surface=True, noise={"photons": 20}),
+        target_scene(
+            shape="none",
+            save_surface=True,
+            radiometry={"mode": "normalised", "white_plane_photons": 20},
+        ),
         seed=SampleSeed(root=5, point=7, realisation=2),
     )
     assert a.surface_elevation.values.tobytes() == other_point.surface_elevation.values.tobytes()
@@ -176,7 +182,7 @@ def test_same_seed_same_bytes_and_surface_depends_on_the_seed_only():
 
 
 def test_image_is_poisson_around_expected():
-    s = target_scene(noise={"photons": 500})
+    s = target_scene(radiometry={"mode": "normalised", "white_plane_photons": 500})
     ds = render(s, seed=11)
     lam = ds.expected.values.astype(np.float64)
     counts = ds.image.values.astype(np.float64)
@@ -188,7 +194,7 @@ def test_image_is_poisson_around_expected():
     assert abs(residual) < 5 * np.sqrt((2 * lam**2 + lam).sum())
 
 
-def test_photons_zero_means_image_equals_expected():
+def test_white_plane_photons_zero_means_image_equals_expected():
     ds = render(target_scene(), seed=1)
     assert ds.image.values.tobytes() == ds.expected.values.tobytes()
     assert ds.image.attrs["units"] == "1"

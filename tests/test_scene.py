@@ -32,7 +32,7 @@ def test_mldc_gates_in_metres():
         ({"receiver": {"gates": [[10, 5]]}}, "receiver"),
         ({"target": {"depth": 0.2, "radius": 0.3}}, "target"),
         ({"water": {"preset": None, "absorption": 0.1}}, "water"),
-        ({"noise": {"photons": -1}}, "noise.photons"),
+        ({"radiometry": {"white_plane_photons": -1}}, "radiometry.white_plane_photons"),
     ],
     ids=[
         "unknown-key",

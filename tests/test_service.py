@@ -27,7 +27,7 @@ output: small.zarr
 scene:
   surface: {grid_size: 32, spacing: 0.1}
   receiver: {pixels: 16, gates: [[2.0, 6.0], [5.0, 9.0]]}
-  noise: {photons: 100}
+  radiometry: {mode: normalised, white_plane_photons: 100}
 sweep:
   method: grid
   parameters:

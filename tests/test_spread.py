@@ -54,7 +54,7 @@ def test_a_gaussian_beam_on_a_white_plane_matches_the_hankel_oracle(preset, dept
             "laser": {"beam": "parallel"},
             "target": {"shape": "disk", "radius": 80.0, "depth": depth, "reflectance": 1.0},
             "receiver": {"pixels": 32, "gates": [[0.5, 40.0]]},
-            "noise": {"photons": 0},
+            "radiometry": {"mode": "normalised", "white_plane_photons": 0},
         }
     )
     image = render(scene, seed=1).expected.values[0, 0]
@@ -95,7 +95,7 @@ def test_deep_gate_backscatter_matches_a_brute_force_linear_convolution(
             "water": {"preset": preset},
             "target": {"shape": "none"},
             "receiver": {"pixels": 24, "gates": [list(gate)]},
-            "noise": {"photons": 0},
+            "radiometry": {"mode": "normalised", "white_plane_photons": 0},
         }
     )
     rd._frame_geometry.cache_clear()

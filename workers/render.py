@@ -27,8 +27,11 @@ The image-formation model, per frame:
    neither lit nor seen: the slab's backscatter is reduced by the fraction lying behind the
    target's surface, half on the way down and half on the way up (square roots), which is
    exact without scattering and gives a full shadow when the target is above the gate.
-5. Images are scaled so that a ρ = 1 Lambertian plane just under a flat sea at nadir gives
-   `noise.photons` counts, then Poisson shot noise is drawn.
+5. Images are scaled to photoelectrons (`radiometry.mode`): ``absolute`` by the lidar
+   equation's photon budget (`workers.radiometry.photoelectrons_per_signal`), so counts
+   fall with altitude as 1/(nH + d)²; ``normalised`` so that a ρ = 1 Lambertian plane just
+   under a flat sea at nadir gives `radiometry.white_plane_photons` counts. Then Poisson
+   shot noise is drawn.
 
 Approximations beyond the paper's, at oblique views: the Wells spread is computed for the
 vertical range to each plane (it underestimates the blur by about 1/cos ϑ in the water),
@@ -50,6 +53,7 @@ from workers.gates import central_paths, sight_lines, slab_bounds
 from workers.geometry import LaserRays, Located, PinholeCamera, PlaneGrid, flat_sea_point
 from workers.noise import shot_noise
 from workers.optics import fresnel_reflectance
+from workers.radiometry import photoelectrons_per_signal, pixel_solid_angle
 from workers.scene import Scene
 from workers.seeds import SampleSeed
 from workers.spread import (
@@ -134,7 +138,7 @@ def render(scene: Scene, *, seed: int | SampleSeed) -> xr.Dataset:
         masks.append(mask)
     expected = np.stack(expected)
     noise = scene.noise
-    if noise.photons > 0:
+    if scene.radiometry.photoelectrons:
         image = shot_noise(
             expected, rng=seed.noise_rng(), gain=noise.gain, excess_noise=noise.excess_noise
         )
@@ -198,9 +202,7 @@ def _setup(key: str) -> _Setup:
         )
         for (top, bottom), reference in zip(gates, references, strict=True)
     )
-    t0 = 1.0 - float(fresnel_reflectance(1.0, n1=1.0, n2=w.refractive_index))
-    photons = scene.noise.photons
-    scale = (photons if photons > 0 else 1.0) / t0**2
+    scale = _photoelectrons_per_signal(scene)
     return _Setup(
         scene=scene,
         water=water,
@@ -213,6 +215,37 @@ def _setup(key: str) -> _Setup:
         scale=scale,
         refracted_nadir=refracted_nadir,
         secant=float(secant),
+    )
+
+
+def _photoelectrons_per_signal(scene: Scene) -> float:
+    """The factor taking the raw signal to photoelectrons (or to white-plane units).
+
+    Absolute: the lidar equation's photon budget for the Gaussian beam's whole pulse
+    energy, whose 1/e half-width at the reference range (`_frame_geometry`'s, the slant
+    range at the first frame) is that range times tan(laser field/2). Normalised: a ρ = 1
+    plane just under a flat sea at nadir, which reads t0² (two-way normal-incidence
+    Fresnel transmittance), gives `white_plane_photons` (1 when that is 0).
+    """
+    r, n_w = scene.radiometry, scene.water.refractive_index
+    if r.mode == "normalised":
+        t0 = 1.0 - float(fresnel_reflectance(1.0, n1=1.0, n2=n_w))
+        return (r.white_plane_photons or 1.0) / t0**2
+    p = scene.platform
+    reference_range = p.altitude / np.cos(np.radians(p.nadir_deg))
+    laser_fov = np.radians(scene.laser.field_of_view_deg or scene.receiver.field_of_view_deg)
+    return photoelectrons_per_signal(
+        pulse_energy=r.pulse_energy,
+        wavelength=r.wavelength,
+        aperture_diameter=r.receiver_aperture,
+        optics_transmission=r.optics_transmission,
+        quantum_efficiency=r.quantum_efficiency,
+        solid_angle=pixel_solid_angle(
+            field_of_view=np.radians(scene.receiver.field_of_view_deg),
+            pixels=scene.receiver.pixels,
+        ),
+        beam_half_width=reference_range * np.tan(0.5 * laser_fov),
+        refractive_index=n_w,
     )
 
 
@@ -1056,7 +1089,7 @@ def sample_labels(scene: Scene) -> xr.Dataset:
 
 def _dataset(scene, expected, image, masks, surface):
     units = "1"
-    if scene.noise.photons > 0:
+    if scene.radiometry.photoelectrons:
         units = "photoelectrons" if scene.noise.gain == 1.0 else "counts"
     frames = scene.sequence.frames
     ds = sample_labels(scene)
@@ -1070,7 +1103,7 @@ def _dataset(scene, expected, image, masks, surface):
         expected.astype(np.float32, copy=False),
         {
             "long_name": "expected (noise-free) gated receiver image",
-            "units": "photoelectrons" if scene.noise.photons > 0 else "1",
+            "units": "photoelectrons" if scene.radiometry.photoelectrons else "1",
         },
     )
     ds["target_mask"] = (

@@ -24,6 +24,7 @@ __all__ = [
     "Laser",
     "Noise",
     "Platform",
+    "Radiometry",
     "Receiver",
     "Scene",
     "Sequence",
@@ -364,16 +365,108 @@ class Receiver(_Model):
         return tuple((float(top), float(bottom)) for top, bottom in self.gates)
 
 
-class Noise(_Model):
-    """Sensor noise: Poisson shot noise, optionally amplified by an ICCD."""
+class Radiometry(_Model):
+    """How the renderer's signal becomes photoelectrons (see ``docs/radiometry.md``).
 
-    photons: float = Field(
-        13.0,
+    ``absolute`` (the default) applies the lidar equation (`workers.radiometry`): the pulse
+    energy spread over the Gaussian beam, the Fresnel transmittance both ways, attenuation,
+    the 1/(nH + d)² spreading, the n² radiance loss into the air, the receiver's aperture,
+    pixel solid angle and efficiencies. Counts then fall with altitude, depth and turbidity
+    as in a real system. The defaults are of the order of an ML(DC)-class system (a
+    frequency-doubled Nd:YAG laser and ICCD cameras); its exact figures are not public.
+
+    ``normalised`` fixes the brightness per scene: a ρ = 1 Lambertian plane just under a
+    flat sea at nadir reads `white_plane_photons`, whatever the altitude or the laser
+    (the paper's N_s; ``configs/paper/``). ``white_plane_photons: 0`` means no noise,
+    images in units of that plane.
+    """
+
+    mode: Literal["absolute", "normalised"] = Field(
+        "absolute",
+        description="`absolute` (the lidar equation with the system below) or `normalised` "
+        "(brightness fixed per scene by `white_plane_photons`).",
+    )
+    white_plane_photons: float | None = Field(
+        None,
         ge=0.0,
         le=1.0e9,
-        description="Mean photoelectrons a pixel gets from a ρ = 1 Lambertian plane just under "
-        "a flat sea at nadir, no water path [1]; 0: no noise, signal in units of that plane.",
+        description="Normalised mode only (required there, refused in absolute mode): mean "
+        "photoelectrons a pixel gets from a ρ = 1 Lambertian plane just under a flat sea at "
+        "nadir, no water path; 0: no noise, signal in units of that plane [photoelectrons].",
     )
+    pulse_energy: float = Field(
+        0.1,
+        gt=0.0,
+        le=10.0,
+        description="Absolute mode: energy of one laser pulse leaving the transmitter; "
+        "default 0.1 J, a flash-lamp-pumped frequency-doubled Nd:YAG [J].",
+    )
+    wavelength: float = Field(
+        532.0e-9,
+        ge=350.0e-9,
+        le=1100.0e-9,
+        description="Absolute mode: laser wavelength, for the photon energy hc/λ only (the "
+        "water presets stay those near 514 nm); default 532 nm [m].",
+    )
+    receiver_aperture: float = Field(
+        0.1,
+        gt=0.0,
+        le=2.0,
+        description="Absolute mode: entrance-pupil diameter of each gated receiver; default "
+        "0.1 m, a 150 mm f/1.5 lens on an 18 mm intensifier for a 6.7° field [m].",
+    )
+    optics_transmission: float = Field(
+        0.5,
+        gt=0.0,
+        le=1.0,
+        description="Absolute mode: fraction of the light entering the aperture that reaches "
+        "the photocathode (window, lens, 532 nm band-pass filter); default 0.5 [1].",
+    )
+    quantum_efficiency: float = Field(
+        0.15,
+        gt=0.0,
+        le=1.0,
+        description="Absolute mode: photoelectrons per photon at the intensifier's "
+        "photocathode at the laser wavelength; default 0.15, a multialkali (S-20/S-25) "
+        "cathode at 532 nm [1].",
+    )
+
+    @model_validator(mode="after")
+    def _photons_in_their_mode(self) -> Radiometry:
+        if self.mode == "normalised" and self.white_plane_photons is None:
+            raise ValueError(
+                "mode normalised needs white_plane_photons (0: no noise, units of the plane)"
+            )
+        if self.mode == "absolute" and self.white_plane_photons is not None:
+            raise ValueError(
+                "white_plane_photons applies to mode normalised only; in mode absolute the "
+                "counts follow from the lidar equation (set mode: normalised to fix them)"
+            )
+        return self
+
+    @property
+    def photoelectrons(self) -> bool:
+        """Whether images are in photoelectrons (and noisy); False: units of the white plane."""
+        return self.mode == "absolute" or bool(self.white_plane_photons)
+
+
+class Noise(_Model):
+    """Sensor noise: Poisson shot noise, optionally amplified by an ICCD.
+
+    Shot noise is drawn whenever the images are in photoelectrons (`Radiometry`); the
+    noisy ``image`` is then in counts, ``gain`` per photoelectron.
+    """
+
+    @model_validator(mode="before")
+    @classmethod
+    def _moved(cls, data):
+        if isinstance(data, dict) and "photons" in data:
+            raise ValueError(
+                "noise.photons is now radiometry.white_plane_photons, with "
+                "radiometry.mode: normalised (or use the default absolute mode)"
+            )
+        return data
+
     gain: float = Field(1.0, ge=1.0, le=1.0e6, description="ICCD gain [counts/photoelectron].")
     excess_noise: float = Field(
         1.0, ge=1.0, le=10.0, description="Excess-noise factor F of the intensifier [1]."
@@ -399,6 +492,7 @@ class Scene(_Model):
     platform: Platform = Platform()
     laser: Laser = Laser()
     receiver: Receiver = Receiver()
+    radiometry: Radiometry = Radiometry()
     noise: Noise = Noise()
     sequence: Sequence = Sequence()
     save_surface: bool = Field(
