@@ -239,3 +239,47 @@ def test_a_sloped_sea_transmits_fresnel_and_lengthens_the_path_in_water(monkeypa
     )
     assert expected < 0.97  # both effects are well above the tolerance
     assert sloped / flat == pytest.approx(expected, rel=2e-3)
+
+
+# --- energy of the sphere's shading (issue #9, item 5) ---------------------------------
+
+
+def white_target(shape, shading):
+    """A white sphere or disk of 1 m radius at 5 m under a flat sea, in all but clear water.
+
+    Absorption 0.001 /m and no scattering: the sphere's cap (4–5 m) and the disk (5 m)
+    differ in two-way attenuation by at most e^(-2 · 0.001 · 1) = 0.998. A parallel beam
+    40° wide is flat to 0.6 % over the target (e^(-r²/a²), a = 12.4 m).
+    """
+    return Scene.model_validate(
+        {
+            "surface": {"spectrum": "flat"},
+            "water": {"preset": None, "absorption": 1e-3, "scattering": 0.0, "backscatter": 0.0},
+            "target": {
+                "shape": shape,
+                "radius": 1.0,
+                "depth": 5.0,
+                "reflectance": 1.0,
+                "shading": shading,
+            },
+            "laser": {"beam": "parallel", "field_of_view_deg": 40.0},
+            "receiver": {"pixels": PIXELS, "gates": [[0.5, 12.0]]},
+            "noise": {"photons": 0},
+        }
+    )
+
+
+@pytest.mark.parametrize(
+    ("shading", "ratio"), [("lambert", 2 / 3), ("paper", 2.0)], ids=["lambert", "paper"]
+)
+def test_a_white_sphere_returns_its_shadings_share_of_a_white_disk(shading, ratio):
+    # Lit and seen from straight above, a Lambertian sphere's element whose normal makes
+    # γ with the vertical returns cos γ of what a horizontal panel returns; over the
+    # silhouette, cos γ = sqrt(1 - ρ²/r²) integrates to (2/3) π r² against the disk's
+    # π r²: 2/3. The paper's weights (hemisphere area per plane area) integrate to 2π r²:
+    # twice the disk, three times the physical sphere. Summed over the image, which holds
+    # the whole target and nothing else (no backscatter). Tolerance 1 %: the attenuation
+    # and beam-profile differences above (0.2 %, 0.6 %) and the 14-pixel-radius rim.
+    disk = render(white_target("disk", "lambert"), seed=1).expected.values.sum()
+    sphere = render(white_target("sphere", shading), seed=1).expected.values.sum()
+    assert sphere / disk == pytest.approx(ratio, rel=0.01)

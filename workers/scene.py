@@ -265,8 +265,12 @@ class Target(_Model):
     )
     shading: Literal["lambert", "paper"] = Field(
         "lambert",
-        description="Impostor shading: `lambert` (cosine of sphere normal and ray) or `paper` "
-        "(the paper's area weights, `ponder`).",
+        description="Sphere shading: `lambert` (cosine of sphere normal and ray; physical), "
+        "or `paper`, the paper's area weights (`ponder`), kept only to reproduce its "
+        "figures: it does not conserve energy (a white sphere returns 2x a white disk of "
+        "its radius where a Lambertian one returns 2/3, and its limb pixels exceed the "
+        "brightest physical value several times over, more at finer pixels); do not use "
+        "it for training data [1].",
     )
 
     @model_validator(mode="after")
