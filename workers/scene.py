@@ -510,6 +510,9 @@ class Scene(_Model):
         surface = self.surface
         if surface.spectrum == "flat" or surface.allow_repeat:
             return self
+        # The receiver's footprint, at the highest point of the sequence: a laser wider than
+        # the receiver lights sea outside the image, whose repeats the image does not show
+        # (bar the in-water spread); a narrower one lights less than the image shows.
         climb = self.sequence.velocity[2] * self.sequence.interval * (self.sequence.frames - 1)
         altitude = self.platform.altitude + max(climb, 0.0)
         span = footprint_span(
