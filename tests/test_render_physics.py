@@ -94,16 +94,16 @@ def disk_scene(*, x=0.0, y=0.0, radius=0.5, depth=5.0, absorption=0.1, nadir=0.0
     )
 
 
-def refracted_angle(incidence_from_vertical, slope):
+def refracted_angle(*, incidence, slope):
     """In-water angle from the downward vertical of a ray refracted by a sloped facet [rad].
 
-    In the plane of incidence: a ray at angle θ from the vertical (positive towards +s, the
-    direction in which the facet rises) meets a facet whose inward normal leans by
-    α = atan(s) the same way; Snell's law at incidence θ - α from that normal gives
-    α + asin(sin(θ - α)/n).
+    In the plane of incidence: a ray at angle θ = `incidence` from the vertical [rad]
+    (positive towards the side where the facet rises) meets a facet of slope s whose
+    inward normal leans by α = atan(s) the same way; Snell's law at incidence θ - α from
+    that normal gives α + asin(sin(θ - α)/n).
     """
     tilt = np.arctan(slope)
-    return tilt + np.arcsin(np.sin(incidence_from_vertical - tilt) / N_WATER)
+    return tilt + np.arcsin(np.sin(incidence - tilt) / N_WATER)
 
 
 def image_offset(*, reach, slope, depth, nadir=0.0):
@@ -117,7 +117,11 @@ def image_offset(*, reach, slope, depth, nadir=0.0):
     start = -ALTITUDE * np.tan(nadir)
 
     def miss(theta):
-        return start + ALTITUDE * np.tan(theta) + depth * np.tan(refracted_angle(theta, slope))
+        return (
+            start
+            + ALTITUDE * np.tan(theta)
+            + depth * np.tan(refracted_angle(incidence=theta, slope=slope))
+        )
 
     theta = brentq(lambda t: miss(t) - reach, nadir - 0.5, nadir + 0.5)
     pitch = 2.0 * np.tan(0.5 * np.radians(RECEIVER_FOV)) / PIXELS
@@ -206,7 +210,7 @@ def test_a_sloped_sea_displaces_the_laser_beam_as_snell_predicts(monkeypatch, sl
     depth, radius = 10.0, 20.0
     laser = {"beam": "parallel", "field_of_view_deg": 2.0, "rays": 128}
     sloped_sea(monkeypatch, slope_x=slope)
-    centre = depth * np.tan(refracted_angle(0.0, slope))
+    centre = depth * np.tan(refracted_angle(incidence=0.0, slope=slope))
     edge = disk_scene(x=centre + np.sign(slope) * radius, radius=radius, depth=depth, laser=laser)
     whole = disk_scene(x=0.0, radius=radius, depth=depth, laser=laser)
     fraction = (
@@ -234,7 +238,7 @@ def test_a_sloped_sea_transmits_fresnel_and_lengthens_the_path_in_water(monkeypa
     incidence = np.arctan(slope)
     transmitted = 1.0 - fresnel_reflectance(np.cos(incidence), n1=1.0, n2=N_WATER)
     normal = 1.0 - fresnel_reflectance(1.0, n1=1.0, n2=N_WATER)
-    tilt = refracted_angle(0.0, slope)
+    tilt = refracted_angle(incidence=0.0, slope=slope)
     expected = (transmitted / normal) ** 2 * np.exp(
         -2 * absorption * depth * (1 / np.cos(tilt) - 1)
     )
