@@ -1,9 +1,12 @@
 """Scene validation: defaults, ranges and the errors users see."""
 
+import math
+
 import pytest
+from conftest import run_cli
 from pydantic import ValidationError
 
-from workers.scene import MLDC_GATES, Scene
+from workers.scene import MLDC_GATES, Scene, footprint_span
 
 
 def test_defaults_are_the_papers_example_3_geometry():
@@ -99,3 +102,105 @@ def test_backscatter_cannot_exceed_scattering():
 def test_scenes_that_would_mislead_or_exhaust_memory_are_refused(data, message):
     with pytest.raises(ValidationError, match=message):
         Scene.model_validate(data)
+
+
+# --- the footprint against the periodic sea patch (issue #9) ---------------------------
+
+H, FOV = 34.0, math.radians(6.7)
+T = math.tan(FOV / 2)
+ALONG_30 = H * (math.tan(math.radians(30) + FOV / 2) - math.tan(math.radians(30) - FOV / 2))
+"""Near to far edge of the footprint at 30° from the vertical: h tan(θ ± α/2) [m]."""
+
+
+@pytest.mark.parametrize(
+    ("nadir_deg", "azimuth_deg", "expected"),
+    [
+        (0.0, 0.0, 2 * H * T),
+        (0.0, 90.0, 2 * H * T),
+        # a square footprint turned by 45°: its diagonal runs along x
+        (0.0, 45.0, 2 * H * T * math.sqrt(2)),
+        # looking north at 30°: from the near edge to the far one, h tan(θ ± α/2)
+        (
+            30.0,
+            0.0,
+            H * (math.tan(math.radians(30) + FOV / 2) - math.tan(math.radians(30) - FOV / 2)),
+        ),
+        (
+            30.0,
+            -90.0,
+            H * (math.tan(math.radians(30) + FOV / 2) - math.tan(math.radians(30) - FOV / 2)),
+        ),
+        # the field reaches the horizon
+        (60.0, 0.0, math.inf),
+    ],
+    ids=["nadir", "nadir-east", "nadir-45", "oblique-north", "oblique-west", "horizon"],
+)
+def test_footprint_span_closed_forms(nadir_deg, azimuth_deg, expected):
+    field = math.radians(64.0) if expected == math.inf else FOV
+    span = footprint_span(
+        altitude=H,
+        nadir=math.radians(nadir_deg),
+        azimuth=math.radians(azimuth_deg),
+        field_of_view=field,
+    )
+    assert span == pytest.approx(expected, rel=1e-12)
+
+
+FOOTPRINT_FIELDS = (
+    "platform.altitude",
+    "receiver.field_of_view_deg",
+    "surface.grid_size",
+    "surface.spacing",
+    "surface.allow_repeat",
+)
+
+
+@pytest.mark.parametrize(
+    "data",
+    [
+        # 2 H tan(α/2) = 4.21 m at 36 m, over the default 256 x 0.016 m = 4.10 m patch
+        {"platform": {"altitude": 36.0}},
+        {"surface": {"spacing": 0.015}},
+        {"platform": {"nadir_deg": 20.0}},
+        # from 34 m the platform climbs 2 m during the sequence
+        {"sequence": {"frames": 11, "interval": 0.2, "velocity": [0.0, 0.0, 1.0]}},
+    ],
+    ids=["higher", "smaller-patch", "oblique", "climbing"],
+)
+def test_a_footprint_wider_than_the_sea_patch_is_refused_unless_allowed(data):
+    # Issue #9: the sea is periodic with period grid_size x spacing; a wider footprint
+    # shows the same waves twice in one image.
+    with pytest.raises(ValidationError) as info:
+        Scene.model_validate(data)
+    message = str(info.value)
+    assert "repeat inside the image" in message
+    for field in FOOTPRINT_FIELDS:
+        assert field in message
+    surface = {**data.get("surface", {}), "allow_repeat": True}
+    assert Scene.model_validate({**data, "surface": surface}).surface.allow_repeat
+    # a flat sea has nothing to repeat
+    flat = {**data, "surface": {**data.get("surface", {}), "spectrum": "flat"}}
+    Scene.model_validate(flat)
+
+
+def test_the_default_footprint_fits_the_default_patch():
+    scene = Scene()
+    span = footprint_span(altitude=34.0, nadir=0.0, azimuth=0.0, field_of_view=FOV)
+    assert span < scene.surface.grid_size * scene.surface.spacing
+
+
+def test_cli_validate_refuses_a_repeating_sea_with_a_message(tmp_path):
+    sweep = tmp_path / "wide.yaml"
+    sweep.write_text(
+        "name: wide\nseed: 1\noutput: wide.zarr\n"
+        "scene:\n  platform: {altitude: 60.0}\n  receiver: {pixels: 16}\n"
+    )
+    result = run_cli("validate", sweep, cwd=tmp_path)
+    assert result.returncode == 2
+    assert "Traceback" not in result.stderr
+    assert "surface.allow_repeat" in result.stderr and "platform.altitude" in result.stderr
+    allowed = tmp_path / "allowed.yaml"
+    allowed.write_text(
+        sweep.read_text().replace("  receiver:", "  surface: {allow_repeat: true}\n  receiver:")
+    )
+    assert run_cli("validate", allowed, cwd=tmp_path).returncode == 0

@@ -25,7 +25,7 @@ seed: 11
 realisations: 3
 output: small.zarr
 scene:
-  surface: {grid_size: 32, spacing: 0.1}
+  surface: {grid_size: 32, spacing: 0.1, allow_repeat: true}  # tiny: the sea repeats
   receiver: {pixels: 16, gates: [[2.0, 6.0], [5.0, 9.0]]}
   radiometry: {mode: normalised, white_plane_photons: 100}
 sweep:

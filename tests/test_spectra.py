@@ -8,6 +8,7 @@ import pytest
 from numpy.testing import assert_allclose
 from scipy import optimize, special
 
+from workers.scene import SurfaceSpec
 from workers.spectra import (
     GRAVITY,
     Elfouhaily,
@@ -16,6 +17,7 @@ from workers.spectra import (
     PiersonMoskowitz,
     dispersion,
 )
+from workers.surface import surface_amplitudes
 
 SPECTRA = {
     "phillips": Phillips(wind_speed=5.0),
@@ -295,6 +297,66 @@ def test_elfouhaily_spreading_parameters():
 def test_elfouhaily_rejects_bad_parameters(kwargs):
     with pytest.raises(ValueError):
         Elfouhaily(**kwargs)
+
+
+def _scene_wind_range():
+    """The wind speeds a scene accepts, (min, max) in m/s, read from its schema."""
+    constraints = SurfaceSpec.model_fields["wind_speed"].metadata
+    least = next(c.ge for c in constraints if hasattr(c, "ge"))
+    greatest = next(c.le for c in constraints if hasattr(c, "le"))
+    return least, greatest
+
+
+SCENE_WINDS = np.geomspace(*_scene_wind_range(), 15)
+"""U10 from the scene's least to its greatest allowed wind (0.5 to 30 m/s), log-spaced."""
+
+SCENE_SPECTRA = {
+    "elfouhaily": {"spectrum": "elfouhaily"},
+    "elfouhaily-young": {"spectrum": "elfouhaily", "inverse_wave_age": 5.0},
+    "phillips": {"spectrum": "phillips"},
+    "pierson-moskowitz": {"spectrum": "pierson_moskowitz"},
+    "jonswap": {"spectrum": "jonswap"},
+    "jonswap-short-fetch": {"spectrum": "jonswap", "fetch": 1.0},
+}
+"""Every spectrum a scene can name, at its default settings and the extremes of its knobs."""
+
+
+@pytest.mark.parametrize("settings", SCENE_SPECTRA.values(), ids=SCENE_SPECTRA.keys())
+@pytest.mark.parametrize("wind_speed", SCENE_WINDS, ids=[f"U{u:.2f}" for u in SCENE_WINDS])
+def test_every_scene_spectrum_is_finite_and_non_negative(settings, wind_speed):
+    # Issue #9, item 8: below U10 ≈ 2.7 m/s the short-wave term of Elfouhaily et al. went
+    # negative (eq. 44 extrapolated), so sqrt(Ψ Δk²) was NaN and so was the sample.
+    spectrum = SurfaceSpec(**settings, wind_speed=wind_speed).wave_spectrum()
+    k, phi, _ = _polar_grid(1e-4, 1e5, 2001, 72)
+    density = spectrum.directional(k * np.cos(phi), k * np.sin(phi))
+    assert np.isfinite(density).all() and (density >= 0).all()
+    omnidirectional = spectrum.omnidirectional(k[:, 0])
+    assert np.isfinite(omnidirectional).all() and (omnidirectional >= 0).all()
+    # the scene grids: the default and the finest spacing of the shipped configs
+    for grid_size, spacing in ((256, 0.016), (64, 0.004)):
+        amplitude = surface_amplitudes(spectrum, grid_size=grid_size, spacing=spacing)
+        assert np.isfinite(amplitude).all()
+
+
+def test_elfouhaily_short_wave_equilibrium_is_eq_44_while_positive_and_zero_below():
+    # Eq. (44) of Elfouhaily et al. (1997): α_m = 0.01 [1 + ln(u*/c_m)] for u* ≤ c_m,
+    # 0.01 [1 + 3 ln(u*/c_m)] above; it crosses 0 at u* = c_m/e.
+    def law(spectrum):
+        ratio = spectrum.friction_velocity / spectrum.C_M
+        return 0.01 * (1 + (1 if ratio <= 1 else 3) * np.log(ratio))
+
+    threshold = optimize.brentq(
+        lambda u: Elfouhaily(wind_speed=u).friction_velocity - Elfouhaily.C_M / np.e, 0.5, 10.0
+    )
+    assert_allclose(threshold, 2.678, atol=1e-3)
+    for wind_speed in (0.5, 1.0, 2.0, 0.999 * threshold):
+        assert Elfouhaily(wind_speed=wind_speed).short_wave_equilibrium == 0.0
+    for wind_speed in (1.001 * threshold, 3.0, 5.0, 12.0, 30.0):
+        spectrum = Elfouhaily(wind_speed=wind_speed)
+        assert spectrum.short_wave_equilibrium > 0
+        assert spectrum.short_wave_equilibrium == law(spectrum)
+    # continuous at the threshold: 0.1 % above it α_m is still ~1e-5
+    assert Elfouhaily(wind_speed=1.001 * threshold).short_wave_equilibrium < 1e-4  # 0.01 at c_m
 
 
 def test_moments_reject_a_reversed_band():

@@ -14,7 +14,7 @@ realisations: 2
 output: out.zarr
 scene:
   receiver: {pixels: 16}
-  surface: {grid_size: 32, spacing: 0.1}
+  surface: {grid_size: 32, spacing: 0.1, allow_repeat: true}  # tiny: the sea repeats
 """
 
 

@@ -31,6 +31,7 @@ __all__ = [
     "SurfaceSpec",
     "Target",
     "Water",
+    "footprint_span",
 ]
 
 MAX_RAYS = 4096
@@ -50,6 +51,68 @@ MLDC_GATES: tuple[tuple[float, float], ...] = tuple(
 
 Carmona, Cérou & Blasco (2000), table 1: 12–32, 16–36, 20–40, 25–40, 35–45 and 40–50 ft.
 """
+
+
+def footprint_span(*, altitude, nadir, azimuth, field_of_view):
+    r"""Longest stretch of the receiver's footprint along the sea grid's x or y axis [m].
+
+    Parameters
+    ----------
+    altitude : float
+        Height of the pinhole above mean sea level [m].
+    nadir : float
+        Angle of the central ray from the downward vertical [rad].
+    azimuth : float
+        Compass azimuth of the central ray, clockwise from north (+y) [rad].
+    field_of_view : float
+        Full opening α of the square field [rad].
+
+    Returns
+    -------
+    float
+        The longest chord of the footprint parallel to x or to y [m]; ``inf`` if the
+        field reaches the horizon.
+
+    Notes
+    -----
+    The footprint is the quadrilateral where the corner rays of the square field,
+    :math:`\mathbf b + \tan(\alpha/2)(\pm\mathbf r \pm \mathbf u)` with the boresight
+    **b**, the image's right **r** and its up **u**, meet z = 0 (exact at any nadir
+    angle, unlike the paper's L1 of `workers.geometry.footprint_length`). A periodic sea
+    of period P repeats inside the image when two points of the footprint lie P apart
+    along x or y, i.e. when a chord along x or y is longer than P; for a convex polygon
+    the longest such chord passes through a vertex. At nadir with azimuth 0 this is the
+    side :math:`2h\tan(\alpha/2)`; a footprint turned by 45° holds a chord √2 longer.
+    """
+    half = math.tan(0.5 * field_of_view)
+    sin_n, cos_n = math.sin(nadir), math.cos(nadir)
+    sin_a, cos_a = math.sin(azimuth), math.cos(azimuth)
+    boresight = np.array([sin_n * sin_a, sin_n * cos_a, -cos_n])
+    right = np.array([cos_a, -sin_a, 0.0])
+    up = np.array([cos_n * sin_a, cos_n * cos_a, sin_n])
+    corners = []
+    for a, b in ((1, 1), (1, -1), (-1, -1), (-1, 1)):
+        ray = boresight + half * (a * right + b * up)
+        if ray[2] >= 0:
+            return math.inf
+        corners.append(altitude / -ray[2] * ray[:2])
+    corners = np.array(corners)
+    longest = 0.0
+    for axis in (0, 1):
+        along, level = corners[:, axis], corners[:, 1 - axis]
+        start, end = np.roll(along, -1), np.roll(level, -1)
+        for height in level:
+            crossing = (level - height) * (end - height) <= 0
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = np.where(end != level, (height - level) / (end - level), 0.0)
+            points = np.concatenate(
+                [
+                    (along + t * (start - along))[crossing & (end != level)],
+                    along[level == height],
+                ]
+            )
+            longest = max(longest, float(points.max() - points.min()))
+    return longest
 
 
 class _Model(BaseModel):
@@ -121,6 +184,12 @@ class SurfaceSpec(_Model):
         "[m]. Off by default; it breaks the spectrum's variance.",
     )
     conditioning: Conditioning = Conditioning()
+    allow_repeat: bool = Field(
+        False,
+        description="Render even if the receiver's footprint on the sea is wider than the "
+        "periodic patch (grid_size × spacing), so that the same waves repeat inside the "
+        "image; refused otherwise.",
+    )
 
     @model_validator(mode="after")
     def _even_grid(self) -> SurfaceSpec:
@@ -274,8 +343,12 @@ class Target(_Model):
     )
     shading: Literal["lambert", "paper"] = Field(
         "lambert",
-        description="Impostor shading: `lambert` (cosine of sphere normal and ray) or `paper` "
-        "(the paper's area weights, `ponder`).",
+        description="Sphere shading: `lambert` (cosine of sphere normal and ray; physical), "
+        "or `paper`, the paper's area weights (`ponder`), kept only to reproduce its "
+        "figures: it does not conserve energy (a white sphere returns 2x a white disk of "
+        "its radius where a Lambertian one returns 2/3, and its limb pixels exceed the "
+        "brightest physical value several times over, more at finer pixels); do not use "
+        "it for training data [1].",
     )
 
     @model_validator(mode="after")
@@ -531,6 +604,38 @@ class Scene(_Model):
                 f"laser: the receiver's field would span {cells:.0f} cells of the laser's ray "
                 f"lattice (limit {MAX_PLANE_CELLS}); use fewer laser.rays or a wider laser "
                 "field"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _footprint_within_sea_patch(self) -> Scene:
+        surface = self.surface
+        if surface.spectrum == "flat" or surface.allow_repeat:
+            return self
+        # The receiver's footprint, at the highest point of the sequence: a laser wider than
+        # the receiver lights sea outside the image, whose repeats the image does not show
+        # (bar the in-water spread); a narrower one lights less than the image shows.
+        climb = self.sequence.velocity[2] * self.sequence.interval * (self.sequence.frames - 1)
+        altitude = self.platform.altitude + max(climb, 0.0)
+        span = footprint_span(
+            altitude=altitude,
+            nadir=math.radians(self.platform.nadir_deg),
+            azimuth=math.radians(self.platform.azimuth_deg),
+            field_of_view=math.radians(self.receiver.field_of_view_deg),
+        )
+        period = surface.grid_size * surface.spacing
+        if span > period:
+            highest = f"{altitude:g} m at the sequence's top, " if climb > 0 else ""
+            raise ValueError(
+                f"the receiver's footprint on the sea (platform.altitude "
+                f"{self.platform.altitude:g} m, {highest}platform.nadir_deg "
+                f"{self.platform.nadir_deg:g}, platform.azimuth_deg "
+                f"{self.platform.azimuth_deg:g}, receiver.field_of_view_deg "
+                f"{self.receiver.field_of_view_deg:g}) spans {span:.2f} m, wider than the "
+                f"periodic sea patch surface.grid_size x surface.spacing = "
+                f"{surface.grid_size} x {surface.spacing:g} m = {period:.2f} m: the same waves "
+                "would repeat inside the image. Enlarge the patch, narrow the field or lower "
+                "the platform, or set surface.allow_repeat: true to render it anyway"
             )
         return self
 

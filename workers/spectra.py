@@ -710,7 +710,8 @@ class Elfouhaily(Spectrum):
     γ = 1.7 (Ω_c < 1) or 1.7 + 6 log₁₀ Ω_c, σ = 0.08 (1 + 4 Ω_c⁻³) (eq. 3);
     :math:`k_p = \Omega_c^2 g / U_{10}^2`, :math:`c(k) = \sqrt{(g/k)(1 + (k/k_m)^2)}`,
     c_p = c(k_p), Ω = U₁₀/c_p; α_p = 6×10⁻³ √Ω (34);
-    α_m = 10⁻² [1 + ln(u*/c_m)] for u* ≤ c_m, 10⁻² [1 + 3 ln(u*/c_m)] above (44);
+    α_m = 10⁻² [1 + ln(u*/c_m)] for u* ≤ c_m, 10⁻² [1 + 3 ln(u*/c_m)] above (44),
+    and 0 below u* = c_m/e (see Notes);
     c_m = 0.23 m/s, k_m = 370 rad/m. The friction velocity comes from the wave-age
     dependent roughness of Donelan et al. (1993) (60, 66):
 
@@ -746,6 +747,18 @@ class Elfouhaily(Spectrum):
     F_m is multiplied here by L_PM, as in the implementation of Bruneton et al.
     (2010). L_PM > 0.987 for k > 10 k_p, and the factor lowers the mean square slope
     by less than 1 %.
+
+    Departure from the paper: the short-wave equilibrium parameter of eq. (44) is a
+    logarithmic law in u*/c_m, negative below u* = c_m/e = 0.085 m/s (U₁₀ = 2.68 m/s
+    for Ω_c = 0.84, 2.39 m/s for Ω_c = 5). B_h is then negative and, where B_l has
+    decayed, so is B = B_l + B_h (over 75–1400 rad/m at U₁₀ = 0.5 m/s, 240–2300 rad/m
+    at 2 m/s): a negative energy density, whose square root, the amplitude of a
+    Fourier mode of the surface, is NaN. An energy density cannot be negative: α_m
+    is taken here as the law while it is positive and 0 below,
+    :math:`\alpha_m = \max(0, \dots)`, i.e. no gravity–capillary saturation range
+    under winds too weak to raise ripples (where the law itself reaches 0), and
+    B = B_l alone. The clamp is continuous in U₁₀ (α_m → 0 at the threshold) and
+    leaves the spectrum at stronger winds unchanged to the last bit.
 
     Assumptions: κ = 0.41 in eq. (60), the value used by Bruneton et al. (2010) for
     these equations; c_p = c(k_p) with the capillary term, as the paper writes it; Ω_c
@@ -803,6 +816,13 @@ class Elfouhaily(Spectrum):
         z0 = 3.7e-5 * u**2 / GRAVITY * self.inverse_wave_age**0.9
         return self.VON_KARMAN * u / math.log(10.0 / z0)
 
+    @property
+    def short_wave_equilibrium(self) -> float:
+        """α_m of eq. (44), held at 0 below u* = c_m/e (see Notes), dimensionless."""
+        ratio = self.friction_velocity / self.C_M
+        fitted = 1e-2 * (1.0 + (1.0 if ratio <= 1.0 else 3.0) * math.log(ratio))
+        return max(fitted, 0.0)
+
     def _phase_speed(self, k):
         """c(k) = √((g/k)(1 + (k/k_m)²)), m/s."""
         return np.sqrt(GRAVITY / k * (1.0 + (k / self.K_M) ** 2))
@@ -835,10 +855,8 @@ class Elfouhaily(Spectrum):
         j_p = gamma ** np.exp(-(root**2) / (2.0 * sigma**2))
         f_p = l_pm * j_p * np.exp(-omega / math.sqrt(10.0) * root)
         b_long = 0.5 * 6e-3 * math.sqrt(omega) * (c_p / c) * f_p
-        ratio = self.friction_velocity / self.C_M
-        alpha_m = 1e-2 * (1.0 + (1.0 if ratio <= 1.0 else 3.0) * math.log(ratio))
         f_m = l_pm * np.exp(-0.25 * (k / self.K_M - 1.0) ** 2)
-        b_short = 0.5 * alpha_m * (self.C_M / c) * f_m
+        b_short = 0.5 * self.short_wave_equilibrium * (self.C_M / c) * f_m
         return b_long + b_short
 
     def omnidirectional(self, k):
