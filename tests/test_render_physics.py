@@ -25,7 +25,7 @@ def test_low_wind_samples_are_finite(wind_speed):
             # a 1 m patch, repeated in view: only finiteness matters here
             "surface": {"wind_speed": wind_speed, "grid_size": 64, "allow_repeat": True},
             "receiver": {"pixels": 16},
-            "noise": {"photons": 100},
+            "radiometry": {"mode": "normalised", "white_plane_photons": 100},
         }
     )
     sample = render(scene, seed=1)
@@ -89,7 +89,7 @@ def disk_scene(*, x=0.0, y=0.0, radius=0.5, depth=5.0, absorption=0.1, nadir=0.0
                 "field_of_view_deg": RECEIVER_FOV,
                 "gates": [[0.5, 12.0]],
             },
-            "noise": {"photons": 0},
+            "radiometry": {"mode": "normalised", "white_plane_photons": 0},
         }
     )
 
@@ -269,7 +269,7 @@ def white_target(shape, shading):
             },
             "laser": {"beam": "parallel", "field_of_view_deg": 40.0},
             "receiver": {"pixels": PIXELS, "gates": [[0.5, 12.0]]},
-            "noise": {"photons": 0},
+            "radiometry": {"mode": "normalised", "white_plane_photons": 0},
         }
     )
 
