@@ -4,7 +4,14 @@ Both are measured in the same run, interleaved round by round (one render, one p
 each FFT), each timed once per round the same way, and the medians are compared (the
 machines are shared and noisy: the ratio is the figure to quote). The
 reference pair is numpy.fft on float32 (scipy.fft's, faster, is printed too; the renderer
-uses scipy.fft). Usage: ``python benchmarks/render.py [--sizes 128 256 512]``.
+uses scipy.fft). Usage: ``python benchmarks/render.py [--sizes 128 256 512] [--mode
+absolute]``.
+
+The price of linear spreading (issue #9: two-level planes wide enough that no light
+wraps around, a round-trip filter per gate, the beam's tail): on the 2-core machine,
+normalised mode (the figures before it: 6.4 / 21.6 / 132 ms at 128 / 256 / 512 pixels,
+ratios 28 / 36 / 57), now 14 / 56 / 185 ms, ratios 54 / 69 / 99 (measured once). Absolute
+radiometry adds the cost of Poisson draws at large means (about 20 ms a 256² sample).
 """
 
 import argparse
@@ -19,13 +26,17 @@ from workers.render import render
 from workers.scene import Scene
 
 
-def scene(n, *, target="sphere"):
+def scene(n, *, target="sphere", mode="normalised"):
     # The surface patch covers the ~4 m footprint at every size (n points, 4.1 m / n apart).
+    radiometry = {"mode": mode}
+    if mode == "normalised":
+        radiometry["white_plane_photons"] = 13.0
     return Scene.model_validate(
         {
             "surface": {"grid_size": n, "spacing": 4.1 / n},
             "target": {"shape": target},
             "receiver": {"pixels": n},
+            "radiometry": radiometry,
         }
     )
 
@@ -36,8 +47,8 @@ def timed(function):
     return time.perf_counter() - start
 
 
-def measure(n, target, rounds):
-    s = scene(n, target=target)
+def measure(n, target, rounds, mode):
+    s = scene(n, target=target, mode=mode)
     a = np.random.default_rng(0).standard_normal((n, n), dtype=np.float32)
     render(s, seed=0)
     samples, numpy_pairs, scipy_pairs = [], [], []
@@ -56,15 +67,19 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--sizes", type=int, nargs="+", default=[128, 256, 512])
     parser.add_argument("--rounds", type=int, default=25)
+    parser.add_argument("--mode", choices=["normalised", "absolute"], default="normalised")
     args = parser.parse_args()
-    print(f"allocator tuned: {tune_allocator()}; six ML(DC) gates, 0.3 m sphere at 5 m")
+    print(
+        f"allocator tuned: {tune_allocator()}; six ML(DC) gates, 0.3 m sphere at 5 m, "
+        f"coastal water, {args.mode} radiometry"
+    )
     print(
         f"{'pixels':>6} {'target':>7} {'sample ms':>10} {'numpy pair ms':>14} "
         f"{'ratio':>6} {'scipy pair ms':>14} {'ratio':>6}"
     )
     for n in args.sizes:
         for target in ("sphere", "none"):
-            sample, numpy_pair, scipy_pair = measure(n, target, args.rounds)
+            sample, numpy_pair, scipy_pair = measure(n, target, args.rounds, args.mode)
             print(
                 f"{n:>6} {target:>7} {sample * 1e3:>10.1f} {numpy_pair * 1e3:>14.3f} "
                 f"{sample / numpy_pair:>6.1f} {scipy_pair * 1e3:>14.3f} "

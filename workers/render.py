@@ -83,6 +83,9 @@ BEAM_EXTENT = 2.5
 TAIL_STEP = 2
 """Pitch of the beam tail's lattice, in laser-lattice steps."""
 
+LATTICE_MARGIN = 8
+"""Laser rays traced through the wavy surface beyond the field, on each side."""
+
 SURFACE_ITERATIONS = 8
 """Most fixed-point refinements of each ray's hit on the wavy surface (start at z = 0)."""
 
@@ -441,10 +444,10 @@ def _frame_geometry(key: str, frame: int) -> _FrameGeometry:
         _plane_levels(setup, sensor, depth, count)
         for depth, count in zip(depths, passes, strict=True)
     ]
-    # the laser lattice covers the largest guard band, within the beam's extent
+    # the traced lattice reaches LATTICE_MARGIN rays beyond the field; the beam's tail
+    # beyond it crosses the mean sea (within the beam's extent)
     rays = sensor.laser_rays
-    margin = max(guard for _, guard in built) + 2
-    margin = min(margin, int(np.ceil(0.5 * (BEAM_EXTENT - 1.0) * rays)))
+    margin = min(LATTICE_MARGIN, int(np.ceil(0.5 * (BEAM_EXTENT - 1.0) * rays)))
     laser = LaserRays.from_platform(
         position=sensor.position,
         rotation=camera.rotation,

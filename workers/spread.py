@@ -51,14 +51,14 @@ __all__ = [
 SPREAD_FRACTION = 0.99
 """Share of a point's scattered light that the coarse grid's margin holds [1]."""
 
-NEAR_SUPPORT = 6
+NEAR_SUPPORT = 4
 """Guard band of the fine grid, in coarse cells: the near kernel decays within it."""
 
 MIN_FACTOR = 4
 """Fewest fine cells per coarse cell along each axis (1 makes the coarse level a linear,
 zero-padded convolution at full resolution: the brute-force reference of the tests)."""
 
-MAX_COARSE = 512
+MAX_COARSE = 256
 """Most coarse cells per side before the coarse cells grow (bounds the coarse FFT)."""
 
 _FACTORS = (4, 5, 6, 8, 9, 10, 12, 15, 16, 18, 20, 24, 25, 27, 30, 32, 36, 40, 45, 48, 50, 54)
