@@ -81,18 +81,23 @@ def brute_force(monkeypatch):
 
 
 @pytest.mark.parametrize(
-    ("preset", "gate", "rtol"),
-    [("coastal", (12.19, 15.24), 0.02), ("turbid_harbour", (4.0, 7.0), 0.05)],
-    ids=["coastal-gate6", "turbid"],
+    ("preset", "gate", "nadir", "rtol"),
+    [
+        ("coastal", (12.19, 15.24), 0.0, 0.02),
+        ("turbid_harbour", (4.0, 7.0), 0.0, 0.05),
+        ("coastal", (3.66, 9.75), 30.0, 0.02),
+    ],
+    ids=["coastal-gate6", "turbid", "coastal-gate1-30deg"],
 )
 def test_deep_gate_backscatter_matches_a_brute_force_linear_convolution(
-    preset, gate, rtol, monkeypatch
+    preset, gate, nadir, rtol, monkeypatch
 ):
     # The default (divergent, finite) beam, forward scattering on, a rough sea, a deep gate.
     scene = Scene.model_validate(
         {
-            "surface": {"grid_size": 64, "spacing": 0.07},
+            "surface": {"grid_size": 64, "spacing": 0.09},
             "water": {"preset": preset},
+            "platform": {"nadir_deg": nadir},
             "target": {"shape": "none"},
             "receiver": {"pixels": 24, "gates": [list(gate)]},
             "radiometry": {"mode": "normalised", "white_plane_photons": 0},
@@ -174,3 +179,28 @@ def test_truncating_the_spread_drops_the_share_beyond_the_radius():
     unscattered = np.exp(-water.attenuation * 10.0)
     assert_allclose(total[0], unscattered + scattered, rtol=0.01)
     assert_allclose(total[1], unscattered + 0.95 * scattered, rtol=0.02)
+
+
+@pytest.mark.parametrize("shape", [(48, 48), (48, 64), (64, 48)], ids=["square", "wide", "tall"])
+def test_the_two_levels_line_up(shape):
+    # A field linear in the world coordinates, given on the coarse grid, comes back on the
+    # fine cells' centres exactly (bilinear interpolation is exact on linear fields), and
+    # its block means are the fine field's: the levels share one world frame, whatever the
+    # offsets of the fine block in the coarse grid.
+    grid = PlaneGrid(
+        depth=5.0,
+        origin=(1.0, -2.0),
+        axis_u=(0.6, 0.8),
+        axis_v=(0.8, -0.6),
+        spacing_u=0.05,
+        spacing_v=0.07,
+        shape=shape,
+    )
+    levels = Levels.around(grid, factor=4, margin=3.0)
+    assert levels.offset[0] != levels.offset[1]
+    x, y = levels.coarse.cell_centres()
+    xf, yf = grid.cell_centres()
+    coarse = (2.0 * x - 3.0 * y).astype(np.float32)
+    fine = (2.0 * xf - 3.0 * yf).astype(np.float32)
+    assert_allclose(levels.upsample(coarse), fine, atol=2e-4)
+    assert_allclose(levels.downsample(fine)[levels.block], coarse[levels.block], atol=2e-4)

@@ -250,11 +250,14 @@ class Levels:
     @functools.cached_property
     def _interpolation(self):
         """Per axis: lower coarse index and weight of the upper one for each fine cell."""
+        rows, cols = self.fine.shape
+        zero = np.float32(0)
+        positions = (
+            self.to_coarse(np.arange(rows, dtype=np.float32), zero)[0],
+            self.to_coarse(zero, np.arange(cols, dtype=np.float32))[1],
+        )
         axes = []
-        for n in self.fine.shape:
-            position = self.to_coarse(np.arange(n, dtype=np.float32), np.float32(0))[0]
-            if n == self.fine.shape[1]:
-                position = self.to_coarse(np.float32(0), np.arange(n, dtype=np.float32))[1]
+        for position in positions:
             lower = np.floor(position).astype(np.intp)
             axes.append((lower, (position - lower).astype(np.float32)))
         return tuple(axes)
