@@ -183,3 +183,29 @@ def test_splat_conserves_power_and_gather_is_exact_on_linear_fields():
     assert_allclose(
         grid.gather(linear, grid.locate(x, y)), 2.0 * x - 3.0 * y + 1.0, rtol=1e-4, atol=1e-4
     )
+
+
+@pytest.mark.parametrize("rays", [32, 33], ids=["even", "odd"])
+def test_the_traced_lattice_and_the_beam_tail_carry_the_whole_beam(rays):
+    # I0 = J e^(-r²/a²) carries π a² J in all (J = 1 at the reference range); the traced
+    # lattice and its tail tile the tangent plane, so together they carry it but for the
+    # share beyond the tail's extent (e^(-ext²) at most, for a disc of that radius).
+    cam = camera(pixels=rays)
+    common = dict(
+        position=cam.position,
+        rotation=cam.rotation,
+        beam="divergent",
+        field_of_view=cam.field_of_view,
+        reference_range=cam.position[2],
+    )
+    traced = LaserRays.from_platform(**common, rays=rays, margin=8)
+    step = 2 * np.tan(0.5 * cam.field_of_view) / rays
+    tail = LaserRays.beam_tail(
+        **common,
+        inner=(0.5 * rays + 8) * step,
+        step=(2 if rays % 2 == 0 else 1) * step,
+        extent=3.0,
+    )
+    a = cam.position[2] * np.tan(0.5 * cam.field_of_view)
+    total = traced.power.sum() + tail.power.sum()
+    assert_allclose(total, np.pi * a**2, rtol=2e-3)

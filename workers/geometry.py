@@ -288,7 +288,8 @@ class LaserRays:
         position, rotation, beam, field_of_view, reference_range
             As for `from_platform`.
         inner : float
-            Half-width of the square left out, in tangent units [1].
+            Half-width of the square left out, in tangent units [1]: a whole or
+            half-whole number of steps, so that cell edges fall on it.
         step : float
             Lattice pitch in tangent units [1].
         extent : float
@@ -301,7 +302,14 @@ class LaserRays:
         """
         half = np.tan(0.5 * field_of_view)
         count = int(np.ceil(extent * half / step))
-        offsets = (np.arange(2 * count) + 0.5 - count) * step
+        # cell edges on ±inner, so the tail and the inner lattice tile the plane
+        turn = (inner / step) % 1.0
+        if min(turn, 1.0 - turn) < 1e-6:
+            offsets = (np.arange(2 * count) + 0.5 - count) * step
+        elif abs(turn - 0.5) < 1e-6:
+            offsets = np.arange(-count, count + 1) * step
+        else:
+            raise ValueError("inner must be a whole or half-whole number of steps")
         u, v = np.meshgrid(offsets, offsets)
         keep = (np.maximum(np.abs(u), np.abs(v)) > inner).ravel()
         return cls._from_offsets(

@@ -81,7 +81,8 @@ BEAM_EXTENT = 2.5
 """Half-width of the traced beam in units of its 1/e radius (e^-6.25: 0.2 % lies beyond)."""
 
 TAIL_STEP = 2
-"""Pitch of the beam tail's lattice, in laser-lattice steps."""
+"""Pitch of the beam tail's lattice, in laser-lattice steps (1 for an odd lattice, so the
+tail's cells end where the traced lattice's begin)."""
 
 LATTICE_MARGIN = 8
 """Laser rays traced through the wavy surface beyond the field, on each side."""
@@ -465,7 +466,7 @@ def _frame_geometry(key: str, frame: int) -> _FrameGeometry:
         field_of_view=sensor.laser_fov,
         reference_range=sensor.reference_range,
         inner=(0.5 * rays + margin) * step,
-        step=TAIL_STEP * step,
+        step=(TAIL_STEP if rays % 2 == 0 else 1) * step,
         extent=BEAM_EXTENT,
     )
     # The default laser (divergent, the receiver's field, one ray per pixel) shares the
