@@ -18,7 +18,7 @@ The image-formation model, per frame:
    function down and up in one product (reflectance × MTF², linear, without wrap-around:
    `workers.spread.Spread`) and gathered where each pixel's ray crosses the plane, times
    the exit transmittance. The slant-range timing enters as one gain per laser ray and per
-   pixel, from its air path (`_delay`): a ray longer in the air gates a shallower slab.
+   pixel, from its air path (`_gate_gain`): a ray longer in the air gates a shallower slab.
 3. The target is an impostor on the plane through its centre: downwelling irradiance
    there times its reflectance map, attenuated from each cell's true depth on the target
    (not from the centre plane), restricted to the part of the target inside the gate,
@@ -162,7 +162,6 @@ class _Setup:
     gates: tuple[tuple[float, float], ...]
     reference_depths: tuple[float, ...]
     reflectances: tuple[float, ...]
-    delay_caps: tuple[float, ...]
     scale: float
     refracted_nadir: float
     secant: float
@@ -215,7 +214,6 @@ def _setup(key: str) -> _Setup:
         gates=gates,
         reference_depths=references,
         reflectances=reflectances,
-        delay_caps=tuple(float(w.refractive_index * top * secant) for top, _ in gates),
         scale=scale,
         refracted_nadir=refracted_nadir,
         secant=float(secant),
@@ -407,10 +405,11 @@ def _plane_levels(setup: _Setup, sensor: _Sensor, depth: float, passes: int) -> 
     return Levels.around(fine, factor=factor, margin=margin), guard
 
 
-def _beam_tail(setup: _Setup, sensor: _Sensor, levels: Levels, tail: LaserRays, cap=None):
+def _beam_tail(setup: _Setup, sensor: _Sensor, levels: Levels, tail: LaserRays, gate=None):
     """The beam tail's irradiance on the coarse grid under the mean (flat) sea.
 
-    With `cap` (a gate's delay cap [m]), each ray carries its gate delay (`_delay`).
+    For a gate's plane (`gate` its index), each ray carries the gate's timing
+    (`_gate_gain`) in place of its own path's attenuation.
     """
     if tail.power.size == 0:
         return None
@@ -422,12 +421,12 @@ def _beam_tail(setup: _Setup, sensor: _Sensor, levels: Levels, tail: LaserRays, 
     cos_air = np.clip(-tail.directions[:, 2], 0.0, 1.0)
     cos_water = np.sqrt(1.0 - (1.0 - cos_air**2) / n_w**2)
     transmittance = 1.0 - fresnel_reflectance(cos_air, n1=1.0, n2=n_w)
-    extra = np.exp(-water.diffuse_attenuation * grid.depth * (1.0 / cos_water - 1.0))
-    power = tail.power * transmittance * extra
-    if cap is not None:
+    if gate is None:
+        extra = np.exp(-water.diffuse_attenuation * grid.depth * (1.0 / cos_water - 1.0))
+    else:
         air = -(tail.origins[:, 2]) / tail.directions[:, 2]
-        power = power * _delay(air - sensor.central_air, setup, cap)
-    power = power.astype(np.float32)
+        extra = _gate_gain(air - sensor.central_air, setup, gate)
+    power = (tail.power * transmittance * extra).astype(np.float32)
     return grid.splat(grid.locate(points[:, 0], points[:, 1]), power)
 
 
@@ -483,10 +482,10 @@ def _frame_geometry(key: str, frame: int) -> _FrameGeometry:
         pixel_index = (block[:, None] * side + block[None, :]).ravel()
 
     gains = ([1.0] if t.shape != "none" else []) + list(setup.reflectances)
-    caps = ([None] if t.shape != "none" else []) + list(setup.delay_caps)
+    gate_index = ([None] if t.shape != "none" else []) + list(range(len(setup.gates)))
     planes = []
-    for (levels, _), depth, count, gain, cap in zip(
-        built, depths, passes, gains, caps, strict=True
+    for (levels, _), depth, count, gain, gate in zip(
+        built, depths, passes, gains, gate_index, strict=True
     ):
         spread = Spread.build(
             water=water,
@@ -497,7 +496,9 @@ def _frame_geometry(key: str, frame: int) -> _FrameGeometry:
             gain=gain,
         )
         planes.append(
-            _Plane(levels=levels, spread=spread, tail=_beam_tail(setup, sensor, levels, tail, cap))
+            _Plane(
+                levels=levels, spread=spread, tail=_beam_tail(setup, sensor, levels, tail, gate)
+            )
         )
     target_plane = impostor = target_light = None
     if t.shape != "none":
@@ -856,38 +857,63 @@ def _hidden_fraction(surface_depth, occupancy, *, top, bottom, diffuse_attenuati
     return (occupancy * share).astype(np.float32)
 
 
-def _delay(excess, setup: _Setup, cap=None):
-    r"""Gain of a gate's water return for a ray that spent `excess` longer in the air.
+def _gate_gain(excess, setup: _Setup, gate: int):
+    r"""A laser ray's or a pixel's share of a gate's water return, from its air path.
 
-    A gate closes at a fixed time, so a ray whose air path (laser ray down, pixel's line of
-    sight up) is longer by τ than the central ray's reaches τ/n less far in the water within
-    the gate: half the round trip's shift of the slab, 0.5·τ cos ϑ/n in depth, for each of
-    the two paths. The slab's single-scattering return,
-    :math:`\propto e^{-2K\secartheta\,(z_{top} + \delta)}`, then gains
-    :math:`e^{K	au/n}` per path, exactly for a slab that stays under the surface, so the
-    gate's slant-range timing is one factor on each laser ray and each pixel. `cap` is the
-    excess that lifts the gate's top to the surface (n·top·sec ϑ [m]); beyond it the slab
-    is held at the surface.
+    A gate opens and closes at fixed times, so the water it holds is set by the optical
+    path: a ray that spends τ longer in the air than the central ray (`excess`), down or
+    up, has τ/n less water path within the gate. With both paths so delayed, the gated
+    slab rises by δ = τ cos ϑ_c / n (ϑ_c the central ray's angle in the water), and its
+    single-scattering return changes by
+
+    .. math:: F(\delta) = \frac{\int_{(t-\delta)_+}^{(b-\delta)_+}
+              e^{-2K\sec\vartheta_c z}dz}{\int_t^b e^{-2K\sec\vartheta_c z}dz},
+
+    :math:`e^{2K\tau/n}` while the slab stays under the surface, less once the gate opens
+    above it (the slab is cut at the surface), 0 if it closes before light reaches the
+    water. Each path carries :math:`\sqrt{F}` (exact when the down and up delays are
+    equal, as for the monostatic default), times the central ray's attenuation to the
+    gate's plane: the gate, not the ray's own slant path, sets how deep the light is.
 
     Parameters
     ----------
-    excess : float or ndarray
-        Air path less the central ray's [m].
+    excess : ndarray
+        Air path less the central ray's [m] (through the wavy surface: a crest shortens
+        it, and the gate then holds less water: e^(−2Kη/n) for the round trip).
     setup : _Setup
         The scene.
-    cap : float, optional
-        Largest excess counted [m].
+    gate : int
+        The gate's index.
 
     Returns
     -------
     ndarray
-        The gain [1], float32.
+        The gain [1], float32, in place of the ray's own extra-path attenuation.
     """
-    rate = setup.water.diffuse_attenuation / setup.water.refractive_index
+    water = setup.water
+    k, n, secant = water.diffuse_attenuation, water.refractive_index, setup.secant
+    top, bottom = setup.gates[gate]
     excess = np.asarray(excess, dtype=np.float32)
-    if cap is not None:
-        excess = np.minimum(excess, np.float32(cap))
-    return np.exp(np.float32(rate) * excess)
+    gain = np.exp(np.float32(k / n) * excess)
+    rise = excess * np.float32(1.0 / (n * secant))
+    cut = np.flatnonzero(rise > top)
+    if cut.size:
+        shifted = rise[cut].astype(np.float64)
+
+        def slab(upper, lower):
+            return slab_backscatter_reflectance(
+                backscatter_pi=1 / np.pi,
+                diffuse_attenuation=k * secant,
+                top=upper,
+                bottom=lower,
+                reference=0.0,
+            )
+
+        share = slab(np.maximum(top - shifted, 0.0), np.maximum(bottom - shifted, 0.0))
+        gain[cut] = np.sqrt(share / slab(top, bottom))
+    depth = setup.reference_depths[gate]
+    gain *= np.float32(np.exp(-k * depth * (secant - 1.0)))
+    return gain
 
 
 def _target_mask(silhouette: np.ndarray) -> np.ndarray:
@@ -914,8 +940,8 @@ def _render_frame(setup: _Setup, geometry: _FrameGeometry, surface, frame: int):
         up = _through_surface(geometry.pixel_rays, surface, frame, n_w)
     power = geometry.laser_power * down.transmittance
 
-    down_delay = _delay(down.air - np.float32(geometry.central_air), setup)
-    up_delay = _delay(up.air - np.float32(geometry.central_air), setup)
+    down_excess = down.air - np.float32(geometry.central_air)
+    up_excess = up.air - np.float32(geometry.central_air)
     axes_grid = (geometry.target_plane or geometry.gate_planes[0]).grid
     down_axes = down.on_axes(axes_grid, K)
     up_axes = up.on_axes(axes_grid, K)
@@ -959,9 +985,9 @@ def _render_frame(setup: _Setup, geometry: _FrameGeometry, surface, frame: int):
             for g in gates:
                 images[g] += seen
     for g, plane in enumerate(geometry.gate_planes):
-        rays, extra, outside = down_axes.cross(plane.levels)
-        sight, sight_weight = sight_on(plane)
-        ray_power = power * extra
+        rays, _, outside = down_axes.cross(plane.levels)
+        sight, _, _ = up_axes.cross(plane.levels)
+        ray_power = power * _gate_gain(down_excess, setup, g)
         if plane.bounds is not None and lit.size:
             # rays that meet the target lose the part of the slab behind it
             on_target = Located(target_rays.corners[:, lit], target_rays.weights[:, lit])
@@ -974,13 +1000,11 @@ def _render_frame(setup: _Setup, geometry: _FrameGeometry, surface, frame: int):
                 diffuse_attenuation=K * setup.secant,
             )
             ray_power[lit] *= np.sqrt(np.maximum(1.0 - hidden, 0.0))
-        cap = setup.delay_caps[g]
-        ray_power *= np.minimum(down_delay, _delay(cap, setup))
         radiance, _ = plane.spread(*sources(plane, rays, outside, ray_power), far_out=False)
         if plane.occlusion is not None:
             radiance *= plane.occlusion
-        seen = plane.grid.gather(radiance, sight) * sight_weight
-        seen *= np.minimum(up_delay, _delay(cap, setup))
+        seen = plane.grid.gather(radiance, sight)
+        seen *= up.transmittance * _gate_gain(up_excess, setup, g)
         images[g] += seen
     images *= np.float32(setup.scale)
     return images.reshape(len(setup.gates), pixels, pixels), mask.reshape(pixels, pixels)
