@@ -388,18 +388,26 @@ def test_a_target_on_a_gate_bottom_renders():
     assert np.isfinite(ds.expected.values).all()
 
 
-def test_a_small_target_far_below_marks_a_pixel():
-    # At 500 m the default mine (0.3 m) is about one pixel: its mask is never empty.
+@pytest.mark.parametrize("pixels", [32, 33], ids=["on-a-pixel-corner", "on-a-pixel-centre"])
+def test_a_small_target_far_below_is_seen_and_marked(pixels):
+    # At 500 m a pixel spans 0.9 m: the default mine (0.3 m) is a third of one. Its mask is
+    # never empty, it brightens the pixels it covers, and it is labelled in the gate.
     s = scene(
         surface={"spectrum": "flat"},
         water={"preset": "clear_ocean"},
         target={"shape": "sphere", "depth": 3.0, "radius": 0.3, "reflectance": 0.5},
         platform={"altitude": 500.0},
-        receiver={"pixels": 64},
+        receiver={"pixels": pixels, "gates": [[1.0, 5.0]]},
     )
     ds = render(s, seed=0)
-    assert 1 <= ds.target_mask.values.sum() <= 4
-    assert ds.target_visibility.values[0] != 0
+    without = render(
+        s.model_copy(update={"target": s.target.model_copy(update={"shape": "none"})}), seed=0
+    )
+    mask = ds.target_mask.values[0].astype(bool)
+    assert 1 <= mask.sum() <= 4
+    net = ds.expected.values[0, 0][mask].sum() - without.expected.values[0, 0][mask].sum()
+    assert net > 0
+    assert ds.target_visibility.values.tolist() == [1]
 
 
 def test_a_limb_reaching_into_a_gate_is_a_shadow_not_in_gate():

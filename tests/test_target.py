@@ -131,3 +131,20 @@ def test_disk_is_a_flat_lambertian_panel():
     assert_allclose(imp.occupancy.sum() * area, np.pi, rtol=0.01)
     assert imp.weight.max() == pytest.approx(0.3)
     assert imp.top == imp.bottom == 4.0
+
+
+@pytest.mark.parametrize("cell", [0.05, 0.45, 0.9, 2.0], ids=lambda c: f"cell{c:g}")
+@pytest.mark.parametrize("offset", [0.0, 0.2, 0.45], ids=lambda o: f"offset{o:g}")
+def test_disc_cover_keeps_the_area_and_the_lambertian_return_wherever_the_disc_lies(cell, offset):
+    # ∑ cover·|C| = π r² and ∑ cosine·|C| = (2/3) π r² (∫∫ √(1 - ρ²/r²) over the disc),
+    # whether the disc spans many cells or lies inside one, at any offset.
+    from workers.target import disc_cover
+
+    r = 0.3
+    count = int(np.ceil(2 * r / cell)) + 4
+    x = (np.arange(-count, count + 1) * cell) + offset
+    u, w = np.meshgrid(x, x)
+    cover, cosine = disc_cover(u=u, w=w, cell_u=cell, cell_w=cell, radius=r)
+    assert_allclose(cover.sum() * cell**2, np.pi * r**2, rtol=2e-3)
+    assert_allclose(cosine.sum() * cell**2, 2 / 3 * np.pi * r**2, rtol=2e-3)
+    assert cover.max() <= 1.0
