@@ -331,7 +331,7 @@ class _Plane:
 
     levels: Levels
     spread: Spread
-    tail: np.ndarray | None
+    tail: tuple[np.ndarray, np.ndarray] | None
     bounds: tuple[np.ndarray, np.ndarray] | None = None
     occlusion: np.ndarray | None = None
 
@@ -406,7 +406,7 @@ def _plane_levels(setup: _Setup, sensor: _Sensor, depth: float, passes: int) -> 
 
 
 def _beam_tail(setup: _Setup, sensor: _Sensor, levels: Levels, tail: LaserRays, gate=None):
-    """The beam tail's irradiance on the coarse grid under the mean (flat) sea.
+    """The beam tail's irradiance on the fine and coarse grids under the mean (flat) sea.
 
     For a gate's plane (`gate` its index), each ray carries the gate's timing
     (`_gate_gain`) in place of its own path's attenuation.
@@ -427,7 +427,18 @@ def _beam_tail(setup: _Setup, sensor: _Sensor, levels: Levels, tail: LaserRays, 
         air = -(tail.origins[:, 2]) / tail.directions[:, 2]
         extra = _gate_gain(air - sensor.central_air, setup, gate)
     power = (tail.power * transmittance * extra).astype(np.float32)
-    return grid.splat(grid.locate(points[:, 0], points[:, 1]), power)
+    # rays landing on the fine grid go there (their near spread is the fine grid's); the
+    # others on the coarse grid
+    fine = levels.fine.locate(points[:, 0], points[:, 1])
+    inside = fine.weights.sum(axis=0) > 0
+    outside = ~inside
+    coarse = grid.locate(points[outside, 0], points[outside, 1])
+    return (
+        levels.fine.splat(
+            Located(fine.corners[:, inside], fine.weights[:, inside]), power[inside]
+        ),
+        grid.splat(coarse, power[outside]),
+    )
 
 
 @functools.lru_cache(maxsize=64)
@@ -949,7 +960,10 @@ def _render_frame(setup: _Setup, geometry: _FrameGeometry, surface, frame: int):
     def sources(plane, rays, outside, ray_power):
         """The rays' power on the plane: fine splat, and the coarse light outside it."""
         fine = plane.grid.splat(rays, ray_power)
-        coarse = plane.tail
+        coarse = None
+        if plane.tail is not None:
+            fine += plane.tail[0]
+            coarse = plane.tail[1]
         if outside is not None:
             index, located = outside
             spilled = plane.levels.coarse.splat(located, ray_power[index])
