@@ -8,9 +8,9 @@ The image-formation model, per frame:
 
 1. Laser rays and pixel rays are intersected with the real surface, refracted (Snell) and
    weighted by the Fresnel transmittance. The laser is a Gaussian beam: rays sample it at
-   the pixels' pitch over the image and a guard band around it, and its tail beyond that
-   (out to `BEAM_EXTENT` times its 1/e radius) is refracted by the mean, flat sea onto the
-   coarse level of each plane (`workers.spread`).
+   the pixels' pitch over the image and `LATTICE_MARGIN` rays beyond, and its tail beyond
+   that (out to `BEAM_EXTENT` times its 1/e radius) is refracted by the mean, flat sea onto
+   each plane (`workers.spread`).
 2. Each gate opens and closes on slant range (`workers.gates`). A gate's single-scattering
    water backscatter is an effective Lambertian reflectance on a reference plane at the
    central slab's centroid depth: laser rays are splatted where they cross that plane
