@@ -307,16 +307,22 @@ def _sensor(setup: _Setup, frame: int) -> _Sensor:
     )
 
 
-def _gate_bounds(sensor: _Sensor, grid: PlaneGrid, paths, refractive_index):
-    """Gated depth bounds (top, bottom) and the in-water secant of each cell's sight line."""
+def _sight(sensor: _Sensor, grid: PlaneGrid, refractive_index: float, cells=None):
+    """Air path and in-water cosine of the flat-sea line of sight to each cell (or `cells`)."""
     x, y = grid.cell_centres()
-    air, cos_water = sight_lines(
+    if cells is not None:
+        x, y = x.ravel()[cells], y.ravel()[cells]
+    return sight_lines(
         position=sensor.position, x=x, y=y, depth=grid.depth, refractive_index=refractive_index
     )
-    top, bottom = slab_bounds(
+
+
+def _gate_bounds(sight, paths, refractive_index):
+    """Gated depth bounds (top, bottom) [m] along lines of sight (`_sight`)."""
+    air, cos_water = sight
+    return slab_bounds(
         paths=paths, air=air, cos_water=cos_water, refractive_index=refractive_index
     )
-    return top, bottom, 1.0 / cos_water
 
 
 @dataclass(frozen=True)
@@ -511,16 +517,18 @@ def _frame_geometry(key: str, frame: int) -> _FrameGeometry:
                 levels=levels, spread=spread, tail=_beam_tail(setup, sensor, levels, tail, gate)
             )
         )
-    target_plane = impostor = target_light = None
+    target_plane = impostor = target_light = target_sight = None
     if t.shape != "none":
         target_plane, planes = planes[0], planes[1:]
         impostor = _impostor(setup, target_plane.grid)
         target_light = _target_light(setup, sensor, target_plane.levels)
+        target_sight = _sight(sensor, target_plane.grid, water.refractive_index)
     gate_planes = []
     for g, plane in enumerate(planes):
-        paths = sensor.paths[g]
         if impostor is not None:
-            plane = _with_hiding(setup, sensor, plane, paths, target_plane.grid, impostor)
+            plane = _with_hiding(
+                setup, sensor, plane, sensor.paths[g], target_plane.grid, target_sight, impostor
+            )
         gate_planes.append(plane)
     pixel_directions = camera.pixel_directions().reshape(-1, 3)
     return _FrameGeometry(
@@ -586,11 +594,13 @@ def _target_light(setup, sensor, levels: Levels) -> _TargetLight:
     levels_lit = [(levels.fine, fine_impostor, *lit(levels.fine, fine_impostor))]
     if outside.any():
         levels_lit.append((levels.coarse, coarse_impostor, *lit(levels.coarse, coarse_impostor)))
+    n_w = water.refractive_index
+    sights = [_sight(sensor, grid, n_w) for grid, *_ in levels_lit]
     maps, members = {}, {}
     for g, paths in enumerate(sensor.paths):
         pair, signature = [], b""
-        for grid, impostor, depth, weight in levels_lit:
-            top, bottom, _ = _gate_bounds(sensor, grid, paths, water.refractive_index)
+        for (grid, impostor, depth, weight), sight in zip(levels_lit, sights, strict=True):
+            top, bottom = _gate_bounds(sight, paths, n_w)
             inside = (depth >= top) & (depth <= bottom) & (impostor.occupancy > 0)
             if grid is levels.coarse:
                 inside[levels.block] = False
@@ -607,18 +617,20 @@ def _target_light(setup, sensor, levels: Levels) -> _TargetLight:
     )
 
 
-def _with_hiding(setup, sensor, plane, paths, target_grid, impostor) -> _Plane:
+def _with_hiding(setup, sensor, plane, paths, target_grid, target_sight, impostor) -> _Plane:
     """`plane` with the target's hiding of the gate's water, if it hides any."""
     water = setup.water
     k = water.diffuse_attenuation * setup.secant
-    top_t, bottom_t, _ = _gate_bounds(sensor, target_grid, paths, water.refractive_index)
+    top_t, bottom_t = _gate_bounds(target_sight, paths, water.refractive_index)
     grid = plane.grid
     # The line of sight through a gate-plane cell crossed the target plane nearer the
     # platform, by the depth difference times the tangent of the in-water angle.
     x, y = grid.cell_centres()
     back = (grid.depth - target_grid.depth) * np.tan(setup.refracted_nadir)
     located = target_grid.locate(x + back * grid.axis_v[0], y + back * grid.axis_v[1])
-    top, bottom, _ = _gate_bounds(sensor, grid, paths, water.refractive_index)
+    top, bottom = _gate_bounds(
+        _sight(sensor, grid, water.refractive_index), paths, water.refractive_index
+    )
     hidden = _hidden_fraction(
         target_grid.gather(impostor.surface_depth, located),
         target_grid.gather(impostor.occupancy, located),
@@ -1059,13 +1071,16 @@ def _visibility(key: str) -> tuple[int, ...]:
     if not grid.gather(impostor.occupancy, grid.locate(sights[:, 0], sights[:, 1])).any():
         return (VISIBILITY["none"],) * count
     k = water.diffuse_attenuation * setup.secant
-    occupancy = impostor.occupancy.astype(np.float64)
-    depth = np.where(occupancy > 0, impostor.surface_depth, grid.depth).astype(np.float64)
+    cells = np.flatnonzero(impostor.occupancy)
+    occupancy = impostor.occupancy.ravel()[cells].astype(np.float64)
+    depth = impostor.surface_depth.ravel()[cells].astype(np.float64)
+    weight = impostor.weight.ravel()[cells]
+    sight = _sight(sensor, grid, water.refractive_index, cells)
     labels = []
     for paths in sensor.paths:
-        top, bottom, _ = _gate_bounds(sensor, grid, paths, water.refractive_index)
-        inside = (depth >= top) & (depth <= bottom) & (occupancy > 0)
-        shown = float(np.sum(impostor.weight * inside * np.exp(-2 * k * depth)))
+        top, bottom = _gate_bounds(sight, paths, water.refractive_index)
+        inside = (depth >= top) & (depth <= bottom)
+        shown = float(np.sum(weight * inside * np.exp(-2 * k * depth)))
         slab = setup.secant**2 * slab_backscatter_reflectance(
             backscatter_pi=1.0,
             diffuse_attenuation=k,
