@@ -290,11 +290,11 @@ def test_paper_shading_returns_about_three_times_lambert():
 
 @pytest.mark.parametrize("K", [0.0, 0.05, 0.8], ids=["K0", "K0.05", "K0.8"])
 def test_hidden_fraction_is_the_share_of_the_slab_integral_behind_the_target(K):
-    from workers.render import _hidden_fraction
+    from workers.gates import hidden_fraction
 
     top, bottom = 3.0, 9.0
     depths = np.array([1.0, 3.0, 5.0, 9.0, 12.0])
-    got = _hidden_fraction(depths, np.ones(5), top=top, bottom=bottom, diffuse_attenuation=K)
+    got = hidden_fraction(depths, np.ones(5), top=top, bottom=bottom, diffuse_attenuation=K)
     z = np.linspace(top, bottom, 200001)
     weight = np.exp(-2 * K * z)
     expected = [weight[z >= d].sum() / weight.sum() for d in depths]

@@ -11,7 +11,7 @@ import pytest
 from numpy.testing import assert_allclose
 from scipy import integrate, special
 
-import workers.render as rd
+import workers.planes as planes_module
 import workers.spread as spread_module
 from workers.geometry import PlaneGrid
 from workers.render import render
@@ -76,8 +76,8 @@ def brute_force(monkeypatch):
     """Render with the coarse level at full resolution over 99.95 % of the spread."""
     monkeypatch.setattr(spread_module, "MIN_FACTOR", 1)
     monkeypatch.setattr(spread_module, "MAX_COARSE", 8192)
-    monkeypatch.setattr(rd, "SPREAD_FRACTION", 0.9995)
-    rd._frame_geometry.cache_clear()
+    monkeypatch.setattr(planes_module, "SPREAD_FRACTION", 0.9995)
+    planes_module.frame_geometry.cache_clear()
 
 
 @pytest.mark.parametrize(
@@ -103,14 +103,17 @@ def test_deep_gate_backscatter_matches_a_brute_force_linear_convolution(
             "radiometry": {"mode": "normalised", "white_plane_photons": 0},
         }
     )
-    rd._frame_geometry.cache_clear()
+    planes_module.frame_geometry.cache_clear()
     fast = render(scene, seed=3).expected.values[0, 0]
     brute_force(monkeypatch)
     try:
         reference = render(scene, seed=3).expected.values[0, 0]
-        assert rd._frame_geometry(scene.model_dump_json(), 0).gate_planes[0].levels.factor == 1
+        assert (
+            planes_module.frame_geometry(scene.model_dump_json(), 0).gate_planes[0].levels.factor
+            == 1
+        )
     finally:
-        rd._frame_geometry.cache_clear()
+        planes_module.frame_geometry.cache_clear()
     assert_allclose(fast.mean(), reference.mean(), rtol=rtol)
     assert_allclose(fast[1:-1, 1:-1], reference[1:-1, 1:-1], rtol=2 * rtol)
 

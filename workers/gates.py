@@ -18,7 +18,9 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["central_paths", "sight_lines", "slab_bounds"]
+from workers.water import slab_backscatter_reflectance
+
+__all__ = ["central_paths", "gate_gain", "hidden_fraction", "sight_lines", "slab_bounds"]
 
 _NEWTON_STEPS = 8
 
@@ -112,3 +114,91 @@ def slab_bounds(*, paths, air, cos_water, refractive_index):
     top = np.maximum(paths[0] - air, 0.0) * scale
     bottom = np.maximum(paths[1] - air, 0.0) * scale
     return top, bottom
+
+
+def hidden_fraction(surface_depth, occupancy, *, top, bottom, diffuse_attenuation):
+    """Fraction of a slab's backscatter lying behind the target along each line.
+
+    Lines through the target's silhouette (weighted by `occupancy`) lose the part of the
+    single-scattering integral deeper than the target's surface. `top` and `bottom` are
+    the slab's bounds (scalars, or one per line: slant-range gates). Computed in float64,
+    so a float32 depth on a gate bound stays inside the slab.
+    """
+    top = np.asarray(top, dtype=np.float64)
+    bottom = np.maximum(np.asarray(bottom, dtype=np.float64), top)
+    behind = np.clip(np.asarray(surface_depth, dtype=np.float64), top, bottom)
+
+    def slab(upper):
+        return slab_backscatter_reflectance(
+            backscatter_pi=1.0,
+            diffuse_attenuation=diffuse_attenuation,
+            top=upper,
+            bottom=bottom,
+            reference=top,
+        )
+
+    part, whole = np.broadcast_arrays(slab(behind), slab(top))
+    share = np.divide(part, whole, out=np.zeros(part.shape), where=whole > 0)
+    return (occupancy * share).astype(np.float32)
+
+
+def gate_gain(excess, *, diffuse_attenuation, refractive_index, secant, top, bottom, depth):
+    r"""A laser ray's or a pixel's share of a gate's water return, from its air path.
+
+    A gate opens and closes at fixed times, so the water it holds is set by the optical
+    path: a ray that spends τ longer in the air than the central ray (`excess`), down or
+    up, has τ/n less water path within the gate. With both paths so delayed, the gated
+    slab rises by δ = τ cos ϑ_c / n (ϑ_c the central ray's angle in the water), and its
+    single-scattering return changes by
+
+    .. math:: F(\delta) = \frac{\int_{(t-\delta)_+}^{(b-\delta)_+}
+              e^{-2K\sec\vartheta_c z}dz}{\int_t^b e^{-2K\sec\vartheta_c z}dz},
+
+    :math:`e^{2K\tau/n}` while the slab stays under the surface, less once the gate opens
+    above it (the slab is cut at the surface), 0 if it closes before light reaches the
+    water. Each path carries :math:`\sqrt{F}` (exact when the down and up delays are
+    equal, as for the monostatic default), times the central ray's attenuation to the
+    gate's plane: the gate, not the ray's own slant path, sets how deep the light is.
+
+    Parameters
+    ----------
+    excess : ndarray
+        Air path less the central ray's [m] (through the wavy surface: a crest shortens
+        it, and the gate then holds less water: e^(−2Kη/n) for the round trip).
+    diffuse_attenuation : float
+        K [1/m].
+    refractive_index : float
+        n of the water [1].
+    secant : float
+        sec ϑ_c of the central ray in the water [1].
+    top, bottom : float
+        The gate's depths along the central ray [m].
+    depth : float
+        Depth of the gate's plane [m].
+
+    Returns
+    -------
+    ndarray
+        The gain [1], float32, in place of the ray's own extra-path attenuation.
+    """
+    k, n = diffuse_attenuation, refractive_index
+    excess = np.asarray(excess, dtype=np.float32)
+    gain = np.exp(np.float32(k / n) * excess)
+    rise = excess * np.float32(1.0 / (n * secant))
+    cut = np.flatnonzero(rise > top)
+    if cut.size:
+        shifted = rise[cut].astype(np.float64)
+
+        def slab(upper, lower):
+            return slab_backscatter_reflectance(
+                backscatter_pi=1 / np.pi,
+                diffuse_attenuation=k * secant,
+                top=upper,
+                bottom=lower,
+                reference=0.0,
+            )
+
+        share = slab(np.maximum(top - shifted, 0.0), np.maximum(bottom - shifted, 0.0))
+        gain[cut] = np.sqrt(share / slab(top, bottom))
+    gain *= np.float32(np.exp(-k * depth * (secant - 1.0)))
+    return gain

@@ -1,0 +1,195 @@
+"""The labels of a sample and the dataset that carries them.
+
+`sample_labels` holds what a scene fixes whatever the seed (target presence and visibility
+per gate, gate depths, platform track); `target_mask` marks the pixels a target covers;
+`labelled_dataset` assembles one sample's variables. The rules are in ``docs/model.md`` §8.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import xarray as xr
+
+from workers.geometry import flat_sea_point
+from workers.scene import Scene
+from workers.sensor import (
+    fine_grid,
+    gate_bounds,
+    impostor_on,
+    lines_of_sight,
+    platform_position,
+    scene_setup,
+    sensor_at,
+)
+from workers.water import slab_backscatter_reflectance
+
+__all__ = ["VISIBILITY", "labelled_dataset", "sample_labels", "target_mask"]
+
+VISIBILITY = {"none": 0, "in_gate": 1, "shadow": 2, "below_gate": 3}
+
+
+def target_mask(silhouette: np.ndarray) -> np.ndarray:
+    """Pixels the target covers: at least half, or the most covered if none reaches half.
+
+    `silhouette` is the share of each pixel's line of sight inside the target's outline
+    (the rasterised silhouette at the pixel's crossing of the target plane). A target
+    smaller than a pixel still marks the pixel(s) it covers most, so a target in view
+    never has an empty mask.
+    """
+    mask = silhouette >= 0.5
+    if not mask.any() and silhouette.max(initial=0.0) > 0:
+        mask = silhouette >= silhouette.max()
+    return mask.astype(np.uint8)
+
+
+@functools.lru_cache(maxsize=256)
+def _visibility(key: str) -> tuple[int, ...]:
+    r"""Label of the target against each gate, from what a flat sea's pixels would show.
+
+    On the first frame's target plane under a flat sea, without blur, two sums run over the
+    target's silhouette, in units of a white plane just under the surface:
+
+    - the target's return in the gate, :math:`T = \sum w\,e^{-2K\sec\vartheta\,z_s}` over
+      the cells whose surface depth z_s lies in the slab the cell's line of sight gates;
+    - the gate's water the target hides, :math:`H = \sum o\,\pi\beta(\pi)\sec^2\vartheta
+      \int_{\max(z_s, top)}^{bottom} e^{-2K\sec\vartheta\,z}dz`.
+
+    The rule: no target, or no part of its silhouette in the image: ``none``; T > H (the
+    target shows brighter than the water it hides): ``in_gate``; otherwise, if it hides
+    any of the slab (geometrically, whatever β(π)): ``shadow``; else ``below_gate`` (its
+    visible surface lies below the slab: the pixels show nothing of it).
+    """
+    setup = scene_setup(key)
+    scene = setup.scene
+    count = len(setup.gates)
+    if scene.target.shape == "none":
+        return (VISIBILITY["none"],) * count
+    water = setup.water
+    sensor = sensor_at(setup, 0)
+    grid = fine_grid(sensor, scene.target.depth, water.refractive_index, guard=4, multiple=1)
+    impostor = impostor_on(setup, grid)
+    sights = flat_sea_point(
+        origin=sensor.position,
+        direction=sensor.camera.pixel_directions().reshape(-1, 3),
+        depth=grid.depth,
+        refractive_index=water.refractive_index,
+    )
+    if not grid.gather(impostor.occupancy, grid.locate(sights[:, 0], sights[:, 1])).any():
+        return (VISIBILITY["none"],) * count
+    k = water.diffuse_attenuation * setup.secant
+    cells = np.flatnonzero(impostor.occupancy)
+    occupancy = impostor.occupancy.ravel()[cells].astype(np.float64)
+    depth = impostor.surface_depth.ravel()[cells].astype(np.float64)
+    weight = impostor.weight.ravel()[cells]
+    sight = lines_of_sight(sensor, grid, water.refractive_index, cells)
+    labels = []
+    for paths in sensor.paths:
+        top, bottom = gate_bounds(sight, paths, water.refractive_index)
+        inside = (depth >= top) & (depth <= bottom)
+        shown = float(np.sum(weight * inside * np.exp(-2 * k * depth)))
+        slab = setup.secant**2 * slab_backscatter_reflectance(
+            backscatter_pi=1.0,
+            diffuse_attenuation=k,
+            top=np.clip(depth, top, np.maximum(bottom, top)),
+            bottom=np.maximum(bottom, top),
+            reference=0.0,
+        )
+        behind = float(np.sum(occupancy * slab))
+        if shown > water.backscatter_pi * behind:
+            labels.append(VISIBILITY["in_gate"])
+        elif behind > 0:
+            labels.append(VISIBILITY["shadow"])
+        else:
+            labels.append(VISIBILITY["below_gate"])
+    return tuple(labels)
+
+
+def sample_labels(scene: Scene) -> xr.Dataset:
+    """The part of a sample fixed by its scene alone, whatever the seed.
+
+    Parameters
+    ----------
+    scene : Scene
+        The sample's parameters.
+
+    Returns
+    -------
+    xarray.Dataset
+        ``target_present`` (), ``target_visibility`` (gate) and the coordinates
+        ``gate_top``, ``gate_bottom`` (gate), ``time`` and ``platform_x/y/z`` (frame).
+    """
+    setup = scene_setup(scene.model_dump_json())
+    gates = np.asarray(setup.gates)
+    times = np.arange(scene.sequence.frames) * scene.sequence.interval
+    position = np.stack([platform_position(scene, t) for t in times])
+    data_vars = {
+        "target_present": (
+            (),
+            np.uint8(scene.target.shape != "none"),
+            {"long_name": "a target is in the scene", "units": "1"},
+        ),
+        "target_visibility": (
+            ("gate",),
+            np.asarray(_visibility(scene.model_dump_json()), dtype=np.uint8),
+            {
+                "long_name": "target position relative to the gate",
+                "units": "1",
+                "flag_values": np.arange(4, dtype=np.uint8),
+                "flag_meanings": "none in_gate shadow below_gate",
+            },
+        ),
+    }
+    coords = {
+        "gate_top": ("gate", gates[:, 0], {"long_name": "gate top depth", "units": "m"}),
+        "gate_bottom": ("gate", gates[:, 1], {"long_name": "gate bottom depth", "units": "m"}),
+        "time": ("frame", times, {"long_name": "time", "units": "s"}),
+        "platform_x": ("frame", position[:, 0], {"long_name": "platform east", "units": "m"}),
+        "platform_y": ("frame", position[:, 1], {"long_name": "platform north", "units": "m"}),
+        "platform_z": ("frame", position[:, 2], {"long_name": "platform height", "units": "m"}),
+    }
+    return xr.Dataset(data_vars, coords=coords)
+
+
+def labelled_dataset(scene, expected, image, masks, surface):
+    """One sample as a dataset: labels, images, mask (and surface), with units."""
+    units = "1"
+    if scene.radiometry.photoelectrons:
+        units = "photoelectrons" if scene.noise.gain == 1.0 else "counts"
+    frames = scene.sequence.frames
+    ds = sample_labels(scene)
+    ds["image"] = (
+        ("frame", "gate", "y", "x"),
+        image.astype(np.float32, copy=False),
+        {"long_name": "gated receiver image with shot noise", "units": units},
+    )
+    ds["expected"] = (
+        ("frame", "gate", "y", "x"),
+        expected.astype(np.float32, copy=False),
+        {
+            "long_name": "expected (noise-free) gated receiver image",
+            "units": "photoelectrons" if scene.radiometry.photoelectrons else "1",
+        },
+    )
+    ds["target_mask"] = (
+        ("frame", "y", "x"),
+        masks.astype(np.uint8),
+        {"long_name": "pixel ray meets the target silhouette", "units": "1"},
+    )
+    if scene.save_surface:
+        n, spacing = scene.surface.grid_size, scene.surface.spacing
+        elevation = (
+            surface.elevation if surface is not None else np.zeros((frames, n, n), np.float32)
+        )
+        ds["surface_elevation"] = (
+            ("frame", "sy", "sx"),
+            elevation.astype(np.float32),
+            {"long_name": "sea surface elevation", "units": "m"},
+        )
+        axis = np.arange(n) * spacing
+        ds = ds.assign_coords(
+            sx=("sx", axis, {"long_name": "surface grid east", "units": "m"}),
+            sy=("sy", axis, {"long_name": "surface grid north", "units": "m"}),
+        )
+    return ds

@@ -1,0 +1,336 @@
+"""The in-water planes of a frame: two-level grids, spreads, beam tail, target maps, hiding.
+
+`frame_geometry` builds them once per scene and frame (cached); every sample
+`workers.render.render` draws reuses them. The model is in ``docs/model.md``.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+
+from workers.gates import hidden_fraction
+from workers.geometry import LaserRays, Located, PlaneGrid, flat_sea_point
+from workers.interface import ray_components
+from workers.optics import fresnel_reflectance
+from workers.sensor import (
+    Sensor,
+    Setup,
+    fine_grid,
+    gate_bounds,
+    impostor_on,
+    lines_of_sight,
+    scene_setup,
+    sensor_at,
+)
+from workers.spread import (
+    NEAR_SUPPORT,
+    SPREAD_FRACTION,
+    Levels,
+    Spread,
+    coarse_factor,
+    encircled_radius,
+)
+from workers.target import Impostor
+
+GUARD = 0.125
+"""Least guard band on each side of an in-water plane, as a fraction of the image size."""
+
+BEAM_EXTENT = 2.5
+"""Half-width of the traced beam in units of its 1/e radius (e^-6.25: 0.2 % lies beyond)."""
+
+TAIL_STEP = 2
+"""Pitch of the beam tail's lattice, in laser-lattice steps (1 for an odd lattice, so the
+tail's cells end where the traced lattice's begin)."""
+
+LATTICE_MARGIN = 8
+"""Laser rays traced through the wavy surface beyond the field, on each side."""
+
+
+@dataclass(frozen=True)
+class Plane:
+    """An in-water plane: its two-level grid, spread, and the beam tail landing on it.
+
+    For a gate, `spread` is the round trip (the slab's reflectance times MTF²); where the
+    target hides part of the gate's water, `bounds` holds the gate's slab bounds on the
+    target plane's grid (for the rays that meet the target) and `occlusion` the square root
+    of the fraction not hidden, seen back through the upwelling point-spread function.
+    """
+
+    levels: Levels
+    spread: Spread
+    tail: tuple[np.ndarray, np.ndarray] | None
+    bounds: tuple[np.ndarray, np.ndarray] | None = None
+    occlusion: np.ndarray | None = None
+
+    @property
+    def grid(self) -> PlaneGrid:
+        """The fine grid."""
+        return self.levels.fine
+
+
+@dataclass(frozen=True)
+class TargetLight:
+    """The target's reflectance maps per gate: gates cutting it alike share one map.
+
+    Each map is a pair (fine, coarse); the coarse one holds the part of a large target
+    outside the fine grid (None when the target lies within it).
+    """
+
+    weights: tuple[tuple[np.ndarray, np.ndarray | None], ...]
+    gates: tuple[tuple[int, ...], ...]
+
+
+@dataclass(frozen=True)
+class FrameGeometry:
+    """Geometry of one frame: sensor rays, planes, filters and the target impostor."""
+
+    position: np.ndarray
+    central_air: float
+    pixel_rays: tuple
+    laser_rays: tuple
+    laser_power: np.ndarray
+    pixel_index: np.ndarray | None
+    gate_planes: tuple[Plane, ...]
+    target_plane: Plane | None
+    impostor: Impostor | None
+    target_light: TargetLight | None
+
+
+def _plane_levels(setup: Setup, sensor: Sensor, depth: float, passes: int) -> tuple[Levels, int]:
+    """The two-level grid of a plane, and its fine guard band [cells].
+
+    The coarse margin holds `SPREAD_FRACTION` of the scattered light one way, twice that
+    radius for a round trip (two independent spreads).
+    """
+    n_w = setup.water.refractive_index
+    bare = fine_grid(sensor, depth, n_w, guard=0, multiple=1)
+    spacing = min(bare.spacing_u, bare.spacing_v)
+    margin = passes * encircled_radius(setup.water, distance=depth, fraction=SPREAD_FRACTION)
+    span = max(bare.shape) * spacing
+    factor = coarse_factor(spacing=spacing, extent=span + 2 * margin)
+    guard = max(int(np.ceil(GUARD * sensor.camera.pixels)), NEAR_SUPPORT * factor)
+    fine = fine_grid(sensor, depth, n_w, guard=guard, multiple=factor)
+    return Levels.around(fine, factor=factor, margin=margin), guard
+
+
+def _beam_tail(setup: Setup, sensor: Sensor, levels: Levels, tail: LaserRays, gate=None):
+    """The beam tail's irradiance on the fine and coarse grids under the mean (flat) sea.
+
+    For a gate's plane (`gate` its index), each ray carries the gate's timing
+    (`gate_gain`) in place of its own path's attenuation.
+    """
+    if tail.power.size == 0:
+        return None
+    water, grid = setup.water, levels.coarse
+    n_w = water.refractive_index
+    points = flat_sea_point(
+        origin=tail.origins, direction=tail.directions, depth=grid.depth, refractive_index=n_w
+    )
+    cos_air = np.clip(-tail.directions[:, 2], 0.0, 1.0)
+    cos_water = np.sqrt(1.0 - (1.0 - cos_air**2) / n_w**2)
+    transmittance = 1.0 - fresnel_reflectance(cos_air, n1=1.0, n2=n_w)
+    if gate is None:
+        extra = np.exp(-water.diffuse_attenuation * grid.depth * (1.0 / cos_water - 1.0))
+    else:
+        air = -(tail.origins[:, 2]) / tail.directions[:, 2]
+        extra = setup.gate_gain(air - sensor.central_air, gate)
+    power = (tail.power * transmittance * extra).astype(np.float32)
+    # rays landing on the fine grid go there (their near spread is the fine grid's); the
+    # others on the coarse grid
+    fine = levels.fine.locate(points[:, 0], points[:, 1])
+    inside = fine.weights.sum(axis=0) > 0
+    outside = ~inside
+    coarse = grid.locate(points[outside, 0], points[outside, 1])
+    return (
+        levels.fine.splat(
+            Located(fine.corners[:, inside], fine.weights[:, inside]), power[inside]
+        ),
+        grid.splat(coarse, power[outside]),
+    )
+
+
+@functools.lru_cache(maxsize=64)
+def frame_geometry(key: str, frame: int) -> FrameGeometry:
+    """Sensor rays, planes, filters and target maps of `frame` (cached by scene JSON, frame)."""
+    setup = scene_setup(key)
+    scene = setup.scene
+    water = setup.water
+    sensor = sensor_at(setup, frame)
+    camera, r = sensor.camera, scene.receiver
+    t = scene.target
+    depths = ([t.depth] if t.shape != "none" else []) + list(setup.reference_depths)
+    passes = ([1] if t.shape != "none" else []) + [2] * len(setup.gates)
+    built = [
+        _plane_levels(setup, sensor, depth, count)
+        for depth, count in zip(depths, passes, strict=True)
+    ]
+    # the traced lattice reaches LATTICE_MARGIN rays beyond the field; the beam's tail
+    # beyond it crosses the mean sea (within the beam's extent)
+    rays = sensor.laser_rays
+    margin = min(LATTICE_MARGIN, int(np.ceil(0.5 * (BEAM_EXTENT - 1.0) * rays)))
+    laser = LaserRays.from_platform(
+        position=sensor.position,
+        rotation=camera.rotation,
+        beam=scene.laser.beam,
+        field_of_view=sensor.laser_fov,
+        rays=rays,
+        reference_range=sensor.reference_range,
+        margin=margin,
+    )
+    step = 2.0 * np.tan(0.5 * sensor.laser_fov) / rays
+    tail = LaserRays.beam_tail(
+        position=sensor.position,
+        rotation=camera.rotation,
+        beam=scene.laser.beam,
+        field_of_view=sensor.laser_fov,
+        reference_range=sensor.reference_range,
+        inner=(0.5 * rays + margin) * step,
+        step=(TAIL_STEP if rays % 2 == 0 else 1) * step,
+        extent=BEAM_EXTENT,
+    )
+    # The default laser (divergent, the receiver's field, one ray per pixel) shares the
+    # pixels' lattice of directions: the pixels' lines of sight are its central block.
+    monostatic = bool(
+        scene.laser.beam == "divergent"
+        and rays == r.pixels
+        and sensor.laser_fov == camera.field_of_view
+    )
+    pixel_index = None
+    if monostatic:
+        side = rays + 2 * margin
+        block = np.arange(margin, margin + rays)
+        pixel_index = (block[:, None] * side + block[None, :]).ravel()
+
+    gains = ([1.0] if t.shape != "none" else []) + list(setup.reflectances)
+    gate_index = ([None] if t.shape != "none" else []) + list(range(len(setup.gates)))
+    planes = []
+    for (levels, _), depth, count, gain, gate in zip(
+        built, depths, passes, gains, gate_index, strict=True
+    ):
+        spread = Spread.build(
+            water=water,
+            levels=levels,
+            distance=depth,
+            truncation=scene.water.psf_truncation,
+            passes=count,
+            gain=gain,
+        )
+        planes.append(
+            Plane(levels=levels, spread=spread, tail=_beam_tail(setup, sensor, levels, tail, gate))
+        )
+    target_plane = impostor = target_light = target_sight = None
+    if t.shape != "none":
+        target_plane, planes = planes[0], planes[1:]
+        impostor = impostor_on(setup, target_plane.grid)
+        target_light = _target_light(setup, sensor, target_plane.levels)
+        target_sight = lines_of_sight(sensor, target_plane.grid, water.refractive_index)
+    gate_planes = []
+    for g, plane in enumerate(planes):
+        if impostor is not None:
+            plane = _with_hiding(
+                setup, sensor, plane, sensor.paths[g], target_plane.grid, target_sight, impostor
+            )
+        gate_planes.append(plane)
+    pixel_directions = camera.pixel_directions().reshape(-1, 3)
+    return FrameGeometry(
+        position=sensor.position,
+        central_air=sensor.central_air,
+        pixel_rays=ray_components(sensor.position, pixel_directions),
+        laser_rays=ray_components(laser.origins, laser.directions),
+        laser_power=laser.power.astype(np.float32),
+        pixel_index=pixel_index,
+        gate_planes=tuple(gate_planes),
+        target_plane=target_plane,
+        impostor=impostor,
+        target_light=target_light,
+    )
+
+
+def _target_light(setup, sensor, levels: Levels) -> TargetLight:
+    r"""Reflectance of the part of the target each gate holds, from its true depth.
+
+    The target plane's light carries the attenuation of the plane through the target's
+    centre; a cell whose line meets the target's surface at depth z_s (above the centre
+    plane, on the lit cap) is reached by a path shorter by (z_c − z_s) sec ϑ each way, so
+    its weight is multiplied by :math:`e^{2K\sec\vartheta\,(z_c - z_s)}`.
+    """
+    water = setup.water
+
+    def lit(grid, impostor):
+        depth = np.asarray(impostor.surface_depth, dtype=np.float64)
+        lift = np.exp(2 * water.diffuse_attenuation * setup.secant * (grid.depth - depth))
+        return depth, impostor.weight * lift
+
+    fine_impostor = impostor_on(setup, levels.fine)
+    coarse_impostor = impostor_on(setup, levels.coarse)
+    outside = coarse_impostor.occupancy.copy()
+    outside[levels.block] = 0.0
+    levels_lit = [(levels.fine, fine_impostor, *lit(levels.fine, fine_impostor))]
+    if outside.any():
+        levels_lit.append((levels.coarse, coarse_impostor, *lit(levels.coarse, coarse_impostor)))
+    n_w = water.refractive_index
+    sights = [lines_of_sight(sensor, grid, n_w) for grid, *_ in levels_lit]
+    maps, members = {}, {}
+    for g, paths in enumerate(sensor.paths):
+        pair, signature = [], b""
+        for (grid, impostor, depth, weight), sight in zip(levels_lit, sights, strict=True):
+            top, bottom = gate_bounds(sight, paths, n_w)
+            inside = (depth >= top) & (depth <= bottom) & (impostor.occupancy > 0)
+            if grid is levels.coarse:
+                inside[levels.block] = False
+            pair.append(np.where(inside, weight, 0.0).astype(np.float32))
+            signature += inside.tobytes()
+        if not any(m.any() for m in pair):
+            continue
+        if signature not in maps:
+            maps[signature] = (pair[0], pair[1] if len(pair) > 1 else None)
+            members[signature] = []
+        members[signature].append(g)
+    return TargetLight(
+        weights=tuple(maps.values()), gates=tuple(tuple(m) for m in members.values())
+    )
+
+
+def _with_hiding(setup, sensor, plane, paths, target_grid, target_sight, impostor) -> Plane:
+    """`plane` with the target's hiding of the gate's water, if it hides any."""
+    water = setup.water
+    k = water.diffuse_attenuation * setup.secant
+    top_t, bottom_t = gate_bounds(target_sight, paths, water.refractive_index)
+    grid = plane.grid
+    # The line of sight through a gate-plane cell crossed the target plane nearer the
+    # platform, by the depth difference times the tangent of the in-water angle.
+    x, y = grid.cell_centres()
+    back = (grid.depth - target_grid.depth) * np.tan(setup.refracted_nadir)
+    located = target_grid.locate(x + back * grid.axis_v[0], y + back * grid.axis_v[1])
+    top, bottom = gate_bounds(
+        lines_of_sight(sensor, grid, water.refractive_index), paths, water.refractive_index
+    )
+    hidden = hidden_fraction(
+        target_grid.gather(impostor.surface_depth, located),
+        target_grid.gather(impostor.occupancy, located),
+        top=top,
+        bottom=bottom,
+        diffuse_attenuation=k,
+    )
+    if not hidden.any():
+        return plane
+    deficit = (1.0 - np.sqrt(np.maximum(1.0 - hidden, 0.0))).astype(np.float32)
+    # seen back through the one-way (upwelling) spread, normalised to keep its level
+    upwelling = Spread.build(
+        water=water,
+        levels=plane.levels,
+        distance=grid.depth,
+        truncation=setup.scene.water.psf_truncation,
+    )
+    seen, _ = upwelling(deficit, far_out=False)
+    occlusion = 1.0 - seen / np.float32(np.exp(-water.diffuse_attenuation * grid.depth))
+    return Plane(
+        levels=plane.levels,
+        spread=plane.spread,
+        tail=plane.tail,
+        bounds=(top_t.astype(np.float32), bottom_t.astype(np.float32)),
+        occlusion=occlusion.astype(np.float32),
+    )

@@ -1,0 +1,265 @@
+"""A scene's setup and its sensor per frame: water, gates, scale, camera, laser, timing.
+
+`scene_setup` holds what every sample of a scene shares, `sensor_at` the camera, the laser
+and the gates' path lengths at a frame; lines of sight and the target's placement follow.
+The model is in ``docs/model.md``.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+
+from workers.conditioning import Kriging
+from workers.gates import central_paths, gate_gain, sight_lines, slab_bounds
+from workers.geometry import LaserRays, PinholeCamera, PlaneGrid, flat_sea_point
+from workers.optics import fresnel_reflectance
+from workers.radiometry import photoelectrons_per_signal, pixel_solid_angle
+from workers.scene import Scene
+from workers.target import Impostor
+from workers.water import (
+    WaterOptics,
+    slab_backscatter_centroid,
+    slab_backscatter_reflectance,
+)
+
+
+@dataclass(frozen=True)
+class Setup:
+    """What every frame of every sample of a scene shares."""
+
+    scene: Scene
+    water: WaterOptics
+    spectrum: object
+    conditioning: Kriging | None
+    gates: tuple[tuple[float, float], ...]
+    reference_depths: tuple[float, ...]
+    reflectances: tuple[float, ...]
+    scale: float
+    refracted_nadir: float
+    secant: float
+
+    def gate_gain(self, excess, gate: int):
+        """`workers.gates.gate_gain` of this scene's gate number `gate` [1]."""
+        top, bottom = self.gates[gate]
+        return gate_gain(
+            excess,
+            diffuse_attenuation=self.water.diffuse_attenuation,
+            refractive_index=self.water.refractive_index,
+            secant=self.secant,
+            top=top,
+            bottom=bottom,
+            depth=self.reference_depths[gate],
+        )
+
+
+@functools.lru_cache(maxsize=32)
+def scene_setup(key: str) -> Setup:
+    """What every frame of every sample of a scene shares (cached by the scene's JSON)."""
+    scene = Scene.model_validate_json(key)
+    w = scene.water
+    coefficients = w.coefficients
+    coefficients.update(
+        phase_function=w.phase_function, theta0=w.theta0, refractive_index=w.refractive_index
+    )
+    water = WaterOptics(**coefficients)
+    gates = scene.receiver.gate_depths
+    refracted_nadir = float(
+        np.arcsin(np.sin(np.radians(scene.platform.nadir_deg)) / w.refractive_index)
+    )
+    secant = 1.0 / np.cos(refracted_nadir)
+    references = tuple(
+        float(
+            slab_backscatter_centroid(
+                diffuse_attenuation=water.diffuse_attenuation * secant, top=top, bottom=bottom
+            )
+        )
+        for top, bottom in gates
+    )
+    # Seen at an angle ϑ in the water, a slab's volume return grows as 1/cos²ϑ (the normal
+    # irradiance is E/cosϑ and the path through dz is dz/cosϑ) and fades as e^(-2Kz/cosϑ).
+    K = water.diffuse_attenuation * secant
+    reflectances = tuple(
+        float(
+            secant**2
+            * slab_backscatter_reflectance(
+                backscatter_pi=water.backscatter_pi,
+                diffuse_attenuation=K,
+                top=top,
+                bottom=bottom,
+                reference=reference,
+            )
+        )
+        for (top, bottom), reference in zip(gates, references, strict=True)
+    )
+    scale = _signal_scale(scene)
+    return Setup(
+        scene=scene,
+        water=water,
+        spectrum=scene.surface.wave_spectrum(),
+        conditioning=scene.surface.kriging(),
+        gates=gates,
+        reference_depths=references,
+        reflectances=reflectances,
+        scale=scale,
+        refracted_nadir=refracted_nadir,
+        secant=float(secant),
+    )
+
+
+def _signal_scale(scene: Scene) -> float:
+    """The factor taking the raw signal to photoelectrons (or to white-plane units).
+
+    Absolute: the lidar equation's photon budget for the Gaussian beam's whole pulse
+    energy, whose 1/e half-width at the reference range (`frame_geometry`'s, the slant
+    range at the first frame) is that range times tan(laser field/2). Normalised: a ρ = 1
+    plane just under a flat sea at nadir, which reads t0² (two-way normal-incidence
+    Fresnel transmittance), gives `white_plane_photons` (1 when that is 0).
+    """
+    r, n_w = scene.radiometry, scene.water.refractive_index
+    if r.mode == "normalised":
+        t0 = 1.0 - float(fresnel_reflectance(1.0, n1=1.0, n2=n_w))
+        return (r.white_plane_photons or 1.0) / t0**2
+    p = scene.platform
+    reference_range = p.altitude / np.cos(np.radians(p.nadir_deg))
+    laser_fov = np.radians(scene.laser.field_of_view_deg or scene.receiver.field_of_view_deg)
+    return photoelectrons_per_signal(
+        pulse_energy=r.pulse_energy,
+        wavelength=r.wavelength,
+        aperture_diameter=r.receiver_aperture,
+        optics_transmission=r.optics_transmission,
+        quantum_efficiency=r.quantum_efficiency,
+        solid_angle=pixel_solid_angle(
+            field_of_view=np.radians(scene.receiver.field_of_view_deg),
+            pixels=scene.receiver.pixels,
+        ),
+        beam_half_width=reference_range * np.tan(0.5 * laser_fov),
+        refractive_index=n_w,
+    )
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """Camera, laser and the flat-sea gate timing of one frame (no plane yet)."""
+
+    position: np.ndarray
+    camera: PinholeCamera
+    laser_fov: float
+    laser_rays: int
+    reference_range: float
+    lattice: tuple
+    paths: np.ndarray
+
+    @property
+    def central_air(self) -> float:
+        """Air path of the central ray to mean sea level [m]."""
+        return float(self.position[2] / np.cos(self.camera.nadir))
+
+
+def sensor_at(setup: Setup, frame: int) -> Sensor:
+    """Camera, laser and gate timing of `frame` (no plane yet)."""
+    scene = setup.scene
+    p, r = scene.platform, scene.receiver
+    position = platform_position(scene, frame * scene.sequence.interval)
+    camera = PinholeCamera(
+        position=tuple(position),
+        nadir=np.radians(p.nadir_deg),
+        azimuth=np.radians(p.azimuth_deg),
+        field_of_view=np.radians(r.field_of_view_deg),
+        pixels=r.pixels,
+    )
+    laser_fov = float(np.radians(scene.laser.field_of_view_deg or r.field_of_view_deg))
+    reference_range = p.altitude / np.cos(np.radians(p.nadir_deg))
+    probe = LaserRays.from_platform(
+        position=position,
+        rotation=camera.rotation,
+        beam=scene.laser.beam,
+        field_of_view=laser_fov,
+        rays=scene.laser_rays,
+        reference_range=reference_range,
+    )
+    paths = central_paths(
+        altitude=float(position[2]),
+        nadir=np.radians(p.nadir_deg),
+        refractive_index=scene.water.refractive_index,
+        gates=setup.gates,
+    )
+    return Sensor(
+        position=position,
+        camera=camera,
+        laser_fov=laser_fov,
+        laser_rays=scene.laser_rays,
+        reference_range=reference_range,
+        lattice=probe.central(),
+        paths=paths,
+    )
+
+
+def lines_of_sight(sensor: Sensor, grid: PlaneGrid, refractive_index: float, cells=None):
+    """Air path and in-water cosine of the flat-sea line of sight to each cell (or `cells`)."""
+    x, y = grid.cell_centres()
+    if cells is not None:
+        x, y = x.ravel()[cells], y.ravel()[cells]
+    return sight_lines(
+        position=sensor.position, x=x, y=y, depth=grid.depth, refractive_index=refractive_index
+    )
+
+
+def gate_bounds(sight, paths, refractive_index):
+    """Gated depth bounds (top, bottom) [m] along lines of sight (`lines_of_sight`)."""
+    air, cos_water = sight
+    return slab_bounds(
+        paths=paths, air=air, cos_water=cos_water, refractive_index=refractive_index
+    )
+
+
+def platform_position(scene: Scene, time: float) -> np.ndarray:
+    """Platform position (x, y, z) at `time` [m]: over the origin at t = 0, then moving."""
+    p = scene.platform
+    nadir, azimuth = np.radians(p.nadir_deg), np.radians(p.azimuth_deg)
+    reach = p.altitude * np.tan(nadir)
+    start = np.array([-reach * np.sin(azimuth), -reach * np.cos(azimuth), p.altitude])
+    return start + time * np.asarray(scene.sequence.velocity, dtype=float)
+
+
+def fine_grid(sensor: Sensor, depth: float, n_w: float, *, guard: int, multiple: int):
+    """The camera's fine plane grid at `depth`, `guard` cells wider on each side."""
+    return PlaneGrid.covering(
+        camera=sensor.camera,
+        lattice=sensor.lattice,
+        depth=depth,
+        refractive_index=n_w,
+        guard=guard,
+        multiple=multiple,
+    )
+
+
+def target_centre(setup: Setup, camera: PinholeCamera) -> tuple[float, float]:
+    """World (x, y) of the target's centre: as given, or on the central ray [m]."""
+    t = setup.scene.target
+    if t.x is not None and t.y is not None:
+        return float(t.x), float(t.y)
+    centre = flat_sea_point(
+        origin=platform_position(setup.scene, 0.0),
+        direction=camera.rotation[2],
+        depth=t.depth,
+        refractive_index=setup.water.refractive_index,
+    )
+    return float(centre[0]), float(centre[1])
+
+
+def impostor_on(setup: Setup, grid: PlaneGrid) -> Impostor:
+    """The scene's target rasterised on `grid` (`workers.target.Impostor`)."""
+    t = setup.scene.target
+    camera = sensor_at(setup, 0).camera
+    return Impostor.build(
+        grid=grid,
+        shape=t.shape,
+        centre=target_centre(setup, camera),
+        radius=t.radius,
+        reflectance=t.reflectance,
+        shading=t.shading,
+        refracted_nadir=setup.refracted_nadir,
+    )
