@@ -1,4 +1,4 @@
-"""Random streams keyed by position (DESIGN §2)."""
+"""Random streams keyed by position (docs/model.md §0)."""
 
 import pytest
 

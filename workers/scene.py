@@ -2,8 +2,8 @@
 
 Every field carries its unit in its description, a default and a valid range. Angles that a
 person types are in degrees and named ``*_deg``; everything else is SI (metres, seconds,
-1/m). The nesting follows ``../shared/DESIGN.md`` §5 and is what sweep files address with
-dotted paths (``target.depth``).
+1/m). The nesting is what sweep files address with dotted paths (``target.depth``; see the
+README's sweep file).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Random streams of a sample, keyed by position, never by draw order (DESIGN §2)."""
+"""Random streams of a sample, keyed by position, never by draw order (docs/model.md §0)."""
 
 from __future__ import annotations
 

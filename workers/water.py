@@ -1,6 +1,6 @@
 """Water-column optics: Petzold IOPs, Wells' small-angle MTF, gated water backscatter.
 
-Paper §4.4 and §4.6; DESIGN §3.4–3.5.
+Paper §4.4 and §4.6; docs/model.md §4–5.
 
 Units: coefficients in 1/m, β(π) in 1/(m·sr), angles in rad, spatial frequencies in
 cycles/m, angular frequencies ψ in cycles/rad, depths and ranges in m (depth positive
