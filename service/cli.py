@@ -182,10 +182,20 @@ def _cmd_run(args) -> int:
 def _open(args):
     if not store.store_exists(args.store, args.storage_options):
         raise SweepError(f"{args.store}: no store there")
+    attributes = store.root_attributes(args.store, args.storage_options) or {}
+    if attributes.get(store.KIND) != "samples":
+        raise SweepError(f"{args.store}: not an oceanlidar samples store")
     try:
         return store.open_store(args.store, storage_options=args.storage_options)
     except Exception as error:
         raise SweepError(f"{args.store}: not an oceanlidar store ({error})") from None
+
+
+def _statistics(url: str, storage_options: dict | None) -> str | None:
+    """The statistics store beside `url`, if one is there."""
+    stats = store.stats_url(url)
+    attributes = store.root_attributes(stats, storage_options) or {}
+    return stats if attributes.get(store.KIND) == "statistics" else None
 
 
 def _cmd_info(args) -> int:
@@ -203,9 +213,7 @@ def _cmd_info(args) -> int:
     print(f"  swept: {', '.join(map(str, swept)) or '(nothing)'}")
     print(f"  sweep sha256: {ds.attrs.get('sweep_sha256')}")
     print(f"  written by: oceanlidar {ds.attrs.get('oceanlidar_version')}")
-    stats = store.stats_url(args.store)
-    there = store.store_exists(stats, args.storage_options)
-    print(f"  statistics: {stats if there else '(none)'}")
+    print(f"  statistics: {_statistics(args.store, args.storage_options) or '(none)'}")
     return EXIT_OK
 
 
@@ -213,7 +221,8 @@ def _cmd_stats(args) -> int:
     from service.stats import write_statistics
 
     _open(args)
-    print(write_statistics(args.store, storage_options=args.storage_options))
+    with store.writer_lock(args.store, args.storage_options):
+        print(write_statistics(args.store, storage_options=args.storage_options))
     return EXIT_OK
 
 
@@ -235,8 +244,8 @@ def _cmd_plot(args) -> int:
     from service.plots import plot_statistics
 
     _open(args)
-    stats_path = store.stats_url(args.store)
-    if not store.store_exists(stats_path, args.storage_options):
+    stats_path = _statistics(args.store, args.storage_options)
+    if stats_path is None:
         raise SweepError(f"{args.store}: no statistics yet; run `oceanlidar stats` first")
     stats = store.open_store(stats_path, storage_options=args.storage_options)
     plot_statistics(stats, args.output)
@@ -260,6 +269,9 @@ def main(argv=None) -> int:
     except SweepError as error:
         print(f"oceanlidar {args.command}: error: {error}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except store.DamagedStoreError as error:
+        print(f"oceanlidar {args.command}: error: {error}", file=sys.stderr)
+        return EXIT_FAILURE
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return EXIT_FAILURE

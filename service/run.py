@@ -309,6 +309,44 @@ def _submit_bounded(client, url, batches, window, storage_options, tag, result, 
         raise
 
 
+def _check_output(plan: Plan, url: str, *, resume, overwrite, storage_options) -> tuple:
+    """Check what is at the output before anything is written or deleted.
+
+    Returns
+    -------
+    tuple of (bool, list, list)
+        Whether an existing store is resumed, and the files of the old store and of its
+        statistics that ``--overwrite`` deletes (`service.store.removable_files`).
+
+    Raises
+    ------
+    SweepError
+        If the output or the statistics path holds something this run may not replace.
+    """
+    stats_files = store.removable_files(store.stats_url(url), storage_options, kind="statistics")
+    if not store.occupied(url, storage_options):
+        return False, [], []
+    if not resume and not overwrite:
+        raise SweepError(f"{url} already exists; pass --resume to complete it or --overwrite")
+    if overwrite:
+        return False, store.removable_files(url, storage_options, kind="samples"), stats_files
+    previous = store.root_attributes(url, storage_options) or {}
+    if previous.get(store.KIND) != "samples":
+        raise SweepError(f"{url} is not an oceanlidar samples store; cannot resume into it")
+    if previous.get("sweep_sha256") != plan.digest:
+        raise SweepError(
+            f"{url} holds a different sweep (its hash differs); refusing to resume into it"
+        )
+    written_by = previous.get("oceanlidar_version")
+    if written_by != store.package_version():
+        raise SweepError(
+            f"{url} was written by oceanlidar {written_by}, this is "
+            f"{store.package_version()}: samples would differ; resume with that version "
+            "or start again with --overwrite"
+        )
+    return True, [], []
+
+
 def execute(
     plan: Plan,
     url: str,
@@ -322,43 +360,31 @@ def execute(
     batch_size: int = 4,
     progress_stream=None,
 ) -> RunResult:
-    """Create (or reopen) the store, run the missing samples and write the statistics."""
-    exists = store.store_exists(url, storage_options)
-    if exists and resume:
-        if not store.is_oceanlidar_store(url, storage_options):
-            raise SweepError(f"{url} is not an oceanlidar store; cannot resume into it")
-        previous = store.open_store(url, storage_options=storage_options)
-        if previous.attrs.get("sweep_sha256") != plan.digest:
-            raise SweepError(
-                f"{url} holds a different sweep (its hash differs); refusing to resume into it"
+    """Create (or reopen) the store, run the missing samples and write the statistics.
+
+    Everything is checked before anything is deleted or written, once before taking the
+    store's writer lock (so a refused run leaves no trace) and again holding it (another
+    run may have changed the output meanwhile).
+    """
+    options = {"resume": resume, "overwrite": overwrite, "storage_options": storage_options}
+    _check_output(plan, url, **options)
+    with store.writer_lock(url, storage_options):
+        resuming, old_files, old_stats = _check_output(plan, url, **options)
+        # connect before touching storage: an unreachable cluster leaves everything as it was
+        with dask_client(workers=workers, scheduler=scheduler, security=security) as client:
+            store.remove_files(store.stats_url(url), storage_options, old_stats)
+            store.remove_files(url, storage_options, old_files)
+            if not resuming:
+                store.create_store(plan, url, storage_options=storage_options)
+            result = run_plan(
+                plan,
+                url,
+                client=client,
+                resume=resuming,
+                storage_options=storage_options,
+                batch_size=batch_size,
+                progress_stream=progress_stream,
             )
-        written_by = previous.attrs.get("oceanlidar_version")
-        if written_by != store.package_version():
-            raise SweepError(
-                f"{url} was written by oceanlidar {written_by}, this is "
-                f"{store.package_version()}: samples would differ; resume with that version "
-                "or start again with --overwrite"
-            )
-    elif exists and not overwrite:
-        raise SweepError(f"{url} already exists; pass --resume to complete it or --overwrite")
-    elif exists and not store.is_oceanlidar_store(url, storage_options):
-        raise SweepError(f"{url} exists and is not an oceanlidar store; refusing to delete it")
-    # connect before touching storage: an unreachable cluster leaves everything as it was
-    with dask_client(workers=workers, scheduler=scheduler, security=security) as client:
-        if exists and not resume:
-            store.remove_store(url, storage_options)
-            store.remove_store(store.stats_url(url), storage_options)
-        if not (exists and resume):
-            store.create_store(plan, url, storage_options=storage_options)
-        result = run_plan(
-            plan,
-            url,
-            client=client,
-            resume=resume,
-            storage_options=storage_options,
-            batch_size=batch_size,
-            progress_stream=progress_stream,
-        )
-        if not result.interrupted and not result.failed:
-            write_statistics(url, storage_options=storage_options)
+            if not result.interrupted and not result.failed:
+                write_statistics(url, storage_options=storage_options)
     return result

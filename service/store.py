@@ -10,7 +10,12 @@ complete that is not written.
 from __future__ import annotations
 
 import contextlib
+import datetime
 import json
+import os
+import re
+import socket
+import uuid
 import warnings
 from importlib.metadata import PackageNotFoundError, version
 
@@ -19,25 +24,36 @@ import fsspec
 import numpy as np
 import xarray as xr
 import zarr
+from zarr.codecs import Crc32cCodec, ZstdCodec
 
 from service.sweep import Plan, SweepError, field_units
 from workers.render import render, sample_labels
 from workers.seeds import SampleSeed
 
 __all__ = [
+    "CODECS",
+    "KIND",
+    "LOCK_NAME",
     "RENDERED_VARIABLES",
+    "DamagedStoreError",
     "check_uniform",
     "completed_samples",
     "create_store",
     "lazy_array",
+    "move",
+    "occupied",
     "one_per_chunk",
     "open_group",
     "open_store",
-    "remove_store",
+    "read_samples",
+    "removable_files",
+    "remove_files",
+    "root_attributes",
     "sample_dataset",
     "stats_url",
     "store_exists",
     "write_samples",
+    "writer_lock",
 ]
 
 RENDERED_VARIABLES = ("image", "expected", "target_mask", "surface_elevation")
@@ -47,6 +63,13 @@ FLAT_CHUNK_KEYS = {"name": "default", "separator": "."}
 """Chunk files named c.4.0.0.0.0 in the array's folder: one file per chunk, no folders to
 create (each folder costs as much as a small file on the file systems measured)."""
 CONVENTIONS = "CF-1.10"
+KIND = "oceanlidar_dataset"
+"""Root attribute naming what a store holds: ``samples`` (a sweep) or ``statistics``."""
+LOCK_NAME = "oceanlidar.lock"
+"""The writer's lock, a file in the store (see `writer_lock`)."""
+CODECS = (ZstdCodec(), Crc32cCodec())
+"""Compression, then a CRC32C checksum of every chunk: a damaged chunk fails to decode
+instead of reading as other numbers."""
 
 
 @contextlib.contextmanager
@@ -55,10 +78,12 @@ def consolidated_v3():
 
     zarr-python warns that consolidated metadata is not yet part of the v3 specification;
     we keep it because opening a store then costs one read (it matters on object storage),
-    and zarr-python, which we pin, reads it.
+    and zarr-python, which we pin, reads it. Consolidating lists the store, where zarr
+    notices the writer's lock (`writer_lock`), which is not part of the hierarchy by design.
     """
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="Consolidated metadata is currently not part")
+        warnings.filterwarnings("ignore", message=f"Object at {LOCK_NAME} is not recognized")
         yield
 
 
@@ -95,8 +120,8 @@ def lazy_array(shape: tuple, fill, dtype) -> da.Array:
 
 
 def one_per_chunk(shape: tuple) -> dict:
-    """Zarr encoding: one leading index (sample or point) per chunk, flat chunk keys."""
-    return {"chunks": (1, *shape), "chunk_key_encoding": FLAT_CHUNK_KEYS}
+    """Zarr encoding: one leading index (sample or point) per chunk, flat keys, checksums."""
+    return {"chunks": (1, *shape), "chunk_key_encoding": FLAT_CHUNK_KEYS, "compressors": CODECS}
 
 
 def store_exists(url: str, storage_options: dict | None = None) -> bool:
@@ -105,23 +130,181 @@ def store_exists(url: str, storage_options: dict | None = None) -> bool:
     return fs.exists(path)
 
 
-def is_oceanlidar_store(url: str, storage_options: dict | None = None) -> bool:
-    """Whether `url` holds a zarr group written by oceanlidar (a sweep or its statistics)."""
-    try:
-        group = zarr.open_group(store=url, mode="r", storage_options=storage_options)
-    except Exception:
-        return False
-    return "sweep_sha256" in group.attrs
+def _files(fs, path: str) -> list[str]:
+    """Every file under `path`, relative to it (a file at `path` itself is named '.')."""
+    if fs.isfile(path):
+        return ["."]
+    root = path.rstrip("/") + "/"
+    return sorted(name[len(root) :] for name in fs.find(path) if name.startswith(root))
 
 
-def remove_store(url: str, storage_options: dict | None = None) -> None:
-    """Delete the oceanlidar store at `url` (``--overwrite``); refuse anything else."""
+def occupied(url: str, storage_options: dict | None = None) -> bool:
+    """Whether `url` holds anything besides a writer's lock."""
     fs, path = _fs(url, storage_options)
-    if not fs.exists(path):
+    return any(name != LOCK_NAME for name in _files(fs, path))
+
+
+def root_attributes(url: str, storage_options: dict | None = None) -> dict | None:
+    """The attributes of the zarr group at `url`; None if there is no readable group."""
+    fs, path = _fs(url, storage_options)
+    try:
+        metadata = json.loads(fs.cat_file(f"{path}/zarr.json"))
+    except (OSError, ValueError):
+        return None
+    if not isinstance(metadata, dict) or metadata.get("node_type") != "group":
+        return None
+    attributes = metadata.get("attributes")
+    return attributes if isinstance(attributes, dict) else None
+
+
+def _shown(names: list[str]) -> str:
+    more = f" and {len(names) - 1} more" if len(names) > 1 else ""
+    return repr(names[0][:200]) + more
+
+
+def removable_files(url: str, storage_options: dict | None, *, kind: str) -> list[str]:
+    """The files of the `kind` dataset at `url`, which may be deleted to replace it.
+
+    Only what the store's own metadata lists may go: its group and array metadata, and
+    chunk keys of the arrays that its consolidated metadata names. Anything else in the
+    folder (a user's file, a store of another kind) refuses the whole deletion, before
+    anything is deleted.
+
+    Parameters
+    ----------
+    url : str
+        The store.
+    storage_options : dict or None
+        fsspec options.
+    kind : {'samples', 'statistics'}
+        What the store must hold (its `KIND` attribute).
+
+    Returns
+    -------
+    list of str
+        Paths relative to the store, the writer's lock excluded; empty if nothing is there.
+
+    Raises
+    ------
+    SweepError
+        If something is there that is not such a store, or holds files it does not list.
+    """
+    fs, path = _fs(url, storage_options)
+    files = [name for name in _files(fs, path) if name != LOCK_NAME]
+    if not files:
+        return []
+    attributes = root_attributes(url, storage_options) or {}
+    if attributes.get(KIND) != kind:
+        raise SweepError(
+            f"{url} exists and is not an oceanlidar {kind} store; refusing to delete it"
+        )
+    metadata = json.loads(fs.cat_file(f"{path}/zarr.json"))
+    arrays = (metadata.get("consolidated_metadata") or {}).get("metadata") or {}
+    listed = re.compile(
+        r"zarr\.json|(?:"
+        + "|".join(re.escape(name) for name in arrays)
+        + r")/(?:zarr\.json|c(?:[./]\d+)*)"
+    )
+    strangers = [name for name in files if not listed.fullmatch(name)]
+    if strangers:
+        raise SweepError(
+            f"{url} holds {_shown(strangers)}, which the store's metadata does not list; "
+            "refusing to delete it (move those files away first)"
+        )
+    return files
+
+
+def remove_files(url: str, storage_options: dict | None, files: list[str]) -> None:
+    """Delete `files` (from `removable_files`) of the store at `url`, and emptied folders."""
+    fs, path = _fs(url, storage_options)
+    if not files:
         return
-    if not is_oceanlidar_store(url, storage_options):
-        raise SweepError(f"{url} exists and is not an oceanlidar store; refusing to delete it")
-    fs.rm(path, recursive=True)
+    fs.rm([f"{path}/{name}" for name in files])
+    if "file" in fs.protocol:
+        folders = {os.path.dirname(f"{path}/{name}") for name in files}
+        for folder in sorted(folders, key=len, reverse=True):
+            with contextlib.suppress(OSError):  # not empty: the lock, or a folder above
+                os.rmdir(folder)
+
+
+def move(url: str, to: str, storage_options: dict | None = None) -> None:
+    """Move the store at `url` to `to` (same file system; nothing may be at `to`)."""
+    fs, path = _fs(url, storage_options)
+    fs.mv(path, _fs(to, storage_options)[1], recursive=True)
+
+
+def _holder(fs, lock: str) -> dict:
+    try:
+        holder = json.loads(fs.cat_file(lock))
+    except (OSError, ValueError):
+        return {}
+    return holder if isinstance(holder, dict) else {}
+
+
+def _is_stale(holder: dict) -> bool:
+    """A lock taken on this machine by a process that no longer runs."""
+    if holder.get("host") != socket.gethostname() or not isinstance(holder.get("pid"), int):
+        return False
+    try:
+        os.kill(holder["pid"], 0)
+    except ProcessLookupError:
+        return True
+    except OSError:  # alive, owned by another user
+        return False
+    return False
+
+
+@contextlib.contextmanager
+def writer_lock(url: str, storage_options: dict | None = None):
+    """Hold the store's writer lock: one run (or ``stats``) writes a store at a time.
+
+    The lock is the file `LOCK_NAME` in the store, created only if absent (an exclusive
+    create: ``O_EXCL`` on a file system, a conditional ``If-None-Match`` put on object
+    storage), holding the holder's host, process id and start time. It is removed on exit.
+
+    A lock left by a process that died on this machine is taken over. A lock left by a
+    machine that crashed cannot be told from a live run elsewhere: the message names the
+    file to remove once no run is writing.
+
+    Raises
+    ------
+    SweepError
+        If another run holds the lock.
+    """
+    fs, path = _fs(url, storage_options)
+    lock = f"{path}/{LOCK_NAME}"
+    token = uuid.uuid4().hex
+    record = {
+        "host": socket.gethostname(),
+        "pid": os.getpid(),
+        "since": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "token": token,
+    }
+    created = not fs.exists(path)
+    if "file" in fs.protocol:
+        fs.makedirs(path, exist_ok=True)
+    for attempt in range(2):
+        try:
+            fs.pipe_file(lock, json.dumps(record).encode(), mode="create")
+            break
+        except FileExistsError:
+            holder = _holder(fs, lock)
+            if attempt == 0 and _is_stale(holder):
+                fs.rm(lock)
+                continue
+            raise SweepError(
+                f"{url} is locked by another run (host {holder.get('host', '?')}, process "
+                f"{holder.get('pid', '?')}, since {holder.get('since', '?')}); wait for it, "
+                f"or, if no run is writing there any more, delete {lock} and try again"
+            ) from None
+    try:
+        yield
+    finally:
+        if _holder(fs, lock).get("token") == token:
+            fs.rm(lock)
+        if created and "file" in fs.protocol:
+            with contextlib.suppress(OSError):  # holds a store now
+                os.rmdir(path)
 
 
 def check_uniform(plan: Plan) -> None:
@@ -167,7 +350,7 @@ def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -
     plan : Plan
         The validated sweep.
     url : str
-        A path or fsspec URL; nothing may exist there yet.
+        A path or fsspec URL; nothing but the writer's lock may be there yet.
     storage_options : dict, optional
         fsspec options (credentials, endpoint).
     """
@@ -233,6 +416,8 @@ def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -
             {"long_name": f"swept scene parameter {path}", "units": field_units(path)},
         )
     ds = xr.Dataset(data_vars, coords=coords)
+    for name in ds.variables:
+        encoding.setdefault(name, {"compressors": CODECS})
     ds.attrs.update(
         title=f"oceanlidar sweep {plan.sweep.name}",
         Conventions=CONVENTIONS,
@@ -241,13 +426,14 @@ def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -
         sweep=plan.text,
         sweep_sha256=plan.digest,
         seed=plan.sweep.seed,
+        **{KIND: "samples"},
         realisations=realisations,
         points=len(plan.points),
     )
     with consolidated_v3():
         ds.to_zarr(
             url,
-            mode="w-",
+            mode="a",  # the folder holds the writer's lock
             compute=False,
             consolidated=True,
             zarr_format=3,
@@ -288,6 +474,34 @@ def open_group(url: str, storage_options: dict | None = None):
         use_consolidated=False,
         storage_options=storage_options,
     )
+
+
+class DamagedStoreError(RuntimeError):
+    """A chunk of a store cannot be read back: the message names the sample."""
+
+
+def read_samples(array, samples: list[int]) -> np.ndarray:
+    """The chunks of `samples` from a one-sample-per-chunk array.
+
+    Raises
+    ------
+    DamagedStoreError
+        Naming the first sample whose chunk fails to decode (a checksum that does not
+        match, truncated or foreign bytes).
+    """
+    try:
+        return array.get_orthogonal_selection((samples,))
+    except Exception:
+        for sample in samples:
+            try:
+                array[sample]
+            except Exception as error:
+                raise DamagedStoreError(
+                    f"sample {sample}: its {array.basename} chunk cannot be read "
+                    f"({type(error).__name__}: {str(error)[:120]}); run the sweep again with "
+                    "--resume --verify to recompute it"
+                ) from None
+        raise
 
 
 def write_samples(group, start: int, samples: list[xr.Dataset]) -> None:

@@ -250,10 +250,10 @@ def test_overwrite_never_deletes_what_is_not_a_store(tmp_path, capsys):
     (victim / "chapter" / "one.tex").write_text("precious")
     sweep = write(tmp_path / "s.yaml")
     assert main(["run", str(sweep), "--output", str(victim), "--overwrite"]) == 2
-    assert "not an oceanlidar store" in capsys.readouterr().err
+    assert "not an oceanlidar samples store" in capsys.readouterr().err
     assert (victim / "chapter" / "one.tex").read_text() == "precious"
     assert main(["run", str(sweep), "--output", str(victim), "--resume"]) == 2
-    assert "not an oceanlidar store" in capsys.readouterr().err
+    assert "not an oceanlidar samples store" in capsys.readouterr().err
 
 
 def test_list_valued_parameters_become_string_coordinates(tmp_path):

@@ -1,0 +1,154 @@
+"""Nothing lost, nothing silently wrong: refusals before deletion, locks, checksums."""
+
+import json
+import shutil
+import socket
+import subprocess
+import sys
+
+import pytest
+from conftest import TINY_SCENE, run_cli, start_cli
+
+from service import store
+from service.cli import main
+
+
+def sweep_file(folder, name="one", output="one.zarr", seed=3):
+    path = folder / f"{name}.yaml"
+    path.write_text(TINY_SCENE.format(name=name, seed=seed, realisations=2, output=output))
+    return path
+
+
+def snapshot(folder):
+    """Every file under `folder` and its bytes."""
+    return {
+        p.relative_to(folder): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()
+    }
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory):
+    """A folder with a complete two-sample store `one.zarr` and its statistics."""
+    folder = tmp_path_factory.mktemp("finished")
+    sweep = sweep_file(folder)
+    result = run_cli("run", sweep, "--workers", 1, cwd=folder)
+    assert result.returncode == 0, result.stderr
+    return folder
+
+
+@pytest.fixture
+def work(finished, tmp_path, monkeypatch):
+    """A copy of `finished` to damage, as the current directory."""
+    shutil.copytree(finished, tmp_path, dirs_exist_ok=True)
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+def test_statistics_never_replace_another_sweeps_store(work, capsys):
+    # sweep "two" writes its samples where sweep "one" puts its statistics
+    shutil.rmtree(work / "one.stats.zarr")
+    shutil.copytree(work / "one.zarr", work / "one.stats.zarr")
+    shutil.rmtree(work / "one.zarr")
+    before = snapshot(work)
+    for extra in ([], ["--overwrite"]):
+        assert (
+            main(["run", str(work / "one.yaml"), "--output", str(work / "one.zarr"), *extra]) == 2
+        )
+        assert "not an oceanlidar statistics store" in capsys.readouterr().err
+        assert snapshot(work) == before
+    shutil.copytree(work / "one.stats.zarr", work / "one.zarr")
+    before = snapshot(work)
+    assert main(["stats", str(work / "one.zarr")]) == 2
+    assert "not an oceanlidar statistics store" in capsys.readouterr().err
+    assert snapshot(work) == before
+
+
+@pytest.mark.parametrize(
+    "stranger",
+    ["notes.txt", "image/mine.npy", "old/zarr.json"],
+    ids=["file-in-store", "file-in-array-folder", "unlisted-folder"],
+)
+def test_overwrite_deletes_only_what_the_store_lists(work, capsys, stranger):
+    path = work / "one.zarr" / stranger
+    path.parent.mkdir(exist_ok=True)
+    # a folder carrying the project's attribute is not a licence to delete it either
+    path.write_text(json.dumps({"node_type": "group", "attributes": {store.KIND: "samples"}}))
+    before = snapshot(work)
+    assert main(["run", str(work / "one.yaml"), "--overwrite"]) == 2
+    err = capsys.readouterr().err
+    assert stranger in err and "does not list" in err
+    assert snapshot(work) == before
+
+
+def test_overwrite_checks_everything_before_deleting_anything(work, capsys):
+    shutil.rmtree(work / "one.stats.zarr")
+    (work / "one.stats.zarr").mkdir()
+    (work / "one.stats.zarr" / "thesis.tex").write_text("precious")
+    before = snapshot(work)
+    assert main(["run", str(work / "one.yaml"), "--overwrite"]) == 2
+    assert "not an oceanlidar statistics store" in capsys.readouterr().err
+    assert snapshot(work) == before
+
+
+def test_overwrite_replaces_a_store_and_its_statistics(work):
+    before = snapshot(work / "one.zarr")
+    result = run_cli("run", work / "one.yaml", "--overwrite", "--workers", 1, cwd=work)
+    assert result.returncode == 0, result.stderr
+    assert snapshot(work / "one.zarr") == before  # same sweep, same bytes
+    assert not (work / "one.zarr" / store.LOCK_NAME).exists()
+    assert sorted(p.name for p in work.iterdir()) == ["one.stats.zarr", "one.yaml", "one.zarr"]
+
+
+def damage(work, variable="image", sample=1):
+    """Flip one byte in the middle of a sample's chunk."""
+    chunk = next((work / "one.zarr" / variable).glob(f"c.{sample}.*"))
+    data = bytearray(chunk.read_bytes())
+    data[len(data) // 2] ^= 0x01
+    chunk.write_bytes(bytes(data))
+
+
+def test_failed_statistics_keep_the_previous_ones(work, capsys):
+    before = snapshot(work / "one.stats.zarr")
+    damage(work)
+    assert main(["stats", str(work / "one.zarr")]) == 1
+    assert "sample 1: its image chunk cannot be read" in capsys.readouterr().err
+    assert snapshot(work / "one.stats.zarr") == before
+    assert sorted(p.name for p in work.iterdir()) == ["one.stats.zarr", "one.yaml", "one.zarr"]
+    assert main(["info", str(work / "one.zarr")]) == 0
+    assert str(work / "one.stats.zarr") in capsys.readouterr().out
+
+
+def write_lock(work, **holder):
+    record = {"host": socket.gethostname(), "since": "2026-01-01T00:00:00+00:00", **holder}
+    (work / "one.zarr" / store.LOCK_NAME).write_text(json.dumps({"token": "x", **record}))
+
+
+def test_a_locked_store_is_refused_and_a_dead_holders_lock_taken_over(work, capsys):
+    write_lock(work, host="elsewhere", pid=1)
+    before = snapshot(work)
+    for command in (["run", str(work / "one.yaml"), "--overwrite"], ["stats", "one.zarr"]):
+        assert main([*command[:1], *(str(work / c) for c in command[1:2]), *command[2:]]) == 2
+        err = capsys.readouterr().err
+        assert "locked by another run (host elsewhere" in err
+        assert str(work / "one.zarr" / store.LOCK_NAME) in err
+        assert snapshot(work) == before
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    write_lock(work, pid=dead.pid)
+    assert main(["stats", str(work / "one.zarr")]) == 0
+    assert not (work / "one.zarr" / store.LOCK_NAME).exists()
+
+
+def test_two_fresh_runs_racing_for_one_output(tmp_path):
+    sweep = sweep_file(tmp_path)
+    runs = [
+        start_cli("run", sweep, "--workers", 1, cwd=tmp_path, stderr=subprocess.PIPE, text=True)
+        for _ in range(2)
+    ]
+    errors = [run.communicate(timeout=300)[1] for run in runs]
+    codes = sorted(run.returncode for run in runs)
+    assert codes == [0, 2], errors
+    loser = errors[[run.returncode for run in runs].index(2)]
+    assert "locked by another run" in loser or "already exists" in loser
+    assert "Traceback" not in loser
+    assert main(["info", str(tmp_path / "one.zarr")]) == 0
