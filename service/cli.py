@@ -134,7 +134,7 @@ def _security(args):
 
 
 def _cmd_run(args) -> int:
-    from service.run import ClusterError, execute
+    from service.run import ClusterError, describe_sample, execute
 
     if args.workers is not None and args.workers < 1:
         raise SweepError("--workers must be at least 1")
@@ -170,9 +170,11 @@ def _cmd_run(args) -> int:
     if result.interrupted:
         print(f"interrupted: run again with --resume to complete {url}", file=sys.stderr)
         return EXIT_FAILURE
-    if result.failed:
-        for start, count, error in result.failed:
-            print(f"samples {start}..{start + count - 1} failed: {error}", file=sys.stderr)
+    for sample, reason in result.rejected:
+        print(f"{describe_sample(plan, sample)} not stored: {reason}", file=sys.stderr)
+    for start, count, error in result.failed:
+        print(f"samples {start}..{start + count - 1} failed: {error}", file=sys.stderr)
+    if result.failed or result.rejected:
         print("statistics not written: some samples failed", file=sys.stderr)
         return EXIT_FAILURE
     print(f"statistics: {store.stats_url(url)}", file=sys.stderr)

@@ -24,13 +24,21 @@ from distributed import Client, LocalCluster, as_completed
 
 from service import store
 from service.stats import write_statistics
-from service.sweep import Plan, SweepError
+from service.sweep import Plan, SweepError, shown
 from service.tuning import tune_allocator
 from workers.render import render
 from workers.scene import Scene
 from workers.seeds import SampleSeed
 
-__all__ = ["ClusterError", "RunResult", "execute", "render_batch", "run_plan", "task_batches"]
+__all__ = [
+    "ClusterError",
+    "RunResult",
+    "describe_sample",
+    "execute",
+    "render_batch",
+    "run_plan",
+    "task_batches",
+]
 
 IN_FLIGHT_PER_THREAD = 2
 WINDOW_REFRESH = 5.0
@@ -54,19 +62,38 @@ def render_batch(url, start, jobs, storage_options=None):
 
     Returns
     -------
-    tuple of int
-        ``(start, count)``.
+    list of tuple
+        ``(sample, reason)`` for every sample rejected by `service.store.invalid_values`:
+        those are neither written nor marked complete; the valid samples around them are.
     """
     tune_allocator()
-    samples = [
-        render(
+    group = store.open_group(url, storage_options)
+    rejected = []
+    first, valid = start, []
+    for offset, (scene, root, point, realisation) in enumerate(jobs):
+        sample = render(
             Scene.model_validate_json(scene),
             seed=SampleSeed(root=root, point=point, realisation=realisation),
         )
-        for scene, root, point, realisation in jobs
-    ]
-    store.write_samples(store.open_group(url, storage_options), start, samples)
-    return start, len(samples)
+        reason = store.invalid_values(sample)
+        if reason is None:
+            valid.append(sample)
+            continue
+        rejected.append((start + offset, reason))
+        if valid:
+            store.write_samples(group, first, valid)
+        first, valid = start + offset + 1, []
+    if valid:
+        store.write_samples(group, first, valid)
+    return rejected
+
+
+def describe_sample(plan: Plan, sample: int) -> str:
+    """Sample `sample` by its parameter point, swept values and realisation."""
+    point, realisation = divmod(sample, plan.realisations)
+    values = ", ".join(f"{path}={shown(value)}" for path, value in plan.points[point].items())
+    where = f"point {point}" + (f": {values}" if values else "")
+    return f"sample {sample} ({where}; realisation {realisation})"
 
 
 def task_batches(plan: Plan, todo, batch_size: int) -> Iterator[tuple[int, list]]:
@@ -102,12 +129,18 @@ class ClusterError(RuntimeError):
 
 @dataclass
 class RunResult:
-    """What a run did."""
+    """What a run did.
+
+    ``failed`` holds ``(start, count, error)`` for tasks that raised or lost their worker;
+    ``rejected`` holds ``(sample, reason)`` for samples rendered with invalid values
+    (`service.store.invalid_values`), neither written nor marked complete.
+    """
 
     total: int
     written: int = 0
     skipped: int = 0
     failed: list = field(default_factory=list)
+    rejected: list = field(default_factory=list)
     seconds: float = 0.0
     interrupted: bool = False
     max_in_flight: int = 0
@@ -293,7 +326,9 @@ def _submit_bounded(client, url, batches, window, storage_options, tag, result, 
         for future in pending:
             start, count = sizes.pop(future.key)
             if future.status == "finished":
-                result.written += count
+                rejected = future.result()
+                result.written += count - len(rejected)
+                result.rejected += rejected
                 progress.update(count)
             else:
                 failed.append((start, count, repr(future.exception())))
@@ -385,6 +420,6 @@ def execute(
                 batch_size=batch_size,
                 progress_stream=progress_stream,
             )
-            if not result.interrupted and not result.failed:
+            if not (result.interrupted or result.failed or result.rejected):
                 write_statistics(url, storage_options=storage_options)
     return result

@@ -39,6 +39,7 @@ __all__ = [
     "check_uniform",
     "completed_samples",
     "create_store",
+    "invalid_values",
     "lazy_array",
     "move",
     "occupied",
@@ -228,9 +229,20 @@ def remove_files(url: str, storage_options: dict | None, files: list[str]) -> No
 
 
 def move(url: str, to: str, storage_options: dict | None = None) -> None:
-    """Move the store at `url` to `to` (same file system; nothing may be at `to`)."""
+    """Move the store at `url` to `to` (same file system; nothing may be at `to`).
+
+    On a file system this is one rename. Object storage has no rename: objects are copied,
+    the group's metadata last (until it lands, nothing reads as a store at `to`), then
+    deleted at `url`.
+    """
     fs, path = _fs(url, storage_options)
-    fs.mv(path, _fs(to, storage_options)[1], recursive=True)
+    target = _fs(to, storage_options)[1]
+    if "file" in fs.protocol:
+        os.rename(path, target)
+        return
+    names = sorted(_files(fs, path), key=lambda name: name == "zarr.json")
+    fs.copy([f"{path}/{name}" for name in names], [f"{target}/{name}" for name in names])
+    fs.rm([f"{path}/{name}" for name in names])
 
 
 def _holder(fs, lock: str) -> dict:
@@ -474,6 +486,31 @@ def open_group(url: str, storage_options: dict | None = None):
         use_consolidated=False,
         storage_options=storage_options,
     )
+
+
+NON_NEGATIVE = ("image", "expected")
+"""Rendered variables that are counts or intensities: never below zero."""
+
+
+def invalid_values(sample: xr.Dataset) -> str | None:
+    """Why a rendered sample may not be stored, or None if every value is valid.
+
+    Floating-point variables must be finite, counts and intensities non-negative and
+    the target mask 0 or 1: a sample that breaks any of these is never written nor marked
+    complete.
+    """
+    for name in RENDERED_VARIABLES:
+        if name not in sample:
+            continue
+        values = sample[name].values
+        if values.dtype.kind == "f" and not np.isfinite(values).all():
+            count = int(np.count_nonzero(~np.isfinite(values)))
+            return f"{name} holds {count} non-finite value(s) (NaN or inf)"
+        if name in NON_NEGATIVE and (values < 0).any():
+            return f"{name} holds {int(np.count_nonzero(values < 0))} negative value(s)"
+        if name == "target_mask" and (values > 1).any():
+            return "target_mask holds values other than 0 and 1"
+    return None
 
 
 class DamagedStoreError(RuntimeError):

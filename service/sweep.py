@@ -43,6 +43,7 @@ __all__ = [
     "parse_sweep",
     "read_measurements",
     "scene_field",
+    "shown",
 ]
 
 MAX_FILE_BYTES = 1_000_000
@@ -253,6 +254,18 @@ def _sample_bytes(scene: Scene) -> int:
     return size
 
 
+SHOWN_CHARACTERS = 60
+"""Longest echo of a user's value in a message; longer ones are cut."""
+
+
+def shown(value: Any) -> str:
+    """`value` for a message: its repr, cut to `SHOWN_CHARACTERS`."""
+    text = repr(value)
+    if len(text) <= SHOWN_CHARACTERS:
+        return text
+    return f"{text[: SHOWN_CHARACTERS - 12]}... ({len(text):,} characters)"
+
+
 def human_bytes(n: float) -> str:
     """A byte count for people (binary units)."""
     for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
@@ -388,7 +401,7 @@ def parse_sweep(text: str, *, folder=None) -> Plan:
             try:
                 cache[key] = Scene.model_validate(data)
             except ValidationError as error:
-                values = ", ".join(f"{p}={v!r}" for p, v in point.items())
+                values = ", ".join(f"{p}={shown(v)}" for p, v in point.items())
                 raise SweepError(
                     f"parameter point {index} ({values}):\n" + _format_errors(error, "scene")
                 ) from None

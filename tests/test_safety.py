@@ -6,11 +6,14 @@ import socket
 import subprocess
 import sys
 
+import numpy as np
 import pytest
-from conftest import TINY_SCENE, run_cli, start_cli
+import xarray as xr
+from conftest import TINY_SCENE, TINY_SWEEP, run_cli, start_cli
 
 from service import store
 from service.cli import main
+from workers.render import render
 
 
 def sweep_file(folder, name="one", output="one.zarr", seed=3):
@@ -152,3 +155,36 @@ def test_two_fresh_runs_racing_for_one_output(tmp_path):
     assert "locked by another run" in loser or "already exists" in loser
     assert "Traceback" not in loser
     assert main(["info", str(tmp_path / "one.zarr")]) == 0
+
+
+def test_a_sample_with_non_finite_values_is_reported_and_never_marked_complete(
+    tmp_path, monkeypatch, capsys
+):
+    # one sample renders a NaN: the workers must be threads of this process to see it
+    from distributed import LocalCluster
+
+    import service.run
+
+    def threads(*, host, **options):
+        return LocalCluster(**{**options, "processes": False})
+
+    def poisoned(scene, *, seed):
+        sample = render(scene, seed=seed)
+        if (seed.point, seed.realisation) == (1, 1):
+            sample["expected"].values[0, 0, 0, 0] = np.nan
+        return sample
+
+    monkeypatch.setattr(service.run, "LocalCluster", threads)
+    monkeypatch.setattr(service.run, "render", poisoned)
+    sweep = tmp_path / "nan.yaml"
+    sweep.write_text(TINY_SWEEP.format(name="nan", seed=1, realisations=3, output="n.zarr"))
+    output = tmp_path / "n.zarr"
+    assert (
+        main(["run", str(sweep), "--output", str(output), "--batch", "3", "--workers", "1"]) == 1
+    )
+    err = capsys.readouterr().err
+    assert "sample 4 (point 1: target.shape='none'; realisation 1) not stored" in err
+    assert "expected holds 1 non-finite value" in err and "Traceback" not in err
+    assert xr.open_zarr(output)["completed"].values.tolist() == [1, 1, 1, 1, 0, 1]
+    assert not list((output / "expected").glob("c.4.*"))
+    assert not (tmp_path / "n.stats.zarr").exists()
