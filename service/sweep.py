@@ -15,6 +15,7 @@ import itertools
 import json
 import math
 import re
+from collections.abc import Hashable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -52,6 +53,9 @@ MAX_NODES = 1_000_000
 MAX_POINTS = 10_000_000
 DEFAULT_MAX_SAMPLES = 1_000_000
 DEFAULT_MAX_BYTES = 50 * 2**30
+MAX_TRAVEL = 100_000.0
+"""Farthest the platform may fly during a sequence [m]: beyond 100 km, float32 ray
+coordinates resolve less than a centimetre, coarser than the surface grids need."""
 
 
 class SweepError(ValueError):
@@ -298,11 +302,54 @@ def _check_structure(text: str) -> None:
                 sizes[event.anchor] = 1
             stack[-1][1] += 1
         elif isinstance(event, yaml.AliasEvent):
+            if any(anchor == event.anchor for anchor, _ in stack):
+                raise SweepError(
+                    f"line {event.start_mark.line + 1}: the alias *{event.anchor} refers to "
+                    "a collection that contains it (a self-referential alias)"
+                )
             stack[-1][1] += sizes.get(event.anchor, 1)
         if stack[-1][1] > MAX_NODES:
             raise SweepError(
                 f"the file expands to more than {MAX_NODES:,} values (through YAML aliases?)"
             )
+
+
+class _Loader(yaml.SafeLoader):
+    """YAML's safe loader, stricter: no duplicate keys, no sets.
+
+    A duplicate key would silently win over the first; a set (``!!set``) has no order, so
+    a list of values built from it could differ from one process to the next.
+    """
+
+    def construct_mapping(self, node, deep=False):
+        seen: dict = {}
+        for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":
+                continue
+            key = self.construct_object(key_node, deep=True)
+            line = key_node.start_mark.line + 1
+            if isinstance(key, Hashable) and key in seen:
+                raise SweepError(
+                    f"line {line}: duplicate key {shown(key)} (first on line {seen[key]})"
+                )
+            if isinstance(key, Hashable):
+                seen[key] = line
+        return super().construct_mapping(node, deep=deep)
+
+    def construct_set(self, node):
+        raise SweepError(
+            f"line {node.start_mark.line + 1}: YAML sets (!!set) are not accepted: they have "
+            "no order, so the sweep would not mean one sequence of samples; use a list"
+        )
+
+
+_Loader.add_constructor("tag:yaml.org,2002:set", _Loader.construct_set)
+# YAML 1.1 reads 1e-3 (no dot) as a string; YAML 1.2, and people, read a number
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"),
+)
 
 
 def _read_yaml(text: str) -> Any:
@@ -312,7 +359,7 @@ def _read_yaml(text: str) -> Any:
         raise SweepError("the file is not YAML text (it contains NUL bytes)")
     try:
         _check_structure(text)
-        return yaml.safe_load(text)
+        return yaml.load(text, Loader=_Loader)  # a SafeLoader: plain YAML only
     except yaml.constructor.ConstructorError as error:
         raise SweepError(
             f"line {error.problem_mark.line + 1}: {error.problem} (only plain YAML is "
@@ -323,6 +370,44 @@ def _read_yaml(text: str) -> Any:
         raise SweepError(f"{where}not valid YAML: {error.problem}") from None
     except yaml.YAMLError as error:
         raise SweepError(f"not valid YAML: {error}") from None
+
+
+def _strict_numbers(raw: Any, parsed: Any, place: str) -> None:
+    """Refuse a boolean or a string that validation turned into a number, and NaN or inf.
+
+    pydantic reads ``true`` as 1 and ``"7"`` as 7 where a number goes; a sweep file must
+    write numbers as numbers, and finite ones. `raw` is what the file gave, `parsed` the
+    validated model's dump, walked side by side.
+    """
+    if isinstance(parsed, float) and not math.isfinite(parsed):
+        raise SweepError(f"{place}: must be a finite number, got {shown(raw)}")
+    if isinstance(raw, bool | str):
+        if isinstance(parsed, int | float) and not isinstance(parsed, bool):
+            kind = "a boolean" if isinstance(raw, bool) else "a string"
+            raise SweepError(
+                f"{place or '(top level)'}: expected a number, got {kind}, {shown(raw)}"
+            )
+        return
+    if isinstance(raw, dict) and isinstance(parsed, dict):
+        pairs = [(key, raw[key], parsed[key]) for key in raw if key in parsed]
+    elif isinstance(raw, list) and isinstance(parsed, list | tuple) and len(raw) == len(parsed):
+        pairs = [(str(i), a, b) for i, (a, b) in enumerate(zip(raw, parsed, strict=True))]
+    else:
+        return
+    for key, a, b in pairs:
+        _strict_numbers(a, b, f"{place}.{key}" if place else str(key))
+
+
+def _check_scene(raw: dict, scene: Scene) -> None:
+    """Checks of a validated scene beyond its schema: strict numbers, a bounded track."""
+    _strict_numbers(raw, scene.model_dump(), "scene")
+    sequence = scene.sequence
+    travel = max(map(abs, sequence.velocity)) * ((sequence.frames - 1) * sequence.interval)
+    if travel > MAX_TRAVEL:
+        raise SweepError(
+            f"scene.sequence.velocity: the platform would fly {travel:.3g} m during the "
+            f"sequence, over the limit of {MAX_TRAVEL:,.0f} m"
+        )
 
 
 def _format_errors(error: ValidationError, prefix: str = "") -> str:
@@ -381,10 +466,12 @@ def parse_sweep(text: str, *, folder=None) -> Plan:
         sweep = Sweep.model_validate(data)
     except ValidationError as error:
         raise SweepError(_format_errors(error)) from None
+    _strict_numbers(data, sweep.model_dump(), "")
     try:
-        Scene.model_validate(sweep.scene)
+        default = Scene.model_validate(sweep.scene)
     except ValidationError as error:
         raise SweepError(_format_errors(error, "scene")) from None
+    _check_scene(sweep.scene, default)
     for path in sweep.sweep.parameters:
         scene_field(path)
     points = _expand(sweep)
@@ -398,13 +485,16 @@ def parse_sweep(text: str, *, folder=None) -> Plan:
             _assign(data, path, value)
         key = json.dumps(data, sort_keys=True, default=str)
         if key not in cache:
+            values = ", ".join(f"{p}={shown(v)}" for p, v in point.items())
             try:
                 cache[key] = Scene.model_validate(data)
+                _check_scene(data, cache[key])
             except ValidationError as error:
-                values = ", ".join(f"{p}={shown(v)}" for p, v in point.items())
                 raise SweepError(
                     f"parameter point {index} ({values}):\n" + _format_errors(error, "scene")
                 ) from None
+            except SweepError as error:
+                raise SweepError(f"parameter point {index} ({values}):\n{error}") from None
         scenes.append(cache[key])
     canonical = sweep.model_dump(mode="json", exclude={"output"})
     # parameters in file order: grid expansion and random draws follow it

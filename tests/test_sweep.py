@@ -137,6 +137,27 @@ def test_size_limits_name_the_number_and_the_way_out():
         ("- just\n- a list\n", r"must be a YAML mapping"),
         ("", r"must be a YAML mapping"),
         ("x:\n" + "".join("  " * i + "- \n" for i in range(1, 40)), r"nests deeper"),
+        (BASE.replace("seed: 3", "seed: true"), r"^seed: expected a number, got a boolean"),
+        (BASE.replace("seed: 3", 'seed: "3"'), r"^seed: expected a number, got a string"),
+        (BASE + "  target: {depth: yes}\n", r"scene\.target\.depth: expected a number"),
+        (
+            BASE + "sweep:\n  parameters:\n    target.depth: {values: [3.0, true]}\n",
+            r"parameter point 1 .*\nscene\.target\.depth: expected a number, got a boolean",
+        ),
+        (
+            BASE + "sweep:\n  parameters:\n    target.depth: {values: !!set {3.0, 5.0}}\n",
+            r"line 10: YAML sets \(!!set\) are not accepted",
+        ),
+        (BASE + "realisations: 5\n", r"line 8: duplicate key 'realisations' \(first on line 3\)"),
+        (BASE + "  receiver: {pixels: 8}\n", r"line 8: duplicate key 'receiver' .*line 6"),
+        (BASE + "loop: &a [1, *a]\n", r"line 8: the alias \*a .* self-referential"),
+        (BASE + "loop: &a {b: {c: *a}}\n", r"self-referential"),
+        (BASE + "  sequence: {velocity: [.nan, 0, 0]}\n", r"velocity\.0: must be a finite"),
+        (BASE + "  sequence: {velocity: [0, -.inf, 0]}\n", r"velocity\.1: must be a finite"),
+        (
+            BASE + "  sequence: {frames: 3, velocity: [1e308, 0, 0]}\n",
+            r"scene\.sequence\.velocity: the platform would fly 2e\+307 m",
+        ),
     ],
     ids=[
         "unknown-key",
@@ -155,6 +176,18 @@ def test_size_limits_name_the_number_and_the_way_out():
         "not-a-mapping",
         "empty-file",
         "deeply-nested",
+        "bool-for-int",
+        "string-for-int",
+        "bool-for-float",
+        "bool-in-values",
+        "set",
+        "duplicate-key",
+        "duplicate-section",
+        "self-alias-list",
+        "self-alias-map",
+        "velocity-nan",
+        "velocity-inf",
+        "velocity-1e308",
     ],
 )
 def test_bad_sweeps_say_where_and_why(text, message):
@@ -217,3 +250,8 @@ def test_distribution_parameters_are_checked(spec, message):
     )
     with pytest.raises(SweepError, match=message):
         parse_sweep(text)
+
+
+def test_exponents_without_a_dot_are_numbers():
+    plan = parse_sweep(BASE.replace("spacing: 0.1", "spacing: 1e-1"))
+    assert plan.scenes[0].surface.spacing == 0.1
