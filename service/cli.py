@@ -61,6 +61,11 @@ def _parser() -> argparse.ArgumentParser:
     mode = run.add_mutually_exclusive_group()
     mode.add_argument("--resume", action="store_true", help="complete an interrupted run")
     mode.add_argument("--overwrite", action="store_true", help="replace an existing store")
+    run.add_argument(
+        "--verify",
+        action="store_true",
+        help="with --resume: read back every completed sample, recompute damaged ones",
+    )
     run.add_argument("--batch", type=int, default=4, help="samples per task (default 4)")
     run.add_argument("--no-limits", action="store_true", help="lift the sweep size limits")
     run.add_argument(
@@ -73,6 +78,9 @@ def _parser() -> argparse.ArgumentParser:
 
     info = commands.add_parser("info", help="what a store holds and how complete it is")
     info.add_argument("store", help="store path or URL")
+    info.add_argument(
+        "--verify", action="store_true", help="read back every completed sample (slow)"
+    )
     info.add_argument("--storage-options", type=_json_object, default=None)
 
     stats = commands.add_parser("stats", help="(re)compute a store's statistics dataset")
@@ -140,6 +148,8 @@ def _cmd_run(args) -> int:
         raise SweepError("--workers must be at least 1")
     if args.batch < 1:
         raise SweepError("--batch must be at least 1")
+    if args.verify and not args.resume:
+        raise SweepError("--verify goes with --resume (a new store has nothing to verify)")
     plan = load_sweep(args.sweep)
     if not args.no_limits:
         plan.check_limits()
@@ -154,6 +164,7 @@ def _cmd_run(args) -> int:
             scheduler=args.scheduler,
             security=_security(args),
             resume=args.resume,
+            verify=args.verify,
             overwrite=args.overwrite,
             storage_options=args.storage_options,
             batch_size=args.batch,
@@ -161,6 +172,7 @@ def _cmd_run(args) -> int:
     except ClusterError as error:
         print(f"oceanlidar run: error: {error}", file=sys.stderr)
         return EXIT_FAILURE
+    _print_problems("damaged or missing, recomputed", result.damaged)
     rate = result.written / result.seconds if result.seconds > 0 else 0.0
     print(
         f"{url}: wrote {result.written} samples in {result.seconds:.1f} s ({rate:.2f} samples/s)"
@@ -179,6 +191,18 @@ def _cmd_run(args) -> int:
         return EXIT_FAILURE
     print(f"statistics: {store.stats_url(url)}", file=sys.stderr)
     return EXIT_OK
+
+
+SHOWN_PROBLEMS = 20
+"""Most samples listed one per line in a report; the rest are counted."""
+
+
+def _print_problems(what: str, problems: list, stream=sys.stderr) -> None:
+    """One line per damaged sample (at most `SHOWN_PROBLEMS`), then a count."""
+    for sample, reason in problems[:SHOWN_PROBLEMS]:
+        print(f"  sample {sample}: {what}: {reason}", file=stream)
+    if len(problems) > SHOWN_PROBLEMS:
+        print(f"  ... and {len(problems) - SHOWN_PROBLEMS} more samples", file=stream)
 
 
 def _open(args):
@@ -202,9 +226,7 @@ def _statistics(url: str, storage_options: dict | None) -> str | None:
 
 def _cmd_info(args) -> int:
     ds = _open(args)
-    if "completed" not in ds:
-        raise SweepError(f"{args.store}: not an oceanlidar store (no completion record)")
-    done = int(ds["completed"].sum())
+    done = int(store.completed_samples(args.store, storage_options=args.storage_options).sum())
     total = ds.sizes["sample"]
     swept = [c for c in ds.coords if "." in str(c)]
     print(f"{args.store}: {ds.attrs.get('title', '')}")
@@ -216,6 +238,14 @@ def _cmd_info(args) -> int:
     print(f"  sweep sha256: {ds.attrs.get('sweep_sha256')}")
     print(f"  written by: oceanlidar {ds.attrs.get('oceanlidar_version')}")
     print(f"  statistics: {_statistics(args.store, args.storage_options) or '(none)'}")
+    if not args.verify:
+        return EXIT_OK
+    problems = store.verify(args.store, args.storage_options)
+    print(f"  verified: {done - len(problems)} of {done} complete samples read back intact")
+    _print_problems("damaged or missing", problems, sys.stdout)
+    if problems:
+        print("  run the sweep again with --resume --verify to recompute them")
+        return EXIT_FAILURE
     return EXIT_OK
 
 

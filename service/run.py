@@ -133,7 +133,8 @@ class RunResult:
 
     ``failed`` holds ``(start, count, error)`` for tasks that raised or lost their worker;
     ``rejected`` holds ``(sample, reason)`` for samples rendered with invalid values
-    (`service.store.invalid_values`), neither written nor marked complete.
+    (`service.store.invalid_values`), neither written nor marked complete; ``damaged``
+    holds ``(sample, reason)`` for samples that ``verify`` found damaged and recomputed.
     """
 
     total: int
@@ -141,6 +142,7 @@ class RunResult:
     skipped: int = 0
     failed: list = field(default_factory=list)
     rejected: list = field(default_factory=list)
+    damaged: list = field(default_factory=list)
     seconds: float = 0.0
     interrupted: bool = False
     max_in_flight: int = 0
@@ -390,12 +392,16 @@ def execute(
     scheduler: str | None = None,
     security=None,
     resume: bool = False,
+    verify: bool = False,
     overwrite: bool = False,
     storage_options: dict | None = None,
     batch_size: int = 4,
     progress_stream=None,
 ) -> RunResult:
     """Create (or reopen) the store, run the missing samples and write the statistics.
+
+    With `resume` and `verify`, every completed sample is read back first
+    (`service.store.verify`) and the damaged ones are rendered again with the missing ones.
 
     Everything is checked before anything is deleted or written, once before taking the
     store's writer lock (so a refused run leaves no trace) and again holding it (another
@@ -411,6 +417,8 @@ def execute(
             store.remove_files(url, storage_options, old_files)
             if not resuming:
                 store.create_store(plan, url, storage_options=storage_options)
+            damaged = store.verify(url, storage_options) if resuming and verify else []
+            store.mark_incomplete(url, [sample for sample, _ in damaged], storage_options)
             result = run_plan(
                 plan,
                 url,
@@ -420,6 +428,7 @@ def execute(
                 batch_size=batch_size,
                 progress_stream=progress_stream,
             )
+            result.damaged = damaged
             if not (result.interrupted or result.failed or result.rejected):
                 write_statistics(url, storage_options=storage_options)
     return result

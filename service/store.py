@@ -17,6 +17,7 @@ import re
 import socket
 import uuid
 import warnings
+import zlib
 from importlib.metadata import PackageNotFoundError, version
 
 import dask.array as da
@@ -41,6 +42,7 @@ __all__ = [
     "create_store",
     "invalid_values",
     "lazy_array",
+    "mark_incomplete",
     "move",
     "occupied",
     "one_per_chunk",
@@ -50,9 +52,11 @@ __all__ = [
     "removable_files",
     "remove_files",
     "root_attributes",
+    "sample_checksum",
     "sample_dataset",
     "stats_url",
     "store_exists",
+    "verify",
     "write_samples",
     "writer_lock",
 ]
@@ -389,6 +393,12 @@ def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -
         {"long_name": "sample rendered and written", "units": "1"},
     )
     encoding["completed"] = one_per_chunk(())
+    data_vars["checksum"] = (
+        ("sample",),
+        lazy_array((n,), 0, np.uint32),
+        {"long_name": "CRC-32 of the sample's rendered arrays", "units": "1"},
+    )
+    encoding["checksum"] = one_per_chunk(())
     # labels and the platform track follow from each point's scene: written once, here
     track = ["time", "platform_x", "platform_y", "platform_z"]
     labels = xr.concat(
@@ -471,10 +481,77 @@ def open_store(
         )
 
 
+def _chunk_samples(fs, folder: str) -> set[int]:
+    """Sample indices of the chunks stored in an array's folder (flat keys ``c.S...``)."""
+    return {
+        int(name.split(".")[1])
+        for name in _files(fs, folder)
+        if name.startswith("c.") and name.split(".")[1].isdigit()
+    }
+
+
 def completed_samples(url: str, *, storage_options: dict | None = None) -> np.ndarray:
-    """Boolean array: which samples are written."""
-    ds = open_store(url, storage_options=storage_options)
-    return ds["completed"].values.astype(bool)
+    """Boolean array: which samples are written.
+
+    A sample's completion flag is a chunk of its own, and a flag of 0 is no chunk at all
+    (zarr stores no chunk that holds only the fill value), so the flags are read from one
+    listing of the ``completed`` array, not from one read per sample.
+    """
+    fs, path = _fs(url, storage_options)
+    attributes = root_attributes(url, storage_options) or {}
+    done = np.zeros(int(attributes["points"]) * int(attributes["realisations"]), dtype=bool)
+    done[sorted(_chunk_samples(fs, f"{path}/completed"))] = True
+    return done
+
+
+def sample_checksum(arrays: list[np.ndarray]) -> int:
+    """CRC-32 of a sample's rendered arrays, in `RENDERED_VARIABLES` order."""
+    crc = 0
+    for values in arrays:
+        crc = zlib.crc32(np.ascontiguousarray(values).tobytes(), crc)
+    return crc
+
+
+def verify(url: str, storage_options: dict | None = None) -> list[tuple[int, str]]:
+    """The samples marked complete whose chunks are missing, damaged or not theirs.
+
+    Every chunk of every completed sample is read back (the CRC32C codec finds a damaged
+    chunk) and the sample's arrays are compared with the checksum its task recorded
+    (which finds a chunk deleted, or swapped with another sample's).
+
+    Returns
+    -------
+    list of tuple
+        ``(sample, reason)``, by sample index.
+    """
+    fs, path = _fs(url, storage_options)
+    group = zarr.open_group(
+        store=url, mode="r", zarr_format=3, use_consolidated=True, storage_options=storage_options
+    )
+    names = [name for name in RENDERED_VARIABLES if name in group]
+    stored = {name: _chunk_samples(fs, f"{path}/{name}") for name in [*names, "checksum"]}
+    problems = []
+    for sample in np.flatnonzero(completed_samples(url, storage_options=storage_options)):
+        missing = [name for name, samples in stored.items() if sample not in samples]
+        if missing:
+            problems.append((int(sample), f"no {' or '.join(missing)} chunk"))
+            continue
+        try:
+            crc = sample_checksum([group[name][sample] for name in names])
+            recorded = int(group["checksum"][sample])
+        except Exception as error:
+            problems.append((int(sample), f"a chunk cannot be read ({type(error).__name__})"))
+            continue
+        if crc != recorded:
+            problems.append((int(sample), "its chunks do not match its checksum"))
+    return problems
+
+
+def mark_incomplete(url: str, samples: list[int], storage_options: dict | None = None) -> None:
+    """Clear the completion flags of `samples`, so that a resumed run renders them again."""
+    completed = open_group(url, storage_options)["completed"]
+    for sample in samples:
+        completed[sample] = 0
 
 
 def open_group(url: str, storage_options: dict | None = None):
@@ -549,7 +626,15 @@ def write_samples(group, start: int, samples: list[xr.Dataset]) -> None:
     the store's metadata on every call, which costs more than rendering a small sample.
     """
     region = slice(start, start + len(samples))
-    for name in RENDERED_VARIABLES:
-        if name in samples[0]:
-            group[name][region] = np.stack([sample[name].values for sample in samples])
+    names = [name for name in RENDERED_VARIABLES if name in samples[0]]
+    stacked = {
+        name: np.stack([sample[name].values for sample in samples]).astype(group[name].dtype)
+        for name in names
+    }
+    for name in names:
+        group[name][region] = stacked[name]
+    group["checksum"][region] = np.array(
+        [sample_checksum([stacked[name][i] for name in names]) for i in range(len(samples))],
+        dtype=np.uint32,
+    )
     group["completed"][region] = np.ones(len(samples), dtype=np.uint8)

@@ -18,7 +18,7 @@ from workers.render import render
 
 def sweep_file(folder, name="one", output="one.zarr", seed=3):
     path = folder / f"{name}.yaml"
-    path.write_text(TINY_SCENE.format(name=name, seed=seed, realisations=2, output=output))
+    path.write_text(TINY_SCENE.format(name=name, seed=seed, realisations=5, output=output))
     return path
 
 
@@ -31,7 +31,7 @@ def snapshot(folder):
 
 @pytest.fixture(scope="module")
 def finished(tmp_path_factory):
-    """A folder with a complete two-sample store `one.zarr` and its statistics."""
+    """A folder with a complete five-sample store `one.zarr` and its statistics."""
     folder = tmp_path_factory.mktemp("finished")
     sweep = sweep_file(folder)
     result = run_cli("run", sweep, "--workers", 1, cwd=folder)
@@ -119,6 +119,30 @@ def test_failed_statistics_keep_the_previous_ones(work, capsys):
     assert sorted(p.name for p in work.iterdir()) == ["one.stats.zarr", "one.yaml", "one.zarr"]
     assert main(["info", str(work / "one.zarr")]) == 0
     assert str(work / "one.stats.zarr") in capsys.readouterr().out
+
+
+def test_verify_finds_damaged_missing_and_swapped_samples_and_resume_redoes_them(work, capsys):
+    original = snapshot(work / "one.zarr")
+    damage(work, "image", sample=1)
+    next((work / "one.zarr" / "expected").glob("c.2.*")).unlink()
+    first, last = (next((work / "one.zarr" / "image").glob(f"c.{i}.*")) for i in (0, 3))
+    first_bytes = first.read_bytes()
+    first.write_bytes(last.read_bytes())
+    last.write_bytes(first_bytes)
+    assert main(["info", "one.zarr"]) == 0
+    assert "5/5 complete" in capsys.readouterr().out  # the flags alone cannot tell
+    assert main(["info", "one.zarr", "--verify"]) == 1
+    out = capsys.readouterr().out
+    assert "verified: 1 of 5 complete samples read back intact" in out
+    assert "sample 0: damaged or missing: its chunks do not match its checksum" in out
+    assert "sample 1: damaged or missing: a chunk cannot be read" in out
+    assert "sample 2: damaged or missing: no expected chunk" in out
+    assert "sample 3: damaged or missing: its chunks do not match" in out
+    result = run_cli("run", "one.yaml", "--resume", "--verify", "--workers", 1, cwd=work)
+    assert result.returncode == 0, result.stderr
+    assert "wrote 4 samples" in result.stderr and "1 already complete" in result.stderr
+    assert snapshot(work / "one.zarr") == original
+    assert main(["info", "one.zarr", "--verify"]) == 0
 
 
 def write_lock(work, **holder):
