@@ -11,10 +11,13 @@ from __future__ import annotations
 import copy
 import csv
 import hashlib
+import io
 import itertools
 import json
 import math
+import os
 import re
+import stat
 from collections.abc import Hashable
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,6 +46,7 @@ __all__ = [
     "load_sweep",
     "parse_sweep",
     "read_measurements",
+    "read_text",
     "scene_field",
     "shown",
 ]
@@ -431,14 +435,39 @@ def load_sweep(path) -> Plan:
     SweepError
         With a message that names the place and the reason.
     """
+    return parse_sweep(read_text(path, place=str(path)), folder=Path(path).parent)
+
+
+def read_text(path, *, place: str) -> str:
+    """The UTF-8 text of a regular file of at most `MAX_FILE_BYTES` bytes.
+
+    The file is opened without blocking and checked to be a regular file before anything
+    is read (a FIFO would block, ``/dev/zero`` never ends), then at most the limit plus
+    one byte is read.
+
+    Raises
+    ------
+    SweepError
+        Naming `place`, if the file is missing, not a regular file, too large or not
+        UTF-8 text.
+    """
     try:
-        with open(path, encoding="utf-8") as handle:
-            text = handle.read()
-    except UnicodeDecodeError:
-        raise SweepError(f"{path}: not a UTF-8 text file") from None
+        descriptor = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
     except OSError as error:
-        raise SweepError(f"{path}: {error.strerror}") from None
-    return parse_sweep(text, folder=Path(path).parent)
+        raise SweepError(f"{place}: {error.strerror}") from None
+    with os.fdopen(descriptor, "rb") as handle:
+        if not stat.S_ISREG(os.fstat(descriptor).st_mode):
+            raise SweepError(f"{place}: not a regular file")
+        try:
+            data = handle.read(MAX_FILE_BYTES + 1)
+        except OSError as error:
+            raise SweepError(f"{place}: {error.strerror}") from None
+    if len(data) > MAX_FILE_BYTES:
+        raise SweepError(f"{place}: the file is larger than {MAX_FILE_BYTES:,} bytes")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise SweepError(f"{place}: not a UTF-8 text file") from None
 
 
 def parse_sweep(text: str, *, folder=None) -> Plan:
@@ -515,10 +544,16 @@ def _inline_measurements(data: dict, folder: Path) -> None:
     if name is None:
         return
     if not isinstance(name, str) or not name:
-        raise SweepError(f"{place}.file: must be the path of a CSV file, got {name!r}")
+        raise SweepError(f"{place}.file: must be the path of a CSV file, got {shown(name)}")
+    relative = os.path.normpath(name)
+    if os.path.isabs(relative) or relative.split(os.sep)[0] == os.pardir:
+        raise SweepError(
+            f"{place}.file: must name a file in the sweep file's folder or below it, "
+            f"got {shown(name)}"
+        )
     if conditioning.get("points") is not None:
         raise SweepError(f"{place}: give points or file, not both")
-    conditioning["points"] = read_measurements(folder / name, place=f"{place}.file")
+    conditioning["points"] = read_measurements(folder / relative, place=f"{place}.file")
 
 
 def read_measurements(path, *, place: str = "measurements") -> list[list[float]]:
@@ -547,26 +582,23 @@ def read_measurements(path, *, place: str = "measurements") -> list[list[float]]
         If the file cannot be read, is larger than the sweep-file limit, or a line is
         not the header's number of finite numbers.
     """
+    place = f"{place}: {shown(str(path))}"
     try:
-        if Path(path).stat().st_size > MAX_FILE_BYTES:
-            raise SweepError(f"{place}: {path} is larger than {MAX_FILE_BYTES:,} bytes")
-        with open(path, encoding="utf-8", newline="") as handle:
-            lines = [
-                (number, row)
-                for number, row in enumerate(csv.reader(handle), start=1)
-                if row and "".join(row).strip() and not row[0].lstrip().startswith("#")
-            ]
-    except UnicodeDecodeError:
-        raise SweepError(f"{place}: {path} is not a UTF-8 text file") from None
-    except (OSError, csv.Error) as error:
-        reason = getattr(error, "strerror", None) or str(error)
-        raise SweepError(f"{place}: {path}: {reason}") from None
+        lines = [
+            (number, row)
+            for number, row in enumerate(
+                csv.reader(io.StringIO(read_text(path, place=place), newline="")), start=1
+            )
+            if row and "".join(row).strip() and not row[0].lstrip().startswith("#")
+        ]
+    except csv.Error as error:
+        raise SweepError(f"{place}: not CSV ({error})") from None
     columns = ["x", "y", "elevation", "time"]
     header = [name.strip().lower() for name in lines[0][1]] if lines else []
     if header not in (columns[:3], columns):
+        # the file's contents are never echoed: it may be any file the user can read
         raise SweepError(
-            f"{place}: {path} must start with the header line x,y,elevation or "
-            f"x,y,elevation,time, got {','.join(header) or 'nothing'}"
+            f"{place}: must start with the header line x,y,elevation or x,y,elevation,time"
         )
     points = []
     for number, row in lines[1:]:
@@ -576,12 +608,12 @@ def read_measurements(path, *, place: str = "measurements") -> list[list[float]]
             values = []
         if len(values) != len(header) or not all(math.isfinite(v) for v in values):
             raise SweepError(
-                f"{place}: {path} line {number}: expected {len(header)} finite numbers "
-                f"({','.join(header)}), got {','.join(row)!r}"
+                f"{place} line {number}: expected {len(header)} finite numbers "
+                f"({','.join(header)})"
             )
         points.append(values)
     if not points:
-        raise SweepError(f"{place}: {path} holds no points")
+        raise SweepError(f"{place}: holds no points")
     return points
 
 

@@ -1,8 +1,12 @@
 """Sweep files: schema, safe loading, expansion, seeds and plans."""
 
+import os
+import subprocess
+import sys
 import textwrap
 
 import pytest
+from conftest import cli_command, run_cli
 
 from service.sweep import SweepError, load_sweep, parse_sweep
 from workers.scene import Scene
@@ -255,3 +259,71 @@ def test_distribution_parameters_are_checked(spec, message):
 def test_exponents_without_a_dot_are_numbers():
     plan = parse_sweep(BASE.replace("spacing: 0.1", "spacing: 1e-1"))
     assert plan.scenes[0].surface.spacing == 0.1
+
+
+def conditioned(folder, name):
+    path = folder / "sweep.yaml"
+    path.write_text(
+        BASE.replace("spacing: 0.1}", f"spacing: 0.1, conditioning: {{file: {name}}}}}")
+    )
+    return path
+
+
+@pytest.mark.parametrize(
+    ("make", "message"),
+    [
+        (lambda folder: os.mkfifo(folder / "in.yaml"), "not a regular file"),
+        (lambda folder: (folder / "in.yaml").symlink_to("/dev/zero"), "not a regular file"),
+    ],
+    ids=["fifo", "device"],
+)
+@pytest.mark.parametrize("role", ["sweep", "measurements"])
+def test_inputs_must_be_bounded_regular_files(tmp_path, make, message, role):
+    make(tmp_path)
+    sweep = conditioned(tmp_path, "in.yaml") if role == "measurements" else tmp_path / "in.yaml"
+    result = run_cli("validate", sweep, cwd=tmp_path, timeout=60)
+    assert result.returncode == 2 and message in result.stderr, result.stderr
+    assert "Traceback" not in result.stderr
+
+
+def test_a_huge_file_is_refused_after_reading_the_limit(tmp_path):
+    huge = tmp_path / "huge.yaml"
+    huge.touch()
+    os.truncate(huge, 300_000_000)  # sparse: costs no disk
+    # a fresh interpreter whose only child is the CLI, to measure the CLI's peak memory
+    probe = (
+        "import resource, subprocess, sys; "
+        "r = subprocess.run(sys.argv[1:], capture_output=True, text=True); "
+        "print(r.returncode, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss); "
+        "print(r.stderr, file=sys.stderr)"
+    )
+    command, env = cli_command("validate", huge)
+    result = subprocess.run(
+        [sys.executable, "-c", probe, *command], capture_output=True, text=True, env=env
+    )
+    code, peak_kib = map(int, result.stdout.split())
+    assert code == 2 and "larger than 1,000,000 bytes" in result.stderr, result.stderr
+    assert peak_kib < 300 * 1024  # the whole file would cost twice its size
+
+
+@pytest.mark.parametrize(
+    ("name", "message"),
+    [
+        ("/etc/passwd", "in the sweep file's folder or below it"),
+        ("../elsewhere/points.csv", "in the sweep file's folder or below it"),
+        ("secret.csv", "must start with the header line"),
+    ],
+    ids=["absolute", "parent", "not-csv"],
+)
+def test_measurement_files_stay_beside_the_sweep_and_are_never_echoed(tmp_path, name, message):
+    (tmp_path / "secret.csv").write_text("root:hunter2:0:0\nmore:secret\n")
+    with pytest.raises(SweepError, match=message) as error:
+        load_sweep(conditioned(tmp_path, name))
+    assert "hunter2" not in str(error.value) and "root:" not in str(error.value)
+
+
+def test_echoed_values_are_capped():
+    huge = "x" * 600_000
+    with pytest.raises(SweepError) as error:
+        parse_sweep(BASE + f"sweep:\n  parameters:\n    target.shape: {{values: [{huge}]}}\n")
+    assert "600,002 characters" in str(error.value) and len(str(error.value)) < 1000
