@@ -11,8 +11,10 @@ import json
 import os
 import sys
 
+import dask
+
 from service import store
-from service.sweep import SweepError, human_bytes, load_sweep
+from service.sweep import SweepError, human_bytes, load_sweep, shown
 
 __all__ = ["main"]
 
@@ -125,6 +127,13 @@ def _security(args):
     """A `distributed.Security` from the TLS flags (all three, encryption required)."""
     given = [args.tls_ca_file, args.tls_cert, args.tls_key]
     if not any(given):
+        if (args.scheduler or "").startswith("tls://") and not dask.config.get(
+            "distributed.comm.tls.ca-file", None
+        ):
+            raise SweepError(
+                f"--scheduler {shown(args.scheduler)}: a tls:// scheduler needs "
+                "--tls-ca-file, --tls-cert and --tls-key (or dask's TLS configuration)"
+            )
         return None
     if not all(given):
         raise SweepError("--tls-ca-file, --tls-cert and --tls-key go together")
@@ -206,6 +215,7 @@ def _print_problems(what: str, problems: list, stream=sys.stderr) -> None:
 
 
 def _open(args):
+    args.store = store.normalise(args.store, args.storage_options)
     if not store.store_exists(args.store, args.storage_options):
         raise SweepError(f"{args.store}: no store there")
     attributes = store.root_attributes(args.store, args.storage_options) or {}

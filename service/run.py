@@ -44,6 +44,8 @@ IN_FLIGHT_PER_THREAD = 2
 WINDOW_REFRESH = 5.0
 """Seconds between looks at the cluster's threads, to resize the in-flight window."""
 RETRIES = 2
+PROBE_TIMEOUT = 120
+"""Seconds a worker has to confirm it sees the store, before anything is rendered."""
 
 
 def render_batch(url, start, jobs, storage_options=None):
@@ -407,16 +409,27 @@ def execute(
     store's writer lock (so a refused run leaves no trace) and again holding it (another
     run may have changed the output meanwhile).
     """
+    url = store.normalise(url, storage_options)
     options = {"resume": resume, "overwrite": overwrite, "storage_options": storage_options}
-    _check_output(plan, url, **options)
-    with store.writer_lock(url, storage_options):
-        resuming, old_files, old_stats = _check_output(plan, url, **options)
+    with store.storage_errors(url):
+        _check_output(plan, url, **options)
+    with store.writer_lock(url, storage_options) as token:
+        with store.storage_errors(url):
+            resuming, old_files, old_stats = _check_output(plan, url, **options)
         # connect before touching storage: an unreachable cluster leaves everything as it was
         with dask_client(workers=workers, scheduler=scheduler, security=security) as client:
-            store.remove_files(store.stats_url(url), storage_options, old_stats)
-            store.remove_files(url, storage_options, old_files)
-            if not resuming:
-                store.create_store(plan, url, storage_options=storage_options)
+            probe = client.submit(store.check_workers_see, url, storage_options, token, pure=False)
+            try:
+                probe.result(timeout=PROBE_TIMEOUT)
+            except TimeoutError:
+                raise ClusterError(
+                    f"no worker answered within {PROBE_TIMEOUT} s (are any connected?)"
+                ) from None
+            with store.storage_errors(url):
+                store.remove_files(store.stats_url(url), storage_options, old_stats)
+                store.remove_files(url, storage_options, old_files)
+                if not resuming:
+                    store.create_store(plan, url, storage_options=storage_options)
             damaged = store.verify(url, storage_options) if resuming and verify else []
             store.mark_incomplete(url, [sample for sample, _ in damaged], storage_options)
             result = run_plan(

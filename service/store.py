@@ -27,7 +27,7 @@ import xarray as xr
 import zarr
 from zarr.codecs import Crc32cCodec, ZstdCodec
 
-from service.sweep import Plan, SweepError, field_units
+from service.sweep import Plan, SweepError, field_units, shown
 from workers.render import render, sample_labels
 from workers.seeds import SampleSeed
 
@@ -38,12 +38,14 @@ __all__ = [
     "RENDERED_VARIABLES",
     "DamagedStoreError",
     "check_uniform",
+    "check_workers_see",
     "completed_samples",
     "create_store",
     "invalid_values",
     "lazy_array",
     "mark_incomplete",
     "move",
+    "normalise",
     "occupied",
     "one_per_chunk",
     "open_group",
@@ -55,6 +57,7 @@ __all__ = [
     "sample_checksum",
     "sample_dataset",
     "stats_url",
+    "storage_errors",
     "store_exists",
     "verify",
     "write_samples",
@@ -249,6 +252,67 @@ def move(url: str, to: str, storage_options: dict | None = None) -> None:
     fs.rm([f"{path}/{name}" for name in names])
 
 
+def normalise(url: str, storage_options: dict | None = None) -> str:
+    """The output as every process reads it: a local path absolute with ``~`` expanded.
+
+    ``file://`` URLs become paths. A path is resolved here, in the runner, because zarr on
+    the workers neither expands ``~`` nor shares the runner's working directory.
+
+    Raises
+    ------
+    SweepError
+        For storage options given with a local path (they apply to URLs only).
+    """
+    protocol, path = fsspec.core.split_protocol(url)
+    if protocol not in (None, "file", "local"):
+        return url
+    if storage_options:
+        raise SweepError(
+            f"--storage-options apply to URLs such as s3://bucket/run.zarr, not to the local "
+            f"path {shown(url)}"
+        )
+    return os.path.abspath(os.path.expanduser(path))
+
+
+@contextlib.contextmanager
+def storage_errors(url: str):
+    """Turn a failure to reach or write storage into a `SweepError` naming `url`.
+
+    ``FileExistsError`` passes through: the writer's lock tells it from a failure.
+    """
+    try:
+        yield
+    except FileExistsError:
+        raise
+    except OSError as error:
+        reason = error.strerror or str(error) or type(error).__name__
+        raise SweepError(f"{shown(url)} cannot be written: {reason[:200]}") from None
+
+
+def check_workers_see(url: str, storage_options: dict | None, token: str) -> None:
+    """Check, on a worker, that the store the runner locked is there and writable.
+
+    Run this as a dask task before any sample is rendered: a worker that sees another file
+    system (``memory://``, a disk of its own machine) does not find the lock's token.
+
+    Raises
+    ------
+    SweepError
+        If the worker does not see the lock, or cannot write beside it.
+    """
+    fs, path = _fs(url, storage_options)
+    with storage_errors(url):
+        if _holder(fs, f"{path}/{LOCK_NAME}").get("token") != token:
+            raise SweepError(
+                f"the workers do not see the store {shown(url)} that the runner created "
+                "(another machine's disk, or a store in one process's memory?): write to "
+                "storage every worker shares, such as an object-store URL"
+            )
+        probe = f"{path}/oceanlidar.probe-{uuid.uuid4().hex}"
+        fs.pipe_file(probe, b"")
+        fs.rm(probe)
+
+
 def _holder(fs, lock: str) -> dict:
     try:
         holder = json.loads(fs.cat_file(lock))
@@ -282,10 +346,15 @@ def writer_lock(url: str, storage_options: dict | None = None):
     machine that crashed cannot be told from a live run elsewhere: the message names the
     file to remove once no run is writing.
 
+    Yields
+    ------
+    str
+        The lock's token (`check_workers_see` looks for it).
+
     Raises
     ------
     SweepError
-        If another run holds the lock.
+        If another run holds the lock, or the store's place cannot be written.
     """
     fs, path = _fs(url, storage_options)
     lock = f"{path}/{LOCK_NAME}"
@@ -296,12 +365,14 @@ def writer_lock(url: str, storage_options: dict | None = None):
         "since": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "token": token,
     }
-    created = not fs.exists(path)
-    if "file" in fs.protocol:
-        fs.makedirs(path, exist_ok=True)
+    with storage_errors(url):
+        created = not fs.exists(path)
+        if "file" in fs.protocol:
+            fs.makedirs(path, exist_ok=True)
     for attempt in range(2):
         try:
-            fs.pipe_file(lock, json.dumps(record).encode(), mode="create")
+            with storage_errors(url):
+                fs.pipe_file(lock, json.dumps(record).encode(), mode="create")
             break
         except FileExistsError:
             holder = _holder(fs, lock)
@@ -314,7 +385,7 @@ def writer_lock(url: str, storage_options: dict | None = None):
                 f"or, if no run is writing there any more, delete {lock} and try again"
             ) from None
     try:
-        yield
+        yield token
     finally:
         if _holder(fs, lock).get("token") == token:
             fs.rm(lock)

@@ -212,3 +212,47 @@ def test_a_sample_with_non_finite_values_is_reported_and_never_marked_complete(
     assert xr.open_zarr(output)["completed"].values.tolist() == [1, 1, 1, 1, 0, 1]
     assert not list((output / "expected").glob("c.4.*"))
     assert not (tmp_path / "n.stats.zarr").exists()
+
+
+@pytest.mark.parametrize(
+    ("output", "options", "message"),
+    [
+        (
+            "memory://m.zarr",
+            ["--workers", "1"],
+            "the workers do not see the store 'memory://m.zarr'",
+        ),
+        ("/sys/o.zarr", [], "'/sys/o.zarr' cannot be written: Operation not permitted"),
+        ("x" * 300 + ".zarr", [], "cannot be written: File name too long"),
+        ("o.zarr", ["--storage-options", '{"anon": true}'], "apply to URLs such as s3://"),
+        ("o.zarr", ["--scheduler", "tls://127.0.0.1:9"], "a tls:// scheduler needs"),
+    ],
+    ids=["memory", "read-only", "long-component", "options-for-a-path", "tls-without-tls"],
+)
+def test_outputs_that_cannot_be_written_are_refused_before_rendering(
+    tmp_path, output, options, message
+):
+    sweep = sweep_file(tmp_path)
+    result = run_cli("run", sweep, "--output", output, *options, cwd=tmp_path)
+    assert result.returncode == 2 and message in result.stderr, result.stderr
+    assert "Traceback" not in result.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["one.yaml"]
+
+
+def test_home_and_file_urls_reach_the_workers_as_paths(tmp_path):
+    sweep = sweep_file(tmp_path)
+    (tmp_path / "home").mkdir()
+    for output in ("~/h.zarr", f"file://{tmp_path}/f.zarr"):
+        result = run_cli(
+            "run",
+            sweep,
+            "--output",
+            output,
+            "--workers",
+            1,
+            cwd="/",
+            env={"HOME": tmp_path / "home"},
+        )
+        assert result.returncode == 0, result.stderr
+    assert main(["info", str(tmp_path / "home" / "h.zarr")]) == 0
+    assert main(["info", str(tmp_path / "f.zarr")]) == 0

