@@ -69,6 +69,12 @@ def _parser() -> argparse.ArgumentParser:
         help="with --resume: read back every completed sample, recompute damaged ones",
     )
     run.add_argument("--batch", type=int, default=4, help="samples per task (default 4)")
+    run.add_argument(
+        "--task-timeout",
+        type=float,
+        default=600.0,
+        help="seconds after its submission that a task is given up as stuck (default 600)",
+    )
     run.add_argument("--no-limits", action="store_true", help="lift the sweep size limits")
     run.add_argument(
         "--storage-options", type=_json_object, default=None, help="fsspec options as JSON"
@@ -157,6 +163,8 @@ def _cmd_run(args) -> int:
         raise SweepError("--workers must be at least 1")
     if args.batch < 1:
         raise SweepError("--batch must be at least 1")
+    if not args.task_timeout > 0:
+        raise SweepError("--task-timeout must be a positive number of seconds")
     if args.verify and not args.resume:
         raise SweepError("--verify goes with --resume (a new store has nothing to verify)")
     plan = load_sweep(args.sweep)
@@ -177,6 +185,7 @@ def _cmd_run(args) -> int:
             overwrite=args.overwrite,
             storage_options=args.storage_options,
             batch_size=args.batch,
+            task_timeout=args.task_timeout,
         )
     except ClusterError as error:
         print(f"oceanlidar run: error: {error}", file=sys.stderr)
@@ -195,7 +204,15 @@ def _cmd_run(args) -> int:
         print(f"{describe_sample(plan, sample)} not stored: {reason}", file=sys.stderr)
     for start, count, error in result.failed:
         print(f"samples {start}..{start + count - 1} failed: {error}", file=sys.stderr)
-    if result.failed or result.rejected:
+    for start, count in result.stuck:
+        print(
+            f"samples {start}..{start + count - 1}: no result {args.task_timeout:g} s after "
+            "submission (a frozen worker?); given up",
+            file=sys.stderr,
+        )
+    if result.stopped:
+        print(f"stopped: {result.stopped}; run again with --resume", file=sys.stderr)
+    if result.failed or result.rejected or result.stuck or result.stopped:
         print("statistics not written: some samples failed", file=sys.stderr)
         return EXIT_FAILURE
     print(f"statistics: {store.stats_url(url)}", file=sys.stderr)

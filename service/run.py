@@ -11,6 +11,8 @@ the same bytes.
 from __future__ import annotations
 
 import contextlib
+import errno
+import functools
 import hashlib
 import logging
 import os
@@ -20,7 +22,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
-from distributed import Client, LocalCluster, as_completed
+from distributed import Client, LocalCluster, wait
 
 from service import store
 from service.stats import write_statistics
@@ -44,6 +46,12 @@ IN_FLIGHT_PER_THREAD = 2
 WINDOW_REFRESH = 5.0
 """Seconds between looks at the cluster's threads, to resize the in-flight window."""
 RETRIES = 2
+TASK_TIMEOUT = 600.0
+"""Seconds after its submission that a task may take before it is given up as stuck."""
+TICK = 1.0
+"""Seconds between looks at the tasks in flight (timeouts, window)."""
+LASTING_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM})
+"""Storage failures that stop a run: every further write would fail alike."""
 PROBE_TIMEOUT = 120
 """Seconds a worker has to confirm it sees the store, before anything is rendered."""
 
@@ -136,7 +144,9 @@ class RunResult:
     ``failed`` holds ``(start, count, error)`` for tasks that raised or lost their worker;
     ``rejected`` holds ``(sample, reason)`` for samples rendered with invalid values
     (`service.store.invalid_values`), neither written nor marked complete; ``damaged``
-    holds ``(sample, reason)`` for samples that ``verify`` found damaged and recomputed.
+    holds ``(sample, reason)`` for samples that ``verify`` found damaged and recomputed;
+    ``stuck`` holds ``(start, count)`` for tasks given up after the task timeout;
+    ``stopped`` says why a run stopped early (a storage failure no retry cures).
     """
 
     total: int
@@ -145,6 +155,8 @@ class RunResult:
     failed: list = field(default_factory=list)
     rejected: list = field(default_factory=list)
     damaged: list = field(default_factory=list)
+    stuck: list = field(default_factory=list)
+    stopped: str | None = None
     seconds: float = 0.0
     interrupted: bool = False
     max_in_flight: int = 0
@@ -238,6 +250,7 @@ def run_plan(
     resume: bool = False,
     storage_options: dict | None = None,
     batch_size: int = 4,
+    task_timeout: float = TASK_TIMEOUT,
     progress_stream=None,
 ) -> RunResult:
     """Render every missing sample of `plan` into the store at `url`.
@@ -246,7 +259,10 @@ def run_plan(
     marked complete are skipped. Batches that fail (after dask's retries, or because a
     worker died under them) are run again one sample at a time, one task in flight, so a
     sample that kills its worker is reported alone and the samples that merely shared its
-    worker complete.
+    worker complete. A task without a result `task_timeout` seconds after its submission
+    (a frozen worker) is given up and reported in ``stuck``, not run again. A storage
+    failure that no retry cures (a full disk, a read-only or forbidden store) stops the
+    run at once, with one message in ``stopped``.
     """
     if resume:
         done = store.completed_samples(url, storage_options=storage_options)
@@ -261,31 +277,22 @@ def run_plan(
     started = time.monotonic()
     window = max(2, IN_FLIGHT_PER_THREAD * threads)
     failed: list = []
+    submit = functools.partial(
+        _submit_bounded,
+        client,
+        url,
+        storage_options=storage_options,
+        task_timeout=task_timeout,
+        result=result,
+        progress=progress,
+        failed=failed,
+    )
     try:
-        _submit_bounded(
-            client,
-            url,
-            task_batches(plan, todo, batch_size),
-            window,
-            storage_options,
-            f"{run_id}-batch",
-            result,
-            progress,
-            failed,
-        )
+        submit(task_batches(plan, todo, batch_size), window, f"{run_id}-batch")
         singles = [sample for start, count, _ in failed for sample in range(start, start + count)]
         failed.clear()
-        _submit_bounded(
-            client,
-            url,
-            task_batches(plan, singles, 1),
-            1,
-            storage_options,
-            f"{run_id}-alone",
-            result,
-            progress,
-            failed,
-        )
+        if result.stopped is None:
+            submit(task_batches(plan, singles, 1), 1, f"{run_id}-alone")
     except KeyboardInterrupt:
         result.interrupted = True
     finally:
@@ -295,10 +302,26 @@ def run_plan(
     return result
 
 
-def _submit_bounded(client, url, batches, window, storage_options, tag, result, progress, failed):
+def _lasting_storage_error(error: BaseException | None) -> bool:
+    """A failure to write that retrying cannot cure."""
+    return isinstance(error, OSError) and error.errno in LASTING_ERRNOS
+
+
+def _submit_bounded(
+    client,
+    url,
+    batches,
+    window,
+    tag,
+    *,
+    storage_options,
+    task_timeout,
+    result,
+    progress,
+    failed,
+):
     """Submit `batches` keeping at most `window` tasks in flight; record what happened."""
-    pending = as_completed()
-    sizes = {}
+    running: dict = {}  # future -> (start, count, submitted at)
 
     def submit_next() -> bool:
         try:
@@ -315,35 +338,48 @@ def _submit_bounded(client, url, batches, window, storage_options, tag, result, 
             retries=RETRIES,
             pure=False,
         )
-        sizes[future.key] = (start, len(jobs))
-        pending.add(future)
-        result.max_in_flight = max(result.max_in_flight, len(sizes))
+        running[future] = (start, len(jobs), time.monotonic())
+        result.max_in_flight = max(result.max_in_flight, len(running))
         return True
 
     def fill(limit: int) -> None:
-        while len(sizes) < limit and submit_next():
+        while result.stopped is None and len(running) < limit and submit_next():
             pass
 
     checked = time.monotonic()
     try:
         fill(window)
-        for future in pending:
-            start, count = sizes.pop(future.key)
-            if future.status == "finished":
-                rejected = future.result()
-                result.written += count - len(rejected)
-                result.rejected += rejected
-                progress.update(count)
-            else:
-                failed.append((start, count, repr(future.exception())))
-            future.release()
-            if window > 1 and time.monotonic() - checked > WINDOW_REFRESH:
+        while running:
+            try:
+                done = wait(list(running), timeout=TICK, return_when="FIRST_COMPLETED").done
+            except TimeoutError:
+                done = set()
+            for future in done:
+                start, count, _ = running.pop(future)
+                if future.status == "finished":
+                    rejected = future.result()
+                    result.written += count - len(rejected)
+                    result.rejected += rejected
+                    progress.update(count)
+                elif _lasting_storage_error(error := future.exception()):
+                    result.stopped = f"{url}: {error.strerror} (errno {error.errno})"
+                else:
+                    failed.append((start, count, repr(error)))
+                future.release()
+            now = time.monotonic()
+            for future, (start, count, submitted) in list(running.items()):
+                if result.stopped is not None or now - submitted > task_timeout:
+                    running.pop(future)
+                    future.cancel()
+                    if result.stopped is None:
+                        result.stuck.append((start, count))
+            if window > 1 and now - checked > WINDOW_REFRESH:
                 # workers join and leave: keep a few tasks per thread present now
-                checked = time.monotonic()
+                checked = now
                 window = max(2, IN_FLIGHT_PER_THREAD * sum(client.nthreads().values()))
             fill(window)
     except KeyboardInterrupt:
-        for future in list(pending.futures):
+        for future in running:
             future.cancel()
         raise
 
@@ -398,6 +434,7 @@ def execute(
     overwrite: bool = False,
     storage_options: dict | None = None,
     batch_size: int = 4,
+    task_timeout: float = TASK_TIMEOUT,
     progress_stream=None,
 ) -> RunResult:
     """Create (or reopen) the store, run the missing samples and write the statistics.
@@ -439,9 +476,16 @@ def execute(
                 resume=resuming,
                 storage_options=storage_options,
                 batch_size=batch_size,
+                task_timeout=task_timeout,
                 progress_stream=progress_stream,
             )
             result.damaged = damaged
-            if not (result.interrupted or result.failed or result.rejected):
+            if not (
+                result.interrupted
+                or result.failed
+                or result.rejected
+                or result.stuck
+                or result.stopped
+            ):
                 write_statistics(url, storage_options=storage_options)
     return result

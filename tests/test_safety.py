@@ -1,10 +1,13 @@
 """Nothing lost, nothing silently wrong: refusals before deletion, locks, checksums."""
 
+import errno
 import json
 import shutil
 import socket
 import subprocess
 import sys
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -181,25 +184,30 @@ def test_two_fresh_runs_racing_for_one_output(tmp_path):
     assert main(["info", str(tmp_path / "one.zarr")]) == 0
 
 
-def test_a_sample_with_non_finite_values_is_reported_and_never_marked_complete(
-    tmp_path, monkeypatch, capsys
-):
-    # one sample renders a NaN: the workers must be threads of this process to see it
+@pytest.fixture
+def threads(monkeypatch):
+    """The embedded cluster's workers as threads of this process, to see monkeypatches."""
     from distributed import LocalCluster
 
     import service.run
 
-    def threads(*, host, **options):
-        return LocalCluster(**{**options, "processes": False})
+    def threaded(**options):
+        return LocalCluster(**{**options, "processes": False, "protocol": "tcp://"})
 
+    monkeypatch.setattr(service.run, "LocalCluster", threaded)
+    return service.run
+
+
+def test_a_sample_with_non_finite_values_is_reported_and_never_marked_complete(
+    tmp_path, monkeypatch, capsys, threads
+):
     def poisoned(scene, *, seed):
         sample = render(scene, seed=seed)
         if (seed.point, seed.realisation) == (1, 1):
             sample["expected"].values[0, 0, 0, 0] = np.nan
         return sample
 
-    monkeypatch.setattr(service.run, "LocalCluster", threads)
-    monkeypatch.setattr(service.run, "render", poisoned)
+    monkeypatch.setattr(threads, "render", poisoned)
     sweep = tmp_path / "nan.yaml"
     sweep.write_text(TINY_SWEEP.format(name="nan", seed=1, realisations=3, output="n.zarr"))
     output = tmp_path / "n.zarr"
@@ -256,3 +264,48 @@ def test_home_and_file_urls_reach_the_workers_as_paths(tmp_path):
         assert result.returncode == 0, result.stderr
     assert main(["info", str(tmp_path / "home" / "h.zarr")]) == 0
     assert main(["info", str(tmp_path / "f.zarr")]) == 0
+
+
+def tiny_sweep(folder, realisations=3):
+    sweep = folder / "t.yaml"
+    sweep.write_text(
+        TINY_SWEEP.format(name="t", seed=1, realisations=realisations, output="t.zarr")
+    )
+    return sweep
+
+
+def test_a_frozen_task_is_given_up_and_named(tmp_path, monkeypatch, capsys, threads):
+    release = threading.Event()
+
+    def frozen(scene, *, seed):
+        if (seed.point, seed.realisation) == (0, 2):
+            release.wait(timeout=3)  # frozen well past the task timeout
+        return render(scene, seed=seed)
+
+    monkeypatch.setattr(threads, "render", frozen)
+    command = ["run", str(tiny_sweep(tmp_path)), "--output", str(tmp_path / "t.zarr")]
+    options = ["--batch", "1", "--workers", "2", "--task-timeout", "1"]
+    started = time.monotonic()
+    assert main([*command, *options]) == 1
+    assert time.monotonic() - started < 60
+    release.set()
+    err = capsys.readouterr().err
+    # tasks queued behind the frozen one on its worker may be given up too
+    assert "samples 2..2: no result 1 s after submission (a frozen worker?)" in err
+    assert "statistics not written" in err
+
+
+def test_a_full_disk_stops_the_run_with_one_message(tmp_path, monkeypatch, capsys, threads):
+    tasks = set()
+
+    def full(group, start, samples):
+        tasks.add(start)
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(store, "write_samples", full)
+    sweep = tiny_sweep(tmp_path, realisations=10)
+    assert main(["run", str(sweep), "--output", str(tmp_path / "t.zarr"), "--batch", "1"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("No space left on device") == 1
+    assert "stopped: " in err and "run again with --resume" in err
+    assert len(tasks) < 20 // 2
