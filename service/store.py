@@ -29,6 +29,7 @@ from zarr.codecs import Crc32cCodec, ZstdCodec
 
 from service.sweep import Plan, SweepError, field_units, shown
 from workers.render import render, sample_labels
+from workers.scene import Scene
 from workers.seeds import SampleSeed
 
 __all__ = [
@@ -44,6 +45,7 @@ __all__ = [
     "invalid_values",
     "lazy_array",
     "mark_incomplete",
+    "miniature",
     "move",
     "normalise",
     "occupied",
@@ -429,6 +431,21 @@ def _coordinate_array(values: list) -> np.ndarray:
     return np.asarray([v if isinstance(v, str) else json.dumps(v) for v in values], dtype=object)
 
 
+def miniature(scene: Scene) -> Scene:
+    """`scene` at the smallest size (8 pixels, a 16-point sea, one frame, no measurements).
+
+    Rendering it costs milliseconds and shows the variables a sample of `scene` has, with
+    their dimensions, dtypes and attributes, whatever the size of `scene`.
+    """
+    data = scene.model_dump()
+    data["receiver"]["pixels"] = 8
+    data["surface"]["grid_size"] = 16
+    data["surface"]["conditioning"] = {}
+    data["sequence"]["frames"] = 1
+    data["laser"]["rays"] = None
+    return Scene.model_validate(data)
+
+
 def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -> None:
     """Write the template of the store: metadata, coordinates, empty data arrays.
 
@@ -442,7 +459,17 @@ def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -
         fsspec options (credentials, endpoint).
     """
     check_uniform(plan)
-    probe = render(plan.scenes[0], seed=0)
+    first = plan.scenes[0]
+    # names, dtypes and attributes from a miniature; sizes from the scene itself
+    probe = render(miniature(first), seed=0)
+    sizes = {
+        "frame": first.sequence.frames,
+        "gate": len(first.receiver.gate_depths),
+        "y": first.receiver.pixels,
+        "x": first.receiver.pixels,
+        "sy": first.surface.grid_size,
+        "sx": first.surface.grid_size,
+    }
     n = plan.samples
     realisations = plan.realisations
     data_vars = {}
@@ -451,13 +478,14 @@ def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -
         if name not in probe:
             continue
         variable = probe[name]
+        shape = tuple(sizes[dim] for dim in variable.dims)
         fill = np.nan if variable.dtype.kind == "f" else 0
         data_vars[name] = (
             ("sample", *variable.dims),
-            lazy_array((n, *variable.shape), fill, variable.dtype),
+            lazy_array((n, *shape), fill, variable.dtype),
             dict(variable.attrs),
         )
-        encoding[name] = one_per_chunk(variable.shape)
+        encoding[name] = one_per_chunk(shape)
     data_vars["completed"] = (
         ("sample",),
         lazy_array((n,), 0, np.uint8),
@@ -485,8 +513,8 @@ def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -
             dict(variable.attrs),
         )
     coords = {
-        "gate_top": probe["gate_top"],
-        "gate_bottom": probe["gate_bottom"],
+        "gate_top": labels["gate_top"],
+        "gate_bottom": labels["gate_bottom"],
         "point": (
             "sample",
             np.repeat(np.arange(len(plan.points)), realisations),
@@ -498,9 +526,10 @@ def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -
             {"long_name": "Monte Carlo realisation index", "units": "1"},
         ),
     }
+    axis = np.arange(first.surface.grid_size) * first.surface.spacing
     for name in ("sx", "sy"):
         if name in probe.coords:
-            coords[name] = probe[name]
+            coords[name] = (name, axis, dict(probe[name].attrs))
     for path in plan.swept:
         values = _coordinate_array([point[path] for point in plan.points])
         coords[path] = (

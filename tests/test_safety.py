@@ -309,3 +309,27 @@ def test_a_full_disk_stops_the_run_with_one_message(tmp_path, monkeypatch, capsy
     assert err.count("No space left on device") == 1
     assert "stopped: " in err and "run again with --resume" in err
     assert len(tasks) < 20 // 2
+
+
+def test_the_template_is_built_without_rendering_a_sample(tmp_path):
+    import tracemalloc
+
+    from service.sweep import parse_sweep
+
+    text = TINY_SCENE.format(name="big", seed=1, realisations=2, output="big.zarr")
+    text = text.replace("pixels: 16", "pixels: 1024").replace(
+        "scene:", "scene:\n  sequence: {frames: 16}"
+    )
+    plan = parse_sweep(text)
+    assert plan.sample_bytes() > 2**27  # one sample: over 128 MiB
+    tracemalloc.start()
+    try:
+        store.create_store(plan, str(tmp_path / "big.zarr"))
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 2**25  # under 32 MiB
+    ds = xr.open_zarr(tmp_path / "big.zarr")
+    assert ds["image"].shape == (2, 16, 1, 1024, 1024) and ds["image"].dtype == np.float32
+    assert ds["target_mask"].shape == (2, 16, 1024, 1024) and ds["target_mask"].dtype == np.uint8
+    assert ds["image"].attrs["units"] == "photoelectrons"
