@@ -14,11 +14,12 @@ import sys
 import dask
 
 from service import store
-from service.sweep import SweepError, human_bytes, load_sweep, shown
+from service.sweep import DEFAULT_MAX_MEMORY, SweepError, human_bytes, load_sweep, shown
 
 __all__ = ["main"]
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
+MAX_MEMORY_HELP = f"most memory one sample may need, GiB (default {DEFAULT_MAX_MEMORY / 2**30:g})"
 
 
 def _json_object(text: str) -> dict:
@@ -75,14 +76,18 @@ def _parser() -> argparse.ArgumentParser:
         default=600.0,
         help="seconds after its submission that a task is given up as stuck (default 600)",
     )
-    run.add_argument("--no-limits", action="store_true", help="lift the sweep size limits")
+    run.add_argument("--no-limits", action="store_true", help="lift the size and memory limits")
+    run.add_argument("--max-memory", type=float, default=None, help=MAX_MEMORY_HELP)
     run.add_argument(
         "--storage-options", type=_json_object, default=None, help="fsspec options as JSON"
     )
 
     validate = commands.add_parser("validate", help="check a sweep and print its plan")
     validate.add_argument("sweep", help="sweep YAML file")
-    validate.add_argument("--no-limits", action="store_true", help="lift the size limits")
+    validate.add_argument(
+        "--no-limits", action="store_true", help="lift the size and memory limits"
+    )
+    validate.add_argument("--max-memory", type=float, default=None, help=MAX_MEMORY_HELP)
 
     info = commands.add_parser("info", help="what a store holds and how complete it is")
     info.add_argument("store", help="store path or URL")
@@ -106,6 +111,14 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _load(args):
+    """The plan of ``args.sweep`` under the memory limit the flags set."""
+    limit = DEFAULT_MAX_MEMORY if args.max_memory is None else args.max_memory * 2**30
+    if args.max_memory is not None and not args.max_memory > 0:
+        raise SweepError("--max-memory must be a positive number of GiB")
+    return load_sweep(args.sweep, max_memory=None if args.no_limits else limit)
+
+
 def _plan_lines(plan, batch: int = 4, url: str | None = None) -> list[str]:
     tasks = -(-plan.realisations // batch) * len(plan.points)
     lines = [
@@ -121,7 +134,7 @@ def _plan_lines(plan, batch: int = 4, url: str | None = None) -> list[str]:
 
 
 def _cmd_validate(args) -> int:
-    plan = load_sweep(args.sweep)
+    plan = _load(args)
     if not args.no_limits:
         plan.check_limits()
     store.check_uniform(plan)
@@ -167,7 +180,7 @@ def _cmd_run(args) -> int:
         raise SweepError("--task-timeout must be a positive number of seconds")
     if args.verify and not args.resume:
         raise SweepError("--verify goes with --resume (a new store has nothing to verify)")
-    plan = load_sweep(args.sweep)
+    plan = _load(args)
     if not args.no_limits:
         plan.check_limits()
     store.check_uniform(plan)

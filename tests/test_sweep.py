@@ -325,3 +325,24 @@ def test_echoed_values_are_capped():
     with pytest.raises(SweepError) as error:
         parse_sweep(BASE + f"sweep:\n  parameters:\n    target.shape: {{values: [{huge}]}}\n")
     assert "600,002 characters" in str(error.value) and len(str(error.value)) < 1000
+
+
+def test_memory_is_estimated_before_anything_is_built(tmp_path, capsys):
+    from service.cli import main
+
+    frames = BASE.replace("pixels: 16}", "pixels: 1024}\n  sequence: {frames: 64}")
+    with pytest.raises(SweepError, match=r"would need about .* GiB .* over the limit of 4\.0 GiB"):
+        parse_sweep(frames)
+    assert parse_sweep(frames, max_memory=None).scenes[0].receiver.pixels == 1024
+    # 24 measurement times on a 2048² grid: the kriging system alone, refused unbuilt
+    points = [[0.1 * i, 0.1, 0.0, 0.1 * i] for i in range(1, 25)]
+    measured = BASE.replace(
+        "spacing: 0.1}", f"spacing: 0.01, grid_size: 2048, conditioning: {{points: {points}}}}}"
+    ).replace("grid_size: 32, ", "")
+    with pytest.raises(SweepError, match="would need about"):
+        parse_sweep(measured)
+    sweep = tmp_path / "frames.yaml"
+    sweep.write_text(frames)
+    assert main(["validate", str(sweep)]) == 2
+    assert "--max-memory" in capsys.readouterr().err
+    assert main(["validate", str(sweep), "--max-memory", "200"]) == 0
