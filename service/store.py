@@ -276,6 +276,15 @@ def normalise(url: str, storage_options: dict | None = None) -> str:
     return os.path.abspath(os.path.expanduser(path))
 
 
+def _storage_failures() -> tuple[type[BaseException], ...]:
+    """`OSError`, and what S3 clients raise untranslated (an unreachable endpoint)."""
+    try:
+        from botocore.exceptions import BotoCoreError
+    except ImportError:  # no S3 support installed: fsspec raises OSError alone
+        return (OSError,)
+    return (OSError, BotoCoreError)
+
+
 @contextlib.contextmanager
 def storage_errors(url: str):
     """Turn a failure to reach or write storage into a `SweepError` naming `url`.
@@ -286,8 +295,8 @@ def storage_errors(url: str):
         yield
     except FileExistsError:
         raise
-    except OSError as error:
-        reason = error.strerror or str(error) or type(error).__name__
+    except _storage_failures() as error:
+        reason = getattr(error, "strerror", None) or str(error) or type(error).__name__
         raise SweepError(f"{shown(url)} cannot be written: {reason[:200]}") from None
 
 

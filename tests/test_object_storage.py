@@ -20,7 +20,8 @@ pytest.importorskip("s3fs")
 
 BIN = Path(sys.executable).parent
 
-SWEEP = TINY_SWEEP.format(name="s3", seed=9, realisations=3, output="s3://oceanlidar/run.zarr")
+SWEEP_URL = "s3://oceanlidar/run.zarr"
+SWEEP = TINY_SWEEP.format(name="s3", seed=9, realisations=3, output=SWEEP_URL)
 
 
 @pytest.fixture(scope="module")
@@ -107,3 +108,20 @@ def test_a_second_writer_is_refused_on_object_storage(s3, tmp_path):
     fs.invalidate_cache()
     assert not fs.exists(f"oceanlidar/locked.zarr/{LOCK_NAME}")
     assert fs.exists("oceanlidar/locked.stats.zarr/zarr.json")
+
+
+def test_unreachable_storage_is_refused_before_rendering(s3, tmp_path, capsys):
+    from service.cli import main
+
+    sweep = tmp_path / "s3.yaml"
+    sweep.write_text(SWEEP)
+    unreachable = {
+        **s3,
+        "client_kwargs": {"endpoint_url": f"http://127.0.0.1:{free_port()}"},
+        "config_kwargs": {"connect_timeout": 1, "retries": {"max_attempts": 1}},
+    }
+    for url, options in (("s3://no-such-bucket/run.zarr", s3), (SWEEP_URL, unreachable)):
+        command = ["run", str(sweep), "--output", url, "--storage-options", json.dumps(options)]
+        assert main(command) == 2
+        err = capsys.readouterr().err
+        assert f"'{url}' cannot be written" in err and "Traceback" not in err
