@@ -153,13 +153,15 @@ def _template(ds: xr.Dataset) -> xr.Dataset:
     return stats
 
 
-def _reduce_points(url, target, points, realisations, storage_options):
-    """Read the samples of `points`, reduce them, write their statistics chunks."""
+def _reduce_points(url, target, points, done, realisations, storage_options):
+    """Read the samples of `points`, reduce them, write their statistics chunks.
+
+    `done` holds the completion flags of those points' samples, in order.
+    """
     source = store.open_group(url, storage_options)
     sink = store.open_group(target, storage_options)
-    for point in points:
-        rows = slice(point * realisations, (point + 1) * realisations)
-        written = np.flatnonzero(source["completed"][rows])
+    for index, point in enumerate(points):
+        written = np.flatnonzero(done[index * realisations : (index + 1) * realisations])
         if written.size == 0:
             continue
         first = point * realisations
@@ -231,11 +233,14 @@ def _compute(ds: xr.Dataset, url: str, target: str, storage_options: dict | None
         )
     points = int(ds.attrs["points"])
     realisations = int(ds.attrs["realisations"])
+    # the flags from one listing, not one read per sample
+    done = store.completed_samples(url, storage_options=storage_options)
     tasks = [
         dask.delayed(_reduce_points)(
             url,
             target,
             list(range(start, min(start + POINTS_PER_TASK, points))),
+            done[start * realisations : (start + POINTS_PER_TASK) * realisations],
             realisations,
             storage_options,
         )
