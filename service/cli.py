@@ -325,6 +325,18 @@ def _cmd_plot(args) -> int:
     return EXIT_OK
 
 
+MESSAGE_LINE = 500
+"""Longest line of an error message: whatever a message quotes of the input, it is cut."""
+
+
+def _capped(message: str) -> str:
+    """`message` with every line cut to `MESSAGE_LINE` characters."""
+    return "\n".join(
+        line if len(line) <= MESSAGE_LINE else f"{line[:MESSAGE_LINE]}... (cut)"
+        for line in message.splitlines()
+    )
+
+
 def main(argv=None) -> int:
     """Entry point of the ``oceanlidar`` console script."""
     args = _parser().parse_args(argv)
@@ -339,7 +351,7 @@ def main(argv=None) -> int:
     try:
         return commands[args.command](args)
     except SweepError as error:
-        print(f"oceanlidar {args.command}: error: {error}", file=sys.stderr)
+        print(f"oceanlidar {args.command}: error: {_capped(str(error))}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except store.DamagedStoreError as error:
         print(f"oceanlidar {args.command}: error: {error}", file=sys.stderr)

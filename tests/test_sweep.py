@@ -320,11 +320,20 @@ def test_measurement_files_stay_beside_the_sweep_and_are_never_echoed(tmp_path, 
     assert "hunter2" not in str(error.value) and "root:" not in str(error.value)
 
 
-def test_echoed_values_are_capped():
+def test_echoed_values_are_capped(tmp_path, capsys):
+    from service.cli import main
+
     huge = "x" * 600_000
     with pytest.raises(SweepError) as error:
         parse_sweep(BASE + f"sweep:\n  parameters:\n    target.shape: {{values: [{huge}]}}\n")
     assert "600,002 characters" in str(error.value) and len(str(error.value)) < 1000
+    # a key is echoed as the place of the error: cut too
+    sweep = tmp_path / "key.yaml"
+    key = f"? target.{huge}\n    : {{values: [1]}}\n"  # explicit: YAML caps implicit keys
+    sweep.write_text(BASE + "sweep:\n  parameters:\n    " + key)
+    assert main(["validate", str(sweep)]) == 2
+    err = capsys.readouterr().err
+    assert "sweep.parameters.target.xxxx" in err and "(cut)" in err and len(err) < 2000
 
 
 def test_memory_is_estimated_before_anything_is_built(tmp_path, capsys):
