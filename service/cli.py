@@ -320,6 +320,13 @@ def _cmd_plot(args) -> int:
     if stats_path is None:
         raise SweepError(f"{args.store}: no statistics yet; run `oceanlidar stats` first")
     stats = store.open_store(stats_path, storage_options=args.storage_options)
+    try:
+        stats = stats.load()  # small: per point and gate
+    except Exception as error:
+        raise store.DamagedStoreError(
+            f"{stats_path}: a chunk cannot be read ({type(error).__name__}); run "
+            f"`oceanlidar stats {args.store}` to write the statistics again"
+        ) from None
     plot_statistics(stats, args.output)
     print(args.output, file=sys.stderr)
     return EXIT_OK

@@ -148,6 +148,21 @@ def test_verify_finds_damaged_missing_and_swapped_samples_and_resume_redoes_them
     assert main(["info", "one.zarr", "--verify"]) == 0
 
 
+def test_damaged_statistics_are_named_and_written_again(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    sweep = tiny_sweep(tmp_path, realisations=1)
+    assert main(["run", str(sweep), "--workers", "1"]) == 0
+    chunk = next((tmp_path / "t.stats.zarr" / "image_mean").glob("c.0.*"))
+    data = bytearray(chunk.read_bytes())
+    data[-1] ^= 0x01  # the chunk's stored checksum
+    chunk.write_bytes(bytes(data))
+    assert main(["plot", "t.zarr", "--output", "p.png"]) == 1
+    err = capsys.readouterr().err
+    assert "t.stats.zarr: a chunk cannot be read" in err and "oceanlidar stats" in err
+    assert main(["stats", "t.zarr"]) == 0
+    assert main(["plot", "t.zarr", "--output", "p.png"]) == 0
+
+
 def write_lock(work, **holder):
     record = {"host": socket.gethostname(), "since": "2026-01-01T00:00:00+00:00", **holder}
     (work / "one.zarr" / store.LOCK_NAME).write_text(json.dumps({"token": "x", **record}))
