@@ -11,12 +11,15 @@ import json
 import os
 import sys
 
+import dask
+
 from service import store
-from service.sweep import SweepError, human_bytes, load_sweep
+from service.sweep import DEFAULT_MAX_MEMORY, SweepError, human_bytes, load_sweep, shown
 
 __all__ = ["main"]
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
+MAX_MEMORY_HELP = f"most memory one sample may need, GiB (default {DEFAULT_MAX_MEMORY / 2**30:g})"
 
 
 def _json_object(text: str) -> dict:
@@ -61,18 +64,36 @@ def _parser() -> argparse.ArgumentParser:
     mode = run.add_mutually_exclusive_group()
     mode.add_argument("--resume", action="store_true", help="complete an interrupted run")
     mode.add_argument("--overwrite", action="store_true", help="replace an existing store")
+    run.add_argument(
+        "--verify",
+        action="store_true",
+        help="with --resume: read back every completed sample, recompute damaged ones",
+    )
     run.add_argument("--batch", type=int, default=4, help="samples per task (default 4)")
-    run.add_argument("--no-limits", action="store_true", help="lift the sweep size limits")
+    run.add_argument(
+        "--task-timeout",
+        type=float,
+        default=600.0,
+        help="seconds after its submission that a task is given up as stuck (default 600)",
+    )
+    run.add_argument("--no-limits", action="store_true", help="lift the size and memory limits")
+    run.add_argument("--max-memory", type=float, default=None, help=MAX_MEMORY_HELP)
     run.add_argument(
         "--storage-options", type=_json_object, default=None, help="fsspec options as JSON"
     )
 
     validate = commands.add_parser("validate", help="check a sweep and print its plan")
     validate.add_argument("sweep", help="sweep YAML file")
-    validate.add_argument("--no-limits", action="store_true", help="lift the size limits")
+    validate.add_argument(
+        "--no-limits", action="store_true", help="lift the size and memory limits"
+    )
+    validate.add_argument("--max-memory", type=float, default=None, help=MAX_MEMORY_HELP)
 
     info = commands.add_parser("info", help="what a store holds and how complete it is")
     info.add_argument("store", help="store path or URL")
+    info.add_argument(
+        "--verify", action="store_true", help="read back every completed sample (slow)"
+    )
     info.add_argument("--storage-options", type=_json_object, default=None)
 
     stats = commands.add_parser("stats", help="(re)compute a store's statistics dataset")
@@ -90,6 +111,14 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _load(args):
+    """The plan of ``args.sweep`` under the memory limit the flags set."""
+    limit = DEFAULT_MAX_MEMORY if args.max_memory is None else args.max_memory * 2**30
+    if args.max_memory is not None and not args.max_memory > 0:
+        raise SweepError("--max-memory must be a positive number of GiB")
+    return load_sweep(args.sweep, max_memory=None if args.no_limits else limit)
+
+
 def _plan_lines(plan, batch: int = 4, url: str | None = None) -> list[str]:
     tasks = -(-plan.realisations // batch) * len(plan.points)
     lines = [
@@ -105,7 +134,7 @@ def _plan_lines(plan, batch: int = 4, url: str | None = None) -> list[str]:
 
 
 def _cmd_validate(args) -> int:
-    plan = load_sweep(args.sweep)
+    plan = _load(args)
     if not args.no_limits:
         plan.check_limits()
     store.check_uniform(plan)
@@ -117,6 +146,13 @@ def _security(args):
     """A `distributed.Security` from the TLS flags (all three, encryption required)."""
     given = [args.tls_ca_file, args.tls_cert, args.tls_key]
     if not any(given):
+        if (args.scheduler or "").startswith("tls://") and not dask.config.get(
+            "distributed.comm.tls.ca-file", None
+        ):
+            raise SweepError(
+                f"--scheduler {shown(args.scheduler)}: a tls:// scheduler needs "
+                "--tls-ca-file, --tls-cert and --tls-key (or dask's TLS configuration)"
+            )
         return None
     if not all(given):
         raise SweepError("--tls-ca-file, --tls-cert and --tls-key go together")
@@ -134,13 +170,17 @@ def _security(args):
 
 
 def _cmd_run(args) -> int:
-    from service.run import ClusterError, execute
+    from service.run import ClusterError, describe_sample, execute
 
     if args.workers is not None and args.workers < 1:
         raise SweepError("--workers must be at least 1")
     if args.batch < 1:
         raise SweepError("--batch must be at least 1")
-    plan = load_sweep(args.sweep)
+    if not args.task_timeout > 0:
+        raise SweepError("--task-timeout must be a positive number of seconds")
+    if args.verify and not args.resume:
+        raise SweepError("--verify goes with --resume (a new store has nothing to verify)")
+    plan = _load(args)
     if not args.no_limits:
         plan.check_limits()
     store.check_uniform(plan)
@@ -154,13 +194,16 @@ def _cmd_run(args) -> int:
             scheduler=args.scheduler,
             security=_security(args),
             resume=args.resume,
+            verify=args.verify,
             overwrite=args.overwrite,
             storage_options=args.storage_options,
             batch_size=args.batch,
+            task_timeout=args.task_timeout,
         )
     except ClusterError as error:
         print(f"oceanlidar run: error: {error}", file=sys.stderr)
         return EXIT_FAILURE
+    _print_problems("damaged or missing, recomputed", result.damaged)
     rate = result.written / result.seconds if result.seconds > 0 else 0.0
     print(
         f"{url}: wrote {result.written} samples in {result.seconds:.1f} s ({rate:.2f} samples/s)"
@@ -170,29 +213,60 @@ def _cmd_run(args) -> int:
     if result.interrupted:
         print(f"interrupted: run again with --resume to complete {url}", file=sys.stderr)
         return EXIT_FAILURE
-    if result.failed:
-        for start, count, error in result.failed:
-            print(f"samples {start}..{start + count - 1} failed: {error}", file=sys.stderr)
+    for sample, reason in result.rejected:
+        print(f"{describe_sample(plan, sample)} not stored: {reason}", file=sys.stderr)
+    for start, count, error in result.failed:
+        print(f"samples {start}..{start + count - 1} failed: {error}", file=sys.stderr)
+    for start, count in result.stuck:
+        print(
+            f"samples {start}..{start + count - 1}: no result {args.task_timeout:g} s after "
+            "submission (a frozen worker?); given up",
+            file=sys.stderr,
+        )
+    if result.stopped:
+        print(f"stopped: {result.stopped}; run again with --resume", file=sys.stderr)
+    if result.failed or result.rejected or result.stuck or result.stopped:
         print("statistics not written: some samples failed", file=sys.stderr)
         return EXIT_FAILURE
     print(f"statistics: {store.stats_url(url)}", file=sys.stderr)
     return EXIT_OK
 
 
+SHOWN_PROBLEMS = 20
+"""Most samples listed one per line in a report; the rest are counted."""
+
+
+def _print_problems(what: str, problems: list, stream=sys.stderr) -> None:
+    """One line per damaged sample (at most `SHOWN_PROBLEMS`), then a count."""
+    for sample, reason in problems[:SHOWN_PROBLEMS]:
+        print(f"  sample {sample}: {what}: {reason}", file=stream)
+    if len(problems) > SHOWN_PROBLEMS:
+        print(f"  ... and {len(problems) - SHOWN_PROBLEMS} more samples", file=stream)
+
+
 def _open(args):
+    args.store = store.normalise(args.store, args.storage_options)
     if not store.store_exists(args.store, args.storage_options):
         raise SweepError(f"{args.store}: no store there")
+    attributes = store.root_attributes(args.store, args.storage_options) or {}
+    if attributes.get(store.KIND) != "samples":
+        raise SweepError(f"{args.store}: not an oceanlidar samples store")
     try:
         return store.open_store(args.store, storage_options=args.storage_options)
     except Exception as error:
         raise SweepError(f"{args.store}: not an oceanlidar store ({error})") from None
 
 
+def _statistics(url: str, storage_options: dict | None) -> str | None:
+    """The statistics store beside `url`, if one is there."""
+    stats = store.stats_url(url)
+    attributes = store.root_attributes(stats, storage_options) or {}
+    return stats if attributes.get(store.KIND) == "statistics" else None
+
+
 def _cmd_info(args) -> int:
     ds = _open(args)
-    if "completed" not in ds:
-        raise SweepError(f"{args.store}: not an oceanlidar store (no completion record)")
-    done = int(ds["completed"].sum())
+    done = int(store.completed_samples(args.store, storage_options=args.storage_options).sum())
     total = ds.sizes["sample"]
     swept = [c for c in ds.coords if "." in str(c)]
     print(f"{args.store}: {ds.attrs.get('title', '')}")
@@ -203,9 +277,15 @@ def _cmd_info(args) -> int:
     print(f"  swept: {', '.join(map(str, swept)) or '(nothing)'}")
     print(f"  sweep sha256: {ds.attrs.get('sweep_sha256')}")
     print(f"  written by: oceanlidar {ds.attrs.get('oceanlidar_version')}")
-    stats = store.stats_url(args.store)
-    there = store.store_exists(stats, args.storage_options)
-    print(f"  statistics: {stats if there else '(none)'}")
+    print(f"  statistics: {_statistics(args.store, args.storage_options) or '(none)'}")
+    if not args.verify:
+        return EXIT_OK
+    problems = store.verify(args.store, args.storage_options)
+    print(f"  verified: {done - len(problems)} of {done} complete samples read back intact")
+    _print_problems("damaged or missing", problems, sys.stdout)
+    if problems:
+        print("  run the sweep again with --resume --verify to recompute them")
+        return EXIT_FAILURE
     return EXIT_OK
 
 
@@ -213,7 +293,8 @@ def _cmd_stats(args) -> int:
     from service.stats import write_statistics
 
     _open(args)
-    print(write_statistics(args.store, storage_options=args.storage_options))
+    with store.writer_lock(args.store, args.storage_options):
+        print(write_statistics(args.store, storage_options=args.storage_options))
     return EXIT_OK
 
 
@@ -235,13 +316,32 @@ def _cmd_plot(args) -> int:
     from service.plots import plot_statistics
 
     _open(args)
-    stats_path = store.stats_url(args.store)
-    if not store.store_exists(stats_path, args.storage_options):
+    stats_path = _statistics(args.store, args.storage_options)
+    if stats_path is None:
         raise SweepError(f"{args.store}: no statistics yet; run `oceanlidar stats` first")
     stats = store.open_store(stats_path, storage_options=args.storage_options)
+    try:
+        stats = stats.load()  # small: per point and gate
+    except Exception as error:
+        raise store.DamagedStoreError(
+            f"{stats_path}: a chunk cannot be read ({type(error).__name__}); run "
+            f"`oceanlidar stats {args.store}` to write the statistics again"
+        ) from None
     plot_statistics(stats, args.output)
     print(args.output, file=sys.stderr)
     return EXIT_OK
+
+
+MESSAGE_LINE = 500
+"""Longest line of an error message: whatever a message quotes of the input, it is cut."""
+
+
+def _capped(message: str) -> str:
+    """`message` with every line cut to `MESSAGE_LINE` characters."""
+    return "\n".join(
+        line if len(line) <= MESSAGE_LINE else f"{line[:MESSAGE_LINE]}... (cut)"
+        for line in message.splitlines()
+    )
 
 
 def main(argv=None) -> int:
@@ -258,8 +358,11 @@ def main(argv=None) -> int:
     try:
         return commands[args.command](args)
     except SweepError as error:
-        print(f"oceanlidar {args.command}: error: {error}", file=sys.stderr)
+        print(f"oceanlidar {args.command}: error: {_capped(str(error))}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except store.DamagedStoreError as error:
+        print(f"oceanlidar {args.command}: error: {error}", file=sys.stderr)
+        return EXIT_FAILURE
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return EXIT_FAILURE

@@ -11,6 +11,8 @@ the same bytes.
 from __future__ import annotations
 
 import contextlib
+import errno
+import functools
 import hashlib
 import logging
 import os
@@ -20,22 +22,38 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
-from distributed import Client, LocalCluster, as_completed
+from distributed import Client, LocalCluster, wait
 
 from service import store
 from service.stats import write_statistics
-from service.sweep import Plan, SweepError
+from service.sweep import Plan, SweepError, shown
 from service.tuning import tune_allocator
 from workers.render import render
 from workers.scene import Scene
 from workers.seeds import SampleSeed
 
-__all__ = ["ClusterError", "RunResult", "execute", "render_batch", "run_plan", "task_batches"]
+__all__ = [
+    "ClusterError",
+    "RunResult",
+    "describe_sample",
+    "execute",
+    "render_batch",
+    "run_plan",
+    "task_batches",
+]
 
 IN_FLIGHT_PER_THREAD = 2
 WINDOW_REFRESH = 5.0
 """Seconds between looks at the cluster's threads, to resize the in-flight window."""
 RETRIES = 2
+TASK_TIMEOUT = 600.0
+"""Seconds after its submission that a task may take before it is given up as stuck."""
+TICK = 1.0
+"""Seconds between looks at the tasks in flight (timeouts, window)."""
+LASTING_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM})
+"""Storage failures that stop a run: every further write would fail alike."""
+PROBE_TIMEOUT = 120
+"""Seconds a worker has to confirm it sees the store, before anything is rendered."""
 
 
 def render_batch(url, start, jobs, storage_options=None):
@@ -54,19 +72,38 @@ def render_batch(url, start, jobs, storage_options=None):
 
     Returns
     -------
-    tuple of int
-        ``(start, count)``.
+    list of tuple
+        ``(sample, reason)`` for every sample rejected by `service.store.invalid_values`:
+        those are neither written nor marked complete; the valid samples around them are.
     """
     tune_allocator()
-    samples = [
-        render(
+    group = store.open_group(url, storage_options)
+    rejected = []
+    first, valid = start, []
+    for offset, (scene, root, point, realisation) in enumerate(jobs):
+        sample = render(
             Scene.model_validate_json(scene),
             seed=SampleSeed(root=root, point=point, realisation=realisation),
         )
-        for scene, root, point, realisation in jobs
-    ]
-    store.write_samples(store.open_group(url, storage_options), start, samples)
-    return start, len(samples)
+        reason = store.invalid_values(sample)
+        if reason is None:
+            valid.append(sample)
+            continue
+        rejected.append((start + offset, reason))
+        if valid:
+            store.write_samples(group, first, valid)
+        first, valid = start + offset + 1, []
+    if valid:
+        store.write_samples(group, first, valid)
+    return rejected
+
+
+def describe_sample(plan: Plan, sample: int) -> str:
+    """Sample `sample` by its parameter point, swept values and realisation."""
+    point, realisation = divmod(sample, plan.realisations)
+    values = ", ".join(f"{path}={shown(value)}" for path, value in plan.points[point].items())
+    where = f"point {point}" + (f": {values}" if values else "")
+    return f"sample {sample} ({where}; realisation {realisation})"
 
 
 def task_batches(plan: Plan, todo, batch_size: int) -> Iterator[tuple[int, list]]:
@@ -102,12 +139,24 @@ class ClusterError(RuntimeError):
 
 @dataclass
 class RunResult:
-    """What a run did."""
+    """What a run did.
+
+    ``failed`` holds ``(start, count, error)`` for tasks that raised or lost their worker;
+    ``rejected`` holds ``(sample, reason)`` for samples rendered with invalid values
+    (`service.store.invalid_values`), neither written nor marked complete; ``damaged``
+    holds ``(sample, reason)`` for samples that ``verify`` found damaged and recomputed;
+    ``stuck`` holds ``(start, count)`` for tasks given up after the task timeout;
+    ``stopped`` says why a run stopped early (a storage failure no retry cures).
+    """
 
     total: int
     written: int = 0
     skipped: int = 0
     failed: list = field(default_factory=list)
+    rejected: list = field(default_factory=list)
+    damaged: list = field(default_factory=list)
+    stuck: list = field(default_factory=list)
+    stopped: str | None = None
     seconds: float = 0.0
     interrupted: bool = False
     max_in_flight: int = 0
@@ -201,6 +250,7 @@ def run_plan(
     resume: bool = False,
     storage_options: dict | None = None,
     batch_size: int = 4,
+    task_timeout: float = TASK_TIMEOUT,
     progress_stream=None,
 ) -> RunResult:
     """Render every missing sample of `plan` into the store at `url`.
@@ -209,7 +259,10 @@ def run_plan(
     marked complete are skipped. Batches that fail (after dask's retries, or because a
     worker died under them) are run again one sample at a time, one task in flight, so a
     sample that kills its worker is reported alone and the samples that merely shared its
-    worker complete.
+    worker complete. A task without a result `task_timeout` seconds after its submission
+    (a frozen worker) is given up and reported in ``stuck``, not run again. A storage
+    failure that no retry cures (a full disk, a read-only or forbidden store) stops the
+    run at once, with one message in ``stopped``.
     """
     if resume:
         done = store.completed_samples(url, storage_options=storage_options)
@@ -224,31 +277,22 @@ def run_plan(
     started = time.monotonic()
     window = max(2, IN_FLIGHT_PER_THREAD * threads)
     failed: list = []
+    submit = functools.partial(
+        _submit_bounded,
+        client,
+        url,
+        storage_options=storage_options,
+        task_timeout=task_timeout,
+        result=result,
+        progress=progress,
+        failed=failed,
+    )
     try:
-        _submit_bounded(
-            client,
-            url,
-            task_batches(plan, todo, batch_size),
-            window,
-            storage_options,
-            f"{run_id}-batch",
-            result,
-            progress,
-            failed,
-        )
+        submit(task_batches(plan, todo, batch_size), window, f"{run_id}-batch")
         singles = [sample for start, count, _ in failed for sample in range(start, start + count)]
         failed.clear()
-        _submit_bounded(
-            client,
-            url,
-            task_batches(plan, singles, 1),
-            1,
-            storage_options,
-            f"{run_id}-alone",
-            result,
-            progress,
-            failed,
-        )
+        if result.stopped is None:
+            submit(task_batches(plan, singles, 1), 1, f"{run_id}-alone")
     except KeyboardInterrupt:
         result.interrupted = True
     finally:
@@ -258,10 +302,26 @@ def run_plan(
     return result
 
 
-def _submit_bounded(client, url, batches, window, storage_options, tag, result, progress, failed):
+def _lasting_storage_error(error: BaseException | None) -> bool:
+    """A failure to write that retrying cannot cure."""
+    return isinstance(error, OSError) and error.errno in LASTING_ERRNOS
+
+
+def _submit_bounded(
+    client,
+    url,
+    batches,
+    window,
+    tag,
+    *,
+    storage_options,
+    task_timeout,
+    result,
+    progress,
+    failed,
+):
     """Submit `batches` keeping at most `window` tasks in flight; record what happened."""
-    pending = as_completed()
-    sizes = {}
+    running: dict = {}  # future -> (start, count, submitted at)
 
     def submit_next() -> bool:
         try:
@@ -278,35 +338,88 @@ def _submit_bounded(client, url, batches, window, storage_options, tag, result, 
             retries=RETRIES,
             pure=False,
         )
-        sizes[future.key] = (start, len(jobs))
-        pending.add(future)
-        result.max_in_flight = max(result.max_in_flight, len(sizes))
+        running[future] = (start, len(jobs), time.monotonic())
+        result.max_in_flight = max(result.max_in_flight, len(running))
         return True
 
     def fill(limit: int) -> None:
-        while len(sizes) < limit and submit_next():
+        while result.stopped is None and len(running) < limit and submit_next():
             pass
 
     checked = time.monotonic()
     try:
         fill(window)
-        for future in pending:
-            start, count = sizes.pop(future.key)
-            if future.status == "finished":
-                result.written += count
-                progress.update(count)
-            else:
-                failed.append((start, count, repr(future.exception())))
-            future.release()
-            if window > 1 and time.monotonic() - checked > WINDOW_REFRESH:
+        while running:
+            try:
+                done = wait(list(running), timeout=TICK, return_when="FIRST_COMPLETED").done
+            except TimeoutError:
+                done = set()
+            for future in done:
+                start, count, _ = running.pop(future)
+                if future.status == "finished":
+                    rejected = future.result()
+                    result.written += count - len(rejected)
+                    result.rejected += rejected
+                    progress.update(count)
+                elif _lasting_storage_error(error := future.exception()):
+                    result.stopped = f"{url}: {error.strerror} (errno {error.errno})"
+                else:
+                    failed.append((start, count, repr(error)))
+                future.release()
+            now = time.monotonic()
+            for future, (start, count, submitted) in list(running.items()):
+                if result.stopped is not None or now - submitted > task_timeout:
+                    running.pop(future)
+                    future.cancel()
+                    if result.stopped is None:
+                        result.stuck.append((start, count))
+            if window > 1 and now - checked > WINDOW_REFRESH:
                 # workers join and leave: keep a few tasks per thread present now
-                checked = time.monotonic()
+                checked = now
                 window = max(2, IN_FLIGHT_PER_THREAD * sum(client.nthreads().values()))
             fill(window)
     except KeyboardInterrupt:
-        for future in list(pending.futures):
+        for future in running:
             future.cancel()
         raise
+
+
+def _check_output(plan: Plan, url: str, *, resume, overwrite, storage_options) -> tuple:
+    """Check what is at the output before anything is written or deleted.
+
+    Returns
+    -------
+    tuple of (bool, list, list)
+        Whether an existing store is resumed, and the files of the old store and of its
+        statistics that ``--overwrite`` deletes (`service.store.removable_files`).
+
+    Raises
+    ------
+    SweepError
+        If the output or the statistics path holds something this run may not replace.
+    """
+    stats_files = store.removable_files(store.stats_url(url), storage_options, kind="statistics")
+    if not store.occupied(url, storage_options):
+        return False, [], []
+    if not resume and not overwrite:
+        raise SweepError(f"{url} already exists; pass --resume to complete it or --overwrite")
+    if overwrite:
+        return False, store.removable_files(url, storage_options, kind="samples"), stats_files
+    previous = store.root_attributes(url, storage_options) or {}
+    if previous.get(store.KIND) != "samples":
+        raise SweepError(f"{url} is not an oceanlidar samples store; cannot resume into it")
+    if previous.get("sweep_sha256") != plan.digest:
+        raise SweepError(
+            f"{url} holds a different sweep (its hash differs); refusing to resume into it"
+        )
+    written_by = previous.get("oceanlidar_version")
+    if written_by != store.package_version():
+        raise SweepError(
+            f"{url} was written by oceanlidar {written_by}, this is "
+            f"{store.package_version()}: samples would differ; resume with that version "
+            "or start again with --overwrite"
+        )
+    return True, [], []
 
 
 def execute(
@@ -317,48 +430,62 @@ def execute(
     scheduler: str | None = None,
     security=None,
     resume: bool = False,
+    verify: bool = False,
     overwrite: bool = False,
     storage_options: dict | None = None,
     batch_size: int = 4,
+    task_timeout: float = TASK_TIMEOUT,
     progress_stream=None,
 ) -> RunResult:
-    """Create (or reopen) the store, run the missing samples and write the statistics."""
-    exists = store.store_exists(url, storage_options)
-    if exists and resume:
-        if not store.is_oceanlidar_store(url, storage_options):
-            raise SweepError(f"{url} is not an oceanlidar store; cannot resume into it")
-        previous = store.open_store(url, storage_options=storage_options)
-        if previous.attrs.get("sweep_sha256") != plan.digest:
-            raise SweepError(
-                f"{url} holds a different sweep (its hash differs); refusing to resume into it"
+    """Create (or reopen) the store, run the missing samples and write the statistics.
+
+    With `resume` and `verify`, every completed sample is read back first
+    (`service.store.verify`) and the damaged ones are rendered again with the missing ones.
+
+    Everything is checked before anything is deleted or written, once before taking the
+    store's writer lock (so a refused run leaves no trace) and again holding it (another
+    run may have changed the output meanwhile).
+    """
+    url = store.normalise(url, storage_options)
+    options = {"resume": resume, "overwrite": overwrite, "storage_options": storage_options}
+    with store.storage_errors(url):
+        _check_output(plan, url, **options)
+    with store.writer_lock(url, storage_options) as token:
+        with store.storage_errors(url):
+            resuming, old_files, old_stats = _check_output(plan, url, **options)
+        # connect before touching storage: an unreachable cluster leaves everything as it was
+        with dask_client(workers=workers, scheduler=scheduler, security=security) as client:
+            probe = client.submit(store.check_workers_see, url, storage_options, token, pure=False)
+            try:
+                probe.result(timeout=PROBE_TIMEOUT)
+            except TimeoutError:
+                raise ClusterError(
+                    f"no worker answered within {PROBE_TIMEOUT} s (are any connected?)"
+                ) from None
+            with store.storage_errors(url):
+                store.remove_files(store.stats_url(url), storage_options, old_stats)
+                store.remove_files(url, storage_options, old_files)
+                if not resuming:
+                    store.create_store(plan, url, storage_options=storage_options)
+            damaged = store.verify(url, storage_options) if resuming and verify else []
+            store.mark_incomplete(url, [sample for sample, _ in damaged], storage_options)
+            result = run_plan(
+                plan,
+                url,
+                client=client,
+                resume=resuming,
+                storage_options=storage_options,
+                batch_size=batch_size,
+                task_timeout=task_timeout,
+                progress_stream=progress_stream,
             )
-        written_by = previous.attrs.get("oceanlidar_version")
-        if written_by != store.package_version():
-            raise SweepError(
-                f"{url} was written by oceanlidar {written_by}, this is "
-                f"{store.package_version()}: samples would differ; resume with that version "
-                "or start again with --overwrite"
-            )
-    elif exists and not overwrite:
-        raise SweepError(f"{url} already exists; pass --resume to complete it or --overwrite")
-    elif exists and not store.is_oceanlidar_store(url, storage_options):
-        raise SweepError(f"{url} exists and is not an oceanlidar store; refusing to delete it")
-    # connect before touching storage: an unreachable cluster leaves everything as it was
-    with dask_client(workers=workers, scheduler=scheduler, security=security) as client:
-        if exists and not resume:
-            store.remove_store(url, storage_options)
-            store.remove_store(store.stats_url(url), storage_options)
-        if not (exists and resume):
-            store.create_store(plan, url, storage_options=storage_options)
-        result = run_plan(
-            plan,
-            url,
-            client=client,
-            resume=resume,
-            storage_options=storage_options,
-            batch_size=batch_size,
-            progress_stream=progress_stream,
-        )
-        if not result.interrupted and not result.failed:
-            write_statistics(url, storage_options=storage_options)
+            result.damaged = damaged
+            if not (
+                result.interrupted
+                or result.failed
+                or result.rejected
+                or result.stuck
+                or result.stopped
+            ):
+                write_statistics(url, storage_options=storage_options)
     return result

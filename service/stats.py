@@ -20,6 +20,8 @@ written are ignored. Variables:
 
 from __future__ import annotations
 
+import contextlib
+import uuid
 import warnings
 
 import dask
@@ -28,6 +30,7 @@ import xarray as xr
 from scipy.ndimage import maximum_filter
 
 from service import store
+from service.sweep import SweepError
 
 __all__ = ["RING_FRACTION", "point_statistics", "write_statistics"]
 
@@ -145,26 +148,29 @@ def _template(ds: xr.Dataset) -> xr.Dataset:
         Conventions=store.CONVENTIONS,
         sweep_sha256=ds.attrs.get("sweep_sha256", ""),
         oceanlidar_version=store.package_version(),
+        **{store.KIND: "statistics"},
     )
     return stats
 
 
-def _reduce_points(url, target, points, realisations, storage_options):
-    """Read the samples of `points`, reduce them, write their statistics chunks."""
+def _reduce_points(url, target, points, done, realisations, storage_options):
+    """Read the samples of `points`, reduce them, write their statistics chunks.
+
+    `done` holds the completion flags of those points' samples, in order.
+    """
     source = store.open_group(url, storage_options)
     sink = store.open_group(target, storage_options)
-    for point in points:
-        rows = slice(point * realisations, (point + 1) * realisations)
-        written = np.flatnonzero(source["completed"][rows])
+    for index, point in enumerate(points):
+        written = np.flatnonzero(done[index * realisations : (index + 1) * realisations])
         if written.size == 0:
             continue
         first = point * realisations
         picks = [first + int(i) for i in written]
         stats = point_statistics(
-            image=source["image"].get_orthogonal_selection((picks,)),
-            expected=source["expected"].get_orthogonal_selection((picks,)),
-            mask=source["target_mask"].get_orthogonal_selection((picks,)).astype(bool),
-            visibility=source["target_visibility"].get_orthogonal_selection((picks,)),
+            image=store.read_samples(source["image"], picks),
+            expected=store.read_samples(source["expected"], picks),
+            mask=store.read_samples(source["target_mask"], picks).astype(bool),
+            visibility=store.read_samples(source["target_visibility"], picks),
         )
         for name, value in stats.items():
             sink[name][point] = value
@@ -175,16 +181,42 @@ def _reduce_points(url, target, points, realisations, storage_options):
 def write_statistics(url: str, *, storage_options: dict | None = None) -> str:
     """(Re)compute the statistics of the store at `url` and write them beside it.
 
-    Runs on the dask client in use (the sweep's cluster), or on local threads.
+    The new statistics are written to a fresh store beside the old ones and moved into
+    place only when complete: a failure leaves the previous statistics as they were. The
+    caller holds the sample store's writer lock (`service.store.writer_lock`). Runs on the
+    dask client in use (the sweep's cluster), or on local threads.
 
     Returns
     -------
     str
         Where the statistics were written.
+
+    Raises
+    ------
+    SweepError
+        If the statistics path holds something other than oceanlidar statistics.
     """
     ds = store.open_store(url, storage_options=storage_options)
     target = store.stats_url(url)
-    store.remove_store(target, storage_options)
+    old = store.removable_files(target, storage_options, kind="statistics")
+    partial = f"{target.rstrip('/')}.partial-{uuid.uuid4().hex[:12]}"
+    try:
+        _compute(ds, url, partial, storage_options)
+    except BaseException:
+        with contextlib.suppress(SweepError, OSError):  # best effort: it is not in place
+            store.remove_files(
+                partial,
+                storage_options,
+                store.removable_files(partial, storage_options, kind="statistics"),
+            )
+        raise
+    store.remove_files(target, storage_options, old)
+    store.move(partial, target, storage_options)
+    return target
+
+
+def _compute(ds: xr.Dataset, url: str, target: str, storage_options: dict | None) -> None:
+    """Write the statistics of `ds` (the store at `url`) into a new store at `target`."""
     template = _template(ds)
     with store.consolidated_v3():
         template.to_zarr(
@@ -193,20 +225,25 @@ def write_statistics(url: str, *, storage_options: dict | None = None) -> str:
             compute=False,
             consolidated=True,
             zarr_format=3,
-            encoding={name: store.one_per_chunk(template[name].shape[1:]) for name in template},
+            encoding={
+                **{name: {"compressors": store.CODECS} for name in template.coords},
+                **{name: store.one_per_chunk(template[name].shape[1:]) for name in template},
+            },
             storage_options=storage_options,
         )
     points = int(ds.attrs["points"])
     realisations = int(ds.attrs["realisations"])
+    # the flags from one listing, not one read per sample
+    done = store.completed_samples(url, storage_options=storage_options)
     tasks = [
         dask.delayed(_reduce_points)(
             url,
             target,
             list(range(start, min(start + POINTS_PER_TASK, points))),
+            done[start * realisations : (start + POINTS_PER_TASK) * realisations],
             realisations,
             storage_options,
         )
         for start in range(0, points, POINTS_PER_TASK)
     ]
     dask.compute(*tasks)
-    return target

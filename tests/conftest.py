@@ -63,7 +63,7 @@ def free_port():
         return probe.getsockname()[1]
 
 
-def _cli(args, env):
+def cli_command(*args, env=None):
     """The command line and environment of `oceanlidar ARGS` in a fresh process."""
     command = [sys.executable, "-m", "service.cli", *map(str, args)]
     return command, {**os.environ, "PYTHONPATH": str(ROOT), **(env or {})}
@@ -71,7 +71,7 @@ def _cli(args, env):
 
 def run_cli(*args, cwd, env=None, timeout=300):
     """Run `oceanlidar ARGS` as a user would, in a fresh process."""
-    command, env = _cli(args, env)
+    command, env = cli_command(*args, env=env)
     return subprocess.run(
         command, cwd=cwd, capture_output=True, text=True, env=env, timeout=timeout
     )
@@ -79,7 +79,7 @@ def run_cli(*args, cwd, env=None, timeout=300):
 
 def start_cli(*args, cwd, env=None, **popen):
     """Start `oceanlidar ARGS` in a fresh process and return it (a `subprocess.Popen`)."""
-    command, env = _cli(args, env)
+    command, env = cli_command(*args, env=env)
     return subprocess.Popen(command, cwd=cwd, env=env, **popen)
 
 

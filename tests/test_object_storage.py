@@ -7,6 +7,7 @@ import sys
 import time
 from pathlib import Path
 
+import fsspec
 import pytest
 import xarray as xr
 from conftest import TINY_SWEEP, assert_same_samples, free_port, run_cli
@@ -20,7 +21,8 @@ pytest.importorskip("s3fs")
 
 BIN = Path(sys.executable).parent
 
-SWEEP = TINY_SWEEP.format(name="s3", seed=9, realisations=3, output="s3://oceanlidar/run.zarr")
+SWEEP_URL = "s3://oceanlidar/run.zarr"
+SWEEP = TINY_SWEEP.format(name="s3", seed=9, realisations=3, output=SWEEP_URL)
 
 
 @pytest.fixture(scope="module")
@@ -81,3 +83,42 @@ def test_a_sweep_to_s3_resumes_to_the_bytes_of_a_local_run(s3, tmp_path):
     assert_same_samples(url, local, storage_options=s3)
     stats = xr.open_zarr("s3://oceanlidar/run.stats.zarr", storage_options=s3)
     assert stats["samples"].values.tolist() == [3, 3]
+    # the run's lock is gone, and the statistics were moved into place whole
+    fs = fsspec.filesystem("s3", **s3)
+    assert fs.find("oceanlidar/run.zarr/oceanlidar.lock") == []
+    assert [path for path in fs.ls("oceanlidar") if "partial" in path] == []
+
+
+def test_a_second_writer_is_refused_on_object_storage(s3, tmp_path, capsys):
+    from service.cli import main
+    from service.store import LOCK_NAME, writer_lock
+
+    url = "s3://oceanlidar/locked.zarr"
+    sweep = tmp_path / "s3.yaml"
+    sweep.write_text(SWEEP)
+    fs = fsspec.filesystem("s3", **s3)
+    with writer_lock(url, s3):
+        assert fs.exists(f"oceanlidar/locked.zarr/{LOCK_NAME}")
+        command = ["run", str(sweep), "--output", url, "--storage-options", json.dumps(s3)]
+        assert main(command) == 2
+    err = capsys.readouterr().err
+    assert "locked by another run" in err and "Traceback" not in err
+    fs.invalidate_cache()
+    assert not fs.exists("oceanlidar/locked.zarr")
+
+
+def test_unreachable_storage_is_refused_before_rendering(s3, tmp_path, capsys):
+    from service.cli import main
+
+    sweep = tmp_path / "s3.yaml"
+    sweep.write_text(SWEEP)
+    unreachable = {
+        **s3,
+        "client_kwargs": {"endpoint_url": f"http://127.0.0.1:{free_port()}"},
+        "config_kwargs": {"connect_timeout": 1, "retries": {"max_attempts": 1}},
+    }
+    for url, options in (("s3://no-such-bucket/run.zarr", s3), (SWEEP_URL, unreachable)):
+        command = ["run", str(sweep), "--output", url, "--storage-options", json.dumps(options)]
+        assert main(command) == 2
+        err = capsys.readouterr().err
+        assert f"'{url}' cannot be written" in err and "Traceback" not in err

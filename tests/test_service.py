@@ -194,8 +194,26 @@ def test_existing_output_is_refused_and_left_unchanged(two_worker_store, tmp_pat
             "plain YAML",
         ),
         ("\x00\x01binary", "not YAML"),
+        (SWEEP.replace("[3.0, 6.0]", "!!set {3.0, 6.0}"), "line 12: YAML sets"),
+        (
+            SWEEP.replace(
+                "scene:\n", "scene:\n  sequence: {frames: 2, velocity: [1e308, 0, 0]}\n"
+            ),
+            "scene.sequence.velocity: the platform would fly",
+        ),
+        (SWEEP + "seed: 12\n", "line 14: duplicate key 'seed' (first on line 2)"),
     ],
-    ids=["unknown-key", "wrong-type", "out-of-range", "unknown-path", "python-tag", "binary"],
+    ids=[
+        "unknown-key",
+        "wrong-type",
+        "out-of-range",
+        "unknown-path",
+        "python-tag",
+        "binary",
+        "set",
+        "velocity-1e308",
+        "duplicate-key",
+    ],
 )
 def test_cli_bad_input_exits_2_with_a_message_and_writes_nothing(tmp_path, text, fragment):
     sweep = tmp_path / "bad.yaml"
@@ -250,10 +268,10 @@ def test_overwrite_never_deletes_what_is_not_a_store(tmp_path, capsys):
     (victim / "chapter" / "one.tex").write_text("precious")
     sweep = write(tmp_path / "s.yaml")
     assert main(["run", str(sweep), "--output", str(victim), "--overwrite"]) == 2
-    assert "not an oceanlidar store" in capsys.readouterr().err
+    assert "not an oceanlidar samples store" in capsys.readouterr().err
     assert (victim / "chapter" / "one.tex").read_text() == "precious"
     assert main(["run", str(sweep), "--output", str(victim), "--resume"]) == 2
-    assert "not an oceanlidar store" in capsys.readouterr().err
+    assert "not an oceanlidar samples store" in capsys.readouterr().err
 
 
 def test_list_valued_parameters_become_string_coordinates(tmp_path):

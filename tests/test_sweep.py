@@ -1,8 +1,12 @@
 """Sweep files: schema, safe loading, expansion, seeds and plans."""
 
+import os
+import subprocess
+import sys
 import textwrap
 
 import pytest
+from conftest import cli_command, run_cli
 
 from service.sweep import SweepError, load_sweep, parse_sweep
 from workers.scene import Scene
@@ -137,6 +141,27 @@ def test_size_limits_name_the_number_and_the_way_out():
         ("- just\n- a list\n", r"must be a YAML mapping"),
         ("", r"must be a YAML mapping"),
         ("x:\n" + "".join("  " * i + "- \n" for i in range(1, 40)), r"nests deeper"),
+        (BASE.replace("seed: 3", "seed: true"), r"^seed: expected a number, got a boolean"),
+        (BASE.replace("seed: 3", 'seed: "3"'), r"^seed: expected a number, got a string"),
+        (BASE + "  target: {depth: yes}\n", r"scene\.target\.depth: expected a number"),
+        (
+            BASE + "sweep:\n  parameters:\n    target.depth: {values: [3.0, true]}\n",
+            r"parameter point 1 .*\nscene\.target\.depth: expected a number, got a boolean",
+        ),
+        (
+            BASE + "sweep:\n  parameters:\n    target.depth: {values: !!set {3.0, 5.0}}\n",
+            r"line 10: YAML sets \(!!set\) are not accepted",
+        ),
+        (BASE + "realisations: 5\n", r"line 8: duplicate key 'realisations' \(first on line 3\)"),
+        (BASE + "  receiver: {pixels: 8}\n", r"line 8: duplicate key 'receiver' .*line 6"),
+        (BASE + "loop: &a [1, *a]\n", r"line 8: the alias \*a .* self-referential"),
+        (BASE + "loop: &a {b: {c: *a}}\n", r"self-referential"),
+        (BASE + "  sequence: {velocity: [.nan, 0, 0]}\n", r"velocity\.0: must be a finite"),
+        (BASE + "  sequence: {velocity: [0, -.inf, 0]}\n", r"velocity\.1: must be a finite"),
+        (
+            BASE + "  sequence: {frames: 3, velocity: [1e308, 0, 0]}\n",
+            r"scene\.sequence\.velocity: the platform would fly 2e\+307 m",
+        ),
     ],
     ids=[
         "unknown-key",
@@ -155,6 +180,18 @@ def test_size_limits_name_the_number_and_the_way_out():
         "not-a-mapping",
         "empty-file",
         "deeply-nested",
+        "bool-for-int",
+        "string-for-int",
+        "bool-for-float",
+        "bool-in-values",
+        "set",
+        "duplicate-key",
+        "duplicate-section",
+        "self-alias-list",
+        "self-alias-map",
+        "velocity-nan",
+        "velocity-inf",
+        "velocity-1e308",
     ],
 )
 def test_bad_sweeps_say_where_and_why(text, message):
@@ -217,3 +254,104 @@ def test_distribution_parameters_are_checked(spec, message):
     )
     with pytest.raises(SweepError, match=message):
         parse_sweep(text)
+
+
+def test_exponents_without_a_dot_are_numbers():
+    plan = parse_sweep(BASE.replace("spacing: 0.1", "spacing: 1e-1"))
+    assert plan.scenes[0].surface.spacing == 0.1
+
+
+def conditioned(folder, name):
+    path = folder / "sweep.yaml"
+    path.write_text(
+        BASE.replace("spacing: 0.1}", f"spacing: 0.1, conditioning: {{file: {name}}}}}")
+    )
+    return path
+
+
+@pytest.mark.parametrize("role", ["sweep", "measurements"])
+def test_inputs_must_be_regular_files(tmp_path, role):
+    (tmp_path / "zero.yaml").symlink_to("/dev/zero")
+    os.mkfifo(tmp_path / "fifo.yaml")
+    for name in ("zero.yaml", "fifo.yaml"):
+        sweep = conditioned(tmp_path, name) if role == "measurements" else tmp_path / name
+        if name == "zero.yaml":
+            with pytest.raises(SweepError, match="not a regular file"):
+                load_sweep(sweep)
+            continue
+        # a FIFO blocks whoever opens it for reading: a process of its own, and a timeout
+        result = run_cli("validate", sweep, cwd=tmp_path, timeout=60)
+        assert result.returncode == 2 and "not a regular file" in result.stderr, result.stderr
+
+
+def test_a_huge_file_is_refused_after_reading_the_limit(tmp_path):
+    huge = tmp_path / "huge.yaml"
+    huge.touch()
+    os.truncate(huge, 300_000_000)  # sparse: costs no disk
+    # a fresh interpreter whose only child is the CLI, to measure the CLI's peak memory
+    probe = (
+        "import resource, subprocess, sys; "
+        "r = subprocess.run(sys.argv[1:], capture_output=True, text=True); "
+        "print(r.returncode, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss); "
+        "print(r.stderr, file=sys.stderr)"
+    )
+    command, env = cli_command("validate", huge)
+    result = subprocess.run(
+        [sys.executable, "-c", probe, *command], capture_output=True, text=True, env=env
+    )
+    code, peak_kib = map(int, result.stdout.split())
+    assert code == 2 and "larger than 1,000,000 bytes" in result.stderr, result.stderr
+    assert peak_kib < 300 * 1024  # the whole file would cost twice its size
+
+
+@pytest.mark.parametrize(
+    ("name", "message"),
+    [
+        ("/etc/passwd", "in the sweep file's folder or below it"),
+        ("../elsewhere/points.csv", "in the sweep file's folder or below it"),
+        ("secret.csv", "must start with the header line"),
+    ],
+    ids=["absolute", "parent", "not-csv"],
+)
+def test_measurement_files_stay_beside_the_sweep_and_are_never_echoed(tmp_path, name, message):
+    (tmp_path / "secret.csv").write_text("root:hunter2:0:0\nmore:secret\n")
+    with pytest.raises(SweepError, match=message) as error:
+        load_sweep(conditioned(tmp_path, name))
+    assert "hunter2" not in str(error.value) and "root:" not in str(error.value)
+
+
+def test_echoed_values_are_capped(tmp_path, capsys):
+    from service.cli import main
+
+    huge = "x" * 600_000
+    with pytest.raises(SweepError) as error:
+        parse_sweep(BASE + f"sweep:\n  parameters:\n    target.shape: {{values: [{huge}]}}\n")
+    assert "600,002 characters" in str(error.value) and len(str(error.value)) < 1000
+    # a key is echoed as the place of the error: cut too
+    sweep = tmp_path / "key.yaml"
+    key = f"? target.{huge}\n    : {{values: [1]}}\n"  # explicit: YAML caps implicit keys
+    sweep.write_text(BASE + "sweep:\n  parameters:\n    " + key)
+    assert main(["validate", str(sweep)]) == 2
+    err = capsys.readouterr().err
+    assert "sweep.parameters.target.xxxx" in err and "(cut)" in err and len(err) < 2000
+
+
+def test_memory_is_estimated_before_anything_is_built(tmp_path, capsys):
+    from service.cli import main
+
+    frames = BASE.replace("pixels: 16}", "pixels: 1024}\n  sequence: {frames: 64}")
+    with pytest.raises(SweepError, match=r"would need about .* GiB .* over the limit of 4\.0 GiB"):
+        parse_sweep(frames)
+    assert parse_sweep(frames, max_memory=None).scenes[0].receiver.pixels == 1024
+    # 24 measurement times on a 2048² grid: the kriging system alone, refused unbuilt
+    points = [[0.1 * i, 0.1, 0.0, 0.1 * i] for i in range(1, 25)]
+    measured = BASE.replace(
+        "spacing: 0.1}", f"spacing: 0.01, grid_size: 2048, conditioning: {{points: {points}}}}}"
+    ).replace("grid_size: 32, ", "")
+    with pytest.raises(SweepError, match="would need about"):
+        parse_sweep(measured)
+    sweep = tmp_path / "frames.yaml"
+    sweep.write_text(frames)
+    assert main(["validate", str(sweep)]) == 2
+    assert "--max-memory" in capsys.readouterr().err
+    assert main(["validate", str(sweep), "--max-memory", "200"]) == 0

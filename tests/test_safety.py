@@ -1,0 +1,350 @@
+"""Nothing lost, nothing silently wrong: refusals before deletion, locks, checksums."""
+
+import errno
+import json
+import shutil
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+import xarray as xr
+from conftest import TINY_SCENE, TINY_SWEEP, run_cli, start_cli
+
+from service import store
+from service.cli import main
+from workers.render import render
+
+
+def sweep_file(folder, name="one", output="one.zarr", seed=3):
+    path = folder / f"{name}.yaml"
+    path.write_text(TINY_SCENE.format(name=name, seed=seed, realisations=5, output=output))
+    return path
+
+
+def snapshot(folder):
+    """Every file under `folder` and its bytes."""
+    return {
+        p.relative_to(folder): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()
+    }
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory):
+    """A folder with a complete five-sample store `one.zarr` and its statistics."""
+    folder = tmp_path_factory.mktemp("finished")
+    sweep = sweep_file(folder)
+    result = run_cli("run", sweep, "--workers", 1, cwd=folder)
+    assert result.returncode == 0, result.stderr
+    return folder
+
+
+@pytest.fixture
+def work(finished, tmp_path, monkeypatch):
+    """A copy of `finished` to damage, as the current directory."""
+    shutil.copytree(finished, tmp_path, dirs_exist_ok=True)
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+def test_statistics_never_replace_another_sweeps_store(work, capsys):
+    # sweep "two" writes its samples where sweep "one" puts its statistics
+    shutil.rmtree(work / "one.stats.zarr")
+    shutil.copytree(work / "one.zarr", work / "one.stats.zarr")
+    shutil.rmtree(work / "one.zarr")
+    before = snapshot(work)
+    for extra in ([], ["--overwrite"]):
+        assert (
+            main(["run", str(work / "one.yaml"), "--output", str(work / "one.zarr"), *extra]) == 2
+        )
+        assert "not an oceanlidar statistics store" in capsys.readouterr().err
+        assert snapshot(work) == before
+    shutil.copytree(work / "one.stats.zarr", work / "one.zarr")
+    before = snapshot(work)
+    assert main(["stats", str(work / "one.zarr")]) == 2
+    assert "not an oceanlidar statistics store" in capsys.readouterr().err
+    assert snapshot(work) == before
+
+
+@pytest.mark.parametrize(
+    "stranger",
+    ["notes.txt", "image/mine.npy", "old/zarr.json"],
+    ids=["file-in-store", "file-in-array-folder", "unlisted-folder"],
+)
+def test_overwrite_deletes_only_what_the_store_lists(work, capsys, stranger):
+    path = work / "one.zarr" / stranger
+    path.parent.mkdir(exist_ok=True)
+    # a folder carrying the project's attribute is not a licence to delete it either
+    path.write_text(json.dumps({"node_type": "group", "attributes": {store.KIND: "samples"}}))
+    before = snapshot(work)
+    assert main(["run", str(work / "one.yaml"), "--overwrite"]) == 2
+    err = capsys.readouterr().err
+    assert stranger in err and "does not list" in err
+    assert snapshot(work) == before
+
+
+def test_overwrite_checks_everything_before_deleting_anything(work, capsys):
+    shutil.rmtree(work / "one.stats.zarr")
+    (work / "one.stats.zarr").mkdir()
+    (work / "one.stats.zarr" / "thesis.tex").write_text("precious")
+    before = snapshot(work)
+    assert main(["run", str(work / "one.yaml"), "--overwrite"]) == 2
+    assert "not an oceanlidar statistics store" in capsys.readouterr().err
+    assert snapshot(work) == before
+
+
+def test_overwrite_replaces_a_store_and_its_statistics(work):
+    before = snapshot(work / "one.zarr")
+    result = run_cli("run", work / "one.yaml", "--overwrite", "--workers", 1, cwd=work)
+    assert result.returncode == 0, result.stderr
+    assert snapshot(work / "one.zarr") == before  # same sweep, same bytes
+    assert not (work / "one.zarr" / store.LOCK_NAME).exists()
+    assert sorted(p.name for p in work.iterdir()) == ["one.stats.zarr", "one.yaml", "one.zarr"]
+
+
+def damage(work, variable="image", sample=1):
+    """Flip one byte in the middle of a sample's chunk."""
+    chunk = next((work / "one.zarr" / variable).glob(f"c.{sample}.*"))
+    data = bytearray(chunk.read_bytes())
+    data[len(data) // 2] ^= 0x01
+    chunk.write_bytes(bytes(data))
+
+
+def test_failed_statistics_keep_the_previous_ones(work, capsys):
+    before = snapshot(work / "one.stats.zarr")
+    damage(work)
+    assert main(["stats", str(work / "one.zarr")]) == 1
+    assert "sample 1: its image chunk cannot be read" in capsys.readouterr().err
+    assert snapshot(work / "one.stats.zarr") == before
+    assert sorted(p.name for p in work.iterdir()) == ["one.stats.zarr", "one.yaml", "one.zarr"]
+    assert main(["info", str(work / "one.zarr")]) == 0
+    assert str(work / "one.stats.zarr") in capsys.readouterr().out
+
+
+def test_verify_finds_damaged_missing_and_swapped_samples_and_resume_redoes_them(work, capsys):
+    original = snapshot(work / "one.zarr")
+    damage(work, "image", sample=1)
+    next((work / "one.zarr" / "expected").glob("c.2.*")).unlink()
+    first, last = (next((work / "one.zarr" / "image").glob(f"c.{i}.*")) for i in (0, 3))
+    first_bytes = first.read_bytes()
+    first.write_bytes(last.read_bytes())
+    last.write_bytes(first_bytes)
+    assert main(["info", "one.zarr"]) == 0
+    assert "5/5 complete" in capsys.readouterr().out  # the flags alone cannot tell
+    assert main(["info", "one.zarr", "--verify"]) == 1
+    out = capsys.readouterr().out
+    assert "verified: 1 of 5 complete samples read back intact" in out
+    assert "sample 0: damaged or missing: its chunks do not match its checksum" in out
+    assert "sample 1: damaged or missing: a chunk cannot be read" in out
+    assert "sample 2: damaged or missing: no expected chunk" in out
+    assert "sample 3: damaged or missing: its chunks do not match" in out
+    result = run_cli("run", "one.yaml", "--resume", "--verify", "--workers", 1, cwd=work)
+    assert result.returncode == 0, result.stderr
+    assert "wrote 4 samples" in result.stderr and "1 already complete" in result.stderr
+    assert snapshot(work / "one.zarr") == original
+    assert main(["info", "one.zarr", "--verify"]) == 0
+
+
+def test_damaged_statistics_are_named_and_written_again(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    sweep = tiny_sweep(tmp_path, realisations=1)
+    assert main(["run", str(sweep), "--workers", "1"]) == 0
+    chunk = next((tmp_path / "t.stats.zarr" / "image_mean").glob("c.0.*"))
+    data = bytearray(chunk.read_bytes())
+    data[-1] ^= 0x01  # the chunk's stored checksum
+    chunk.write_bytes(bytes(data))
+    assert main(["plot", "t.zarr", "--output", "p.png"]) == 1
+    err = capsys.readouterr().err
+    assert "t.stats.zarr: a chunk cannot be read" in err and "oceanlidar stats" in err
+    assert main(["stats", "t.zarr"]) == 0
+    assert main(["plot", "t.zarr", "--output", "p.png"]) == 0
+
+
+def write_lock(work, **holder):
+    record = {"host": socket.gethostname(), "since": "2026-01-01T00:00:00+00:00", **holder}
+    (work / "one.zarr" / store.LOCK_NAME).write_text(json.dumps({"token": "x", **record}))
+
+
+def test_a_locked_store_is_refused_and_a_dead_holders_lock_taken_over(work, capsys):
+    write_lock(work, host="elsewhere", pid=1)
+    before = snapshot(work)
+    for command in (["run", str(work / "one.yaml"), "--overwrite"], ["stats", "one.zarr"]):
+        assert main([*command[:1], *(str(work / c) for c in command[1:2]), *command[2:]]) == 2
+        err = capsys.readouterr().err
+        assert "locked by another run (host elsewhere" in err
+        assert str(work / "one.zarr" / store.LOCK_NAME) in err
+        assert snapshot(work) == before
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    write_lock(work, pid=dead.pid)
+    assert main(["stats", str(work / "one.zarr")]) == 0
+    assert not (work / "one.zarr" / store.LOCK_NAME).exists()
+
+
+def test_two_fresh_runs_racing_for_one_output(tmp_path):
+    sweep = sweep_file(tmp_path)
+    runs = [
+        start_cli("run", sweep, "--workers", 1, cwd=tmp_path, stderr=subprocess.PIPE, text=True)
+        for _ in range(2)
+    ]
+    errors = [run.communicate(timeout=300)[1] for run in runs]
+    codes = sorted(run.returncode for run in runs)
+    assert codes == [0, 2], errors
+    loser = errors[[run.returncode for run in runs].index(2)]
+    assert "locked by another run" in loser or "already exists" in loser
+    assert "Traceback" not in loser
+    assert main(["info", str(tmp_path / "one.zarr")]) == 0
+
+
+@pytest.fixture
+def threads(monkeypatch):
+    """The embedded cluster's workers as threads of this process, to see monkeypatches."""
+    from distributed import LocalCluster
+
+    import service.run
+
+    def threaded(**options):
+        return LocalCluster(**{**options, "processes": False, "protocol": "tcp://"})
+
+    monkeypatch.setattr(service.run, "LocalCluster", threaded)
+    return service.run
+
+
+def test_a_sample_with_non_finite_values_is_reported_and_never_marked_complete(
+    tmp_path, monkeypatch, capsys, threads
+):
+    def poisoned(scene, *, seed):
+        sample = render(scene, seed=seed)
+        if (seed.point, seed.realisation) == (1, 1):
+            sample["expected"].values[0, 0, 0, 0] = np.nan
+        return sample
+
+    monkeypatch.setattr(threads, "render", poisoned)
+    sweep = tmp_path / "nan.yaml"
+    sweep.write_text(TINY_SWEEP.format(name="nan", seed=1, realisations=3, output="n.zarr"))
+    output = tmp_path / "n.zarr"
+    assert (
+        main(["run", str(sweep), "--output", str(output), "--batch", "3", "--workers", "1"]) == 1
+    )
+    err = capsys.readouterr().err
+    assert "sample 4 (point 1: target.shape='none'; realisation 1) not stored" in err
+    assert "expected holds 1 non-finite value" in err and "Traceback" not in err
+    assert xr.open_zarr(output)["completed"].values.tolist() == [1, 1, 1, 1, 0, 1]
+    assert not list((output / "expected").glob("c.4.*"))
+    assert not (tmp_path / "n.stats.zarr").exists()
+
+
+@pytest.mark.parametrize(
+    ("output", "options", "message"),
+    [
+        (
+            "memory://m.zarr",
+            ["--workers", "1"],
+            "the workers do not see the store 'memory://m.zarr'",
+        ),
+        ("/sys/o.zarr", [], "'/sys/o.zarr' cannot be written: Operation not permitted"),
+        ("x" * 300 + ".zarr", [], "cannot be written: File name too long"),
+        ("o.zarr", ["--storage-options", '{"anon": true}'], "apply to URLs such as s3://"),
+        ("o.zarr", ["--scheduler", "tls://127.0.0.1:9"], "a tls:// scheduler needs"),
+    ],
+    ids=["memory", "read-only", "long-component", "options-for-a-path", "tls-without-tls"],
+)
+def test_outputs_that_cannot_be_written_are_refused_before_rendering(
+    tmp_path, output, options, message
+):
+    sweep = sweep_file(tmp_path)
+    result = run_cli("run", sweep, "--output", output, *options, cwd=tmp_path)
+    assert result.returncode == 2 and message in result.stderr, result.stderr
+    assert "Traceback" not in result.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["one.yaml"]
+
+
+def test_home_and_file_urls_reach_the_workers_as_paths(tmp_path):
+    sweep = sweep_file(tmp_path)
+    (tmp_path / "home").mkdir()
+    for output in ("~/h.zarr", f"file://{tmp_path}/f.zarr"):
+        result = run_cli(
+            "run",
+            sweep,
+            "--output",
+            output,
+            "--workers",
+            1,
+            cwd="/",
+            env={"HOME": tmp_path / "home"},
+        )
+        assert result.returncode == 0, result.stderr
+    assert main(["info", str(tmp_path / "home" / "h.zarr")]) == 0
+    assert main(["info", str(tmp_path / "f.zarr")]) == 0
+
+
+def tiny_sweep(folder, realisations=3):
+    sweep = folder / "t.yaml"
+    sweep.write_text(
+        TINY_SWEEP.format(name="t", seed=1, realisations=realisations, output="t.zarr")
+    )
+    return sweep
+
+
+def test_a_frozen_task_is_given_up_and_named(tmp_path, monkeypatch, capsys, threads):
+    release = threading.Event()
+
+    def frozen(scene, *, seed):
+        if (seed.point, seed.realisation) == (0, 2):
+            release.wait(timeout=3)  # frozen well past the task timeout
+        return render(scene, seed=seed)
+
+    monkeypatch.setattr(threads, "render", frozen)
+    command = ["run", str(tiny_sweep(tmp_path)), "--output", str(tmp_path / "t.zarr")]
+    options = ["--batch", "1", "--workers", "2", "--task-timeout", "1"]
+    started = time.monotonic()
+    assert main([*command, *options]) == 1
+    assert time.monotonic() - started < 60
+    release.set()
+    err = capsys.readouterr().err
+    # tasks queued behind the frozen one on its worker may be given up too
+    assert "samples 2..2: no result 1 s after submission (a frozen worker?)" in err
+    assert "statistics not written" in err
+
+
+def test_a_full_disk_stops_the_run_with_one_message(tmp_path, monkeypatch, capsys, threads):
+    tasks = set()
+
+    def full(group, start, samples):
+        tasks.add(start)
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(store, "write_samples", full)
+    sweep = tiny_sweep(tmp_path, realisations=10)
+    assert main(["run", str(sweep), "--output", str(tmp_path / "t.zarr"), "--batch", "1"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("No space left on device") == 1
+    assert "stopped: " in err and "run again with --resume" in err
+    assert len(tasks) < 20 // 2
+
+
+def test_the_template_is_built_without_rendering_a_sample(tmp_path):
+    import tracemalloc
+
+    from service.sweep import parse_sweep
+
+    text = TINY_SCENE.format(name="big", seed=1, realisations=2, output="big.zarr")
+    text = text.replace("pixels: 16", "pixels: 1024").replace(
+        "scene:", "scene:\n  sequence: {frames: 16}"
+    )
+    plan = parse_sweep(text, max_memory=None)  # the workers would need it, not the template
+    assert plan.sample_bytes() > 2**27  # one sample: over 128 MiB
+    tracemalloc.start()
+    try:
+        store.create_store(plan, str(tmp_path / "big.zarr"))
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 2**25  # under 32 MiB
+    ds = xr.open_zarr(tmp_path / "big.zarr")
+    assert ds["image"].shape == (2, 16, 1, 1024, 1024) and ds["image"].dtype == np.float32
+    assert ds["target_mask"].shape == (2, 16, 1024, 1024) and ds["target_mask"].dtype == np.uint8
+    assert ds["image"].attrs["units"] == "photoelectrons"
