@@ -443,12 +443,15 @@ def _coordinate_array(values: list) -> np.ndarray:
 def miniature(scene: Scene) -> Scene:
     """`scene` at the smallest size (8 pixels, a 16-point sea, one frame, no measurements).
 
+    The small sea repeats in view (`surface.allow_repeat`): only the variables matter.
+
     Rendering it costs milliseconds and shows the variables a sample of `scene` has, with
     their dimensions, dtypes and attributes, whatever the size of `scene`.
     """
     data = scene.model_dump()
     data["receiver"]["pixels"] = 8
     data["surface"]["grid_size"] = 16
+    data["surface"]["allow_repeat"] = True
     data["surface"]["conditioning"] = {}
     data["sequence"]["frames"] = 1
     data["laser"]["rays"] = None

@@ -14,7 +14,7 @@ from workers.geometry import LaserRays, PlaneGrid
 
 def plane_grid(camera, *, depth, refractive_index=1.34, guard=4):
     """The renderer's plane grid for `camera` lit by the default (matching) laser."""
-    laser = LaserRays.from_platform(
+    lattice = LaserRays.central(
         position=camera.position,
         rotation=camera.rotation,
         beam="divergent",
@@ -24,7 +24,7 @@ def plane_grid(camera, *, depth, refractive_index=1.34, guard=4):
     )
     return PlaneGrid.covering(
         camera=camera,
-        lattice=laser.central(),
+        lattice=lattice,
         depth=depth,
         refractive_index=refractive_index,
         guard=guard,

@@ -209,3 +209,23 @@ def test_the_traced_lattice_and_the_beam_tail_carry_the_whole_beam(rays):
     a = cam.position[2] * np.tan(0.5 * cam.field_of_view)
     total = traced.power.sum() + tail.power.sum()
     assert_allclose(total, np.pi * a**2, rtol=2e-3)
+
+
+@pytest.mark.parametrize("beam", ["divergent", "parallel"])
+@pytest.mark.parametrize("rays", [16, 17], ids=["even", "odd"])
+def test_the_central_rays_are_those_of_the_lattice(beam, rays):
+    cam = camera(pixels=16, nadir_deg=20.0, azimuth_deg=40.0)
+    common = dict(
+        position=cam.position,
+        rotation=cam.rotation,
+        beam=beam,
+        field_of_view=cam.field_of_view,
+        rays=rays,
+        reference_range=40.0,
+    )
+    lattice = LaserRays.from_platform(**common)
+    n = rays
+    index = [n // 2 * n + n // 2, n // 2 * n + n // 2 + 1, (n // 2 + 1) * n + n // 2]
+    origins, directions = LaserRays.central(**common)
+    assert_allclose(origins, np.asarray(lattice.origins)[index], atol=1e-12)
+    assert_allclose(directions, np.asarray(lattice.directions)[index], atol=1e-12)

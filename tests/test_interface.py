@@ -36,7 +36,7 @@ def test_the_inline_refraction_and_fresnel_equal_the_reference_functions(seed):
     direction = np.stack(
         [np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), -np.cos(theta)], axis=-1
     )
-    origin = np.zeros((count, 3)) + [0.0, 0.0, 30.0]
+    origin = np.tile([0.0, 0.0, 30.0], (count, 1))
     sx = rng.uniform(-0.5, 0.5, count).astype(np.float32)
     sy = rng.uniform(-0.5, 0.5, count).astype(np.float32)
     got = through_surface(ray_components(origin, direction), TiltedFacets(sx, sy), 0, N_WATER)

@@ -182,21 +182,19 @@ class PinholeCamera:
         half = 0.5 * self.pixels - 0.5
         return -np.asarray(y) / self.pixel_pitch + half, -np.asarray(x) / self.pixel_pitch + half
 
-    def pixel_directions(self):
-        """Unit world directions of the pixel-centre rays, shape (N, N, 3), float64."""
+    def pixel_directions(self, rows=slice(None), cols=slice(None)):
+        """Unit world directions of the pixel-centre rays, shape (rows, cols, 3), float64.
+
+        `rows` and `cols` pick image rows and columns (default all: shape (N, N, 3)).
+        """
         offsets = (np.arange(self.pixels) + 0.5 - 0.5 * self.pixels) * (
             self.pixel_pitch / self.focal_length
         )
-        return _lattice_directions(self.rotation, offsets)
-
-
-def _lattice_directions(rotation, offsets):
-    """Unit world directions R^T (u, v, 1)/|.| for a square lattice of tangents (u, v)."""
-    u = offsets[np.newaxis, :]
-    v = offsets[:, np.newaxis]
-    camera = np.stack(np.broadcast_arrays(u, v, np.ones_like(u * v)), axis=-1)
-    camera /= np.linalg.norm(camera, axis=-1, keepdims=True)
-    return camera @ rotation
+        u = offsets[np.newaxis, cols]
+        v = offsets[rows, np.newaxis]
+        camera = np.stack(np.broadcast_arrays(u, v, np.ones_like(u * v)), axis=-1)
+        camera /= np.linalg.norm(camera, axis=-1, keepdims=True)
+        return camera @ self.rotation
 
 
 @dataclass(frozen=True)
@@ -219,11 +217,29 @@ class LaserRays:
     power: np.ndarray
     rays: int
 
-    def central(self):
-        """``(origins, directions)`` of the central ray and its right and lower neighbours."""
-        n = self.rays
-        index = [n // 2 * n + n // 2, n // 2 * n + n // 2 + 1, (n // 2 + 1) * n + n // 2]
-        return self.origins[index].astype(float), self.directions[index].astype(float)
+    @classmethod
+    def central(cls, *, position, rotation, beam, field_of_view, rays, reference_range):
+        """``(origins, directions)`` of the central ray and its right and lower neighbours.
+
+        Of the lattice `from_platform` builds with the same arguments (without making it).
+        """
+        half = np.tan(0.5 * field_of_view)
+        step = 2.0 * half / rays
+        middle = (rays // 2 + 0.5 - 0.5 * rays) * step
+        u = np.array([middle, middle + step, middle])
+        v = np.array([middle, middle, middle + step])
+        probe = cls._from_offsets(
+            u,
+            v,
+            position=position,
+            rotation=rotation,
+            beam=beam,
+            half=half,
+            step=step,
+            reference_range=reference_range,
+            rays=0,
+        )
+        return np.asarray(probe.origins, dtype=float), np.asarray(probe.directions, dtype=float)
 
     @classmethod
     def from_platform(
@@ -459,8 +475,9 @@ class PlaneGrid:
         rotation = camera.rotation
         axis_u = rotation[0, :2] / np.linalg.norm(rotation[0, :2])
         axis_v = np.array([axis_u[1], -axis_u[0]])
-        rays = camera.pixel_directions()
-        edge = np.concatenate([rays[0], rays[-1], rays[:, 0], rays[:, -1]])
+        rows = camera.pixel_directions(rows=[0, -1])
+        cols = camera.pixel_directions(cols=[0, -1])
+        edge = np.concatenate([rows[0], rows[1], cols[:, 0], cols[:, 1]])
         points = flat_sea_point(
             origin=np.asarray(camera.position, dtype=float),
             direction=edge,

@@ -12,7 +12,7 @@ import functools
 import numpy as np
 import xarray as xr
 
-from workers.geometry import flat_sea_point
+from workers.geometry import PlaneGrid, flat_sea_point
 from workers.scene import Scene
 from workers.sensor import (
     fine_grid,
@@ -22,6 +22,7 @@ from workers.sensor import (
     platform_position,
     scene_setup,
     sensor_at,
+    target_centre,
 )
 from workers.water import slab_backscatter_reflectance
 
@@ -42,6 +43,48 @@ def target_mask(silhouette: np.ndarray) -> np.ndarray:
     if not mask.any() and silhouette.max(initial=0.0) > 0:
         mask = silhouette >= silhouette.max()
     return mask.astype(np.uint8)
+
+
+def _target_window(setup, sensor) -> PlaneGrid:
+    """The part of the image's target-plane grid around the target (a few cells wider).
+
+    The grid of the receiver's footprint at the target's depth (one cell per pixel at the
+    image's centre), cut to the target's reach: the labels need no more, whatever the
+    image's size.
+    """
+    scene = setup.scene
+    full = fine_grid(sensor, scene.target.depth, setup.water.refractive_index, guard=4, multiple=1)
+    row, col = full.cell_coordinates(*target_centre(setup, sensor.camera))
+    reach = scene.target.radius / min(full.spacing_u, full.spacing_v) + 3
+    rows, cols = full.shape
+    r0, r1 = (int(np.clip(v, 0, rows)) for v in (np.floor(row - reach), np.ceil(row + reach) + 1))
+    c0, c1 = (int(np.clip(v, 0, cols)) for v in (np.floor(col - reach), np.ceil(col + reach) + 1))
+    u, v = np.asarray(full.axis_u), np.asarray(full.axis_v)
+    origin = np.asarray(full.origin) + c0 * full.spacing_u * u + r0 * full.spacing_v * v
+    return PlaneGrid(
+        depth=full.depth,
+        origin=(float(origin[0]), float(origin[1])),
+        axis_u=full.axis_u,
+        axis_v=full.axis_v,
+        spacing_u=full.spacing_u,
+        spacing_v=full.spacing_v,
+        shape=(max(r1 - r0, 2), max(c1 - c0, 2)),
+    )
+
+
+def _in_view(sensor, grid: PlaneGrid, occupancy, refractive_index, block: int = 64) -> bool:
+    """Whether any pixel's flat-sea line of sight crosses the silhouette (rows in blocks)."""
+    camera = sensor.camera
+    for start in range(0, camera.pixels, block):
+        sights = flat_sea_point(
+            origin=sensor.position,
+            direction=camera.pixel_directions(slice(start, start + block)).reshape(-1, 3),
+            depth=grid.depth,
+            refractive_index=refractive_index,
+        )
+        if grid.gather(occupancy, grid.locate(sights[:, 0], sights[:, 1])).any():
+            return True
+    return False
 
 
 @functools.lru_cache(maxsize=256)
@@ -68,15 +111,9 @@ def _visibility(key: str) -> tuple[int, ...]:
         return (VISIBILITY["none"],) * count
     water = setup.water
     sensor = sensor_at(setup, 0)
-    grid = fine_grid(sensor, scene.target.depth, water.refractive_index, guard=4, multiple=1)
+    grid = _target_window(setup, sensor)
     impostor = impostor_on(setup, grid)
-    sights = flat_sea_point(
-        origin=sensor.position,
-        direction=sensor.camera.pixel_directions().reshape(-1, 3),
-        depth=grid.depth,
-        refractive_index=water.refractive_index,
-    )
-    if not grid.gather(impostor.occupancy, grid.locate(sights[:, 0], sights[:, 1])).any():
+    if not _in_view(sensor, grid, impostor.occupancy, water.refractive_index):
         return (VISIBILITY["none"],) * count
     k = water.diffuse_attenuation * setup.secant
     cells = np.flatnonzero(impostor.occupancy)

@@ -172,7 +172,7 @@ def sensor_at(setup: Setup, frame: int) -> Sensor:
     )
     laser_fov = float(np.radians(scene.laser.field_of_view_deg or r.field_of_view_deg))
     reference_range = p.altitude / np.cos(np.radians(p.nadir_deg))
-    probe = LaserRays.from_platform(
+    lattice = LaserRays.central(
         position=position,
         rotation=camera.rotation,
         beam=scene.laser.beam,
@@ -192,7 +192,7 @@ def sensor_at(setup: Setup, frame: int) -> Sensor:
         laser_fov=laser_fov,
         laser_rays=scene.laser_rays,
         reference_range=reference_range,
-        lattice=probe.central(),
+        lattice=lattice,
         paths=paths,
     )
 
