@@ -1,5 +1,7 @@
 """The shipped sweep files: each runs end to end, and each says what it models."""
 
+import shutil
+
 import numpy as np
 import pytest
 import xarray as xr
@@ -28,8 +30,8 @@ def reduced(path, folder):
     spacing kept, so the footprint check and conditioning points see the same sea patch);
     fewer pixels. A random design keeps its first `MAX_POINTS` draws (its parameters'
     ranges are unchanged, but fewer of its points run). Nothing else is changed: the
-    physics, sequences, sweeps and gates are as shipped. A conditioning file is named by
-    its absolute path so that it is found from `folder`.
+    physics, sequences, sweeps and gates are as shipped. A conditioning file is copied
+    beside the copy (measurement files must lie in the sweep file's folder).
     """
     sweep = yaml.safe_load(path.read_text())
     sweep["realisations"] = 1
@@ -39,7 +41,7 @@ def reduced(path, folder):
     sweep["scene"].setdefault("receiver", {})["pixels"] = SMALL_PIXELS
     conditioning = surface.get("conditioning", {})
     if "file" in conditioning:
-        conditioning["file"] = str(path.parent / conditioning["file"])
+        shutil.copy(path.parent / conditioning["file"], folder / conditioning["file"])
     design = sweep.get("sweep", {})
     if design.get("method") == "random":
         design["count"] = min(design["count"], MAX_POINTS)

@@ -22,6 +22,12 @@ scene:
 """
 
 
+def replaced(text, old, new):
+    """`text` with `old` replaced by `new`; `old` must be there (no silent no-op edit)."""
+    assert old in text, old
+    return text.replace(old, new)
+
+
 def sweep(extra=""):
     return parse_sweep(BASE + textwrap.dedent(extra))
 
@@ -264,7 +270,9 @@ def test_exponents_without_a_dot_are_numbers():
 def conditioned(folder, name):
     path = folder / "sweep.yaml"
     path.write_text(
-        BASE.replace("spacing: 0.1}", f"spacing: 0.1, conditioning: {{file: {name}}}}}")
+        replaced(
+            BASE, "allow_repeat: true}", f"allow_repeat: true, conditioning: {{file: {name}}}}}"
+        )
     )
     return path
 
@@ -345,9 +353,11 @@ def test_memory_is_estimated_before_anything_is_built(tmp_path, capsys):
     assert parse_sweep(frames, max_memory=None).scenes[0].receiver.pixels == 1024
     # 24 measurement times on a 2048² grid: the kriging system alone, refused unbuilt
     points = [[0.1 * i, 0.1, 0.0, 0.1 * i] for i in range(1, 25)]
-    measured = BASE.replace(
-        "spacing: 0.1}", f"spacing: 0.01, grid_size: 2048, conditioning: {{points: {points}}}}}"
-    ).replace("grid_size: 32, ", "")
+    measured = replaced(
+        replaced(BASE, "spacing: 0.1, ", "spacing: 0.01, "),
+        "allow_repeat: true}",
+        f"allow_repeat: true, conditioning: {{points: {points}}}}}",
+    ).replace("grid_size: 32", "grid_size: 2048")
     with pytest.raises(SweepError, match="would need about"):
         parse_sweep(measured)
     sweep = tmp_path / "frames.yaml"

@@ -193,5 +193,8 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
         seen = plane.grid.gather(radiance, sight)
         seen *= up.transmittance * setup.gate_gain(up_excess, g)
         images[g] += seen
+    # the near and far parts of a spread each ring a little below zero where almost no
+    # light lands; their sum is light, never negative
+    np.maximum(images, 0.0, out=images)
     images *= np.float32(setup.scale)
     return images.reshape(len(setup.gates), pixels, pixels), mask.reshape(pixels, pixels)
