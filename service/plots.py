@@ -21,7 +21,7 @@ from service.sweep import Plan, SweepError
 from workers.render import render
 from workers.seeds import SampleSeed
 
-__all__ = ["plot_statistics", "preview_figure", "render_preview", "save_preview"]
+__all__ = ["plot_detection", "plot_statistics", "preview_figure", "render_preview", "save_preview"]
 
 PANEL_INCHES = 2.2
 DPI = 100
@@ -176,6 +176,108 @@ def plot_statistics(stats: xr.Dataset, path: str) -> None:
             ax.axhline(0.0, color="0.7", linewidth=0.5)
             ax.tick_params(labelsize=7)
     axes[0, 0].legend(fontsize=6, title="gate", title_fontsize=6)
+    figure.tight_layout()
+    figure.savefig(path, dpi=DPI)
+    plt.close(figure)
+
+
+def _parameter_axis(values):
+    """Numbers as they are; anything else (names) as strings, for a categorical axis."""
+    return values if values.dtype.kind in "biuf" else np.asarray([str(v) for v in values])
+
+
+def plot_detection(detection: xr.Dataset, path: str) -> None:
+    """ROC curves per parameter point, then AUC and Pd at Pfa = 10⁻² against each parameter.
+
+    Parameters
+    ----------
+    detection : xarray.Dataset
+        A detection dataset (`service.detect.write_detection`).
+    path : str
+        PNG to write. Top: one ROC panel per point with a target (every detector, false
+        alarms on a log axis). Below, per swept parameter (other than the target's shape):
+        the AUC with its 95 % interval, and Pd at Pfa = 10⁻² where the negatives measure
+        it (points where it is unavailable are left out), one colour per detector.
+    """
+    swept = [n for n in detection.coords if "." in str(n) and str(n) != "target.shape"]
+    points = detection.sizes["point"]
+    columns = max(4, len(swept))
+    roc_rows = -(-points // columns)
+    figure, axes = plt.subplots(
+        roc_rows + 2,
+        columns,
+        figsize=(2.6 * columns, 2.4 * (roc_rows + 2)),
+        dpi=DPI,
+        squeeze=False,
+    )
+    detectors = [str(d) for d in detection["detector"].values]
+    colours = [f"C{i}" for i in range(len(detectors))]
+    floor = 1.0 / (2 * detection.sizes["realisation"])
+    for i in range(roc_rows * columns):
+        ax = axes[i // columns, i % columns]
+        if i >= points:
+            ax.axis("off")
+            continue
+        for d, name in enumerate(detectors):
+            pfa = detection["roc_pfa"].values[i, d]
+            pd = detection["roc_pd"].values[i, d]
+            auc = float(detection["auc"].values[i, d])
+            ax.step(
+                np.maximum(pfa, floor),
+                pd,
+                where="post",
+                color=colours[d],
+                label=f"{name} ({auc:.2f})",
+                linewidth=1,
+            )
+        ax.set_xscale("log")
+        ax.set_xlim(floor, 1.0)
+        ax.set_ylim(0.0, 1.02)
+        values = ", ".join(f"{n}={detection[n].values[i]}" for n in swept)
+        ax.set_title(values, fontsize=6)
+        ax.tick_params(labelsize=6)
+        ax.legend(fontsize=5, loc="lower right")
+    for column in range(columns):
+        for row in (roc_rows, roc_rows + 1):
+            if column >= len(swept):
+                axes[row, column].axis("off")
+        if column >= len(swept):
+            continue
+        name = swept[column]
+        x = _parameter_axis(detection[name].values)
+        numeric = x.dtype.kind in "biuf"
+        position = x if numeric else np.unique(x, return_inverse=True)[1].astype(float)
+        step = 0.02 * (np.ptp(position) or 1.0)
+        for d, detector in enumerate(detectors):
+            shift = position + (d - 1) * step
+            auc = detection["auc"].values[:, d]
+            error = [
+                auc - detection["auc_low"].values[:, d],
+                detection["auc_high"].values[:, d] - auc,
+            ]
+            axes[roc_rows, column].errorbar(
+                shift,
+                auc,
+                yerr=error,
+                fmt=".",
+                color=colours[d],
+                label=detector,
+                elinewidth=0.6,
+                markersize=3,
+            )
+            pd = detection["pd"].sel(pfa=1e-2).values[:, d]
+            shown = ~np.isnan(pd)
+            axes[roc_rows + 1, column].plot(shift[shown], pd[shown], ".", color=colours[d])
+        for row, label in ((roc_rows, "AUC"), (roc_rows + 1, "Pd at Pfa = 1e-2")):
+            ax = axes[row, column]
+            ax.set_ylabel(label, fontsize=7)
+            ax.set_xlabel(f"{name} ({detection[name].attrs.get('units', '1')})", fontsize=7)
+            ax.set_ylim(-0.02, 1.02)
+            ax.tick_params(labelsize=6)
+            if not numeric:
+                ax.set_xticks(range(len(np.unique(x))), np.unique(x))
+    if swept:
+        axes[roc_rows, 0].legend(fontsize=5)
     figure.tight_layout()
     figure.savefig(path, dpi=DPI)
     plt.close(figure)
