@@ -97,7 +97,7 @@ def test_ideal_observer_is_the_poisson_log_likelihood_ratio():
 def test_ideal_observer_roc_of_one_poisson_pixel_is_the_exact_one():
     """One pixel, λ0 = 2, λ1 = 5: the LLR grows with the count, so the test "LLR ≥ t" is
     "x ≥ k" and its ROC vertices are (P(X0 ≥ k), P(X1 ≥ k)), k = 0, 1, ..."""
-    n, lam0, lam1 = 20000, 2.0, 5.0
+    n, lam0, lam1 = 5000, 2.0, 5.0
     draws = rng(7)
     x0 = draws.poisson(lam0, (n, 1))
     x1 = draws.poisson(lam1, (n, 1))
@@ -123,7 +123,7 @@ def test_ideal_observer_auc_of_two_poisson_pixels_is_the_exact_one():
     """Two pixels whose means move apart (1, 3) -> (2, 2): the LLR x1 ln 2 + x2 ln(2/3) is
     not a function of the total; its law under each hypothesis, by enumeration, gives the
     exact AUC."""
-    n = 20000
+    n = 5000
     lam0, lam1 = np.array([1.0, 3.0]), np.array([2.0, 2.0])
     k = np.arange(40)
     grid = np.stack(np.meshgrid(k, k, indexing="ij"), axis=-1).reshape(-1, 2)

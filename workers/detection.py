@@ -41,6 +41,9 @@ MIN_FALSE_ALARMS = 2
 """Fewest negatives that must lie above the threshold for Pd at a false-alarm rate α to be
 reported: Pd at α needs at least ``MIN_FALSE_ALARMS / α`` negatives (200 at α = 10⁻²)."""
 
+BOOTSTRAP_BLOCK = 100
+"""Resamples ranked at once: bounds the bootstrap's memory to ~100 x 2n scores."""
+
 FEATURE_SMOOTHING = 3
 """Side of the box (pixels) averaged before the brightest and darkest pixel features."""
 
@@ -322,7 +325,12 @@ def bootstrap_auc(*, positives, negatives, resamples=2000, level=0.95, seed=0):
         raise ValueError(f"paired scores must match: {s1.shape} positives, {s0.shape} negatives")
     rng = np.random.Generator(np.random.PCG64(seed))
     picks = rng.integers(0, len(s1), size=(resamples, len(s1)))
-    values = _auc_rows(s1[picks], s0[picks])
+    values = np.concatenate(
+        [
+            _auc_rows(s1[block], s0[block])
+            for block in np.array_split(picks, -(-resamples // BOOTSTRAP_BLOCK))
+        ]
+    )
     low, high = np.quantile(values, [(1 - level) / 2, (1 + level) / 2])
     return float(low), float(high)
 
