@@ -278,7 +278,9 @@ def test_scores_compare_the_samples_of_one_realisation(detection):
     ds = xr.open_zarr(folder / "small.zarr")
     r = ds.attrs["realisations"]
     ideal = det.sel(detector="ideal_observer")
-    for i, (p, q) in enumerate(zip(det["point"].values, det["negative_point"].values)):
+    for i, (p, q) in enumerate(
+        zip(det["point"].values, det["negative_point"].values, strict=True)
+    ):
         signal = ds["expected"][p * r : (p + 1) * r].values
         background = ds["expected"][q * r : (q + 1) * r].values
         for name, point in (("score_positive", p), ("score_negative", q)):
