@@ -115,6 +115,11 @@ def _evaluate(url, storage_options, positive, negative, realisations, test):
     rows = {p: np.arange(realisations) + p * realisations for p in (positive, negative)}
     both = source["completed"].get_orthogonal_selection((rows[positive],)).astype(bool)
     both &= source["completed"].get_orthogonal_selection((rows[negative],)).astype(bool)
+    if both.sum() < MIN_REALISATIONS:
+        raise SweepError(
+            f"points {positive} and {negative}: {both.sum()} realisations written at both, "
+            f"fewer than {MIN_REALISATIONS}; complete the run with `oceanlidar run --resume`"
+        )
     read = {
         (p, name): source[name].get_orthogonal_selection((rows[p][both],)).astype(np.float64)
         for p in (positive, negative)
