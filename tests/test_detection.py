@@ -6,9 +6,10 @@ import xarray as xr
 from conftest import TINY_SCENE
 from scipy.stats import multivariate_normal, norm, poisson
 
+from service import store
 from service.cli import main
 from service.detect import pair_points
-from service.sweep import SweepError
+from service.sweep import SweepError, parse_sweep
 from workers.detection import (
     DETECTORS,
     auc,
@@ -347,3 +348,23 @@ def test_detect_refuses_a_target_free_sweep(tmp_path, capsys):
     assert main(["detect", str(tmp_path / "e.zarr")]) == 2
     assert "nothing to detect" in capsys.readouterr().err
     assert not (tmp_path / "e.detect.zarr").exists()
+
+
+@pytest.mark.parametrize(
+    ("change", "realisations", "message"),
+    [
+        ("white_plane_photons: 10", 8, "fewer than 8; complete the run"),
+        ("white_plane_photons: 10}}\n  noise: {{gain: 2.0", 8, "not photoelectrons"),
+        ("white_plane_photons: 10", 4, "needs at least 8"),
+    ],
+    ids=["not-written", "gain", "too-few-realisations"],
+)
+def test_detect_refuses_stores_it_cannot_evaluate(tmp_path, capsys, change, realisations, message):
+    text = SWEEP.replace("white_plane_photons: 10", change).format(
+        name="t", seed=1, realisations=realisations, output="t.zarr"
+    )
+    url = str(tmp_path / "t.zarr")
+    store.create_store(parse_sweep(text), url)  # the template: no sample written yet
+    assert main(["detect", url]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "t.detect.zarr").exists()
