@@ -326,6 +326,21 @@ def test_detection_is_deterministic_and_plots(detection, tmp_path):
     assert picture.stat().st_size > 10000
 
 
+def test_expected_images_missing_from_the_store_are_rendered_again(detection, tmp_path):
+    folder, det = detection
+    bare = tmp_path / "bare.zarr"
+    with store.consolidated_v3():
+        xr.open_zarr(folder / "small.zarr").drop_vars("expected").to_zarr(
+            bare, zarr_format=3, consolidated=True
+        )
+    assert main(["detect", str(bare)]) == 0
+    again = xr.open_zarr(tmp_path / "bare.detect.zarr").load()
+    assert again.attrs["expected_images"] == "rendered again"
+    assert det.attrs["expected_images"] == "read from the store"
+    for name in ("score_positive", "score_negative", "auc", "auc_low", "auc_high", "pd"):
+        assert det[name].values.tobytes() == again[name].values.tobytes(), name
+
+
 def test_detect_refuses_to_overwrite_what_is_not_a_detection_dataset(detection, capsys):
     folder, _ = detection
     argv = ["detect", str(folder / "small.zarr"), "--output", str(folder / "small.stats.zarr")]
