@@ -2,7 +2,8 @@
 
 Pairs every parameter point with a target (a positive point) with the target-free point
 of the same scene (`pair_points`), reads both points' samples realisation by realisation
-(pairs never cross realisations: row i of both saw the same sea), scores them with the
+(pairs never cross realisations: row i of both saw the same sea; a store without the
+noise-free images has them rendered again from its sweep and seeds), scores them with the
 detectors of `workers.detection` on the dask cluster in use (one task per pair) and writes
 a detection dataset beside the store (`detection_url`). Variables, per positive point:
 
@@ -26,7 +27,7 @@ import numpy as np
 import xarray as xr
 
 from service import store
-from service.sweep import SweepError
+from service.sweep import SweepError, parse_sweep
 from workers.detection import DETECTORS, MIN_FALSE_ALARMS, evaluate_pair, held_out, roc_curve
 
 __all__ = ["PFA", "detection_url", "pair_points", "write_detection"]
@@ -109,8 +110,27 @@ def pair_points(ds: xr.Dataset) -> tuple[list[tuple[int, int]], list[int]]:
     return pairs, unpaired
 
 
-def _evaluate(url, storage_options, positive, negative, realisations, test):
-    """Read one pair's samples (the realisations written at both points) and score them."""
+def _rendered_expected(plan, samples, image):
+    """Render `samples` again for their noise-free images (renders are deterministic).
+
+    The noisy images rendered again must be the stored ones (`image`), or the store was
+    written by another version of the physics and its expected images cannot be recovered.
+    """
+    rendered = [store.sample_dataset(plan, int(sample)) for sample in samples]
+    if not np.array_equal(np.stack([r["image"].values for r in rendered]), image):
+        raise SweepError(
+            f"samples {samples[0]}..{samples[-1]} rendered again differ from the stored ones "
+            "(written by another oceanlidar version?): their expected images cannot be recovered"
+        )
+    return np.stack([r["expected"].values for r in rendered]).astype(np.float64)
+
+
+def _evaluate(url, storage_options, positive, negative, realisations, test, plan):
+    """Read one pair's samples (the realisations written at both points) and score them.
+
+    `plan`: the store's sweep, to render the expected images again when the store has none
+    (None: read them).
+    """
     source = store.open_group(url, storage_options)
     rows = {p: np.arange(realisations) + p * realisations for p in (positive, negative)}
     both = source["completed"].get_orthogonal_selection((rows[positive],)).astype(bool)
@@ -120,18 +140,20 @@ def _evaluate(url, storage_options, positive, negative, realisations, test):
             f"points {positive} and {negative}: {both.sum()} realisations written at both, "
             f"fewer than {MIN_REALISATIONS}; complete the run with `oceanlidar run --resume`"
         )
-    read = {
-        (p, name): source[name].get_orthogonal_selection((rows[p][both],)).astype(np.float64)
-        for p in (positive, negative)
-        for name in ("image", "expected")
-    }
+    read = {}
     for p in (positive, negative):
-        counts = read[p, "image"]
-        if not np.array_equal(counts, np.round(counts)):
+        image = source["image"].get_orthogonal_selection((rows[p][both],))
+        if not np.array_equal(image, np.round(image)):
             raise SweepError(
                 f"point {p}: images are not whole photoelectron counts (an ICCD excess-noise "
                 "stage?): the ideal observer needs Poisson counts"
             )
+        read[p, "image"] = image.astype(np.float64)
+        if plan is None:
+            expected = source["expected"].get_orthogonal_selection((rows[p][both],))
+            read[p, "expected"] = expected.astype(np.float64)
+        else:
+            read[p, "expected"] = _rendered_expected(plan, rows[p][both], image)
     metrics = evaluate_pair(
         positive_image=read[positive, "image"],
         positive_expected=read[positive, "expected"],
@@ -148,10 +170,9 @@ def _evaluate(url, storage_options, positive, negative, realisations, test):
 
 
 def _check_store(ds: xr.Dataset, url: str) -> None:
-    for name in ("image", "expected", "completed", "target_present"):
+    for name in ("image", "completed", "target_present"):
         if name not in ds:
-            what = "the noise-free images the ideal observer needs" if name == "expected" else ""
-            raise SweepError(f"{url}: the store has no {name!r} {what}".rstrip())
+            raise SweepError(f"{url}: the store has no {name!r}: not a sweep's store")
     if ds["image"].attrs.get("units") != "photoelectrons":
         raise SweepError(
             f"{url}: images are in {ds['image'].attrs.get('units')!r}, not photoelectrons: "
@@ -162,6 +183,23 @@ def _check_store(ds: xr.Dataset, url: str) -> None:
             f"{url}: {ds.attrs['realisations']} realisations per point; detection needs at "
             f"least {MIN_REALISATIONS} (half train the logistic detector, half test it)"
         )
+
+
+def _sweep_plan(ds: xr.Dataset, url: str):
+    """The store's sweep, read again from its text, to render samples again."""
+    try:
+        plan = parse_sweep(ds.attrs["sweep"])
+    except SweepError as error:
+        raise SweepError(
+            f"{url}: the store has no 'expected' images, and its sweep cannot be read again "
+            f"to render them: {error}"
+        ) from None
+    if plan.digest != ds.attrs.get("sweep_sha256"):
+        raise SweepError(
+            f"{url}: the store has no 'expected' images, and its sweep reads differently now "
+            "(another oceanlidar version?): they cannot be rendered again"
+        )
+    return plan
 
 
 def _dataset(ds, pairs, results, realisations, test) -> xr.Dataset:
@@ -336,11 +374,16 @@ def write_detection(
             raise SweepError(f"{target} exists and is not a detection dataset; refusing it")
     realisations = int(ds.attrs["realisations"])
     test = held_out(realisations)
+    plan = None if "expected" in ds else _sweep_plan(ds, url)
     tasks = [
-        dask.delayed(_evaluate)(url, storage_options, p, q, realisations, test) for p, q in pairs
+        dask.delayed(_evaluate)(url, storage_options, p, q, realisations, test, plan)
+        for p, q in pairs
     ]
     results = dask.compute(*tasks)
     detection = _dataset(ds, pairs, results, realisations, test)
+    detection.attrs["expected_images"] = (
+        "read from the store" if plan is None else "rendered again"
+    )
     store.remove_store(target, storage_options)
     with store.consolidated_v3():
         detection.to_zarr(
