@@ -99,12 +99,18 @@ def _parser() -> argparse.ArgumentParser:
     stats = commands.add_parser("stats", help="(re)compute a store's statistics dataset")
     stats.add_argument("store", help="store path or URL")
     stats.add_argument("--storage-options", type=_json_object, default=None)
+    detect = commands.add_parser(
+        "detect", help="detection study of a store: ROC, AUC and Pd per parameter point"
+    )
+    detect.add_argument("store", help="store path or URL")
+    detect.add_argument("--output", help="DET.zarr (default: beside the store, .detect.zarr)")
+    detect.add_argument("--storage-options", type=_json_object, default=None)
     preview = commands.add_parser("preview", help="draw one sample's gated images")
     preview.add_argument("sweep", help="sweep YAML file")
     preview.add_argument("--sample", type=int, default=0, help="sample index (default 0)")
     preview.add_argument("--output", required=True, help="FILE.png, or FILE.gif for a sequence")
 
-    plot = commands.add_parser("plot", help="plot a store's statistics")
+    plot = commands.add_parser("plot", help="plot a store's statistics or a detection dataset")
     plot.add_argument("store", help="store path or URL")
     plot.add_argument("--output", required=True, help="FILE.png")
     plot.add_argument("--storage-options", type=_json_object, default=None)
@@ -298,6 +304,19 @@ def _cmd_stats(args) -> int:
     return EXIT_OK
 
 
+def _cmd_detect(args) -> int:
+    from service.detect import write_detection
+
+    _open(args)
+    target, unpaired = write_detection(
+        args.store, output=args.output, storage_options=args.storage_options
+    )
+    if unpaired:
+        print(f"points with no target-free twin, left out: {unpaired}", file=sys.stderr)
+    print(target)
+    return EXIT_OK
+
+
 def _cmd_preview(args) -> int:
     from service.plots import render_preview, save_preview
 
@@ -313,8 +332,16 @@ def _cmd_preview(args) -> int:
 
 
 def _cmd_plot(args) -> int:
-    from service.plots import plot_statistics
+    from service.detect import DATASET_KIND
+    from service.plots import plot_detection, plot_statistics
 
+    args.store = store.normalise(args.store, args.storage_options)
+    attributes = store.root_attributes(args.store, args.storage_options) or {}
+    if attributes.get(store.KIND) == DATASET_KIND:
+        detection = store.open_store(args.store, storage_options=args.storage_options)
+        plot_detection(detection, args.output)
+        print(args.output, file=sys.stderr)
+        return EXIT_OK
     _open(args)
     stats_path = _statistics(args.store, args.storage_options)
     if stats_path is None:
@@ -352,6 +379,7 @@ def main(argv=None) -> int:
         "validate": _cmd_validate,
         "info": _cmd_info,
         "stats": _cmd_stats,
+        "detect": _cmd_detect,
         "preview": _cmd_preview,
         "plot": _cmd_plot,
     }

@@ -21,7 +21,7 @@ from service.sweep import Plan, SweepError
 from workers.render import render
 from workers.seeds import SampleSeed
 
-__all__ = ["plot_statistics", "preview_figure", "render_preview", "save_preview"]
+__all__ = ["plot_detection", "plot_statistics", "preview_figure", "render_preview", "save_preview"]
 
 PANEL_INCHES = 2.2
 DPI = 100
@@ -176,6 +176,116 @@ def plot_statistics(stats: xr.Dataset, path: str) -> None:
             ax.axhline(0.0, color="0.7", linewidth=0.5)
             ax.tick_params(labelsize=7)
     axes[0, 0].legend(fontsize=6, title="gate", title_fontsize=6)
+    figure.tight_layout()
+    figure.savefig(path, dpi=DPI)
+    plt.close(figure)
+
+
+def _parameter_position(values) -> tuple[np.ndarray, list[str] | None]:
+    """Where each point lies on a parameter's axis, and the category names if not numeric."""
+    if values.dtype.kind in "biuf":
+        return values.astype(float), None
+    names, index = np.unique(np.asarray([str(v) for v in values]), return_inverse=True)
+    return index.astype(float), names.tolist()
+
+
+def plot_detection(detection: xr.Dataset, path: str) -> None:
+    """ROC curves per parameter point, then AUC and Pd at Pfa = 10⁻² against each parameter.
+
+    Parameters
+    ----------
+    detection : xarray.Dataset
+        A detection dataset (`service.detect.write_detection`).
+    path : str
+        PNG to write. Top: one ROC panel per point with a target (every detector, false
+        alarms on a log axis, ties drawn as the diagonal they stand for). Below, per swept
+        parameter (other than the target's shape): the AUC with its 95 % interval, and Pd
+        at Pfa = 10⁻² where the negatives measure it (points where it is unavailable are
+        left out), one colour per detector; points that share every other parameter are
+        joined by a line.
+    """
+    swept = [n for n in detection.coords if "." in str(n) and str(n) != "target.shape"]
+    points = detection.sizes["point"]
+    columns = max(4, len(swept))
+    roc_rows = -(-points // columns)
+    figure, axes = plt.subplots(
+        roc_rows + 2,
+        columns,
+        figsize=(2.6 * columns, 2.5 * (roc_rows + 2)),
+        dpi=DPI,
+        squeeze=False,
+    )
+    detectors = [str(d) for d in detection["detector"].values]
+    colours = [f"C{i}" for i in range(len(detectors))]
+    floor = 1.0 / (2 * detection.sizes["realisation"])
+    for i in range(roc_rows * columns):
+        ax = axes[i // columns, i % columns]
+        if i >= points:
+            ax.axis("off")
+            continue
+        for d, name in enumerate(detectors):
+            pfa = detection["roc_pfa"].values[i, d]
+            pd = detection["roc_pd"].values[i, d]
+            auc = float(detection["auc"].values[i, d])
+            ax.plot(np.maximum(pfa, floor), pd, color=colours[d], linewidth=1)
+            ax.plot([], [], color=colours[d], label=f"{name} ({auc:.2f})")
+        ax.set_xscale("log")
+        ax.set_xlim(floor, 1.0)
+        ax.set_ylim(0.0, 1.02)
+        ax.set_xlabel("false-alarm probability", fontsize=6)
+        ax.set_ylabel("detection probability", fontsize=6)
+        values = [f"{str(n).split('.')[-1]}={detection[n].values[i]}" for n in swept]
+        half = -(-len(values) // 2)
+        ax.set_title(", ".join(values[:half]) + "\n" + ", ".join(values[half:]), fontsize=6)
+        ax.tick_params(labelsize=6)
+        ax.legend(fontsize=5, loc="lower right")
+    for column in range(len(swept), columns):
+        axes[roc_rows, column].axis("off")
+        axes[roc_rows + 1, column].axis("off")
+    positions = [_parameter_position(detection[name].values) for name in swept]
+    for column, name in enumerate(swept):
+        position, categories = positions[column]
+        others = [positions[c][0] for c in range(len(swept)) if c != column]
+        series = np.zeros(points, dtype=int)
+        if others:
+            series = np.unique(np.stack(others, axis=1), axis=0, return_inverse=True)[1].ravel()
+        step = 0.015 * (np.ptp(position) or 1.0)
+        for d, detector in enumerate(detectors):
+            shift = position + (d - (len(detectors) - 1) / 2) * step
+            auc = detection["auc"].values[:, d]
+            pd = detection["pd"].sel(pfa=1e-2).values[:, d]
+            for group in np.unique(series):
+                rows = np.flatnonzero(series == group)
+                rows = rows[np.argsort(position[rows], kind="stable")]
+                axes[roc_rows, column].errorbar(
+                    shift[rows],
+                    auc[rows],
+                    yerr=[
+                        auc[rows] - detection["auc_low"].values[rows, d],
+                        detection["auc_high"].values[rows, d] - auc[rows],
+                    ],
+                    fmt=".-",
+                    color=colours[d],
+                    linewidth=0.5,
+                    elinewidth=0.8,
+                    markersize=3,
+                    label=detector if group == 0 else None,
+                )
+                shown = rows[~np.isnan(pd[rows])]
+                axes[roc_rows + 1, column].plot(
+                    shift[shown], pd[shown], ".-", color=colours[d], linewidth=0.5, markersize=3
+                )
+        for row, label in ((roc_rows, "AUC"), (roc_rows + 1, "Pd at Pfa = 1e-2")):
+            ax = axes[row, column]
+            ax.set_ylabel(label, fontsize=7)
+            units = detection[name].attrs.get("units", "1")
+            ax.set_xlabel(name if categories else f"{name} ({units})", fontsize=7)
+            ax.set_ylim(-0.02, 1.02)
+            ax.tick_params(labelsize=6)
+            if categories:
+                ax.set_xticks(range(len(categories)), categories)
+    if swept:
+        axes[roc_rows, 0].legend(fontsize=5)
     figure.tight_layout()
     figure.savefig(path, dpi=DPI)
     plt.close(figure)

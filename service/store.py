@@ -186,7 +186,7 @@ def removable_files(url: str, storage_options: dict | None, *, kind: str) -> lis
         The store.
     storage_options : dict or None
         fsspec options.
-    kind : {'samples', 'statistics'}
+    kind : {'samples', 'statistics', 'detection'}
         What the store must hold (its `KIND` attribute).
 
     Returns

@@ -17,3 +17,6 @@ work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
 oceanlidar run configs/quickstart.yaml --output "$work/quickstart.zarr"
 oceanlidar plot "$work/quickstart.zarr" --output $out/quickstart-statistics.png
+oceanlidar run configs/detection-study.yaml --output "$work/detection-study.zarr"   # ~5 min
+oceanlidar detect "$work/detection-study.zarr"
+oceanlidar plot "$work/detection-study.detect.zarr" --output $out/detection-study.png

@@ -1,0 +1,389 @@
+"""The detection study of a sweep: detectors' ROC, AUC and Pd per parameter point.
+
+Pairs every parameter point with a target (a positive point) with the target-free point
+of the same scene (`pair_points`), reads both points' samples realisation by realisation
+(pairs never cross realisations: row i of both saw the same sea; a store without the
+noise-free images has them rendered again from its sweep and seeds), scores them with the
+detectors of `workers.detection` on the dask cluster in use (one task per pair) and writes
+a detection dataset beside the store (`detection_url`). Variables, per positive point:
+
+- ``score_positive``, ``score_negative`` (point, detector, realisation): every score, NaN
+  where a detector is not evaluated (the trained one's training realisations);
+- ``auc``, ``auc_low``, ``auc_high`` (point, detector): area under the ROC and its 95 %
+  bootstrap interval (realisations resampled, fixed seed); ``evaluated`` the pairs used;
+- ``pd`` (point, detector, pfa): probability of detection at 10⁻¹ and 10⁻², NaN where the
+  negatives are too few to measure that false-alarm rate, ``pd_available`` the flag;
+- ``roc_pfa``, ``roc_pd`` (point, detector, vertex): the empirical ROC, NaN-padded;
+- ``gate_auc``, ``gate_auc_low``, ``gate_auc_high`` (point, gate): each gate's matched
+  filter alone;
+- ``negative_point`` (point): the store's target-free point paired with it, and
+  ``held_out`` (realisation): the realisations the trained detector is evaluated on.
+"""
+
+from __future__ import annotations
+
+import uuid
+
+import dask
+import numpy as np
+import xarray as xr
+
+from service import store
+from service.sweep import SweepError, parse_sweep
+from workers.detection import DETECTORS, MIN_FALSE_ALARMS, evaluate_pair, held_out, roc_curve
+
+__all__ = ["PFA", "detection_url", "pair_points", "write_detection"]
+
+PFA = (1e-1, 1e-2)
+"""False-alarm probabilities at which the probability of detection is reported."""
+
+MIN_REALISATIONS = 8
+"""Fewest realisations per point: half train the logistic detector, half test it."""
+
+DATASET_KIND = "detection"
+"""``oceanlidar_dataset`` attribute of a detection dataset (what may be overwritten)."""
+
+
+def detection_url(url: str) -> str:
+    """Where the detection dataset of the store at `url` lives by default (beside it)."""
+    stem = url.rstrip("/")
+    if stem.endswith(".zarr"):
+        stem = stem[: -len(".zarr")]
+    return stem + ".detect.zarr"
+
+
+def _point_values(ds: xr.Dataset) -> tuple[list[str], list[dict]]:
+    """The swept parameters and each point's values of them."""
+    realisations = int(ds.attrs["realisations"])
+    first = np.arange(int(ds.attrs["points"])) * realisations
+    swept = [str(name) for name, c in ds.coords.items() if c.dims == ("sample",) and "." in name]
+    columns = {name: ds[name].values[first].tolist() for name in swept}
+    return swept, [{name: columns[name][p] for name in swept} for p in range(len(first))]
+
+
+def pair_points(ds: xr.Dataset) -> tuple[list[tuple[int, int]], list[int]]:
+    """Pair each point with a target with the target-free point of the same scene.
+
+    A point without a target matches a point with one when every swept parameter outside
+    ``target.`` is equal (without a target, the target's parameters change nothing); of
+    several matches, one equal in every parameter but ``target.shape`` is preferred, then
+    the first.
+
+    Returns
+    -------
+    pairs : list of (int, int)
+        (positive point, negative point) indices in the store.
+    unpaired : list of int
+        Points with a target and no target-free twin.
+
+    Raises
+    ------
+    SweepError
+        When no point has a target, or none is target-free (nothing to evaluate).
+    """
+    realisations = int(ds.attrs["realisations"])
+    present = ds["target_present"].values[::realisations].astype(bool)
+    if not present.any():
+        raise SweepError("no parameter point has a target: there is nothing to detect")
+    if present.all():
+        raise SweepError(
+            "no parameter point is target-free, so there are no negatives to evaluate "
+            "detectors against; sweep target.shape: [sphere, none] (or disk) to pair them"
+        )
+    swept, values = _point_values(ds)
+    scene_keys = [name for name in swept if not name.startswith("target.")]
+    near_keys = [name for name in swept if name != "target.shape"]
+    negatives = np.flatnonzero(~present)
+    pairs, unpaired = [], []
+    for point in np.flatnonzero(present):
+        matches = [
+            int(q) for q in negatives if all(values[q][k] == values[point][k] for k in scene_keys)
+        ]
+        exact = [q for q in matches if all(values[q][k] == values[point][k] for k in near_keys)]
+        if matches:
+            pairs.append((int(point), (exact or matches)[0]))
+        else:
+            unpaired.append(int(point))
+    if not pairs:
+        raise SweepError(
+            "no point with a target has a target-free twin (equal in every swept parameter "
+            "outside target.): sweep target.shape: [sphere, none] on a grid to pair them"
+        )
+    return pairs, unpaired
+
+
+def _rendered_expected(plan, samples, image):
+    """Render `samples` again for their noise-free images (renders are deterministic).
+
+    The noisy images rendered again must be the stored ones (`image`), or the store was
+    written by another version of the physics and its expected images cannot be recovered.
+    """
+    rendered = [store.sample_dataset(plan, int(sample)) for sample in samples]
+    if not np.array_equal(np.stack([r["image"].values for r in rendered]), image):
+        raise SweepError(
+            f"samples {samples[0]}..{samples[-1]} rendered again differ from the stored ones "
+            "(written by another oceanlidar version?): their expected images cannot be recovered"
+        )
+    return np.stack([r["expected"].values for r in rendered]).astype(np.float64)
+
+
+def _evaluate(url, storage_options, positive, negative, realisations, test, plan):
+    """Read one pair's samples (the realisations written at both points) and score them.
+
+    `plan`: the store's sweep, to render the expected images again when the store has none
+    (None: read them).
+    """
+    source = store.open_group(url, storage_options)
+    rows = {p: np.arange(realisations) + p * realisations for p in (positive, negative)}
+    both = source["completed"].get_orthogonal_selection((rows[positive],)).astype(bool)
+    both &= source["completed"].get_orthogonal_selection((rows[negative],)).astype(bool)
+    if both.sum() < MIN_REALISATIONS:
+        raise SweepError(
+            f"points {positive} and {negative}: {both.sum()} realisations written at both, "
+            f"fewer than {MIN_REALISATIONS}; complete the run with `oceanlidar run --resume`"
+        )
+    read = {}
+    for p in (positive, negative):
+        image = source["image"].get_orthogonal_selection((rows[p][both],))
+        if not np.array_equal(image, np.round(image)):
+            raise SweepError(
+                f"point {p}: images are not whole photoelectron counts (an ICCD excess-noise "
+                "stage?): the ideal observer needs Poisson counts"
+            )
+        read[p, "image"] = image.astype(np.float64)
+        if plan is None:
+            expected = source["expected"].get_orthogonal_selection((rows[p][both],))
+            read[p, "expected"] = expected.astype(np.float64)
+        else:
+            read[p, "expected"] = _rendered_expected(plan, rows[p][both], image)
+    metrics = evaluate_pair(
+        positive_image=read[positive, "image"],
+        positive_expected=read[positive, "expected"],
+        negative_image=read[negative, "image"],
+        negative_expected=read[negative, "expected"],
+        test=test[both],
+        pfa=PFA,
+    )
+    for name in ("score_positive", "score_negative"):
+        full = np.full((len(DETECTORS), realisations), np.nan)
+        full[:, both] = metrics[name]
+        metrics[name] = full
+    return metrics
+
+
+def _check_store(ds: xr.Dataset, url: str) -> None:
+    for name in ("image", "completed", "target_present"):
+        if name not in ds:
+            raise SweepError(f"{url}: the store has no {name!r}: not a sweep's store")
+    if ds["image"].attrs.get("units") != "photoelectrons":
+        raise SweepError(
+            f"{url}: images are in {ds['image'].attrs.get('units')!r}, not photoelectrons: "
+            "detection needs shot noise with no gain (radiometry with photons, noise.gain 1)"
+        )
+    if int(ds.attrs["realisations"]) < MIN_REALISATIONS:
+        raise SweepError(
+            f"{url}: {ds.attrs['realisations']} realisations per point; detection needs at "
+            f"least {MIN_REALISATIONS} (half train the logistic detector, half test it)"
+        )
+
+
+def _sweep_plan(ds: xr.Dataset, url: str):
+    """The store's sweep, read again from its text, to render samples again."""
+    try:
+        plan = parse_sweep(ds.attrs["sweep"])
+    except SweepError as error:
+        raise SweepError(
+            f"{url}: the store has no 'expected' images, and its sweep cannot be read again "
+            f"to render them: {error}"
+        ) from None
+    if plan.digest != ds.attrs.get("sweep_sha256"):
+        raise SweepError(
+            f"{url}: the store has no 'expected' images, and its sweep reads differently now "
+            "(another oceanlidar version?): they cannot be rendered again"
+        )
+    return plan
+
+
+def _dataset(ds, pairs, results, realisations, test) -> xr.Dataset:
+    names = list(DETECTORS)
+    stacked = {name: np.stack([r[name] for r in results]) for name in results[0]}
+    rocs = [
+        [
+            roc_curve(positives=s1[~np.isnan(s1)], negatives=s0[~np.isnan(s0)])
+            for s1, s0 in zip(r["score_positive"], r["score_negative"], strict=True)
+        ]
+        for r in results
+    ]
+    vertices = max(len(pfa) for point in rocs for pfa, _ in point)
+    roc = np.full((2, len(pairs), len(names), vertices), np.nan)
+    for i, point in enumerate(rocs):
+        for d, (pfa, pd) in enumerate(point):
+            roc[0, i, d, : len(pfa)] = pfa
+            roc[1, i, d, : len(pd)] = pd
+    one = {"units": "1"}
+    dims = ("point", "detector")
+    data_vars = {
+        "negative_point": (
+            "point",
+            np.array([q for _, q in pairs], dtype=np.int64),
+            {"long_name": "target-free parameter point paired with this one", **one},
+        ),
+        "score_positive": (
+            (*dims, "realisation"),
+            stacked["score_positive"],
+            {"long_name": "detector score of the sample with the target", **one},
+        ),
+        "score_negative": (
+            (*dims, "realisation"),
+            stacked["score_negative"],
+            {"long_name": "detector score of the target-free sample, same sea", **one},
+        ),
+        "auc": (dims, stacked["auc"], {"long_name": "area under the ROC curve", **one}),
+        "auc_low": (dims, stacked["auc_low"], {"long_name": "AUC 95 % interval, low", **one}),
+        "auc_high": (dims, stacked["auc_high"], {"long_name": "AUC 95 % interval, high", **one}),
+        "evaluated": (
+            dims,
+            stacked["evaluated"],
+            {"long_name": "realisation pairs the detector was evaluated on", **one},
+        ),
+        "pd": (
+            (*dims, "pfa"),
+            stacked["pd"],
+            {
+                "long_name": "probability of detection at the false-alarm probability",
+                "comment": f"NaN (pd_available 0) with fewer than {MIN_FALSE_ALARMS}/pfa "
+                "negatives: never extrapolated",
+                **one,
+            },
+        ),
+        "pd_available": (
+            (*dims, "pfa"),
+            (~np.isnan(stacked["pd"])).astype(np.uint8),
+            {"long_name": "enough negatives to measure pd at this pfa", **one},
+        ),
+        "roc_pfa": (
+            (*dims, "vertex"),
+            roc[0],
+            {"long_name": "ROC false-alarm probability (NaN-padded)", **one},
+        ),
+        "roc_pd": (
+            (*dims, "vertex"),
+            roc[1],
+            {"long_name": "ROC probability of detection (NaN-padded)", **one},
+        ),
+        "gate_auc": (
+            ("point", "gate"),
+            stacked["gate_auc"],
+            {"long_name": "AUC of the gate's matched filter alone", **one},
+        ),
+        "gate_auc_low": (
+            ("point", "gate"),
+            stacked["gate_auc_low"],
+            {"long_name": "gate AUC 95 % interval, low", **one},
+        ),
+        "gate_auc_high": (
+            ("point", "gate"),
+            stacked["gate_auc_high"],
+            {"long_name": "gate AUC 95 % interval, high", **one},
+        ),
+        "held_out": (
+            "realisation",
+            test.astype(np.uint8),
+            {"long_name": "realisation evaluates (1) or trains (0) the logistic detector", **one},
+        ),
+    }
+    positives = [p for p, _ in pairs]
+    coords = {
+        "point": ("point", np.array(positives), {"long_name": "parameter point index", **one}),
+        "detector": ("detector", np.array(names, dtype=object), {"long_name": "detector"}),
+        "description": (
+            "detector",
+            np.array([DETECTORS[n] for n in names], dtype=object),
+            {"long_name": "what the detector assumes"},
+        ),
+        "pfa": ("pfa", np.array(PFA), {"long_name": "false-alarm probability", **one}),
+        "realisation": (
+            "realisation",
+            np.arange(realisations),
+            {"long_name": "Monte Carlo realisation index", **one},
+        ),
+        "gate_top": ds["gate_top"].load(),
+        "gate_bottom": ds["gate_bottom"].load(),
+    }
+    for name in _point_values(ds)[0]:
+        coord = ds[name]
+        coords[name] = (
+            "point",
+            coord.values[np.array(positives) * realisations],
+            dict(coord.attrs),
+        )
+    detection = xr.Dataset(data_vars, coords=coords)
+    detection.attrs.update(
+        title=ds.attrs.get("title", "") + " detection study",
+        Conventions=store.CONVENTIONS,
+        oceanlidar_dataset=DATASET_KIND,
+        sweep_sha256=ds.attrs.get("sweep_sha256", ""),
+        oceanlidar_version=store.package_version(),
+        bootstrap="95 % percentile interval, 2000 resamples of realisation pairs, seed 0",
+        **{f"detector_{name}": text for name, text in DETECTORS.items()},
+    )
+    return detection
+
+
+def write_detection(
+    url: str, *, output: str | None = None, storage_options: dict | None = None
+) -> tuple[str, list[int]]:
+    """Run the detection study of the store at `url` and write its dataset.
+
+    Runs one task per positive point on the dask client in use, or on local threads.
+
+    Parameters
+    ----------
+    url : str
+        The sweep's store.
+    output : str, optional
+        Where to write (default `detection_url`); an earlier detection dataset there is
+        replaced, anything else is refused.
+    storage_options : dict, optional
+        fsspec options of both.
+
+    Returns
+    -------
+    target : str
+        Where the dataset was written.
+    unpaired : list of int
+        Points with a target left out for want of a target-free twin.
+
+    Raises
+    ------
+    SweepError
+        A store that cannot be evaluated, or an output that is not a detection dataset.
+    """
+    ds = store.open_store(url, storage_options=storage_options)
+    _check_store(ds, url)
+    pairs, unpaired = pair_points(ds)
+    target = output or detection_url(url)
+    if target.rstrip("/") == url.rstrip("/") or target.rstrip("/") == store.stats_url(url):
+        raise SweepError(f"--output {target}: that is the sweep's own store or its statistics")
+    # an earlier detection dataset is replaced, anything else refused, before any work
+    old = store.removable_files(target, storage_options, kind=DATASET_KIND)
+    realisations = int(ds.attrs["realisations"])
+    test = held_out(realisations)
+    plan = None if "expected" in ds else _sweep_plan(ds, url)
+    tasks = [
+        dask.delayed(_evaluate)(url, storage_options, p, q, realisations, test, plan)
+        for p, q in pairs
+    ]
+    results = dask.compute(*tasks)
+    detection = _dataset(ds, pairs, results, realisations, test)
+    detection.attrs["expected_images"] = (
+        "read from the store" if plan is None else "rendered again"
+    )
+    partial = f"{target.rstrip('/')}.partial-{uuid.uuid4().hex[:12]}"
+    with store.consolidated_v3():
+        detection.to_zarr(
+            partial, mode="w-", consolidated=True, zarr_format=3, storage_options=storage_options
+        )
+    store.remove_files(target, storage_options, old)
+    store.move(partial, target, storage_options)
+    return target, unpaired

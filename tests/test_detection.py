@@ -1,0 +1,385 @@
+"""Detectors and detection metrics: closed forms, then a real sweep through the CLI."""
+
+import numpy as np
+import pytest
+import xarray as xr
+from conftest import TINY_SCENE
+from scipy.stats import multivariate_normal, norm, poisson
+
+from service import store
+from service.cli import main
+from service.detect import pair_points
+from service.sweep import SweepError, parse_sweep
+from workers.detection import (
+    DETECTORS,
+    auc,
+    bootstrap_auc,
+    fit_logistic,
+    ideal_observer,
+    pd_at_pfa,
+    roc_curve,
+)
+
+
+def rng(seed):
+    return np.random.Generator(np.random.PCG64(seed))
+
+
+def binormal_auc_se(separation, n):
+    """Exact standard error of the Mann–Whitney AUC of n N(d, 1) against n N(0, 1) scores.
+
+    Var = [A(1 - A) + 2 (n - 1)(Q - A²)] / n² (Hanley & McNeil 1982, eq. 1, exact form),
+    with Q = P(X > Y, X > Y') = P(X > Y, X' > Y): a bivariate normal of correlation 1/2
+    at (d/√2, d/√2).
+    """
+    area = norm.cdf(separation / np.sqrt(2))
+    pair = multivariate_normal(mean=[0, 0], cov=[[1, 0.5], [0.5, 1]]).cdf(
+        [separation / np.sqrt(2)] * 2
+    )
+    return np.sqrt((area * (1 - area) + 2 * (n - 1) * (pair - area**2)) / n**2)
+
+
+@pytest.mark.parametrize("separation", [0.5, 1.0, 2.0], ids=["d0.5", "d1", "d2"])
+def test_auc_of_two_gaussian_classes_is_phi_of_d_over_root_2(separation):
+    n = 2000
+    draws = rng(1)
+    negatives = draws.normal(0.0, 1.0, n)
+    positives = draws.normal(separation, 1.0, n)
+    exact = norm.cdf(separation / np.sqrt(2))
+    low, high = bootstrap_auc(positives=positives, negatives=negatives)
+    assert low <= exact <= high
+    assert low <= auc(positives=positives, negatives=negatives) <= high
+    # the interval is as wide as the AUC's sampling law says, 2 x 1.96 SE: its width varies
+    # by ~2 % from the 2000 resamples' quantiles and ~2 % from the SE's own sampling error
+    # at n = 2000, so 10 % is 4 sigma (a 90 % interval, 16 % narrower, fails)
+    width = high - low
+    assert width == pytest.approx(2 * 1.96 * binormal_auc_se(separation, n), rel=0.1)
+
+
+def test_auc_counts_ties_as_half_and_swapped_classes_as_complement():
+    assert auc(positives=[1.0, 1.0], negatives=[1.0, 1.0]) == 0.5
+    assert auc(positives=[2.0, 3.0], negatives=[0.0, 1.0]) == 1.0
+    s1, s0 = rng(2).normal(0.7, 1, 300), rng(3).normal(0, 1, 300)
+    assert auc(positives=s0, negatives=s1) == pytest.approx(1 - auc(positives=s1, negatives=s0))
+
+
+def test_pd_at_pfa_of_gaussian_classes_matches_the_closed_form():
+    n, separation = 20000, 2.0
+    draws = rng(4)
+    negatives = draws.normal(0.0, 1.0, n)
+    positives = draws.normal(separation, 1.0, n)
+    for alpha in (1e-1, 1e-2):
+        threshold = norm.isf(alpha)
+        exact = norm.sf(threshold - separation)
+        # binomial error of the positives above the threshold, plus the threshold's own
+        # (quantile of n negatives) carried through the positives' density
+        slope = norm.pdf(threshold - separation) / norm.pdf(threshold)
+        se = np.sqrt(exact * (1 - exact) / n + slope**2 * alpha * (1 - alpha) / n)
+        estimate = pd_at_pfa(positives=positives, negatives=negatives, pfa=alpha)
+        assert estimate == pytest.approx(exact, abs=4 * se)
+
+
+def test_pd_at_pfa_is_unavailable_without_enough_negatives():
+    draws = rng(5)
+    positives = draws.normal(1.0, 1.0, 1000)
+    assert np.isnan(pd_at_pfa(positives=positives, negatives=draws.normal(size=199), pfa=1e-2))
+    assert np.isfinite(pd_at_pfa(positives=positives, negatives=draws.normal(size=200), pfa=1e-2))
+    assert np.isnan(pd_at_pfa(positives=positives, negatives=draws.normal(size=19), pfa=1e-1))
+
+
+def test_ideal_observer_is_the_poisson_log_likelihood_ratio():
+    draws = rng(6)
+    background = draws.uniform(0.0, 3.0, (50, 2, 3, 4))
+    signal = background * draws.uniform(0.5, 2.0, background.shape)
+    signal[:, 0, 0, 0] = background[:, 0, 0, 0]  # unchanged pixels count for nothing
+    counts = draws.poisson(signal)
+    oracle = (poisson.logpmf(counts, signal) - poisson.logpmf(counts, background)).sum(
+        axis=(1, 2, 3)
+    )
+    np.testing.assert_allclose(
+        ideal_observer(counts, signal=signal, background=background), oracle, rtol=1e-12
+    )
+    # a count where the background cannot make one is certain evidence of the target
+    zero = np.zeros((1, 1))
+    assert ideal_observer(np.ones((1, 1)), signal=zero + 1, background=zero) == np.inf
+
+
+def test_ideal_observer_roc_of_one_poisson_pixel_is_the_exact_one():
+    """One pixel, λ0 = 2, λ1 = 5: the LLR grows with the count, so the test "LLR ≥ t" is
+    "x ≥ k" and its ROC vertices are (P(X0 ≥ k), P(X1 ≥ k)), k = 0, 1, ..."""
+    n, lam0, lam1 = 5000, 2.0, 5.0
+    draws = rng(7)
+    x0 = draws.poisson(lam0, (n, 1))
+    x1 = draws.poisson(lam1, (n, 1))
+    means = {"signal": np.full((n, 1), lam1), "background": np.full((n, 1), lam0)}
+    s0 = ideal_observer(x0, **means)
+    s1 = ideal_observer(x1, **means)
+    pfa, pd = roc_curve(positives=s1, negatives=s0)
+    # vertex j (after the origin) is the threshold at the j-th largest distinct count
+    counts = np.unique(np.concatenate([x0, x1]))[::-1]
+    exact_pfa, exact_pd = poisson.sf(counts - 1, lam0), poisson.sf(counts - 1, lam1)
+    for estimate, exact in ((pfa[1:], exact_pfa), (pd[1:], exact_pd)):
+        se = np.sqrt(exact * (1 - exact) / n) + 1 / n
+        assert np.all(np.abs(estimate - exact) <= 5 * se)
+    k = np.arange(60)
+    exact_auc = np.sum(
+        poisson.pmf(k, lam1) * (poisson.cdf(k - 1, lam0) + poisson.pmf(k, lam0) / 2)
+    )
+    low, high = bootstrap_auc(positives=s1, negatives=s0)
+    assert low <= exact_auc <= high
+
+
+def test_ideal_observer_auc_of_two_poisson_pixels_is_the_exact_one():
+    """Two pixels whose means move apart (1, 3) -> (2, 2): the LLR x1 ln 2 + x2 ln(2/3) is
+    not a function of the total; its law under each hypothesis, by enumeration, gives the
+    exact AUC."""
+    n = 5000
+    lam0, lam1 = np.array([1.0, 3.0]), np.array([2.0, 2.0])
+    k = np.arange(40)
+    grid = np.stack(np.meshgrid(k, k, indexing="ij"), axis=-1).reshape(-1, 2)
+    llr = ideal_observer(
+        grid,
+        signal=np.broadcast_to(lam1, grid.shape),
+        background=np.broadcast_to(lam0, grid.shape),
+    )
+    p0 = poisson.pmf(grid, lam0).prod(axis=1)
+    p1 = poisson.pmf(grid, lam1).prod(axis=1)
+    values, index = np.unique(np.round(llr, 9), return_inverse=True)
+    law0 = np.bincount(index, weights=p0, minlength=len(values))
+    law1 = np.bincount(index, weights=p1, minlength=len(values))
+    exact = np.sum(law1 * (np.cumsum(law0) - law0 / 2))
+    draws = rng(8)
+    means = {"signal": np.broadcast_to(lam1, (n, 2)), "background": np.broadcast_to(lam0, (n, 2))}
+    s0 = ideal_observer(draws.poisson(lam0, (n, 2)), **means)
+    s1 = ideal_observer(draws.poisson(lam1, (n, 2)), **means)
+    low, high = bootstrap_auc(positives=s1, negatives=s0)
+    assert low <= exact <= high
+
+
+def test_logistic_regression_recovers_a_known_model():
+    n = 20000
+    draws = rng(9)
+    x = draws.normal(size=(n, 2))
+    truth = np.array([0.5, 2.0, -1.0])
+    logit = truth[0] + x @ truth[1:]
+    y = draws.random(n) < 1 / (1 + np.exp(-logit))
+    model = fit_logistic(x, y, penalty=1e-6)
+    # back to the raw features' scale, and the standard errors from the Fisher information
+    beta = model.coefficients[1:] / model.scale
+    intercept = model.coefficients[0] - np.sum(beta * model.center)
+    p = 1 / (1 + np.exp(-logit))
+    design = np.column_stack([np.ones(n), x])
+    se = np.sqrt(np.diag(np.linalg.inv((design * (p * (1 - p))[:, None]).T @ design)))
+    np.testing.assert_array_less(np.abs(np.r_[intercept, beta] - truth), 4 * se)
+
+
+def point_dataset(points, *, realisations=2):
+    """A store's labels and swept coordinates, enough for `pair_points`."""
+    names = list(points[0])
+    coords = {
+        name: ("sample", np.repeat([p[name] for p in points], realisations)) for name in names
+    }
+    present = np.repeat([p.get("target.shape", "sphere") != "none" for p in points], realisations)
+    ds = xr.Dataset({"target_present": ("sample", present)}, coords=coords)
+    ds.attrs.update(points=len(points), realisations=realisations)
+    return ds
+
+
+def test_points_pair_with_the_target_free_twin_of_their_scene():
+    grid = [
+        {"target.depth": d, "water.preset": w, "target.shape": s}
+        for d in (3.0, 6.0)
+        for w in ("clear_ocean", "coastal")
+        for s in ("sphere", "none")
+    ]
+    pairs, unpaired = pair_points(point_dataset(grid))
+    assert pairs == [(0, 1), (2, 3), (4, 5), (6, 7)] and unpaired == []
+    # one target-free point per water serves every depth (the target's depth means nothing
+    # without a target); a water with no target-free point is left unpaired
+    shared = [
+        {"target.depth": 3.0, "water.preset": "coastal", "target.shape": "none"},
+        {"target.depth": 3.0, "water.preset": "coastal", "target.shape": "sphere"},
+        {"target.depth": 6.0, "water.preset": "coastal", "target.shape": "sphere"},
+        {"target.depth": 6.0, "water.preset": "clear_ocean", "target.shape": "sphere"},
+    ]
+    assert pair_points(point_dataset(shared)) == ([(1, 0), (2, 0)], [3])
+
+
+@pytest.mark.parametrize(
+    ("shapes", "message"),
+    [(["sphere", "disk"], "no negatives"), (["none", "none"], "nothing to detect")],
+    ids=["no-negatives", "no-target"],
+)
+def test_pairing_refuses_a_sweep_without_both_classes(shapes, message):
+    points = [{"target.depth": 3.0 + i, "target.shape": s} for i, s in enumerate(shapes)]
+    with pytest.raises(SweepError, match=message):
+        pair_points(point_dataset(points))
+
+
+SWEEP = (
+    TINY_SCENE.replace("gates: [[2.0, 6.0]]", "gates: [[1.0, 6.0]]").replace(
+        "white_plane_photons: 100", "white_plane_photons: 10"
+    )
+    + """\
+sweep:
+  parameters:
+    target.depth: {{values: [1.5, 5.0]}}
+    water.preset: {{values: [clear_ocean, coastal]}}
+    target.shape: {{values: [sphere, none]}}
+"""
+)
+"""Tiny samples, a sphere at two depths in two waters, each with its target-free twin."""
+
+
+@pytest.fixture(scope="module")
+def detection(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("detect")
+    sweep = folder / "sweep.yaml"
+    sweep.write_text(
+        SWEEP.format(name="small", seed=5, realisations=120, output=folder / "small.zarr")
+    )
+    assert main(["run", str(sweep), "--workers", "1"]) == 0
+    assert main(["detect", str(folder / "small.zarr")]) == 0
+    return folder, xr.open_zarr(folder / "small.detect.zarr").load()
+
+
+def test_detection_dataset_layout(detection):
+    _, det = detection
+    assert det["detector"].values.tolist() == list(DETECTORS)
+    assert det["point"].values.tolist() == [0, 2, 4, 6]
+    assert det["negative_point"].values.tolist() == [1, 3, 5, 7]
+    for name, variable in det.variables.items():
+        assert "long_name" in variable.attrs, name
+        if variable.dtype.kind in "biuf":
+            assert variable.attrs["units"] == "1" or name.startswith(("gate_", "target.")), name
+    assert det.attrs["detector_ideal_observer"] == DETECTORS["ideal_observer"]
+    # the trained detector is evaluated on the held-out (odd) realisations only
+    held = det["held_out"].values.astype(bool)
+    assert held.sum() == 60 and held[1] and not held[0]
+    logistic = det["score_positive"].sel(detector="logistic_regression").values
+    assert np.isnan(logistic[:, ~held]).all() and np.isfinite(logistic[:, held]).all()
+    assert det["evaluated"].values.tolist() == [[120, 120, 60]] * 4
+    # 120 negatives measure Pfa = 0.1, not 0.01; the trained detector's 60 measure 0.1 too
+    assert det["pd_available"].sel(pfa=0.1).values.all()
+    assert not det["pd_available"].sel(pfa=0.01).values.any()
+    assert np.isnan(det["pd"].sel(pfa=0.01).values).all()
+    # each ROC runs from (0, 0) to (1, 1) and its area is the AUC
+    for p in range(4):
+        for d in range(3):
+            pfa, pd = (det[v].values[p, d] for v in ("roc_pfa", "roc_pd"))
+            pfa, pd = pfa[~np.isnan(pfa)], pd[~np.isnan(pd)]
+            assert (pfa[0], pd[0], pfa[-1], pd[-1]) == (0, 0, 1, 1)
+            assert np.trapezoid(pd, pfa) == pytest.approx(float(det["auc"][p, d]))
+
+
+def test_scores_compare_the_samples_of_one_realisation(detection):
+    """Each score pits the positive and the negative sample of realisation r against the
+    expected images of realisation r at both points: the same sea, never another's."""
+    folder, det = detection
+    ds = xr.open_zarr(folder / "small.zarr")
+    r = ds.attrs["realisations"]
+    ideal = det.sel(detector="ideal_observer")
+    for i, (p, q) in enumerate(
+        zip(det["point"].values, det["negative_point"].values, strict=True)
+    ):
+        signal = ds["expected"][p * r : (p + 1) * r].values
+        background = ds["expected"][q * r : (q + 1) * r].values
+        for name, point in (("score_positive", p), ("score_negative", q)):
+            image = ds["image"][point * r : (point + 1) * r].values
+            np.testing.assert_allclose(
+                ideal[name].values[i],
+                ideal_observer(image, signal=signal, background=background),
+                rtol=1e-12,
+            )
+
+
+def test_ideal_observer_bounds_the_other_detectors(detection):
+    _, det = detection
+    ideal = det.sel(detector="ideal_observer")
+    for other in ("matched_filter", "logistic_regression"):
+        assert (ideal["auc_high"] >= det["auc"].sel(detector=other)).all(), other
+    assert (det["auc"] > 0.5).all()
+
+
+def test_auc_falls_with_depth_and_turbidity(detection):
+    _, det = detection
+    # points: (1.5 m, clear), (1.5 m, coastal), (5 m, clear), (5 m, coastal)
+    ideal = det.sel(detector="ideal_observer")
+    for shallow, deep in ((0, 2), (1, 3)):
+        assert float(ideal["auc_low"][shallow]) > float(ideal["auc_high"][deep])
+    assert float(ideal["auc_low"][2]) > float(ideal["auc_high"][3])  # clear > coastal, 5 m
+    for name in ("ideal_observer", "matched_filter"):
+        area = det["auc"].sel(detector=name).values
+        assert area[0] > area[2] and area[1] > area[3], name
+        assert area[0] > area[1] and area[2] > area[3], name
+
+
+def test_detection_is_deterministic_and_plots(detection, tmp_path):
+    folder, det = detection
+    again = tmp_path / "again.detect.zarr"
+    assert main(["detect", str(folder / "small.zarr"), "--output", str(again)]) == 0
+    other = xr.open_zarr(again).load()
+    for name in det.variables:
+        assert det[name].values.tobytes() == other[name].values.tobytes(), name
+    picture = tmp_path / "det.png"
+    assert main(["plot", str(again), "--output", str(picture)]) == 0
+    assert picture.stat().st_size > 10000
+
+
+def test_expected_images_missing_from_the_store_are_rendered_again(detection, tmp_path):
+    folder, det = detection
+    bare = tmp_path / "bare.zarr"
+    with store.consolidated_v3():
+        xr.open_zarr(folder / "small.zarr").drop_vars("expected").to_zarr(
+            bare, zarr_format=3, consolidated=True
+        )
+    assert main(["detect", str(bare)]) == 0
+    again = xr.open_zarr(tmp_path / "bare.detect.zarr").load()
+    assert again.attrs["expected_images"] == "rendered again"
+    assert det.attrs["expected_images"] == "read from the store"
+    for name in ("score_positive", "score_negative", "auc", "auc_low", "auc_high", "pd"):
+        assert det[name].values.tobytes() == again[name].values.tobytes(), name
+
+
+def test_detect_refuses_to_overwrite_what_is_not_a_detection_dataset(detection, capsys):
+    folder, _ = detection
+    argv = ["detect", str(folder / "small.zarr"), "--output", str(folder / "small.stats.zarr")]
+    assert main(argv) == 2
+    assert "statistics" in capsys.readouterr().err
+    precious = folder / "precious"
+    precious.mkdir()
+    (precious / "notes.txt").write_text("keep")
+    assert main(["detect", str(folder / "small.zarr"), "--output", str(precious)]) == 2
+    assert "not an oceanlidar detection store" in capsys.readouterr().err
+    assert (precious / "notes.txt").read_text() == "keep"
+
+
+def test_detect_refuses_a_target_free_sweep(tmp_path, capsys):
+    sweep = tmp_path / "sweep.yaml"
+    text = TINY_SCENE.format(name="empty", seed=1, realisations=8, output=tmp_path / "e.zarr")
+    sweep.write_text(text + "sweep:\n  parameters:\n    target.shape: {values: [none]}\n")
+    assert main(["run", str(sweep), "--workers", "1"]) == 0
+    capsys.readouterr()
+    assert main(["detect", str(tmp_path / "e.zarr")]) == 2
+    assert "nothing to detect" in capsys.readouterr().err
+    assert not (tmp_path / "e.detect.zarr").exists()
+
+
+@pytest.mark.parametrize(
+    ("change", "realisations", "message"),
+    [
+        ("white_plane_photons: 10", 8, "fewer than 8; complete the run"),
+        ("white_plane_photons: 10}}\n  noise: {{gain: 2.0", 8, "not photoelectrons"),
+        ("white_plane_photons: 10", 4, "needs at least 8"),
+    ],
+    ids=["not-written", "gain", "too-few-realisations"],
+)
+def test_detect_refuses_stores_it_cannot_evaluate(tmp_path, capsys, change, realisations, message):
+    text = SWEEP.replace("white_plane_photons: 10", change).format(
+        name="t", seed=1, realisations=realisations, output="t.zarr"
+    )
+    url = str(tmp_path / "t.zarr")
+    store.create_store(parse_sweep(text), url)  # the template: no sample written yet
+    assert main(["detect", url]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "t.detect.zarr").exists()

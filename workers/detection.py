@@ -1,0 +1,445 @@
+"""Detectors of a target in gated images, and the metrics of a detection test.
+
+Pure numpy/scipy: every detector maps a batch of samples' gated images to one score per
+sample (larger: more target-like), and the metrics turn the scores of samples with a target
+(positives) and without (negatives) into a receiver operating characteristic (ROC), its
+area (AUC) with a bootstrap interval, and the probability of detection at a fixed
+false-alarm rate. ``service.detect`` pairs the samples of a sweep and runs these on its
+cluster.
+
+Rows of `positives` and `negatives` are realisations: row i of both saw the same sea
+(common random numbers), so resampling for intervals draws realisations, keeping each
+pair together.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.ndimage import uniform_filter
+from scipy.stats import rankdata
+
+__all__ = [
+    "DETECTORS",
+    "MIN_FALSE_ALARMS",
+    "LogisticModel",
+    "auc",
+    "bootstrap_auc",
+    "evaluate_pair",
+    "fit_logistic",
+    "gate_features",
+    "held_out",
+    "ideal_observer",
+    "matched_filter",
+    "matched_filter_weights",
+    "pd_at_pfa",
+    "roc_curve",
+]
+
+MIN_FALSE_ALARMS = 2
+"""Fewest negatives that must lie above the threshold for Pd at a false-alarm rate α to be
+reported: Pd at α needs at least ``MIN_FALSE_ALARMS / α`` negatives (200 at α = 10⁻²)."""
+
+BOOTSTRAP_BLOCK = 100
+"""Resamples ranked at once: bounds the bootstrap's memory to ~100 x 2n scores."""
+
+FEATURE_SMOOTHING = 3
+"""Side of the box (pixels) averaged before the brightest and darkest pixel features."""
+
+DETECTORS = {
+    "ideal_observer": (
+        "Poisson log-likelihood ratio of the noisy images between the expected images with "
+        "and without the target under the sample's own sea (signal and sea known exactly): "
+        "the most powerful test given the sea, an upper bound for any detector."
+    ),
+    "matched_filter": (
+        "Prewhitened matched filter fused over gates: sum over pixels and gates of "
+        "(m1 - m0) / v0 * (x - m0), with m1, m0 the mean expected images with and without "
+        "the target over realisations and v0 = mean + variance over realisations of the "
+        "target-free expected image (shot noise and sea clutter, pixels independent). "
+        "Knows the target's mean signature, not the sea; shadows (m1 < m0) count as evidence."
+    ),
+    "logistic_regression": (
+        "L2-regularised logistic regression on per-gate features (mean, standard deviation, "
+        "brightest and darkest 3x3 box mean), trained on the even realisations and "
+        "evaluated on the odd (held-out) ones; knows neither the sea nor the target."
+    ),
+}
+"""Detector name -> description (with its assumptions), in the order the dataset holds them."""
+
+
+def ideal_observer(image, *, signal, background):
+    r"""Poisson log-likelihood ratio of noisy images, signal and background known exactly.
+
+    Parameters
+    ----------
+    image : array_like, shape (samples, ...)
+        Noisy photoelectron counts [photoelectrons], Poisson given the means.
+    signal : array_like, shape of `image`
+        Expected counts with the target, λ₁ [photoelectrons].
+    background : array_like, shape of `image`
+        Expected counts without the target under the same sea, λ₀ [photoelectrons].
+
+    Returns
+    -------
+    ndarray of float64, shape (samples,)
+        .. math::
+            \Lambda = \sum_i x_i \ln(\lambda_{1i}/\lambda_{0i}) - (\lambda_{1i} - \lambda_{0i})
+
+        summed over every axis but the first; ±inf where a count is possible under one
+        hypothesis only (a pixel with x > 0 and λ = 0 under the other).
+
+    Notes
+    -----
+    With independent Poisson pixels this is the log of the likelihood ratio (the
+    :math:`\ln x_i!` terms cancel), the Neyman–Pearson optimal statistic when both means are
+    known: for a realisation's sea it is the best any detector can do, and pooled over
+    realisations (the sea is equally likely under both hypotheses) its ROC bounds every
+    detector's. Pixels with λ₁ = λ₀ contribute nothing, 0 · ln 0 is 0.
+    """
+    x = np.asarray(image, dtype=np.float64)
+    lam1 = np.asarray(signal, dtype=np.float64)
+    lam0 = np.asarray(background, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        weight = np.where(lam1 == lam0, 0.0, np.log(lam1) - np.log(lam0))
+        term = np.where(x > 0, x * weight, 0.0) - (lam1 - lam0)
+    return term.reshape(term.shape[0], -1).sum(axis=1)
+
+
+def matched_filter_weights(*, signal_mean, background_mean, background_variance):
+    r"""Prewhitened template of a target: :math:`w = (m_1 - m_0) / v_0`.
+
+    Parameters
+    ----------
+    signal_mean, background_mean : array_like, shape (frames, gates, y, x)
+        Mean expected images with and without the target [photoelectrons].
+    background_variance : array_like, shape (frames, gates, y, x)
+        Variance of a target-free pixel [photoelectrons²]: shot noise (its mean) plus the
+        sea's clutter (the variance of its expected value over realisations).
+
+    Returns
+    -------
+    ndarray of float64
+        Weights [1/photoelectrons]; 0 where the variance is 0.
+
+    Notes
+    -----
+    With Gaussian pixels of a common diagonal covariance this is the Fisher discriminant;
+    here pixels are Poisson mixtures whose covariance across pixels (the sea's caustics)
+    is ignored, so the filter is not optimal, only the best linear one for independent
+    pixels.
+    """
+    difference = np.asarray(signal_mean, np.float64) - np.asarray(background_mean, np.float64)
+    variance = np.asarray(background_variance, dtype=np.float64)
+    return np.divide(difference, variance, out=np.zeros_like(difference), where=variance > 0)
+
+
+def matched_filter(image, *, weights, background_mean):
+    r"""Matched-filter statistic of every gate: :math:`t_g = \sum w (x - m_0)`.
+
+    Parameters
+    ----------
+    image : array_like, shape (samples, frames, gates, y, x)
+        Noisy images [photoelectrons].
+    weights : array_like, shape (frames, gates, y, x)
+        Template from `matched_filter_weights` [1/photoelectrons].
+    background_mean : array_like, shape (frames, gates, y, x)
+        Mean target-free image [photoelectrons].
+
+    Returns
+    -------
+    ndarray of float64, shape (samples, gates)
+        One statistic per gate [1]; their sum over gates is the fused detector.
+    """
+    x = np.asarray(image, dtype=np.float64) - np.asarray(background_mean, dtype=np.float64)
+    return (x * weights).sum(axis=(1, 3, 4))
+
+
+def gate_features(image):
+    """Features of a sample's gates that know neither sea nor target.
+
+    Parameters
+    ----------
+    image : array_like, shape (samples, frames, gates, y, x)
+        Noisy images [photoelectrons].
+
+    Returns
+    -------
+    ndarray of float64, shape (samples, 4 * gates)
+        Per gate (averaged over frames): mean, standard deviation, largest and smallest
+        `FEATURE_SMOOTHING`² box mean [photoelectrons], gate-major.
+    """
+    x = np.asarray(image, dtype=np.float64)
+    box = uniform_filter(x, size=(1, 1, 1, FEATURE_SMOOTHING, FEATURE_SMOOTHING), mode="nearest")
+    features = np.stack(
+        [
+            x.mean(axis=(3, 4)),
+            x.std(axis=(3, 4)),
+            box.max(axis=(3, 4)),
+            box.min(axis=(3, 4)),
+        ],
+        axis=-1,
+    ).mean(axis=1)
+    return features.reshape(features.shape[0], -1)
+
+
+@dataclass(frozen=True)
+class LogisticModel:
+    """A fitted logistic regression on standardised features.
+
+    Attributes
+    ----------
+    center, scale : ndarray, shape (features,)
+        Training mean and standard deviation of each feature (scale 1 where constant).
+    coefficients : ndarray, shape (features + 1,)
+        Intercept first, then one weight per standardised feature.
+    """
+
+    center: np.ndarray
+    scale: np.ndarray
+    coefficients: np.ndarray
+
+    def decision(self, features) -> np.ndarray:
+        """Log-odds of a target for each row of `features` (the detector's score)."""
+        z = (np.asarray(features, dtype=np.float64) - self.center) / self.scale
+        return self.coefficients[0] + z @ self.coefficients[1:]
+
+
+def fit_logistic(features, labels, *, penalty=1.0, iterations=50, tolerance=1e-10):
+    r"""Fit an L2-penalised logistic regression by Newton's method (IRLS).
+
+    Parameters
+    ----------
+    features : array_like, shape (samples, features)
+        Training features (any units; standardised here).
+    labels : array_like of bool, shape (samples,)
+        True for samples with a target.
+    penalty : float, keyword-only
+        Weight λ of :math:`\frac{\lambda}{2}\lVert\beta\rVert^2` on the standardised
+        features' weights (not the intercept) [1]; keeps separable data finite.
+    iterations : int, keyword-only
+        Most Newton steps.
+    tolerance : float, keyword-only
+        Stop when no coefficient moves more than this.
+
+    Returns
+    -------
+    LogisticModel
+    """
+    x = np.asarray(features, dtype=np.float64)
+    y = np.asarray(labels, dtype=np.float64)
+    center = x.mean(axis=0)
+    scale = x.std(axis=0)
+    scale = np.where(scale > 0, scale, 1.0)
+    design = np.column_stack([np.ones(len(x)), (x - center) / scale])
+    ridge = np.full(design.shape[1], float(penalty))
+    ridge[0] = 0.0
+    beta = np.zeros(design.shape[1])
+    for _ in range(iterations):
+        p = 0.5 * (1.0 + np.tanh(0.5 * (design @ beta)))  # logistic, without overflow
+        gradient = design.T @ (y - p) - ridge * beta
+        hessian = (design * (p * (1 - p))[:, np.newaxis]).T @ design + np.diag(ridge)
+        step = np.linalg.solve(hessian + 1e-12 * np.eye(len(beta)), gradient)
+        beta = beta + step
+        if np.max(np.abs(step)) < tolerance:
+            break
+    return LogisticModel(center=center, scale=scale, coefficients=beta)
+
+
+def held_out(realisations: int) -> np.ndarray:
+    """Which realisations evaluate the trained detector (True) or train it: the odd ones."""
+    return np.arange(realisations) % 2 == 1
+
+
+def roc_curve(*, positives, negatives):
+    """Empirical ROC: detection against false-alarm probability over every threshold.
+
+    Parameters
+    ----------
+    positives, negatives : array_like, shape (n,) and (m,)
+        Scores of samples with and without a target; a sample is declared a detection
+        when its score is at least the threshold.
+
+    Returns
+    -------
+    pfa, pd : ndarray of float64, shape (thresholds + 1,)
+        From (0, 0) (threshold above every score) to (1, 1), one vertex per distinct score.
+    """
+    s1 = np.asarray(positives, dtype=np.float64)
+    s0 = np.asarray(negatives, dtype=np.float64)
+    thresholds = np.unique(np.concatenate([s1, s0]))[::-1]
+    pd = (s1[np.newaxis, :] >= thresholds[:, np.newaxis]).mean(axis=1)
+    pfa = (s0[np.newaxis, :] >= thresholds[:, np.newaxis]).mean(axis=1)
+    return np.concatenate([[0.0], pfa]), np.concatenate([[0.0], pd])
+
+
+def _auc_rows(s1, s0):
+    """AUC of each row of `s1` (…, n) against the same row of `s0` (…, m)."""
+    n, m = s1.shape[-1], s0.shape[-1]
+    ranks = rankdata(np.concatenate([s1, s0], axis=-1), axis=-1)
+    return (ranks[..., :n].sum(axis=-1) - n * (n + 1) / 2) / (n * m)
+
+
+def auc(*, positives, negatives) -> float:
+    r"""Area under the ROC: :math:`P(S_1 > S_0) + \tfrac12 P(S_1 = S_0)` (Mann–Whitney).
+
+    Parameters
+    ----------
+    positives, negatives : array_like, shape (n,) and (m,)
+        Scores of samples with and without a target.
+
+    Returns
+    -------
+    float
+        In [0, 1]; 0.5 for a detector that cannot tell the classes apart.
+    """
+    s1 = np.asarray(positives, dtype=np.float64)
+    s0 = np.asarray(negatives, dtype=np.float64)
+    return float(_auc_rows(s1, s0))
+
+
+def bootstrap_auc(*, positives, negatives, resamples=2000, level=0.95, seed=0):
+    """Percentile bootstrap interval of the AUC, resampling realisations (pairs).
+
+    Parameters
+    ----------
+    positives, negatives : array_like, shape (n,)
+        Scores; row i of both comes from realisation i (the same sea), so realisations
+        are drawn with replacement and each keeps both its scores.
+    resamples : int, keyword-only
+        Bootstrap resamples.
+    level : float, keyword-only
+        Coverage of the interval, in (0, 1).
+    seed : int, keyword-only
+        Seed of the resampling (fixed: the same scores give the same interval).
+
+    Returns
+    -------
+    low, high : float
+        The (1 − level)/2 and (1 + level)/2 quantiles of the resampled AUCs.
+    """
+    s1 = np.asarray(positives, dtype=np.float64)
+    s0 = np.asarray(negatives, dtype=np.float64)
+    if s1.shape != s0.shape:
+        raise ValueError(f"paired scores must match: {s1.shape} positives, {s0.shape} negatives")
+    rng = np.random.Generator(np.random.PCG64(seed))
+    picks = rng.integers(0, len(s1), size=(resamples, len(s1)))
+    values = np.concatenate(
+        [
+            _auc_rows(s1[block], s0[block])
+            for block in np.array_split(picks, -(-resamples // BOOTSTRAP_BLOCK))
+        ]
+    )
+    low, high = np.quantile(values, [(1 - level) / 2, (1 + level) / 2])
+    return float(low), float(high)
+
+
+def pd_at_pfa(*, positives, negatives, pfa, min_false_alarms=MIN_FALSE_ALARMS):
+    """Probability of detection at a false-alarm probability, where the negatives allow.
+
+    Parameters
+    ----------
+    positives, negatives : array_like, shape (n,) and (m,)
+        Scores of samples with and without a target.
+    pfa : float, keyword-only
+        False-alarm probability α, in (0, 1).
+    min_false_alarms : int, keyword-only
+        Fewest negatives that must lie above the threshold: with fewer than
+        ``min_false_alarms / α`` negatives the rate is not measured but extrapolated, and
+        the result is unavailable.
+
+    Returns
+    -------
+    float
+        Fraction of positives above the threshold t, the ⌊α m⌋ + 1-th largest negative
+        score (so at most a fraction α of negatives lies above it); NaN when unavailable.
+    """
+    s1 = np.asarray(positives, dtype=np.float64)
+    s0 = np.sort(np.asarray(negatives, dtype=np.float64))[::-1]
+    allowed = int(np.floor(pfa * len(s0) + 1e-9))
+    if allowed < min_false_alarms or allowed >= len(s0):
+        return float("nan")
+    return float((s1 > s0[allowed]).mean())
+
+
+def evaluate_pair(
+    *, positive_image, positive_expected, negative_image, negative_expected, test, pfa
+):
+    """Scores and metrics of every detector on one positive point and its negatives.
+
+    Parameters
+    ----------
+    positive_image, positive_expected : ndarray, shape (realisations, frames, gates, y, x)
+        Noisy and expected images of the point with the target [photoelectrons].
+    negative_image, negative_expected : ndarray, same shape
+        The same realisations (the same seas) of the target-free point.
+    test : ndarray of bool, shape (realisations,)
+        Held-out realisations (the trained detector learns on the others).
+    pfa : sequence of float
+        False-alarm probabilities at which to report the probability of detection.
+
+    Returns
+    -------
+    dict of ndarray
+        ``score_positive``, ``score_negative`` (detector, realisation; NaN where a detector
+        is not evaluated); ``auc``, ``auc_low``, ``auc_high``, ``evaluated``
+        (detector,); ``pd`` (detector, pfa; NaN where unavailable); ``gate_auc``,
+        ``gate_auc_low``, ``gate_auc_high`` (gates,): the matched filter of each gate alone.
+    """
+    realisations = positive_image.shape[0]
+    signal_mean = positive_expected.mean(axis=0, dtype=np.float64)
+    background_mean = negative_expected.mean(axis=0, dtype=np.float64)
+    background_variance = background_mean + negative_expected.var(axis=0, dtype=np.float64)
+    weights = matched_filter_weights(
+        signal_mean=signal_mean,
+        background_mean=background_mean,
+        background_variance=background_variance,
+    )
+    gate_scores = [
+        matched_filter(image, weights=weights, background_mean=background_mean)
+        for image in (positive_image, negative_image)
+    ]
+    train = ~test
+    model = fit_logistic(
+        np.concatenate(
+            [gate_features(positive_image[train]), gate_features(negative_image[train])]
+        ),
+        np.concatenate([np.ones(train.sum(), bool), np.zeros(train.sum(), bool)]),
+    )
+    scores = np.full((len(DETECTORS), 2, realisations), np.nan)
+    for column, image in enumerate((positive_image, negative_image)):
+        scores[0, column] = ideal_observer(
+            image, signal=positive_expected, background=negative_expected
+        )
+        scores[1, column] = gate_scores[column].sum(axis=1)
+        scores[2, column, test] = model.decision(gate_features(image[test]))
+    result = {
+        "score_positive": scores[:, 0],
+        "score_negative": scores[:, 1],
+        "auc": np.full(len(DETECTORS), np.nan),
+        "auc_low": np.full(len(DETECTORS), np.nan),
+        "auc_high": np.full(len(DETECTORS), np.nan),
+        "evaluated": np.zeros(len(DETECTORS), np.int32),
+        "pd": np.full((len(DETECTORS), len(pfa)), np.nan),
+    }
+    for row in range(len(DETECTORS)):
+        rows = ~np.isnan(scores[row, 0])
+        s1, s0 = scores[row, 0, rows], scores[row, 1, rows]
+        result["evaluated"][row] = rows.sum()
+        result["auc"][row] = auc(positives=s1, negatives=s0)
+        result["auc_low"][row], result["auc_high"][row] = bootstrap_auc(positives=s1, negatives=s0)
+        for column, alpha in enumerate(pfa):
+            result["pd"][row, column] = pd_at_pfa(positives=s1, negatives=s0, pfa=alpha)
+    gates = gate_scores[0].shape[1]
+    result["gate_auc"] = np.array(
+        [auc(positives=gate_scores[0][:, g], negatives=gate_scores[1][:, g]) for g in range(gates)]
+    )
+    intervals = np.array(
+        [
+            bootstrap_auc(positives=gate_scores[0][:, g], negatives=gate_scores[1][:, g])
+            for g in range(gates)
+        ]
+    ).reshape(gates, 2)
+    result["gate_auc_low"], result["gate_auc_high"] = intervals[:, 0], intervals[:, 1]
+    return result
