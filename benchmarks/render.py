@@ -10,7 +10,7 @@ absolute]``.
 The price of linear spreading (issue #9: two-level planes wide enough that no light
 wraps around, a round-trip filter per gate, the beam's tail): on the 2-core machine,
 normalised mode (the figures before it: 6.4 / 21.6 / 132 ms at 128 / 256 / 512 pixels,
-ratios 28 / 36 / 57), now 14 / 56 / 185 ms, ratios 54 / 69 / 99 (measured once). Absolute
+ratios 28 / 36 / 57), now 13 / 42 / 171 ms, ratios 57 / 76 / 106 (measured once). Absolute
 radiometry adds the cost of Poisson draws at large means (about 20 ms a 256² sample).
 """
 
