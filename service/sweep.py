@@ -367,7 +367,11 @@ def _read_yaml(text: str) -> Any:
         raise SweepError("the file is not YAML text (it contains NUL bytes)")
     try:
         _check_structure(text)
-        return yaml.load(text, Loader=_Loader)  # a SafeLoader: plain YAML only
+        loader = _Loader(text)  # a SafeLoader: plain YAML only
+        try:
+            return loader.get_single_data()
+        finally:
+            loader.dispose()
     except yaml.constructor.ConstructorError as error:
         raise SweepError(
             f"line {error.problem_mark.line + 1}: {error.problem} (only plain YAML is "
