@@ -28,8 +28,8 @@ import zarr
 from zarr.codecs import Crc32cCodec, ZstdCodec
 
 from service.sweep import Plan, SweepError, field_units, shown
+from workers.labels import rendered_variables
 from workers.render import render, sample_labels
-from workers.scene import Scene
 from workers.seeds import SampleSeed
 
 __all__ = [
@@ -45,7 +45,6 @@ __all__ = [
     "invalid_values",
     "lazy_array",
     "mark_incomplete",
-    "miniature",
     "move",
     "normalise",
     "occupied",
@@ -440,24 +439,6 @@ def _coordinate_array(values: list) -> np.ndarray:
     return np.asarray([v if isinstance(v, str) else json.dumps(v) for v in values], dtype=object)
 
 
-def miniature(scene: Scene) -> Scene:
-    """`scene` at the smallest size (8 pixels, a 16-point sea, one frame, no measurements).
-
-    The small sea repeats in view (`surface.allow_repeat`): only the variables matter.
-
-    Rendering it costs milliseconds and shows the variables a sample of `scene` has, with
-    their dimensions, dtypes and attributes, whatever the size of `scene`.
-    """
-    data = scene.model_dump()
-    data["receiver"]["pixels"] = 8
-    data["surface"]["grid_size"] = 16
-    data["surface"]["allow_repeat"] = True
-    data["surface"]["conditioning"] = {}
-    data["sequence"]["frames"] = 1
-    data["laser"]["rays"] = None
-    return Scene.model_validate(data)
-
-
 def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -> None:
     """Write the template of the store: metadata, coordinates, empty data arrays.
 
@@ -472,8 +453,8 @@ def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -
     """
     check_uniform(plan)
     first = plan.scenes[0]
-    # names, dtypes and attributes from a miniature; sizes from the scene itself
-    probe = render(miniature(first), seed=0)
+    # names, dimensions, dtypes and attributes from the renderer's table; nothing rendered
+    table = rendered_variables(first)
     sizes = {
         "frame": first.sequence.frames,
         "gate": len(first.receiver.gate_depths),
@@ -487,16 +468,12 @@ def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -
     data_vars = {}
     encoding = {}
     for name in RENDERED_VARIABLES:
-        if name not in probe:
+        if name not in table:
             continue
-        variable = probe[name]
-        shape = tuple(sizes[dim] for dim in variable.dims)
-        fill = np.nan if variable.dtype.kind == "f" else 0
-        data_vars[name] = (
-            ("sample", *variable.dims),
-            lazy_array((n, *shape), fill, variable.dtype),
-            dict(variable.attrs),
-        )
+        dims, dtype, attrs = table[name]
+        shape = tuple(sizes[dim] for dim in dims)
+        fill = np.nan if dtype.kind == "f" else 0
+        data_vars[name] = (("sample", *dims), lazy_array((n, *shape), fill, dtype), dict(attrs))
         encoding[name] = one_per_chunk(shape)
     data_vars["completed"] = (
         ("sample",),
@@ -540,8 +517,8 @@ def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -
     }
     axis = np.arange(first.surface.grid_size) * first.surface.spacing
     for name in ("sx", "sy"):
-        if name in probe.coords:
-            coords[name] = (name, axis, dict(probe[name].attrs))
+        if name in table:
+            coords[name] = (name, axis, dict(table[name][2]))
     for path in plan.swept:
         values = _coordinate_array([point[path] for point in plan.points])
         coords[path] = (

@@ -326,10 +326,15 @@ def test_a_full_disk_stops_the_run_with_one_message(tmp_path, monkeypatch, capsy
     assert len(tasks) < 20 // 2
 
 
-def test_the_template_is_built_without_rendering_a_sample(tmp_path):
+def test_the_template_is_built_without_rendering_a_sample(tmp_path, monkeypatch):
     import tracemalloc
 
     from service.sweep import parse_sweep
+
+    def no_render(*args, **kwargs):
+        raise AssertionError("the template rendered a frame")
+
+    monkeypatch.setattr("workers.render._render_frame", no_render)
 
     text = TINY_SCENE.format(name="big", seed=1, realisations=2, output="big.zarr")
     text = text.replace("pixels: 16", "pixels: 1024").replace(

@@ -26,7 +26,7 @@ from workers.sensor import (
 )
 from workers.water import slab_backscatter_reflectance
 
-__all__ = ["VISIBILITY", "labelled_dataset", "sample_labels", "target_mask"]
+__all__ = ["VISIBILITY", "labelled_dataset", "rendered_variables", "sample_labels", "target_mask"]
 
 VISIBILITY = {"none": 0, "in_gate": 1, "shadow": 2, "below_gate": 3}
 
@@ -189,44 +189,73 @@ def sample_labels(scene: Scene) -> xr.Dataset:
     return xr.Dataset(data_vars, coords=coords)
 
 
+def rendered_variables(scene: Scene) -> dict[str, tuple[tuple[str, ...], np.dtype, dict]]:
+    """The variables a render of `scene` carries beside its labels: one table.
+
+    Parameters
+    ----------
+    scene : Scene
+        The sample's parameters.
+
+    Returns
+    -------
+    dict
+        ``name -> (dimensions, dtype, attributes)`` for ``image``, ``expected`` and
+        ``target_mask``, and ``surface_elevation`` when the scene saves its surface (and
+        the surface axes ``sx``, ``sy``). Units: photoelectrons (``counts`` for an image
+        with ICCD gain) or ``1`` for signals in units of a white plane under the sea.
+    """
+    photoelectrons = scene.radiometry.photoelectrons
+    image_units = "1"
+    if photoelectrons:
+        image_units = "photoelectrons" if scene.noise.gain == 1.0 else "counts"
+    f32, u8 = np.dtype(np.float32), np.dtype(np.uint8)
+    table = {
+        "image": (
+            ("frame", "gate", "y", "x"),
+            f32,
+            {"long_name": "gated receiver image with shot noise", "units": image_units},
+        ),
+        "expected": (
+            ("frame", "gate", "y", "x"),
+            f32,
+            {
+                "long_name": "expected (noise-free) gated receiver image",
+                "units": "photoelectrons" if photoelectrons else "1",
+            },
+        ),
+        "target_mask": (
+            ("frame", "y", "x"),
+            u8,
+            {"long_name": "pixel ray meets the target silhouette", "units": "1"},
+        ),
+    }
+    if scene.save_surface:
+        table["surface_elevation"] = (
+            ("frame", "sy", "sx"),
+            f32,
+            {"long_name": "sea surface elevation", "units": "m"},
+        )
+        table["sx"] = (("sx",), np.dtype(float), {"long_name": "surface grid east", "units": "m"})
+        table["sy"] = (("sy",), np.dtype(float), {"long_name": "surface grid north", "units": "m"})
+    return table
+
+
 def labelled_dataset(scene, expected, image, masks, surface):
-    """One sample as a dataset: labels, images, mask (and surface), with units."""
-    units = "1"
-    if scene.radiometry.photoelectrons:
-        units = "photoelectrons" if scene.noise.gain == 1.0 else "counts"
+    """One sample as a dataset: labels, images, mask (and surface), per `rendered_variables`."""
+    table = rendered_variables(scene)
     frames = scene.sequence.frames
     ds = sample_labels(scene)
-    ds["image"] = (
-        ("frame", "gate", "y", "x"),
-        image.astype(np.float32, copy=False),
-        {"long_name": "gated receiver image with shot noise", "units": units},
-    )
-    ds["expected"] = (
-        ("frame", "gate", "y", "x"),
-        expected.astype(np.float32, copy=False),
-        {
-            "long_name": "expected (noise-free) gated receiver image",
-            "units": "photoelectrons" if scene.radiometry.photoelectrons else "1",
-        },
-    )
-    ds["target_mask"] = (
-        ("frame", "y", "x"),
-        masks.astype(np.uint8),
-        {"long_name": "pixel ray meets the target silhouette", "units": "1"},
-    )
+    for name, values in (("image", image), ("expected", expected), ("target_mask", masks)):
+        dims, dtype, attrs = table[name]
+        ds[name] = (dims, values.astype(dtype, copy=False), attrs)
     if scene.save_surface:
         n, spacing = scene.surface.grid_size, scene.surface.spacing
         elevation = (
             surface.elevation if surface is not None else np.zeros((frames, n, n), np.float32)
         )
-        ds["surface_elevation"] = (
-            ("frame", "sy", "sx"),
-            elevation.astype(np.float32),
-            {"long_name": "sea surface elevation", "units": "m"},
-        )
+        dims, dtype, attrs = table["surface_elevation"]
+        ds["surface_elevation"] = (dims, elevation.astype(dtype), attrs)
         axis = np.arange(n) * spacing
-        ds = ds.assign_coords(
-            sx=("sx", axis, {"long_name": "surface grid east", "units": "m"}),
-            sy=("sy", axis, {"long_name": "surface grid north", "units": "m"}),
-        )
+        ds = ds.assign_coords(sx=("sx", axis, table["sx"][2]), sy=("sy", axis, table["sy"][2]))
     return ds
