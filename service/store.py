@@ -1,6 +1,6 @@
 """The sweep's zarr store: template, region writes, completion records.
 
-Layout (DESIGN §4): dimensions ``sample, frame, gate, y, x``, one sample per chunk. The
+Layout (README, "The dataset"): dimensions ``sample, frame, gate, y, x``, one sample per chunk. The
 template (metadata and the coordinates that do not depend on rendering) is written once with
 ``compute=False``; each task then writes whole chunks of its samples with region writes, and
 only after that sets their ``completed`` flags, so an interrupted run never marks a sample
