@@ -344,6 +344,21 @@ def _is_stale(holder: dict) -> bool:
     return False
 
 
+def _create_exclusive(fs, path: str, data: bytes) -> None:
+    """Create the file `path` holding `data`, or raise FileExistsError if it is there.
+
+    On a file system this is ``os.open`` with ``O_CREAT | O_EXCL`` (fsspec's
+    ``mode="create"`` there checks, then writes: two writers can both get through). On
+    object storage it is fsspec's conditional put (``If-None-Match``).
+    """
+    if "file" in fs.protocol:
+        descriptor = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+        with os.fdopen(descriptor, "wb") as handle:
+            handle.write(data)
+        return
+    fs.pipe_file(path, data, mode="create")
+
+
 @contextlib.contextmanager
 def writer_lock(url: str, storage_options: dict | None = None):
     """Hold the store's writer lock: one run (or ``stats``) writes a store at a time.
@@ -382,7 +397,7 @@ def writer_lock(url: str, storage_options: dict | None = None):
     for attempt in range(2):
         try:
             with storage_errors(url):
-                fs.pipe_file(lock, json.dumps(record).encode(), mode="create")
+                _create_exclusive(fs, lock, json.dumps(record).encode())
             break
         except FileExistsError:
             holder = _holder(fs, lock)

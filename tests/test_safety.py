@@ -353,3 +353,19 @@ def test_the_template_is_built_without_rendering_a_sample(tmp_path, monkeypatch)
     assert ds["image"].shape == (2, 16, 1, 1024, 1024) and ds["image"].dtype == np.float32
     assert ds["target_mask"].shape == (2, 16, 1024, 1024) and ds["target_mask"].dtype == np.uint8
     assert ds["image"].attrs["units"] == "photoelectrons"
+
+
+def test_the_local_lock_is_taken_atomically(tmp_path, monkeypatch):
+    # Two runs that both look before the other creates the lock must not both get it:
+    # here every "is it there?" answers no, so only an exclusive create refuses the second
+    # (fsspec's mode="create" checks, then writes, and would let both through).
+    from fsspec.implementations.local import LocalFileSystem
+
+    from service.sweep import SweepError
+
+    url = str(tmp_path / "race.zarr")
+    monkeypatch.setattr(LocalFileSystem, "exists", lambda self, path, **kwargs: False)
+    with store.writer_lock(url):
+        with pytest.raises(SweepError, match="locked by another run"):
+            with store.writer_lock(url):
+                pass
