@@ -136,19 +136,24 @@ def test_encircled_radius_matches_a_brute_force_fft_of_the_mtf():
         assert_allclose(got, reference, rtol=0.03, atol=spacing, err_msg=str(fraction))
 
 
+def north_up_grid(*, depth, spacing_u, spacing_v, shape):
+    """A plane grid with columns east and rows south, cell (0, 0) at the origin."""
+    return PlaneGrid(
+        depth=depth,
+        origin=(0.0, 0.0),
+        axis_u=(1.0, 0.0),
+        axis_v=(0.0, -1.0),
+        spacing_u=spacing_u,
+        spacing_v=spacing_v,
+        shape=shape,
+    )
+
+
 @pytest.mark.parametrize("factor", [1, 4, 8], ids=lambda f: f"factor{f}")
 def test_uniform_light_keeps_the_diffuse_attenuation_law(factor):
     # Wells: MTF(0) = e^(-Kz): an infinite uniform field stays uniform at e^(-Kz).
     water = WaterOptics.from_preset("coastal")
-    grid = PlaneGrid(
-        depth=8.0,
-        origin=(0.0, 0.0),
-        axis_u=(1.0, 0.0),
-        axis_v=(0.0, -1.0),
-        spacing_u=0.05,
-        spacing_v=0.06,
-        shape=(48, 64),
-    )
+    grid = north_up_grid(depth=8.0, spacing_u=0.05, spacing_v=0.06, shape=(48, 64))
     levels = Levels.around(grid, factor=factor, margin=10.0)
     spread = Spread.build(water=water, levels=levels, distance=8.0, truncation=None)
     outside = np.ones(levels.coarse.shape, np.float32)
@@ -163,15 +168,7 @@ def test_uniform_light_keeps_the_diffuse_attenuation_law(factor):
 def test_truncating_the_spread_drops_the_share_beyond_the_radius():
     # The paper's option: cut the point-spread function at its 95th percentile.
     water = WaterOptics.from_preset("coastal")
-    grid = PlaneGrid(
-        depth=10.0,
-        origin=(0.0, 0.0),
-        axis_u=(1.0, 0.0),
-        axis_v=(0.0, -1.0),
-        spacing_u=0.1,
-        spacing_v=0.1,
-        shape=(64, 64),
-    )
+    grid = north_up_grid(depth=10.0, spacing_u=0.1, spacing_v=0.1, shape=(64, 64))
     levels = Levels.around(grid, factor=4, margin=40.0)
     point = np.zeros(grid.shape, np.float32)
     point[32, 32] = 1.0 / (0.1 * 0.1)
