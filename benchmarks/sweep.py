@@ -13,7 +13,8 @@ import tempfile
 import time
 
 from service import store
-from service.run import dask_client, run_plan
+from service.cluster import dask_client
+from service.run import run_plan
 from service.stats import write_statistics
 from service.sweep import parse_sweep
 from service.tuning import tune_allocator

@@ -13,8 +13,9 @@ import sys
 
 import dask
 
-from service import store
-from service.sweep import DEFAULT_MAX_MEMORY, SweepError, human_bytes, load_sweep, shown
+from service import integrity, lock, storage, store
+from service.inputs import SweepError, shown
+from service.sweep import DEFAULT_MAX_MEMORY, human_bytes, load_sweep
 
 __all__ = ["main"]
 
@@ -176,7 +177,8 @@ def _security(args):
 
 
 def _cmd_run(args) -> int:
-    from service.run import ClusterError, describe_sample, execute
+    from service.cluster import ClusterError
+    from service.run import describe_sample, execute
 
     if args.workers is not None and args.workers < 1:
         raise SweepError("--workers must be at least 1")
@@ -234,7 +236,7 @@ def _cmd_run(args) -> int:
     if result.failed or result.rejected or result.stuck or result.stopped:
         print("statistics not written: some samples failed", file=sys.stderr)
         return EXIT_FAILURE
-    print(f"statistics: {store.stats_url(url)}", file=sys.stderr)
+    print(f"statistics: {storage.stats_url(url)}", file=sys.stderr)
     return EXIT_OK
 
 
@@ -251,11 +253,11 @@ def _print_problems(what: str, problems: list, stream=sys.stderr) -> None:
 
 
 def _open(args):
-    args.store = store.normalise(args.store, args.storage_options)
-    if not store.store_exists(args.store, args.storage_options):
+    args.store = storage.normalise(args.store, args.storage_options)
+    if not storage.store_exists(args.store, args.storage_options):
         raise SweepError(f"{args.store}: no store there")
-    attributes = store.root_attributes(args.store, args.storage_options) or {}
-    if attributes.get(store.KIND) != "samples":
+    attributes = storage.root_attributes(args.store, args.storage_options) or {}
+    if attributes.get(storage.KIND) != "samples":
         raise SweepError(f"{args.store}: not an oceanlidar samples store")
     try:
         return store.open_store(args.store, storage_options=args.storage_options)
@@ -265,14 +267,14 @@ def _open(args):
 
 def _statistics(url: str, storage_options: dict | None) -> str | None:
     """The statistics store beside `url`, if one is there."""
-    stats = store.stats_url(url)
-    attributes = store.root_attributes(stats, storage_options) or {}
-    return stats if attributes.get(store.KIND) == "statistics" else None
+    stats = storage.stats_url(url)
+    attributes = storage.root_attributes(stats, storage_options) or {}
+    return stats if attributes.get(storage.KIND) == "statistics" else None
 
 
 def _cmd_info(args) -> int:
     ds = _open(args)
-    done = int(store.completed_samples(args.store, storage_options=args.storage_options).sum())
+    done = int(integrity.completed_samples(args.store, storage_options=args.storage_options).sum())
     total = ds.sizes["sample"]
     swept = [c for c in ds.coords if "." in str(c)]
     print(f"{args.store}: {ds.attrs.get('title', '')}")
@@ -286,7 +288,7 @@ def _cmd_info(args) -> int:
     print(f"  statistics: {_statistics(args.store, args.storage_options) or '(none)'}")
     if not args.verify:
         return EXIT_OK
-    problems = store.verify(args.store, args.storage_options)
+    problems = integrity.verify(args.store, args.storage_options)
     print(f"  verified: {done - len(problems)} of {done} complete samples read back intact")
     _print_problems("damaged or missing", problems, sys.stdout)
     if problems:
@@ -299,7 +301,7 @@ def _cmd_stats(args) -> int:
     from service.stats import write_statistics
 
     _open(args)
-    with store.writer_lock(args.store, args.storage_options):
+    with lock.writer_lock(args.store, args.storage_options):
         print(write_statistics(args.store, storage_options=args.storage_options))
     return EXIT_OK
 
@@ -335,9 +337,9 @@ def _cmd_plot(args) -> int:
     from service.detect import DATASET_KIND
     from service.plots import plot_detection, plot_statistics
 
-    args.store = store.normalise(args.store, args.storage_options)
-    attributes = store.root_attributes(args.store, args.storage_options) or {}
-    if attributes.get(store.KIND) == DATASET_KIND:
+    args.store = storage.normalise(args.store, args.storage_options)
+    attributes = storage.root_attributes(args.store, args.storage_options) or {}
+    if attributes.get(storage.KIND) == DATASET_KIND:
         detection = store.open_store(args.store, storage_options=args.storage_options)
         plot_detection(detection, args.output)
         print(args.output, file=sys.stderr)
@@ -350,7 +352,7 @@ def _cmd_plot(args) -> int:
     try:
         stats = stats.load()  # small: per point and gate
     except Exception as error:
-        raise store.DamagedStoreError(
+        raise integrity.DamagedStoreError(
             f"{stats_path}: a chunk cannot be read ({type(error).__name__}); run "
             f"`oceanlidar stats {args.store}` to write the statistics again"
         ) from None
@@ -388,7 +390,7 @@ def main(argv=None) -> int:
     except SweepError as error:
         print(f"oceanlidar {args.command}: error: {_capped(str(error))}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except store.DamagedStoreError as error:
+    except integrity.DamagedStoreError as error:
         print(f"oceanlidar {args.command}: error: {error}", file=sys.stderr)
         return EXIT_FAILURE
     except KeyboardInterrupt:

@@ -28,8 +28,9 @@ import dask
 import numpy as np
 import xarray as xr
 
-from service import store
-from service.sweep import SweepError, parse_sweep
+from service import storage, store
+from service.inputs import SweepError
+from service.sweep import parse_sweep
 from workers.detection import DETECTORS, MIN_FALSE_ALARMS, evaluate_pair, held_out, roc_curve
 
 __all__ = ["PFA", "detection_url", "pair_points", "write_detection"]
@@ -363,10 +364,10 @@ def write_detection(
     _check_store(ds, url)
     pairs, unpaired = pair_points(ds)
     target = output or detection_url(url)
-    if target.rstrip("/") == url.rstrip("/") or target.rstrip("/") == store.stats_url(url):
+    if target.rstrip("/") == url.rstrip("/") or target.rstrip("/") == storage.stats_url(url):
         raise SweepError(f"--output {target}: that is the sweep's own store or its statistics")
     # an earlier detection dataset is replaced, anything else refused, before any work
-    old = store.removable_files(target, storage_options, kind=DATASET_KIND)
+    old = storage.removable_files(target, storage_options, kind=DATASET_KIND)
     realisations = int(ds.attrs["realisations"])
     test = held_out(realisations)
     plan = None if "expected" in ds else _sweep_plan(ds, url)
@@ -384,6 +385,6 @@ def write_detection(
         detection.to_zarr(
             partial, mode="w-", consolidated=True, zarr_format=3, storage_options=storage_options
         )
-    store.remove_files(target, storage_options, old)
-    store.move(partial, target, storage_options)
+    storage.remove_files(target, storage_options, old)
+    storage.move(partial, target, storage_options)
     return target, unpaired

@@ -17,7 +17,8 @@ import numpy as np
 import xarray as xr
 from PIL import Image
 
-from service.sweep import Plan, SweepError
+from service.inputs import SweepError
+from service.sweep import Plan
 from workers.render import render
 from workers.seeds import SampleSeed
 

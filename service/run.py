@@ -1,7 +1,7 @@
-"""Run a sweep on dask: an embedded LocalCluster on loopback, or an existing cluster.
+"""Run a sweep on dask (on the client of `service.cluster`), then write its statistics.
 
 Samples are grouped into tasks of consecutive samples; each task renders its samples and
-writes them as whole chunks (`service.store.write_samples`). Submission is bounded: at most
+writes them as whole chunks (`service.integrity.write_samples`). Submission is bounded: at most
 a few tasks per worker thread are in flight, so the client's memory stays flat whatever the
 sweep's size. Results never depend on worker count, order or retries: every sample's random
 streams are keyed by its position (`workers.seeds.SampleSeed`) and a retried task rewrites
@@ -10,30 +10,28 @@ the same bytes.
 
 from __future__ import annotations
 
-import contextlib
 import errno
 import functools
 import hashlib
-import logging
-import os
-import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
-from distributed import Client, LocalCluster, wait
+from distributed import Client, wait
 
-from service import store
+from service import integrity, lock, storage, store
+from service.cluster import ClusterError, dask_client
+from service.inputs import SweepError, shown
+from service.progress import Progress
 from service.stats import write_statistics
-from service.sweep import Plan, SweepError, shown
+from service.sweep import Plan
 from service.tuning import tune_allocator
 from workers.render import render
 from workers.scene import Scene
 from workers.seeds import SampleSeed
 
 __all__ = [
-    "ClusterError",
     "RunResult",
     "describe_sample",
     "execute",
@@ -73,7 +71,7 @@ def render_batch(url, start, jobs, storage_options=None):
     Returns
     -------
     list of tuple
-        ``(sample, reason)`` for every sample rejected by `service.store.invalid_values`:
+        ``(sample, reason)`` for every sample rejected by `service.integrity.invalid_values`:
         those are neither written nor marked complete; the valid samples around them are.
     """
     tune_allocator()
@@ -85,16 +83,16 @@ def render_batch(url, start, jobs, storage_options=None):
             Scene.model_validate_json(scene),
             seed=SampleSeed(root=root, point=point, realisation=realisation),
         )
-        reason = store.invalid_values(sample)
+        reason = integrity.invalid_values(sample)
         if reason is None:
             valid.append(sample)
             continue
         rejected.append((start + offset, reason))
         if valid:
-            store.write_samples(group, first, valid)
+            integrity.write_samples(group, first, valid)
         first, valid = start + offset + 1, []
     if valid:
-        store.write_samples(group, first, valid)
+        integrity.write_samples(group, first, valid)
     return rejected
 
 
@@ -133,17 +131,13 @@ def task_batches(plan: Plan, todo, batch_size: int) -> Iterator[tuple[int, list]
         yield start, run
 
 
-class ClusterError(RuntimeError):
-    """The dask cluster cannot be reached or used."""
-
-
 @dataclass
 class RunResult:
     """What a run did.
 
     ``failed`` holds ``(start, count, error)`` for tasks that raised or lost their worker;
     ``rejected`` holds ``(sample, reason)`` for samples rendered with invalid values
-    (`service.store.invalid_values`), neither written nor marked complete; ``damaged``
+    (`service.integrity.invalid_values`), neither written nor marked complete; ``damaged``
     holds ``(sample, reason)`` for samples that ``verify`` found damaged and recomputed;
     ``stuck`` holds ``(start, count)`` for tasks given up after the task timeout;
     ``stopped`` says why a run stopped early (a storage failure no retry cures).
@@ -160,86 +154,6 @@ class RunResult:
     seconds: float = 0.0
     interrupted: bool = False
     max_in_flight: int = 0
-
-
-class Progress:
-    """A progress line on stderr: samples done, samples/s, time left."""
-
-    def __init__(self, total: int, already: int, stream=None):
-        self.total = total
-        self.done = already
-        self.fresh = 0
-        self.start = time.monotonic()
-        self.stream = stream or sys.stderr
-        self.last = 0.0
-        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
-
-    def update(self, count: int) -> None:
-        """Count `count` more samples done."""
-        self.done += count
-        self.fresh += count
-        now = time.monotonic()
-        if now - self.last < (0.2 if self.tty else 5.0) and self.done < self.total:
-            return
-        self.last = now
-        elapsed = max(now - self.start, 1e-9)
-        rate = self.fresh / elapsed
-        left = (self.total - self.done) / rate if rate > 0 else float("inf")
-        width = 30
-        filled = int(width * self.done / max(self.total, 1))
-        bar = "#" * filled + "-" * (width - filled)
-        line = (
-            f"[{bar}] {self.done}/{self.total} samples  {rate:.2f} samples/s  "
-            f"left {_duration(left)}"
-        )
-        self.stream.write(("\r" + line) if self.tty else line + "\n")
-        self.stream.flush()
-
-    def close(self) -> None:
-        """End the progress line."""
-        if self.tty:
-            self.stream.write("\n")
-            self.stream.flush()
-
-
-def _duration(seconds: float) -> str:
-    if seconds == float("inf"):
-        return "?"
-    seconds = round(seconds)
-    hours, rest = divmod(seconds, 3600)
-    minutes, secs = divmod(rest, 60)
-    return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes}:{secs:02d}"
-
-
-@contextlib.contextmanager
-def dask_client(*, workers: int | None, scheduler: str | None, security=None):
-    """A client for an existing scheduler, or for an embedded LocalCluster on 127.0.0.1.
-
-    `security` (a `distributed.Security`) defaults to dask's configuration, where TLS
-    files and ``require-encryption`` can be set (``DASK_DISTRIBUTED__COMM__...``).
-    """
-    if scheduler is not None:
-        try:
-            client = Client(scheduler, security=security, timeout="30s")
-        except (OSError, TimeoutError, ValueError) as error:
-            raise ClusterError(
-                f"cannot connect to the scheduler at {scheduler}: {error}"
-            ) from None
-        with client:
-            yield client
-        return
-    with (
-        LocalCluster(
-            n_workers=workers or os.cpu_count() or 1,
-            threads_per_worker=1,
-            processes=True,
-            host="127.0.0.1",
-            dashboard_address=None,
-            silence_logs=logging.CRITICAL,
-        ) as cluster,
-        Client(cluster) as client,
-    ):
-        yield client
 
 
 def run_plan(
@@ -265,7 +179,7 @@ def run_plan(
     run at once, with one message in ``stopped``.
     """
     if resume:
-        done = store.completed_samples(url, storage_options=storage_options)
+        done = integrity.completed_samples(url, storage_options=storage_options)
         todo = np.flatnonzero(~done)
     else:
         todo = range(plan.samples)  # lazy: the client holds no per-sample list
@@ -391,22 +305,24 @@ def _check_output(plan: Plan, url: str, *, resume, overwrite, storage_options) -
     -------
     tuple of (bool, list, list)
         Whether an existing store is resumed, and the files of the old store and of its
-        statistics that ``--overwrite`` deletes (`service.store.removable_files`).
+        statistics that ``--overwrite`` deletes (`service.storage.removable_files`).
 
     Raises
     ------
     SweepError
         If the output or the statistics path holds something this run may not replace.
     """
-    stats_files = store.removable_files(store.stats_url(url), storage_options, kind="statistics")
-    if not store.occupied(url, storage_options):
+    stats_files = storage.removable_files(
+        storage.stats_url(url), storage_options, kind="statistics"
+    )
+    if not storage.occupied(url, storage_options):
         return False, [], []
     if not resume and not overwrite:
         raise SweepError(f"{url} already exists; pass --resume to complete it or --overwrite")
     if overwrite:
-        return False, store.removable_files(url, storage_options, kind="samples"), stats_files
-    previous = store.root_attributes(url, storage_options) or {}
-    if previous.get(store.KIND) != "samples":
+        return False, storage.removable_files(url, storage_options, kind="samples"), stats_files
+    previous = storage.root_attributes(url, storage_options) or {}
+    if previous.get(storage.KIND) != "samples":
         raise SweepError(f"{url} is not an oceanlidar samples store; cannot resume into it")
     if previous.get("sweep_sha256") != plan.digest:
         raise SweepError(
@@ -440,35 +356,35 @@ def execute(
     """Create (or reopen) the store, run the missing samples and write the statistics.
 
     With `resume` and `verify`, every completed sample is read back first
-    (`service.store.verify`) and the damaged ones are rendered again with the missing ones.
+    (`service.integrity.verify`) and the damaged ones are rendered again with the missing ones.
 
     Everything is checked before anything is deleted or written, once before taking the
     store's writer lock (so a refused run leaves no trace) and again holding it (another
     run may have changed the output meanwhile).
     """
-    url = store.normalise(url, storage_options)
+    url = storage.normalise(url, storage_options)
     options = {"resume": resume, "overwrite": overwrite, "storage_options": storage_options}
-    with store.storage_errors(url):
+    with storage.storage_errors(url):
         _check_output(plan, url, **options)
-    with store.writer_lock(url, storage_options) as token:
-        with store.storage_errors(url):
+    with lock.writer_lock(url, storage_options) as token:
+        with storage.storage_errors(url):
             resuming, old_files, old_stats = _check_output(plan, url, **options)
         # connect before touching storage: an unreachable cluster leaves everything as it was
         with dask_client(workers=workers, scheduler=scheduler, security=security) as client:
-            probe = client.submit(store.check_workers_see, url, storage_options, token, pure=False)
+            probe = client.submit(lock.check_workers_see, url, storage_options, token, pure=False)
             try:
                 probe.result(timeout=PROBE_TIMEOUT)
             except TimeoutError:
                 raise ClusterError(
                     f"no worker answered within {PROBE_TIMEOUT} s (are any connected?)"
                 ) from None
-            with store.storage_errors(url):
-                store.remove_files(store.stats_url(url), storage_options, old_stats)
-                store.remove_files(url, storage_options, old_files)
+            with storage.storage_errors(url):
+                storage.remove_files(storage.stats_url(url), storage_options, old_stats)
+                storage.remove_files(url, storage_options, old_files)
                 if not resuming:
                     store.create_store(plan, url, storage_options=storage_options)
-            damaged = store.verify(url, storage_options) if resuming and verify else []
-            store.mark_incomplete(url, [sample for sample, _ in damaged], storage_options)
+            damaged = integrity.verify(url, storage_options) if resuming and verify else []
+            integrity.mark_incomplete(url, [sample for sample, _ in damaged], storage_options)
             result = run_plan(
                 plan,
                 url,

@@ -1,6 +1,6 @@
 """Statistics of a sweep, per parameter point and gate.
 
-The statistics dataset sits beside the store (`service.store.stats_url`). One dask task per
+The statistics dataset sits beside the store (`service.storage.stats_url`). One dask task per
 group of parameter points reads those points' samples (never the whole store), reduces them
 over realisations and frames with numpy, and writes its points' whole chunks of the
 statistics store, exactly as rendering tasks write the sample store. Samples not yet
@@ -29,8 +29,8 @@ import numpy as np
 import xarray as xr
 from scipy.ndimage import maximum_filter
 
-from service import store
-from service.sweep import SweepError
+from service import integrity, storage, store
+from service.inputs import SweepError
 
 __all__ = ["RING_FRACTION", "point_statistics", "write_statistics"]
 
@@ -148,7 +148,7 @@ def _template(ds: xr.Dataset) -> xr.Dataset:
         Conventions=store.CONVENTIONS,
         sweep_sha256=ds.attrs.get("sweep_sha256", ""),
         oceanlidar_version=store.package_version(),
-        **{store.KIND: "statistics"},
+        **{storage.KIND: "statistics"},
     )
     return stats
 
@@ -167,10 +167,10 @@ def _reduce_points(url, target, points, done, realisations, storage_options):
         first = point * realisations
         picks = [first + int(i) for i in written]
         stats = point_statistics(
-            image=store.read_samples(source["image"], picks),
-            expected=store.read_samples(source["expected"], picks),
-            mask=store.read_samples(source["target_mask"], picks).astype(bool),
-            visibility=store.read_samples(source["target_visibility"], picks),
+            image=integrity.read_samples(source["image"], picks),
+            expected=integrity.read_samples(source["expected"], picks),
+            mask=integrity.read_samples(source["target_mask"], picks).astype(bool),
+            visibility=integrity.read_samples(source["target_visibility"], picks),
         )
         for name, value in stats.items():
             sink[name][point] = value
@@ -183,7 +183,7 @@ def write_statistics(url: str, *, storage_options: dict | None = None) -> str:
 
     The new statistics are written to a fresh store beside the old ones and moved into
     place only when complete: a failure leaves the previous statistics as they were. The
-    caller holds the sample store's writer lock (`service.store.writer_lock`). Runs on the
+    caller holds the sample store's writer lock (`service.lock.writer_lock`). Runs on the
     dask client in use (the sweep's cluster), or on local threads.
 
     Returns
@@ -197,21 +197,21 @@ def write_statistics(url: str, *, storage_options: dict | None = None) -> str:
         If the statistics path holds something other than oceanlidar statistics.
     """
     ds = store.open_store(url, storage_options=storage_options)
-    target = store.stats_url(url)
-    old = store.removable_files(target, storage_options, kind="statistics")
+    target = storage.stats_url(url)
+    old = storage.removable_files(target, storage_options, kind="statistics")
     partial = f"{target.rstrip('/')}.partial-{uuid.uuid4().hex[:12]}"
     try:
         _compute(ds, url, partial, storage_options)
     except BaseException:
         with contextlib.suppress(SweepError, OSError):  # best effort: it is not in place
-            store.remove_files(
+            storage.remove_files(
                 partial,
                 storage_options,
-                store.removable_files(partial, storage_options, kind="statistics"),
+                storage.removable_files(partial, storage_options, kind="statistics"),
             )
         raise
-    store.remove_files(target, storage_options, old)
-    store.move(partial, target, storage_options)
+    storage.remove_files(target, storage_options, old)
+    storage.move(partial, target, storage_options)
     return target
 
 
@@ -234,7 +234,7 @@ def _compute(ds: xr.Dataset, url: str, target: str, storage_options: dict | None
     points = int(ds.attrs["points"])
     realisations = int(ds.attrs["realisations"])
     # the flags from one listing, not one read per sample
-    done = store.completed_samples(url, storage_options=storage_options)
+    done = integrity.completed_samples(url, storage_options=storage_options)
     tasks = [
         dask.delayed(_reduce_points)(
             url,

@@ -1,68 +1,44 @@
-"""The sweep's zarr store: template, region writes, completion records.
+"""The sweep's zarr store: its layout and template.
 
 Layout (README, "The dataset"): dimensions ``sample, frame, gate, y, x``, one sample per chunk. The
 template (metadata and the coordinates that do not depend on rendering) is written once with
 ``compute=False``; each task then writes whole chunks of its samples with region writes, and
 only after that sets their ``completed`` flags, so an interrupted run never marks a sample
-complete that is not written.
+complete that is not written (`service.integrity`). Where stores live and what may be
+deleted: `service.storage`; the writer's lock: `service.lock`.
 """
 
 from __future__ import annotations
 
 import contextlib
-import datetime
 import json
-import os
-import re
-import socket
-import uuid
 import warnings
-import zlib
 from importlib.metadata import PackageNotFoundError, version
 
 import dask.array as da
-import fsspec
 import numpy as np
 import xarray as xr
 import zarr
 from zarr.codecs import Crc32cCodec, ZstdCodec
 
-from service.sweep import Plan, SweepError, field_units, shown
+from service.inputs import SweepError
+from service.schema import field_units
+from service.storage import KIND, LOCK_NAME
+from service.sweep import Plan
 from workers.labels import rendered_variables
 from workers.render import render, sample_labels
 from workers.seeds import SampleSeed
 
 __all__ = [
     "CODECS",
-    "KIND",
-    "LOCK_NAME",
     "RENDERED_VARIABLES",
-    "DamagedStoreError",
     "check_uniform",
-    "check_workers_see",
-    "completed_samples",
     "create_store",
-    "invalid_values",
     "lazy_array",
-    "mark_incomplete",
-    "move",
-    "normalise",
-    "occupied",
     "one_per_chunk",
     "open_group",
     "open_store",
-    "read_samples",
-    "removable_files",
-    "remove_files",
-    "root_attributes",
-    "sample_checksum",
     "sample_dataset",
-    "stats_url",
-    "storage_errors",
-    "store_exists",
-    "verify",
-    "write_samples",
-    "writer_lock",
 ]
 
 RENDERED_VARIABLES = ("image", "expected", "target_mask", "surface_elevation")
@@ -72,10 +48,6 @@ FLAT_CHUNK_KEYS = {"name": "default", "separator": "."}
 """Chunk files named c.4.0.0.0.0 in the array's folder: one file per chunk, no folders to
 create (each folder costs as much as a small file on the file systems measured)."""
 CONVENTIONS = "CF-1.10"
-KIND = "oceanlidar_dataset"
-"""Root attribute naming what a store holds: ``samples`` (a sweep) or ``statistics``."""
-LOCK_NAME = "oceanlidar.lock"
-"""The writer's lock, a file in the store (see `writer_lock`)."""
 CODECS = (ZstdCodec(), Crc32cCodec())
 """Compression, then a CRC32C checksum of every chunk: a damaged chunk fails to decode
 instead of reading as other numbers."""
@@ -88,7 +60,8 @@ def consolidated_v3():
     zarr-python warns that consolidated metadata is not yet part of the v3 specification;
     we keep it because opening a store then costs one read (it matters on object storage),
     and zarr-python, which we pin, reads it. Consolidating lists the store, where zarr
-    notices the writer's lock (`writer_lock`), which is not part of the hierarchy by design.
+    notices the writer's lock (`service.lock.writer_lock`), which is not part of the
+    hierarchy by design.
     """
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="Consolidated metadata is currently not part")
@@ -104,21 +77,6 @@ def package_version() -> str:
         return "unknown"
 
 
-def stats_url(url: str) -> str:
-    """Where the statistics dataset of the store at `url` lives (beside it)."""
-    stem = url.rstrip("/")
-    if stem.endswith(".zarr"):
-        stem = stem[: -len(".zarr")]
-    return stem + ".stats.zarr"
-
-
-def _fs(url: str, storage_options: dict | None):
-    try:
-        return fsspec.core.url_to_fs(url, **(storage_options or {}))
-    except (TypeError, ValueError, ImportError) as error:
-        raise SweepError(f"{url}: cannot open with these storage options ({error})") from None
-
-
 def lazy_array(shape: tuple, fill, dtype) -> da.Array:
     """A dask array standing for data the template does not write (few, large chunks).
 
@@ -131,292 +89,6 @@ def lazy_array(shape: tuple, fill, dtype) -> da.Array:
 def one_per_chunk(shape: tuple) -> dict:
     """Zarr encoding: one leading index (sample or point) per chunk, flat keys, checksums."""
     return {"chunks": (1, *shape), "chunk_key_encoding": FLAT_CHUNK_KEYS, "compressors": CODECS}
-
-
-def store_exists(url: str, storage_options: dict | None = None) -> bool:
-    """Whether anything is stored at `url`."""
-    fs, path = _fs(url, storage_options)
-    return fs.exists(path)
-
-
-def _files(fs, path: str) -> list[str]:
-    """Every file under `path`, relative to it (a file at `path` itself is named '.')."""
-    if fs.isfile(path):
-        return ["."]
-    root = path.rstrip("/") + "/"
-    return sorted(name[len(root) :] for name in fs.find(path) if name.startswith(root))
-
-
-def occupied(url: str, storage_options: dict | None = None) -> bool:
-    """Whether `url` holds anything besides a writer's lock."""
-    fs, path = _fs(url, storage_options)
-    return any(name != LOCK_NAME for name in _files(fs, path))
-
-
-def root_attributes(url: str, storage_options: dict | None = None) -> dict | None:
-    """The attributes of the zarr group at `url`; None if there is no readable group."""
-    fs, path = _fs(url, storage_options)
-    try:
-        metadata = json.loads(fs.cat_file(f"{path}/zarr.json"))
-    except (OSError, ValueError):
-        return None
-    if not isinstance(metadata, dict) or metadata.get("node_type") != "group":
-        return None
-    attributes = metadata.get("attributes")
-    return attributes if isinstance(attributes, dict) else None
-
-
-def _shown(names: list[str]) -> str:
-    more = f" and {len(names) - 1} more" if len(names) > 1 else ""
-    return repr(names[0][:200]) + more
-
-
-def removable_files(url: str, storage_options: dict | None, *, kind: str) -> list[str]:
-    """The files of the `kind` dataset at `url`, which may be deleted to replace it.
-
-    Only what the store's own metadata lists may go: its group and array metadata, and
-    chunk keys of the arrays that its consolidated metadata names. Anything else in the
-    folder (a user's file, a store of another kind) refuses the whole deletion, before
-    anything is deleted.
-
-    Parameters
-    ----------
-    url : str
-        The store.
-    storage_options : dict or None
-        fsspec options.
-    kind : {'samples', 'statistics', 'detection'}
-        What the store must hold (its `KIND` attribute).
-
-    Returns
-    -------
-    list of str
-        Paths relative to the store, the writer's lock excluded; empty if nothing is there.
-
-    Raises
-    ------
-    SweepError
-        If something is there that is not such a store, or holds files it does not list.
-    """
-    fs, path = _fs(url, storage_options)
-    files = [name for name in _files(fs, path) if name != LOCK_NAME]
-    if not files:
-        return []
-    attributes = root_attributes(url, storage_options) or {}
-    if attributes.get(KIND) != kind:
-        raise SweepError(
-            f"{url} exists and is not an oceanlidar {kind} store; refusing to delete it"
-        )
-    metadata = json.loads(fs.cat_file(f"{path}/zarr.json"))
-    arrays = (metadata.get("consolidated_metadata") or {}).get("metadata") or {}
-    listed = re.compile(
-        r"zarr\.json|(?:"
-        + "|".join(re.escape(name) for name in arrays)
-        + r")/(?:zarr\.json|c(?:[./]\d+)*)"
-    )
-    strangers = [name for name in files if not listed.fullmatch(name)]
-    if strangers:
-        raise SweepError(
-            f"{url} holds {_shown(strangers)}, which the store's metadata does not list; "
-            "refusing to delete it (move those files away first)"
-        )
-    return files
-
-
-def remove_files(url: str, storage_options: dict | None, files: list[str]) -> None:
-    """Delete `files` (from `removable_files`) of the store at `url`, and emptied folders."""
-    fs, path = _fs(url, storage_options)
-    if not files:
-        return
-    fs.rm([f"{path}/{name}" for name in files])
-    if "file" in fs.protocol:
-        folders = {os.path.dirname(f"{path}/{name}") for name in files}
-        for folder in sorted(folders, key=len, reverse=True):
-            with contextlib.suppress(OSError):  # not empty: the lock, or a folder above
-                os.rmdir(folder)
-
-
-def move(url: str, to: str, storage_options: dict | None = None) -> None:
-    """Move the store at `url` to `to` (same file system; nothing may be at `to`).
-
-    On a file system this is one rename. Object storage has no rename: objects are copied,
-    the group's metadata last (until it lands, nothing reads as a store at `to`), then
-    deleted at `url`.
-    """
-    fs, path = _fs(url, storage_options)
-    target = _fs(to, storage_options)[1]
-    if "file" in fs.protocol:
-        os.rename(path, target)
-        return
-    names = sorted(_files(fs, path), key=lambda name: name == "zarr.json")
-    fs.copy([f"{path}/{name}" for name in names], [f"{target}/{name}" for name in names])
-    fs.rm([f"{path}/{name}" for name in names])
-
-
-def normalise(url: str, storage_options: dict | None = None) -> str:
-    """The output as every process reads it: a local path absolute with ``~`` expanded.
-
-    ``file://`` URLs become paths. A path is resolved here, in the runner, because zarr on
-    the workers neither expands ``~`` nor shares the runner's working directory.
-
-    Raises
-    ------
-    SweepError
-        For storage options given with a local path (they apply to URLs only).
-    """
-    protocol, path = fsspec.core.split_protocol(url)
-    if protocol not in (None, "file", "local"):
-        return url
-    if storage_options:
-        raise SweepError(
-            f"--storage-options apply to URLs such as s3://bucket/run.zarr, not to the local "
-            f"path {shown(url)}"
-        )
-    return os.path.abspath(os.path.expanduser(path))
-
-
-def _storage_failures() -> tuple[type[BaseException], ...]:
-    """`OSError`, and what S3 clients raise untranslated (an unreachable endpoint)."""
-    try:
-        from botocore.exceptions import BotoCoreError
-    except ImportError:  # no S3 support installed: fsspec raises OSError alone
-        return (OSError,)
-    return (OSError, BotoCoreError)
-
-
-@contextlib.contextmanager
-def storage_errors(url: str):
-    """Turn a failure to reach or write storage into a `SweepError` naming `url`.
-
-    ``FileExistsError`` passes through: the writer's lock tells it from a failure.
-    """
-    try:
-        yield
-    except FileExistsError:
-        raise
-    except _storage_failures() as error:
-        reason = getattr(error, "strerror", None) or str(error) or type(error).__name__
-        raise SweepError(f"{shown(url)} cannot be written: {reason[:200]}") from None
-
-
-def check_workers_see(url: str, storage_options: dict | None, token: str) -> None:
-    """Check, on a worker, that the store the runner locked is there and writable.
-
-    Run this as a dask task before any sample is rendered: a worker that sees another file
-    system (``memory://``, a disk of its own machine) does not find the lock's token.
-
-    Raises
-    ------
-    SweepError
-        If the worker does not see the lock, or cannot write beside it.
-    """
-    fs, path = _fs(url, storage_options)
-    with storage_errors(url):
-        if _holder(fs, f"{path}/{LOCK_NAME}").get("token") != token:
-            raise SweepError(
-                f"the workers do not see the store {shown(url)} that the runner created "
-                "(another machine's disk, or a store in one process's memory?): write to "
-                "storage every worker shares, such as an object-store URL"
-            )
-        probe = f"{path}/oceanlidar.probe-{uuid.uuid4().hex}"
-        fs.pipe_file(probe, b"")
-        fs.rm(probe)
-
-
-def _holder(fs, lock: str) -> dict:
-    try:
-        holder = json.loads(fs.cat_file(lock))
-    except (OSError, ValueError):
-        return {}
-    return holder if isinstance(holder, dict) else {}
-
-
-def _is_stale(holder: dict) -> bool:
-    """A lock taken on this machine by a process that no longer runs."""
-    if holder.get("host") != socket.gethostname() or not isinstance(holder.get("pid"), int):
-        return False
-    try:
-        os.kill(holder["pid"], 0)
-    except ProcessLookupError:
-        return True
-    except OSError:  # alive, owned by another user
-        return False
-    return False
-
-
-def _create_exclusive(fs, path: str, data: bytes) -> None:
-    """Create the file `path` holding `data`, or raise FileExistsError if it is there.
-
-    On a file system this is ``os.open`` with ``O_CREAT | O_EXCL`` (fsspec's
-    ``mode="create"`` there checks, then writes: two writers can both get through). On
-    object storage it is fsspec's conditional put (``If-None-Match``).
-    """
-    if "file" in fs.protocol:
-        descriptor = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
-        with os.fdopen(descriptor, "wb") as handle:
-            handle.write(data)
-        return
-    fs.pipe_file(path, data, mode="create")
-
-
-@contextlib.contextmanager
-def writer_lock(url: str, storage_options: dict | None = None):
-    """Hold the store's writer lock: one run (or ``stats``) writes a store at a time.
-
-    The lock is the file `LOCK_NAME` in the store, created only if absent (an exclusive
-    create: ``O_EXCL`` on a file system, a conditional ``If-None-Match`` put on object
-    storage), holding the holder's host, process id and start time. It is removed on exit.
-
-    A lock left by a process that died on this machine is taken over. A lock left by a
-    machine that crashed cannot be told from a live run elsewhere: the message names the
-    file to remove once no run is writing.
-
-    Yields
-    ------
-    str
-        The lock's token (`check_workers_see` looks for it).
-
-    Raises
-    ------
-    SweepError
-        If another run holds the lock, or the store's place cannot be written.
-    """
-    fs, path = _fs(url, storage_options)
-    lock = f"{path}/{LOCK_NAME}"
-    token = uuid.uuid4().hex
-    record = {
-        "host": socket.gethostname(),
-        "pid": os.getpid(),
-        "since": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-        "token": token,
-    }
-    with storage_errors(url):
-        created = not fs.exists(path)
-        if "file" in fs.protocol:
-            fs.makedirs(path, exist_ok=True)
-    for attempt in range(2):
-        try:
-            with storage_errors(url):
-                _create_exclusive(fs, lock, json.dumps(record).encode())
-            break
-        except FileExistsError:
-            holder = _holder(fs, lock)
-            if attempt == 0 and _is_stale(holder):
-                fs.rm(lock)
-                continue
-            raise SweepError(
-                f"{url} is locked by another run (host {holder.get('host', '?')}, process "
-                f"{holder.get('pid', '?')}, since {holder.get('since', '?')}); wait for it, "
-                f"or, if no run is writing there any more, delete {lock} and try again"
-            ) from None
-    try:
-        yield token
-    finally:
-        if _holder(fs, lock).get("token") == token:
-            fs.rm(lock)
-        if created and "file" in fs.protocol:
-            with contextlib.suppress(OSError):  # holds a store now
-                os.rmdir(path)
 
 
 def check_uniform(plan: Plan) -> None:
@@ -585,79 +257,6 @@ def open_store(
         )
 
 
-def _chunk_samples(fs, folder: str) -> set[int]:
-    """Sample indices of the chunks stored in an array's folder (flat keys ``c.S...``)."""
-    return {
-        int(name.split(".")[1])
-        for name in _files(fs, folder)
-        if name.startswith("c.") and name.split(".")[1].isdigit()
-    }
-
-
-def completed_samples(url: str, *, storage_options: dict | None = None) -> np.ndarray:
-    """Boolean array: which samples are written.
-
-    A sample's completion flag is a chunk of its own, and a flag of 0 is no chunk at all
-    (zarr stores no chunk that holds only the fill value), so the flags are read from one
-    listing of the ``completed`` array, not from one read per sample.
-    """
-    fs, path = _fs(url, storage_options)
-    attributes = root_attributes(url, storage_options) or {}
-    done = np.zeros(int(attributes["points"]) * int(attributes["realisations"]), dtype=bool)
-    done[sorted(_chunk_samples(fs, f"{path}/completed"))] = True
-    return done
-
-
-def sample_checksum(arrays: list[np.ndarray]) -> int:
-    """CRC-32 of a sample's rendered arrays, in `RENDERED_VARIABLES` order."""
-    crc = 0
-    for values in arrays:
-        crc = zlib.crc32(np.ascontiguousarray(values).tobytes(), crc)
-    return crc
-
-
-def verify(url: str, storage_options: dict | None = None) -> list[tuple[int, str]]:
-    """The samples marked complete whose chunks are missing, damaged or not theirs.
-
-    Every chunk of every completed sample is read back (the CRC32C codec finds a damaged
-    chunk) and the sample's arrays are compared with the checksum its task recorded
-    (which finds a chunk deleted, or swapped with another sample's).
-
-    Returns
-    -------
-    list of tuple
-        ``(sample, reason)``, by sample index.
-    """
-    fs, path = _fs(url, storage_options)
-    group = zarr.open_group(
-        store=url, mode="r", zarr_format=3, use_consolidated=True, storage_options=storage_options
-    )
-    names = [name for name in RENDERED_VARIABLES if name in group]
-    stored = {name: _chunk_samples(fs, f"{path}/{name}") for name in [*names, "checksum"]}
-    problems = []
-    for sample in np.flatnonzero(completed_samples(url, storage_options=storage_options)):
-        missing = [name for name, samples in stored.items() if sample not in samples]
-        if missing:
-            problems.append((int(sample), f"no {' or '.join(missing)} chunk"))
-            continue
-        try:
-            crc = sample_checksum([group[name][sample] for name in names])
-            recorded = int(group["checksum"][sample])
-        except Exception as error:
-            problems.append((int(sample), f"a chunk cannot be read ({type(error).__name__})"))
-            continue
-        if crc != recorded:
-            problems.append((int(sample), "its chunks do not match its checksum"))
-    return problems
-
-
-def mark_incomplete(url: str, samples: list[int], storage_options: dict | None = None) -> None:
-    """Clear the completion flags of `samples`, so that a resumed run renders them again."""
-    completed = open_group(url, storage_options)["completed"]
-    for sample in samples:
-        completed[sample] = 0
-
-
 def open_group(url: str, storage_options: dict | None = None):
     """A store's zarr group, for whole-chunk writes into arrays the template created."""
     return zarr.open_group(
@@ -667,78 +266,3 @@ def open_group(url: str, storage_options: dict | None = None):
         use_consolidated=False,
         storage_options=storage_options,
     )
-
-
-NON_NEGATIVE = ("image", "expected")
-"""Rendered variables that are counts or intensities: never below zero."""
-
-
-def invalid_values(sample: xr.Dataset) -> str | None:
-    """Why a rendered sample may not be stored, or None if every value is valid.
-
-    Floating-point variables must be finite, counts and intensities non-negative and
-    the target mask 0 or 1: a sample that breaks any of these is never written nor marked
-    complete.
-    """
-    for name in RENDERED_VARIABLES:
-        if name not in sample:
-            continue
-        values = sample[name].values
-        if values.dtype.kind == "f" and not np.isfinite(values).all():
-            count = int(np.count_nonzero(~np.isfinite(values)))
-            return f"{name} holds {count} non-finite value(s) (NaN or inf)"
-        if name in NON_NEGATIVE and (values < 0).any():
-            return f"{name} holds {int(np.count_nonzero(values < 0))} negative value(s)"
-        if name == "target_mask" and (values > 1).any():
-            return "target_mask holds values other than 0 and 1"
-    return None
-
-
-class DamagedStoreError(RuntimeError):
-    """A chunk of a store cannot be read back: the message names the sample."""
-
-
-def read_samples(array, samples: list[int]) -> np.ndarray:
-    """The chunks of `samples` from a one-sample-per-chunk array.
-
-    Raises
-    ------
-    DamagedStoreError
-        Naming the first sample whose chunk fails to decode (a checksum that does not
-        match, truncated or foreign bytes).
-    """
-    try:
-        return array.get_orthogonal_selection((samples,))
-    except Exception:
-        for sample in samples:
-            try:
-                array[sample]
-            except Exception as error:
-                raise DamagedStoreError(
-                    f"sample {sample}: its {array.basename} chunk cannot be read "
-                    f"({type(error).__name__}: {str(error)[:120]}); run the sweep again with "
-                    "--resume --verify to recompute it"
-                ) from None
-        raise
-
-
-def write_samples(group, start: int, samples: list[xr.Dataset]) -> None:
-    """Write consecutive rendered samples' whole chunks, then mark them complete.
-
-    Writes go straight to the zarr arrays the template created (one chunk per sample per
-    variable), one call per variable for the whole batch: xarray's region writes re-read
-    the store's metadata on every call, which costs more than rendering a small sample.
-    """
-    region = slice(start, start + len(samples))
-    names = [name for name in RENDERED_VARIABLES if name in samples[0]]
-    stacked = {
-        name: np.stack([sample[name].values for sample in samples]).astype(group[name].dtype)
-        for name in names
-    }
-    for name in names:
-        group[name][region] = stacked[name]
-    group["checksum"][region] = np.array(
-        [sample_checksum([stacked[name][i] for name in names]) for i in range(len(samples))],
-        dtype=np.uint32,
-    )
-    group["completed"][region] = np.ones(len(samples), dtype=np.uint8)

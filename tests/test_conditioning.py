@@ -8,8 +8,9 @@ import pytest
 from numpy.testing import assert_allclose
 from pydantic import ValidationError
 
+from service.inputs import SweepError
 from service.plots import preview_figure
-from service.sweep import SweepError, load_sweep, parse_sweep
+from service.sweep import load_sweep, parse_sweep
 from workers.conditioning import kriging, space_time_covariance
 from workers.render import render
 from workers.scene import Scene

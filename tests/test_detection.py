@@ -9,7 +9,8 @@ from scipy.stats import multivariate_normal, norm, poisson
 from service import store
 from service.cli import main
 from service.detect import pair_points
-from service.sweep import SweepError, parse_sweep
+from service.inputs import SweepError
+from service.sweep import parse_sweep
 from workers.detection import (
     DETECTORS,
     auc,

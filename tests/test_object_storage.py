@@ -91,7 +91,8 @@ def test_a_sweep_to_s3_resumes_to_the_bytes_of_a_local_run(s3, tmp_path):
 
 def test_a_second_writer_is_refused_on_object_storage(s3, tmp_path, capsys):
     from service.cli import main
-    from service.store import LOCK_NAME, writer_lock
+    from service.lock import writer_lock
+    from service.storage import LOCK_NAME
 
     url = "s3://oceanlidar/locked.zarr"
     sweep = tmp_path / "s3.yaml"

@@ -14,7 +14,7 @@ import pytest
 import xarray as xr
 from conftest import TINY_SCENE, TINY_SWEEP, run_cli, start_cli
 
-from service import store
+from service import integrity, lock, storage, store
 from service.cli import main
 from workers.render import render
 
@@ -78,7 +78,7 @@ def test_overwrite_deletes_only_what_the_store_lists(work, capsys, stranger):
     path = work / "one.zarr" / stranger
     path.parent.mkdir(exist_ok=True)
     # a folder carrying the project's attribute is not a licence to delete it either
-    path.write_text(json.dumps({"node_type": "group", "attributes": {store.KIND: "samples"}}))
+    path.write_text(json.dumps({"node_type": "group", "attributes": {storage.KIND: "samples"}}))
     before = snapshot(work)
     assert main(["run", str(work / "one.yaml"), "--overwrite"]) == 2
     err = capsys.readouterr().err
@@ -101,7 +101,7 @@ def test_overwrite_replaces_a_store_and_its_statistics(work):
     result = run_cli("run", work / "one.yaml", "--overwrite", "--workers", 1, cwd=work)
     assert result.returncode == 0, result.stderr
     assert snapshot(work / "one.zarr") == before  # same sweep, same bytes
-    assert not (work / "one.zarr" / store.LOCK_NAME).exists()
+    assert not (work / "one.zarr" / storage.LOCK_NAME).exists()
     assert sorted(p.name for p in work.iterdir()) == ["one.stats.zarr", "one.yaml", "one.zarr"]
 
 
@@ -165,7 +165,7 @@ def test_damaged_statistics_are_named_and_written_again(tmp_path, monkeypatch, c
 
 def write_lock(work, **holder):
     record = {"host": socket.gethostname(), "since": "2026-01-01T00:00:00+00:00", **holder}
-    (work / "one.zarr" / store.LOCK_NAME).write_text(json.dumps({"token": "x", **record}))
+    (work / "one.zarr" / storage.LOCK_NAME).write_text(json.dumps({"token": "x", **record}))
 
 
 def test_a_locked_store_is_refused_and_a_dead_holders_lock_taken_over(work, capsys):
@@ -175,13 +175,13 @@ def test_a_locked_store_is_refused_and_a_dead_holders_lock_taken_over(work, caps
         assert main([*command[:1], *(str(work / c) for c in command[1:2]), *command[2:]]) == 2
         err = capsys.readouterr().err
         assert "locked by another run (host elsewhere" in err
-        assert str(work / "one.zarr" / store.LOCK_NAME) in err
+        assert str(work / "one.zarr" / storage.LOCK_NAME) in err
         assert snapshot(work) == before
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
     write_lock(work, pid=dead.pid)
     assert main(["stats", str(work / "one.zarr")]) == 0
-    assert not (work / "one.zarr" / store.LOCK_NAME).exists()
+    assert not (work / "one.zarr" / storage.LOCK_NAME).exists()
 
 
 def test_two_fresh_runs_racing_for_one_output(tmp_path):
@@ -204,12 +204,13 @@ def threads(monkeypatch):
     """The embedded cluster's workers as threads of this process, to see monkeypatches."""
     from distributed import LocalCluster
 
+    import service.cluster
     import service.run
 
     def threaded(**options):
         return LocalCluster(**{**options, "processes": False, "protocol": "tcp://"})
 
-    monkeypatch.setattr(service.run, "LocalCluster", threaded)
+    monkeypatch.setattr(service.cluster, "LocalCluster", threaded)
     return service.run
 
 
@@ -317,7 +318,7 @@ def test_a_full_disk_stops_the_run_with_one_message(tmp_path, monkeypatch, capsy
         tasks.add(start)
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(store, "write_samples", full)
+    monkeypatch.setattr(integrity, "write_samples", full)
     sweep = tiny_sweep(tmp_path, realisations=10)
     assert main(["run", str(sweep), "--output", str(tmp_path / "t.zarr"), "--batch", "1"]) == 1
     err = capsys.readouterr().err
@@ -361,11 +362,11 @@ def test_the_local_lock_is_taken_atomically(tmp_path, monkeypatch):
     # (fsspec's mode="create" checks, then writes, and would let both through).
     from fsspec.implementations.local import LocalFileSystem
 
-    from service.sweep import SweepError
+    from service.inputs import SweepError
 
     url = str(tmp_path / "race.zarr")
     monkeypatch.setattr(LocalFileSystem, "exists", lambda self, path, **kwargs: False)
-    with store.writer_lock(url):
+    with lock.writer_lock(url):
         with pytest.raises(SweepError, match="locked by another run"):
-            with store.writer_lock(url):
+            with lock.writer_lock(url):
                 pass

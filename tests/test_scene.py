@@ -6,7 +6,8 @@ import pytest
 from conftest import run_cli
 from pydantic import ValidationError
 
-from workers.scene import MLDC_GATES, Scene, footprint_span
+from workers.instrument import MLDC_GATES
+from workers.scene import Scene, footprint_span
 
 
 def test_defaults_are_the_papers_example_3_geometry():

@@ -12,9 +12,10 @@ import pytest
 import xarray as xr
 from conftest import ROOT, run_cli, start_cli
 
-from service import store
+from service import integrity, storage, store
 from service.cli import main
-from service.run import dask_client, execute, task_batches
+from service.cluster import dask_client
+from service.run import execute, task_batches
 from service.sweep import load_sweep, parse_sweep
 from workers.render import render
 from workers.seeds import SampleSeed
@@ -81,7 +82,7 @@ def test_one_and_two_workers_write_the_same_bytes(two_worker_store, tmp_path):
     other = str(tmp_path / "one.zarr")
     execute(plan, other, workers=1, batch_size=3, progress_stream=open(os.devnull, "w"))
     assert_same_store(url, other)
-    assert_same_store(store.stats_url(url), store.stats_url(other))
+    assert_same_store(storage.stats_url(url), storage.stats_url(other))
 
 
 def test_store_metadata_and_statistics(two_worker_store):
@@ -93,7 +94,7 @@ def test_store_metadata_and_statistics(two_worker_store):
     for name, variable in ds.variables.items():
         assert "units" in variable.attrs and "long_name" in variable.attrs, name
     assert ds["target.depth"].attrs["units"] == "m"
-    stats = xr.open_zarr(store.stats_url(url))
+    stats = xr.open_zarr(storage.stats_url(url))
     assert stats.sizes["point"] == 4 and stats.sizes["gate"] == 2
     assert stats["gate_top"].values.tolist() == [2.0, 5.0]
     assert stats["samples"].values.tolist() == [3, 3, 3, 3]
@@ -147,7 +148,7 @@ def test_interrupted_run_resumes_to_the_same_store(two_worker_store, tmp_path):
     while time.monotonic() < deadline and process.poll() is None:
         if (target / "completed").exists():
             try:
-                done = int(store.completed_samples(str(target)).sum())
+                done = int(integrity.completed_samples(str(target)).sum())
             except Exception:  # the store is being written; look again
                 done = 0
             if done >= 2:
@@ -156,7 +157,7 @@ def test_interrupted_run_resumes_to_the_same_store(two_worker_store, tmp_path):
     process.send_signal(signal.SIGINT)
     _, err = process.communicate(timeout=120)
     assert 2 <= done, err
-    partial = store.completed_samples(str(target))
+    partial = integrity.completed_samples(str(target))
     assert process.returncode == 1 and "--resume" in err, err
     assert 0 < partial.sum() < plan.samples
     again = run_cli(

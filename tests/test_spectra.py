@@ -8,7 +8,7 @@ import pytest
 from numpy.testing import assert_allclose
 from scipy import optimize, special
 
-from workers.scene import SurfaceSpec
+from workers.sea import SurfaceSpec
 from workers.spectra import (
     GRAVITY,
     Elfouhaily,

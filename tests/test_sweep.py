@@ -8,7 +8,8 @@ import textwrap
 import pytest
 from conftest import cli_command, run_cli
 
-from service.sweep import SweepError, load_sweep, parse_sweep
+from service.inputs import SweepError
+from service.sweep import load_sweep, parse_sweep
 from workers.scene import Scene
 
 BASE = """\

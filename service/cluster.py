@@ -1,0 +1,46 @@
+"""The dask client a run uses: an existing scheduler, or an embedded LocalCluster on loopback."""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+
+from distributed import Client, LocalCluster
+
+__all__ = ["ClusterError", "dask_client"]
+
+
+class ClusterError(RuntimeError):
+    """The dask cluster cannot be reached or used."""
+
+
+@contextlib.contextmanager
+def dask_client(*, workers: int | None, scheduler: str | None, security=None):
+    """A client for an existing scheduler, or for an embedded LocalCluster on 127.0.0.1.
+
+    `security` (a `distributed.Security`) defaults to dask's configuration, where TLS
+    files and ``require-encryption`` can be set (``DASK_DISTRIBUTED__COMM__...``).
+    """
+    if scheduler is not None:
+        try:
+            client = Client(scheduler, security=security, timeout="30s")
+        except (OSError, TimeoutError, ValueError) as error:
+            raise ClusterError(
+                f"cannot connect to the scheduler at {scheduler}: {error}"
+            ) from None
+        with client:
+            yield client
+        return
+    with (
+        LocalCluster(
+            n_workers=workers or os.cpu_count() or 1,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address=None,
+            silence_logs=logging.CRITICAL,
+        ) as cluster,
+        Client(cluster) as client,
+    ):
+        yield client

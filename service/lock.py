@@ -1,0 +1,139 @@
+"""The writer's lock: one run (or ``stats``) writes a store at a time.
+
+The lock is the file `service.storage.LOCK_NAME` in the store, created exclusively; the
+workers check that they see it (`check_workers_see`) before anything is rendered.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime
+import json
+import os
+import socket
+import uuid
+
+from service.inputs import SweepError, shown
+from service.storage import LOCK_NAME, filesystem, storage_errors
+
+__all__ = ["check_workers_see", "writer_lock"]
+
+
+def check_workers_see(url: str, storage_options: dict | None, token: str) -> None:
+    """Check, on a worker, that the store the runner locked is there and writable.
+
+    Run this as a dask task before any sample is rendered: a worker that sees another file
+    system (``memory://``, a disk of its own machine) does not find the lock's token.
+
+    Raises
+    ------
+    SweepError
+        If the worker does not see the lock, or cannot write beside it.
+    """
+    fs, path = filesystem(url, storage_options)
+    with storage_errors(url):
+        if _holder(fs, f"{path}/{LOCK_NAME}").get("token") != token:
+            raise SweepError(
+                f"the workers do not see the store {shown(url)} that the runner created "
+                "(another machine's disk, or a store in one process's memory?): write to "
+                "storage every worker shares, such as an object-store URL"
+            )
+        probe = f"{path}/oceanlidar.probe-{uuid.uuid4().hex}"
+        fs.pipe_file(probe, b"")
+        fs.rm(probe)
+
+
+def _holder(fs, lock: str) -> dict:
+    try:
+        holder = json.loads(fs.cat_file(lock))
+    except (OSError, ValueError):
+        return {}
+    return holder if isinstance(holder, dict) else {}
+
+
+def _is_stale(holder: dict) -> bool:
+    """A lock taken on this machine by a process that no longer runs."""
+    if holder.get("host") != socket.gethostname() or not isinstance(holder.get("pid"), int):
+        return False
+    try:
+        os.kill(holder["pid"], 0)
+    except ProcessLookupError:
+        return True
+    except OSError:  # alive, owned by another user
+        return False
+    return False
+
+
+def _create_exclusive(fs, path: str, data: bytes) -> None:
+    """Create the file `path` holding `data`, or raise FileExistsError if it is there.
+
+    On a file system this is ``os.open`` with ``O_CREAT | O_EXCL`` (fsspec's
+    ``mode="create"`` there checks, then writes: two writers can both get through). On
+    object storage it is fsspec's conditional put (``If-None-Match``).
+    """
+    if "file" in fs.protocol:
+        descriptor = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+        with os.fdopen(descriptor, "wb") as handle:
+            handle.write(data)
+        return
+    fs.pipe_file(path, data, mode="create")
+
+
+@contextlib.contextmanager
+def writer_lock(url: str, storage_options: dict | None = None):
+    """Hold the store's writer lock: one run (or ``stats``) writes a store at a time.
+
+    The lock is the file `LOCK_NAME` in the store, created only if absent (an exclusive
+    create: ``O_EXCL`` on a file system, a conditional ``If-None-Match`` put on object
+    storage), holding the holder's host, process id and start time. It is removed on exit.
+
+    A lock left by a process that died on this machine is taken over. A lock left by a
+    machine that crashed cannot be told from a live run elsewhere: the message names the
+    file to remove once no run is writing.
+
+    Yields
+    ------
+    str
+        The lock's token (`check_workers_see` looks for it).
+
+    Raises
+    ------
+    SweepError
+        If another run holds the lock, or the store's place cannot be written.
+    """
+    fs, path = filesystem(url, storage_options)
+    lock = f"{path}/{LOCK_NAME}"
+    token = uuid.uuid4().hex
+    record = {
+        "host": socket.gethostname(),
+        "pid": os.getpid(),
+        "since": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "token": token,
+    }
+    with storage_errors(url):
+        created = not fs.exists(path)
+        if "file" in fs.protocol:
+            fs.makedirs(path, exist_ok=True)
+    for attempt in range(2):
+        try:
+            with storage_errors(url):
+                _create_exclusive(fs, lock, json.dumps(record).encode())
+            break
+        except FileExistsError:
+            holder = _holder(fs, lock)
+            if attempt == 0 and _is_stale(holder):
+                fs.rm(lock)
+                continue
+            raise SweepError(
+                f"{url} is locked by another run (host {holder.get('host', '?')}, process "
+                f"{holder.get('pid', '?')}, since {holder.get('since', '?')}); wait for it, "
+                f"or, if no run is writing there any more, delete {lock} and try again"
+            ) from None
+    try:
+        yield token
+    finally:
+        if _holder(fs, lock).get("token") == token:
+            fs.rm(lock)
+        if created and "file" in fs.protocol:
+            with contextlib.suppress(OSError):  # holds a store now
+                os.rmdir(path)

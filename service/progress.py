@@ -1,0 +1,57 @@
+"""The progress line of a run: samples done, samples/s, time left."""
+
+from __future__ import annotations
+
+import sys
+import time
+
+__all__ = ["Progress"]
+
+
+class Progress:
+    """A progress line on stderr: samples done, samples/s, time left."""
+
+    def __init__(self, total: int, already: int, stream=None):
+        self.total = total
+        self.done = already
+        self.fresh = 0
+        self.start = time.monotonic()
+        self.stream = stream or sys.stderr
+        self.last = 0.0
+        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+
+    def update(self, count: int) -> None:
+        """Count `count` more samples done."""
+        self.done += count
+        self.fresh += count
+        now = time.monotonic()
+        if now - self.last < (0.2 if self.tty else 5.0) and self.done < self.total:
+            return
+        self.last = now
+        elapsed = max(now - self.start, 1e-9)
+        rate = self.fresh / elapsed
+        left = (self.total - self.done) / rate if rate > 0 else float("inf")
+        width = 30
+        filled = int(width * self.done / max(self.total, 1))
+        bar = "#" * filled + "-" * (width - filled)
+        line = (
+            f"[{bar}] {self.done}/{self.total} samples  {rate:.2f} samples/s  "
+            f"left {_duration(left)}"
+        )
+        self.stream.write(("\r" + line) if self.tty else line + "\n")
+        self.stream.flush()
+
+    def close(self) -> None:
+        """End the progress line."""
+        if self.tty:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+def _duration(seconds: float) -> str:
+    if seconds == float("inf"):
+        return "?"
+    seconds = round(seconds)
+    hours, rest = divmod(seconds, 3600)
+    minutes, secs = divmod(rest, 60)
+    return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes}:{secs:02d}"

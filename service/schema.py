@@ -1,0 +1,176 @@
+"""The sweep file's schema: frozen pydantic models, and the scene fields dotted paths name.
+
+A sweep is a scene (defaults for every sample), a set of parameters addressed by dotted
+paths into the scene (``target.depth``; `scene_field`), a method that turns them into
+parameter points (``grid``, ``zip`` or ``random``), and a number of Monte Carlo
+realisations per point.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, model_validator
+
+from service.inputs import SweepError
+from workers.scene import Scene
+
+__all__ = ["Distribution", "Sweep", "SweepSpec", "Value", "Values", "field_units", "scene_field"]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+class Values(_Model):
+    """An explicit list of values."""
+
+    values: Annotated[list[Any], Field(min_length=1, max_length=100_000)]
+
+
+class Value(_Model):
+    """One fixed value."""
+
+    value: Any
+
+
+class Distribution(_Model):
+    """A random distribution, for ``method: random``."""
+
+    distribution: Literal["uniform", "log_uniform", "normal", "int_uniform"]
+    min: float | None = None
+    max: float | None = None
+    mu: float | None = None
+    sigma: float | None = Field(None, gt=0.0)
+
+    @model_validator(mode="after")
+    def _parameters(self) -> Distribution:
+        if self.distribution == "normal":
+            if self.mu is None or self.sigma is None:
+                raise ValueError("a normal distribution needs mu and sigma")
+            if self.min is not None or self.max is not None:
+                raise ValueError("a normal distribution takes mu and sigma, not min and max")
+            if not np.isfinite(self.mu + 10 * self.sigma):
+                raise ValueError("mu and sigma must be finite and moderate")
+            return self
+        if self.mu is not None or self.sigma is not None:
+            raise ValueError(f"a {self.distribution} distribution takes min and max")
+        if self.min is None or self.max is None:
+            raise ValueError(f"a {self.distribution} distribution needs min and max")
+        if not np.isfinite(self.max - self.min):
+            raise ValueError("min and max must be finite, and their difference too")
+        if self.distribution == "int_uniform" and math.ceil(self.min) > math.floor(self.max):
+            raise ValueError("an int_uniform distribution needs an integer between min and max")
+        if self.min > self.max or (self.min == self.max and self.distribution != "int_uniform"):
+            raise ValueError("min must be below max")
+        if self.distribution == "log_uniform" and self.min <= 0:
+            raise ValueError("a log_uniform distribution needs min > 0")
+        return self
+
+    def draw(self, rng: np.random.Generator, count: int) -> list:
+        """`count` draws, as plain Python numbers."""
+        if self.distribution == "uniform":
+            return rng.uniform(self.min, self.max, count).tolist()
+        if self.distribution == "log_uniform":
+            return np.exp(rng.uniform(np.log(self.min), np.log(self.max), count)).tolist()
+        if self.distribution == "normal":
+            return rng.normal(self.mu, self.sigma, count).tolist()
+        return rng.integers(
+            math.ceil(self.min), math.floor(self.max), count, endpoint=True
+        ).tolist()
+
+
+def _parameter_kind(data: Any) -> str | None:
+    for model, kind in ((Values, "list"), (Value, "fixed"), (Distribution, "random")):
+        if isinstance(data, model):
+            return kind
+    if isinstance(data, dict):
+        for key, kind in (("values", "list"), ("value", "fixed"), ("distribution", "random")):
+            if key in data:
+                return kind
+    return None
+
+
+Parameter = Annotated[
+    Annotated[Values, Tag("list")]
+    | Annotated[Value, Tag("fixed")]
+    | Annotated[Distribution, Tag("random")],
+    Discriminator(
+        _parameter_kind,
+        custom_error_type="parameter",
+        custom_error_message="a parameter needs values: [...], value: x or distribution: ...",
+    ),
+]
+
+
+class SweepSpec(_Model):
+    """How parameters combine into points."""
+
+    method: Literal["grid", "zip", "random"] = "grid"
+    count: int | None = Field(None, ge=1, le=10_000_000)
+    parameters: dict[str, Parameter] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _consistent(self) -> SweepSpec:
+        if self.method == "random":
+            if self.count is None:
+                raise ValueError("method random needs a count")
+        elif self.count is not None:
+            raise ValueError(f"count applies to method random only, not {self.method}")
+        if self.method != "random":
+            for path, parameter in self.parameters.items():
+                if isinstance(parameter, Distribution):
+                    raise ValueError(f"{path}: distributions need method random")
+        if self.method == "zip":
+            lengths = {
+                path: len(p.values) for path, p in self.parameters.items() if isinstance(p, Values)
+            }
+            if len(set(lengths.values())) > 1:
+                raise ValueError(f"method zip needs equally long value lists, got {lengths}")
+        return self
+
+
+class Sweep(_Model):
+    """A sweep file."""
+
+    name: str = Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,99}$")
+    seed: int = Field(ge=0, le=2**63 - 1)
+    realisations: int = Field(1, ge=1, le=1_000_000)
+    output: str = Field(min_length=1, max_length=4096)
+    scene: dict[str, Any] = Field(default_factory=dict)
+    sweep: SweepSpec = SweepSpec()
+
+
+def scene_field(path: str):
+    """The pydantic field a dotted path names in the scene (a leaf value).
+
+    Raises
+    ------
+    SweepError
+        If the path names no field, or a section rather than a value.
+    """
+    model: Any = Scene
+    parts = path.split(".")
+    field = None
+    for depth, part in enumerate(parts):
+        fields = getattr(model, "model_fields", None)
+        if fields is None or part not in fields:
+            known = ", ".join(sorted(fields)) if fields else "nothing (a leaf value)"
+            where = ".".join(parts[:depth]) or "the scene"
+            raise SweepError(f"sweep.parameters.{path}: unknown path; {where} has {known}")
+        field = fields[part]
+        annotation = field.annotation
+        is_model = isinstance(annotation, type) and issubclass(annotation, BaseModel)
+        model = annotation if is_model else None
+    if model is not None:
+        raise SweepError(f"sweep.parameters.{path}: names a section, not a value")
+    return field
+
+
+def field_units(path: str) -> str:
+    """The unit a scene field's description gives in brackets at its end ('1' if none)."""
+    found = re.search(r"\[([^\]]+)\]\.?\s*$", scene_field(path).description or "")
+    return found.group(1) if found else "1"

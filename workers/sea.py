@@ -1,0 +1,263 @@
+"""The sea's sections of a scene: the surface (spectrum, grid, conditioning), water, target.
+
+Validated settings only; the physics they describe is in `workers.spectra`,
+`workers.surface`, `workers.conditioning`, `workers.water` and `workers.target`. Every field
+carries its unit in its description (see `workers.scene`).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import Field, model_validator
+
+from workers import spectra
+from workers.conditioning import Kriging, kriging
+from workers.section import Section
+from workers.water import PRESETS
+
+__all__ = ["Conditioning", "SurfaceSpec", "Target", "Water"]
+
+Measurement = Annotated[
+    list[Annotated[float, Field(allow_inf_nan=False)]], Field(min_length=3, max_length=4)
+]
+
+
+class Conditioning(Section):
+    """Measured elevations every surface of the scene honours (conditioning by kriging).
+
+    A measurement is of the elevation the renderer sees at (x, y): the bilinear
+    interpolation of the surface grid. Points lie on the surface patch [0, N·spacing) in
+    x and y (the grid repeats with that period; a point elsewhere is refused with its
+    equivalent on the patch). Sweep files may give ``file: points.csv`` instead of
+    ``points``; the service reads it (see `service.measurements`). See `workers.conditioning`.
+    """
+
+    points: list[Measurement] | None = Field(
+        None,
+        max_length=1000,
+        description="Measured points [x, y, elevation] or [x, y, elevation, time], time "
+        "on the frames' clock (default 0, the first frame); null: no conditioning "
+        "[m, m, m, s].",
+    )
+    noise: float = Field(
+        0.0, ge=0.0, le=10.0, description="Measurement noise standard deviation [m]."
+    )
+
+
+class SurfaceSpec(Section):
+    """Sea surface: the wave spectrum and the periodic grid it is synthesised on."""
+
+    spectrum: Literal["elfouhaily", "phillips", "pierson_moskowitz", "jonswap", "flat"] = Field(
+        "elfouhaily",
+        description="Directional wave spectrum; `flat` is a mirror-flat sea.",
+    )
+    wind_speed: float = Field(
+        5.0, ge=0.5, le=30.0, description="Wind speed 10 m above the sea, U10 [m/s]."
+    )
+    wind_direction_deg: float = Field(
+        0.0,
+        ge=-360.0,
+        le=360.0,
+        description="Direction the wind blows towards, counter-clockwise from +x (east) [deg].",
+    )
+    fetch: float = Field(1.0e5, gt=0.0, le=1.0e7, description="Fetch, used by `jonswap` only [m].")
+    inverse_wave_age: float = Field(
+        0.84,
+        ge=0.84,
+        le=5.0,
+        description="Inverse wave age U10/c_p, used by `elfouhaily` only (0.84: fully "
+        "developed sea) [1].",
+    )
+    grid_size: int = Field(
+        256, ge=16, le=4096, description="Points per side of the periodic surface grid [1]."
+    )
+    spacing: float = Field(0.016, ge=1e-4, le=10.0, description="Surface grid spacing [m].")
+    max_elevation: float | None = Field(
+        None,
+        gt=0.0,
+        le=20.0,
+        description="Optional rescaling (the paper's knob): max |elevation| over the frames "
+        "[m]. Off by default; it breaks the spectrum's variance.",
+    )
+    conditioning: Conditioning = Conditioning()
+    allow_repeat: bool = Field(
+        False,
+        description="Render even if the receiver's footprint on the sea is wider than the "
+        "periodic patch (grid_size × spacing), so that the same waves repeat inside the "
+        "image; refused otherwise.",
+    )
+
+    @model_validator(mode="after")
+    def _even_grid(self) -> SurfaceSpec:
+        if self.grid_size % 2:
+            raise ValueError("grid_size must be even (FFT synthesis)")
+        return self
+
+    @model_validator(mode="after")
+    def _conditioning(self) -> SurfaceSpec:
+        if not self.conditioning.points:
+            return self
+        if self.spectrum == "flat":
+            raise ValueError("conditioning: a flat sea cannot honour measured elevations")
+        if self.max_elevation is not None:
+            raise ValueError(
+                "conditioning: max_elevation would rescale the measured elevations away; "
+                "leave it null"
+            )
+        try:
+            self.kriging()
+        except ValueError as error:
+            raise ValueError(f"conditioning.points: {error}") from None
+        return self
+
+    def wave_spectrum(self) -> spectra.Spectrum | None:
+        """The wave spectrum these settings describe (None for a flat sea)."""
+        common = {
+            "wind_speed": self.wind_speed,
+            "wind_direction": np.radians(self.wind_direction_deg),
+        }
+        if self.spectrum == "flat":
+            return None
+        if self.spectrum == "elfouhaily":
+            return spectra.Elfouhaily(**common, inverse_wave_age=self.inverse_wave_age)
+        if self.spectrum == "phillips":
+            return spectra.Phillips(**common)
+        if self.spectrum == "pierson_moskowitz":
+            return spectra.PiersonMoskowitz(**common)
+        return spectra.Jonswap(**common, fetch=self.fetch)
+
+    def kriging(self) -> Kriging | None:
+        """The kriging system of `conditioning` (cached), or None without points.
+
+        Raises
+        ------
+        ValueError
+            For points off the grid, duplicates or a singular system
+            (`workers.conditioning.kriging`).
+        """
+        if not self.conditioning.points:
+            return None
+        return kriging(
+            self.wave_spectrum(),
+            grid_size=self.grid_size,
+            spacing=self.spacing,
+            points=tuple(tuple(point) for point in self.conditioning.points),
+            noise=self.conditioning.noise,
+        )
+
+
+class Water(Section):
+    """Inherent optical properties of the water column.
+
+    A `preset` (Petzold 1972, via Mobley 1994, table 3.10) gives absorption, scattering and
+    backscattering; any of the three given explicitly overrides it. With ``preset: null``
+    all three are required.
+    """
+
+    preset: Literal["clear_ocean", "coastal", "turbid_harbour"] | None = Field(
+        "coastal", description="Petzold water type, or null for explicit coefficients."
+    )
+    absorption: float | None = Field(
+        None, ge=0.0, le=20.0, description="Absorption coefficient a [1/m]."
+    )
+    scattering: float | None = Field(
+        None, ge=0.0, le=50.0, description="Scattering coefficient b [1/m]."
+    )
+    backscatter: float | None = Field(
+        None, ge=0.0, le=5.0, description="Backscattering coefficient b_b [1/m]."
+    )
+    phase_function: Literal["paper", "wells"] = Field(
+        "paper",
+        description="Small-angle phase function: `paper` (s ∝ θ^-3/2 (θ0²+θ²)^-1/2) or "
+        "`wells` (closed-form MTF exponent).",
+    )
+    theta0: float = Field(
+        0.12, gt=0.0, le=1.0, description="Phase-function angular scale θ0 [rad] (paper: 0.12)."
+    )
+    refractive_index: float = Field(
+        1.34, ge=1.0, le=2.0, description="Refractive index of sea water [1] (paper: 1.34)."
+    )
+    psf_truncation: float | None = Field(
+        None,
+        ge=0.5,
+        lt=1.0,
+        description="Share of the scattered light at which the point-spread function is "
+        "cut off, light scattered further being dropped (the paper cuts at 0.95); null: "
+        "the whole function [1].",
+    )
+
+    @model_validator(mode="after")
+    def _complete(self) -> Water:
+        if self.preset is None:
+            missing = [
+                name
+                for name in ("absorption", "scattering", "backscatter")
+                if getattr(self, name) is None
+            ]
+            if missing:
+                raise ValueError(f"with preset null, set {', '.join(missing)} explicitly")
+        coefficients = self.coefficients
+        if coefficients["backscatter"] > coefficients["scattering"]:
+            raise ValueError(
+                f"backscatter {coefficients['backscatter']} 1/m exceeds scattering "
+                f"{coefficients['scattering']} 1/m (backscattering is part of scattering)"
+            )
+        return self
+
+    @property
+    def coefficients(self) -> dict[str, float]:
+        """Absorption, scattering and backscatter [1/m]: the preset with overrides."""
+        values = dict(PRESETS[self.preset]) if self.preset is not None else {}
+        for name in ("absorption", "scattering", "backscatter"):
+            if getattr(self, name) is not None:
+                values[name] = getattr(self, name)
+        return values
+
+
+class Target(Section):
+    """The object under the sea: a moored-mine sphere, a flat panel, or nothing."""
+
+    shape: Literal["sphere", "disk", "none"] = Field(
+        "sphere", description="`sphere`, `disk` (flat horizontal panel) or `none`."
+    )
+    radius: float = Field(0.3, gt=0.0, le=100.0, description="Sphere or disk radius [m].")
+    depth: float = Field(
+        5.0, gt=0.0, le=200.0, description="Depth of the sphere centre or of the disk [m]."
+    )
+    x: float | None = Field(
+        None,
+        ge=-1.0e4,
+        le=1.0e4,
+        description="East position [m]; null puts the target on the central ray "
+        "(refracted by a flat sea).",
+    )
+    y: float | None = Field(
+        None, ge=-1.0e4, le=1.0e4, description="North position [m]; null as for `x`."
+    )
+    reflectance: float = Field(
+        0.2, ge=0.0, le=1.0, description="Lambertian reflectance ρ [1] (the paper's 20 % is 0.2)."
+    )
+    shading: Literal["lambert", "paper"] = Field(
+        "lambert",
+        description="Sphere shading: `lambert` (cosine of sphere normal and ray; physical), "
+        "or `paper`, the paper's area weights (`ponder`), kept only to reproduce its "
+        "figures: it does not conserve energy (a white sphere returns 2x a white disk of "
+        "its radius where a Lambertian one returns 2/3, and its limb pixels exceed the "
+        "brightest physical value several times over, more at finer pixels); do not use "
+        "it for training data [1].",
+    )
+
+    @model_validator(mode="after")
+    def _submerged(self) -> Target:
+        if (self.x is None) != (self.y is None):
+            raise ValueError(
+                "set both x and y, or neither (the target then sits on the central ray)"
+            )
+        if self.shape == "sphere" and self.depth <= self.radius:
+            raise ValueError(
+                f"a sphere of radius {self.radius} m at depth {self.depth} m breaks the surface; "
+                "depth must exceed radius"
+            )
+        return self
