@@ -11,12 +11,19 @@ import datetime
 import json
 import os
 import socket
+import time
 import uuid
 
 from service.inputs import SweepError, shown
 from service.storage import LOCK_NAME, filesystem, storage_errors
 
 __all__ = ["check_workers_see", "writer_lock"]
+
+TAKEOVER_SUFFIX = ".takeover"
+"""Suffix of the guard file held while a stale lock is removed (`_remove_stale`)."""
+
+TAKEOVER_WAIT = 5.0
+"""Longest wait for another run's takeover guard, s."""
 
 
 def check_workers_see(url: str, storage_options: dict | None, token: str) -> None:
@@ -79,6 +86,41 @@ def _create_exclusive(fs, path: str, data: bytes) -> None:
     fs.pipe_file(path, data, mode="create")
 
 
+def _remove_stale(fs, lock: str, holder: dict, record: dict) -> None:
+    """Remove the lock file if it still holds the stale `holder`, one taker at a time.
+
+    Two runs that both found the same dead holder must not both remove "the" lock: the
+    second would delete the lock the first had just taken, and both would write. So the
+    removal happens under a short-lived guard file (`TAKEOVER_SUFFIX`, created
+    exclusively), and only if the lock still holds the very record found stale. After
+    that both runs race for the exclusive create, which only one wins.
+
+    Raises
+    ------
+    SweepError
+        If the guard stays in place for `TAKEOVER_WAIT` s (a taker died within the
+        microseconds it holds it): the message names the file to delete.
+    """
+    guard = lock + TAKEOVER_SUFFIX
+    deadline = time.monotonic() + TAKEOVER_WAIT
+    while True:
+        try:
+            _create_exclusive(fs, guard, json.dumps(record).encode())
+            break
+        except FileExistsError:
+            if time.monotonic() > deadline:
+                raise SweepError(
+                    f"another run is taking over the stale lock {lock}; if none is, delete "
+                    f"{guard} and try again"
+                ) from None
+            time.sleep(0.01)
+    try:
+        if _holder(fs, lock) == holder:
+            fs.rm(lock)
+    finally:
+        fs.rm(guard)
+
+
 @contextlib.contextmanager
 def writer_lock(url: str, storage_options: dict | None = None):
     """Hold the store's writer lock: one run (or ``stats``) writes a store at a time.
@@ -87,7 +129,8 @@ def writer_lock(url: str, storage_options: dict | None = None):
     create: ``O_EXCL`` on a file system, a conditional ``If-None-Match`` put on object
     storage), holding the holder's host, process id and start time. It is removed on exit.
 
-    A lock left by a process that died on this machine is taken over. A lock left by a
+    A lock left by a process that died on this machine is taken over, by one run only
+    when several find it at once (`_remove_stale`). A lock left by a
     machine that crashed cannot be told from a live run elsewhere: the message names the
     file to remove once no run is writing.
 
@@ -122,7 +165,7 @@ def writer_lock(url: str, storage_options: dict | None = None):
         except FileExistsError:
             holder = _holder(fs, lock)
             if attempt == 0 and _is_stale(holder):
-                fs.rm(lock)
+                _remove_stale(fs, lock, holder, record)
                 continue
             raise SweepError(
                 f"{url} is locked by another run (host {holder.get('host', '?')}, process "

@@ -370,3 +370,48 @@ def test_the_local_lock_is_taken_atomically(tmp_path, monkeypatch):
         with pytest.raises(SweepError, match="locked by another run"):
             with lock.writer_lock(url):
                 pass
+
+
+def test_a_stale_lock_is_taken_over_by_one_run_only(tmp_path, monkeypatch):
+    # Two runs find the same dead holder at the same moment (a barrier right after the
+    # staleness check): only one may end up holding the lock, and the other is refused
+    # with the message, not a traceback. Removing the lock without the guard lets the
+    # second run delete the first one's fresh lock, and both write.
+    from service.inputs import SweepError
+
+    url = tmp_path / "stale.zarr"
+    url.mkdir()
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    stale = {"host": socket.gethostname(), "pid": dead.pid, "token": "gone", "since": "?"}
+    (url / storage.LOCK_NAME).write_text(json.dumps(stale))
+    both_looked = threading.Barrier(2, timeout=10)
+    is_stale = lock._is_stale
+
+    def looked(holder):
+        answer = is_stale(holder)
+        both_looked.wait()
+        return answer
+
+    monkeypatch.setattr(lock, "_is_stale", looked)
+    outcomes = []
+
+    def take():
+        try:
+            with lock.writer_lock(str(url)) as token:
+                outcomes.append(("held", token))
+                time.sleep(0.5)  # still holding while the other run tries
+        except SweepError as error:
+            outcomes.append(("refused", str(error)))
+        except Exception as error:  # a crash is an outcome to report
+            outcomes.append(("crashed", repr(error)))
+
+    runs = [threading.Thread(target=take) for _ in range(2)]
+    for run in runs:
+        run.start()
+    for run in runs:
+        run.join(timeout=30)
+    assert sorted(kind for kind, _ in outcomes) == ["held", "refused"], outcomes
+    assert "locked by another run" in dict(outcomes)["refused"]
+    assert not (url / storage.LOCK_NAME).exists()
+    assert not (url / (storage.LOCK_NAME + lock.TAKEOVER_SUFFIX)).exists()
