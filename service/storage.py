@@ -131,6 +131,12 @@ def removable_files(url: str, storage_options: dict | None, *, kind: str) -> lis
     if not files:
         return []
     attributes = root_attributes(url, storage_options) or {}
+    if KIND not in attributes and "oceanlidar_version" in attributes:
+        raise SweepError(
+            f"{url} was written by oceanlidar {shown(attributes['oceanlidar_version'])}, "
+            "which did not record what a store holds; refusing to delete it (delete it by "
+            "hand if it is yours to replace)"
+        )
     if attributes.get(KIND) != kind:
         raise SweepError(
             f"{url} exists and is not an oceanlidar {kind} store; refusing to delete it"

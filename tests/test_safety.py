@@ -86,6 +86,18 @@ def test_overwrite_deletes_only_what_the_store_lists(work, capsys, stranger):
     assert snapshot(work) == before
 
 
+def test_a_store_of_an_older_version_is_named_not_deleted(work, capsys):
+    # stores written before the kind attribute: refused with the version that wrote them
+    metadata = json.loads((work / "one.zarr" / "zarr.json").read_text())
+    del metadata["attributes"][storage.KIND]
+    (work / "one.zarr" / "zarr.json").write_text(json.dumps(metadata))
+    before = snapshot(work)
+    assert main(["run", str(work / "one.yaml"), "--overwrite"]) == 2
+    err = capsys.readouterr().err
+    assert "was written by oceanlidar" in err and "did not record" in err
+    assert snapshot(work) == before
+
+
 def test_overwrite_checks_everything_before_deleting_anything(work, capsys):
     shutil.rmtree(work / "one.stats.zarr")
     (work / "one.stats.zarr").mkdir()
