@@ -14,6 +14,7 @@ import sys
 import dask
 
 from service import store
+from service.client import COMMANDS, add_commands
 from service.sweep import DEFAULT_MAX_MEMORY, SweepError, human_bytes, load_sweep, shown
 
 __all__ = ["main"]
@@ -114,6 +115,7 @@ def _parser() -> argparse.ArgumentParser:
     plot.add_argument("store", help="store path or URL")
     plot.add_argument("--output", required=True, help="FILE.png")
     plot.add_argument("--storage-options", type=_json_object, default=None)
+    add_commands(commands)
     return parser
 
 
@@ -382,6 +384,7 @@ def main(argv=None) -> int:
         "detect": _cmd_detect,
         "preview": _cmd_preview,
         "plot": _cmd_plot,
+        **COMMANDS,
     }
     try:
         return commands[args.command](args)
