@@ -341,7 +341,11 @@ class Runner:
             if self._stop.is_set():  # the service stops: resume at its next start
                 self.table.update(job_id, interrupted=1)
                 return
-            self.table.set_state(job_id, "cancelled", message="cancelled; resumable", **fields)
+            done = int(
+                store.completed_samples(job["url"], storage_options=self.storage_options).sum()
+            )
+            message = "cancelled; submit it again with resume to complete it"
+            self.table.set_state(job_id, "cancelled", message=message, done=done, **fields)
         elif errors or result.stopped:
             problems = [describe_sample(plan, int(s)) for s in list(errors)[:3]]
             message = result.stopped or "failed: " + "; ".join(problems)

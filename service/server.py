@@ -41,6 +41,8 @@ LOOPBACK = ("127.0.0.1", "localhost", "::1")
 COOKIE = "oceanlidar_token"
 EVENT_TICK = 0.5
 """Seconds between looks at a job for its event stream."""
+LOGIN_BYTES = 4096
+"""Longest login form accepted, bytes."""
 PREVIEW_SAMPLES = 3
 """Samples drawn in a finished job's preview strip."""
 
@@ -119,6 +121,8 @@ class _Service:
 
     async def login(self, request: Request) -> Response:
         if request.method == "POST":
+            if int(request.headers.get("content-length") or LOGIN_BYTES + 1) > LOGIN_BYTES:
+                return _error(413, f"a login form has at most {LOGIN_BYTES} bytes")
             form = urllib.parse.parse_qs((await request.body()).decode(errors="replace"))
             token = (form.get("token") or [""])[0]
             response = RedirectResponse("/", status_code=303)

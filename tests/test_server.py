@@ -10,6 +10,7 @@ import tempfile
 import threading
 import time
 import urllib.error
+import urllib.parse
 import urllib.request
 
 import pytest
@@ -139,9 +140,14 @@ def reference(tmp_path_factory):
     return folder / "reference.zarr"
 
 
+OTHER_TOKEN = "another-token"
+
+
 @pytest.fixture(scope="module")
 def service(tmp_path_factory):
-    with running(tmp_path_factory.mktemp("service"), "--max-running", "2") as server:
+    folder = tmp_path_factory.mktemp("service")
+    (folder / "tokens").write_text(f"# owner token\nalice {TOKEN}\nbob {OTHER_TOKEN}\n")
+    with running(folder, "--max-running", "2", "--token-file", folder / "tokens") as server:
         yield server
 
 
@@ -162,7 +168,7 @@ def test_submit_and_watch_gives_the_bytes_of_run(
     lines = capsys.readouterr().out.splitlines()
     assert lines[-1].split()[:3] == [job_id, "succeeded", f"{2 * LONG}/{2 * LONG}"]
     job = service.job(job_id)
-    assert job["owner"] == "default" and job["errors"] == {}
+    assert job["owner"] == "alice" and job["errors"] == {}
     assert_same_samples(job["url"], reference, names=None)
     assert store.root_attributes(store.stats_url(job["url"]))[store.KIND] == "statistics"
     assert main(["jobs", "--state", "succeeded"]) == 0
@@ -170,7 +176,13 @@ def test_submit_and_watch_gives_the_bytes_of_run(
 
 
 def test_two_jobs_at_once_share_the_cluster(service, reference):
-    ids = [service.submit(sweep(f"shared-{n}.zarr"))[1]["id"] for n in range(2)]
+    ids = [
+        service.request("POST", "/v1/jobs", sweep(f"shared-{n}.zarr").encode(), token=token)[1][
+            "id"
+        ]
+        for n, token in enumerate([TOKEN, OTHER_TOKEN])
+    ]
+    assert [service.job(job_id)["owner"] for job_id in ids] == ["alice", "bob"]
     events = []
 
     def follow():
@@ -222,6 +234,29 @@ def test_cancel_stops_the_job_and_resume_completes_it(service, reference, monkey
     assert service.request("DELETE", f"/v1/jobs/{again['id']}")[0] == 409
 
 
+SLOW = """\
+name: slow
+seed: 3
+realisations: 8
+output: slow.zarr
+scene:
+  surface: {grid_size: 2048, spacing: 0.05}  # a large sea: about 0.2 s a sample
+  receiver: {pixels: 8, gates: [[2.0, 6.0]]}
+"""
+
+
+def test_cancel_lets_no_task_write_on(service):
+    job_id = service.submit(SLOW)[1]["id"]
+    service.wait(job_id, lambda job: job["samples"]["done"] >= 1)
+    assert service.request("DELETE", f"/v1/jobs/{job_id}")[0] == 200
+    job = service.wait(job_id, finished)
+    assert job["state"] == "cancelled", job
+    complete = store.completed_samples(job["url"])
+    assert complete.sum() == job["samples"]["done"] < 8
+    time.sleep(1.0)  # tasks that were executing ended before the job said cancelled
+    assert (store.completed_samples(job["url"]) == complete).all()
+
+
 def test_sigkill_mid_job_then_restart_resumes(reference, tmp_path, monkeypatch, capsys):
     server = Server(tmp_path, "--max-running", "1")
     try:
@@ -260,6 +295,13 @@ def test_no_token_is_401_and_serve_refuses_to_run_open(service, monkeypatch, cap
         assert error.value.code == 401
         assert service.request(method, path, body, token="wrong")[0] == 401
     assert not (service.folder / "data" / "nope.zarr").exists()
+    # browsers: the token from /login, kept in a cookie
+    opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor())
+    with opener.open(f"{service.url}/", timeout=30) as page:
+        assert page.url.endswith("/login") and "password" in page.read().decode()
+    login = urllib.parse.urlencode({"token": TOKEN}).encode()
+    with opener.open(f"{service.url}/login", data=login, timeout=30) as page:
+        assert page.url == f"{service.url}/" and "oceanlidar jobs" in page.read().decode()
     client(monkeypatch, service, token="")
     assert main(["jobs"]) == 2
     assert "a valid token is needed" in capsys.readouterr().err
