@@ -14,6 +14,7 @@ import html
 import io
 import json
 import os
+import sys
 import time
 import urllib.parse
 
@@ -344,6 +345,11 @@ def serve(args, security) -> int:
             access_log=False,
         )
         runner.start()
+        print(
+            f"oceanlidar serve: http://{args.host}:{args.port} (data root {root}, jobs {args.db})",
+            file=sys.stderr,
+            flush=True,
+        )
         try:
             uvicorn.Server(config).run()
         finally:
