@@ -14,6 +14,7 @@ import sys
 import dask
 
 from service import integrity, lock, storage, store
+from service.client import COMMANDS, add_commands
 from service.inputs import SweepError, shown
 from service.sweep import DEFAULT_MAX_MEMORY, human_bytes, load_sweep
 
@@ -115,6 +116,7 @@ def _parser() -> argparse.ArgumentParser:
     plot.add_argument("store", help="store path or URL")
     plot.add_argument("--output", required=True, help="FILE.png")
     plot.add_argument("--storage-options", type=_json_object, default=None)
+    add_commands(commands)
     return parser
 
 
@@ -384,6 +386,7 @@ def main(argv=None) -> int:
         "detect": _cmd_detect,
         "preview": _cmd_preview,
         "plot": _cmd_plot,
+        **COMMANDS,
     }
     try:
         return commands[args.command](args)

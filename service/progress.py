@@ -11,8 +11,9 @@ __all__ = ["Progress"]
 class Progress:
     """A progress line on stderr: samples done, samples/s, time left."""
 
-    def __init__(self, total: int, already: int, stream=None):
+    def __init__(self, total: int, already: int, stream=None, callback=None):
         self.total = total
+        self.callback = callback
         self.done = already
         self.fresh = 0
         self.start = time.monotonic()
@@ -25,6 +26,8 @@ class Progress:
         self.done += count
         self.fresh += count
         now = time.monotonic()
+        if self.callback is not None:
+            self.callback(self.done, self.fresh / max(now - self.start, 1e-9))
         if now - self.last < (0.2 if self.tty else 5.0) and self.done < self.total:
             return
         self.last = now

@@ -10,6 +10,7 @@ the same bytes.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import functools
 import hashlib
@@ -32,6 +33,7 @@ from workers.scene import Scene
 from workers.seeds import SampleSeed
 
 __all__ = [
+    "RunCancelledError",
     "RunResult",
     "describe_sample",
     "execute",
@@ -131,6 +133,10 @@ def task_batches(plan: Plan, todo, batch_size: int) -> Iterator[tuple[int, list]
         yield start, run
 
 
+class RunCancelledError(Exception):
+    """A run stopped because its `cancel` event was set (`run_plan`)."""
+
+
 @dataclass
 class RunResult:
     """What a run did.
@@ -166,6 +172,8 @@ def run_plan(
     batch_size: int = 4,
     task_timeout: float = TASK_TIMEOUT,
     progress_stream=None,
+    cancel=None,
+    on_progress=None,
 ) -> RunResult:
     """Render every missing sample of `plan` into the store at `url`.
 
@@ -177,6 +185,11 @@ def run_plan(
     (a frozen worker) is given up and reported in ``stuck``, not run again. A storage
     failure that no retry cures (a full disk, a read-only or forbidden store) stops the
     run at once, with one message in ``stopped``.
+
+    Setting `cancel` (a `threading.Event`) cancels the tasks in flight, waits for those
+    already executing to end (at most `task_timeout`), and ends the run as interrupted,
+    resumable. `on_progress(done, rate)` is called as samples complete
+    (samples, samples/s).
     """
     if resume:
         done = integrity.completed_samples(url, storage_options=storage_options)
@@ -184,7 +197,7 @@ def run_plan(
     else:
         todo = range(plan.samples)  # lazy: the client holds no per-sample list
     result = RunResult(total=plan.samples, skipped=plan.samples - len(todo))
-    progress = Progress(plan.samples, result.skipped, stream=progress_stream)
+    progress = Progress(plan.samples, result.skipped, progress_stream, on_progress)
     threads = sum(client.nthreads().values()) or 1
     # task keys name the sweep and the store: concurrent runs never share a task
     run_id = hashlib.sha256(f"{plan.digest} {url}".encode()).hexdigest()[:16]
@@ -200,6 +213,7 @@ def run_plan(
         result=result,
         progress=progress,
         failed=failed,
+        cancel=cancel,
     )
     try:
         submit(task_batches(plan, todo, batch_size), window, f"{run_id}-batch")
@@ -209,11 +223,24 @@ def run_plan(
             submit(task_batches(plan, singles, 1), 1, f"{run_id}-alone")
     except KeyboardInterrupt:
         result.interrupted = True
+    except RunCancelledError:
+        result.interrupted = True
+        # a task cannot be stopped mid-sample: let those executing end before the lock goes
+        deadline = time.monotonic() + task_timeout
+        while time.monotonic() < deadline and any(
+            client.run(_executing, f"oceanlidar-{run_id}").values()
+        ):
+            time.sleep(TICK / 5)
     finally:
         progress.close()
         result.seconds = time.monotonic() - started
     result.failed = failed
     return result
+
+
+def _executing(prefix: str, dask_worker=None) -> int:
+    """Tasks named ``prefix...`` executing on this worker, cancelled ones included."""
+    return sum(str(task.key).startswith(prefix) for task in dask_worker.state.executing)
 
 
 def _lasting_storage_error(error: BaseException | None) -> bool:
@@ -233,6 +260,7 @@ def _submit_bounded(
     result,
     progress,
     failed,
+    cancel=None,
 ):
     """Submit `batches` keeping at most `window` tasks in flight; record what happened."""
     running: dict = {}  # future -> (start, count, submitted at)
@@ -268,6 +296,8 @@ def _submit_bounded(
                 done = wait(list(running), timeout=TICK, return_when="FIRST_COMPLETED").done
             except TimeoutError:
                 done = set()
+            if cancel is not None and cancel.is_set():
+                raise RunCancelledError
             for future in done:
                 start, count, _ = running.pop(future)
                 if future.status == "finished":
@@ -292,7 +322,7 @@ def _submit_bounded(
                 checked = now
                 window = max(2, IN_FLIGHT_PER_THREAD * sum(client.nthreads().values()))
             fill(window)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, RunCancelledError):
         for future in running:
             future.cancel()
         raise
@@ -352,6 +382,9 @@ def execute(
     batch_size: int = 4,
     task_timeout: float = TASK_TIMEOUT,
     progress_stream=None,
+    client: Client | None = None,
+    cancel=None,
+    on_progress=None,
 ) -> RunResult:
     """Create (or reopen) the store, run the missing samples and write the statistics.
 
@@ -361,6 +394,9 @@ def execute(
     Everything is checked before anything is deleted or written, once before taking the
     store's writer lock (so a refused run leaves no trace) and again holding it (another
     run may have changed the output meanwhile).
+
+    `client` runs the samples on a cluster already connected (`workers`, `scheduler` and
+    `security` are then unused); `cancel` and `on_progress` are passed to `run_plan`.
     """
     url = storage.normalise(url, storage_options)
     options = {"resume": resume, "overwrite": overwrite, "storage_options": storage_options}
@@ -370,7 +406,10 @@ def execute(
         with storage.storage_errors(url):
             resuming, old_files, old_stats = _check_output(plan, url, **options)
         # connect before touching storage: an unreachable cluster leaves everything as it was
-        with dask_client(workers=workers, scheduler=scheduler, security=security) as client:
+        connect = functools.partial(
+            dask_client, workers=workers, scheduler=scheduler, security=security
+        )
+        with contextlib.nullcontext(client) if client is not None else connect() as client:
             probe = client.submit(lock.check_workers_see, url, storage_options, token, pure=False)
             try:
                 probe.result(timeout=PROBE_TIMEOUT)
@@ -394,6 +433,8 @@ def execute(
                 batch_size=batch_size,
                 task_timeout=task_timeout,
                 progress_stream=progress_stream,
+                cancel=cancel,
+                on_progress=on_progress,
             )
             result.damaged = damaged
             if not (

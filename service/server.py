@@ -1,0 +1,358 @@
+"""``oceanlidar serve``: the batch service's HTTP API and web page (Starlette on uvicorn).
+
+The API is JSON under ``/v1`` (see README, "Running the service"); the page at ``/`` lists
+the jobs with their progress and shows one job's sweep, statistics plot and preview strip.
+Every route but ``/v1/health`` and ``/login`` needs the service's token: an
+``Authorization: Bearer TOKEN`` header, or the cookie that ``/login`` sets for browsers.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hmac
+import html
+import io
+import json
+import os
+import sys
+import time
+import urllib.parse
+
+import uvicorn
+from starlette.applications import Starlette
+from starlette.concurrency import run_in_threadpool
+from starlette.requests import Request
+from starlette.responses import (
+    HTMLResponse,
+    JSONResponse,
+    RedirectResponse,
+    Response,
+    StreamingResponse,
+)
+from starlette.routing import Route
+
+from service import storage, store
+from service.cluster import dask_client
+from service.inputs import MAX_FILE_BYTES, SweepError
+from service.jobs import FINAL, JobTable, QueueFullError, Runner, public
+from service.sweep import parse_sweep
+
+__all__ = ["LOOPBACK", "create_app", "read_tokens", "serve"]
+
+LOOPBACK = ("127.0.0.1", "localhost", "::1")
+COOKIE = "oceanlidar_token"
+EVENT_TICK = 0.5
+"""Seconds between looks at a job for its event stream."""
+LOGIN_BYTES = 4096
+"""Longest login form accepted, bytes."""
+PREVIEW_SAMPLES = 3
+"""Samples drawn in a finished job's preview strip."""
+
+
+def read_tokens(path: str | None) -> dict[str, str]:
+    """Tokens by owner: the lines ``OWNER TOKEN`` (or ``TOKEN`` alone) of `path`.
+
+    Without `path`, the ``OCEANLIDAR_TOKEN`` environment variable, owner ``default``.
+    """
+    if path is None:
+        token = os.environ.get("OCEANLIDAR_TOKEN", "").strip()
+        return {"default": token} if token else {}
+    try:
+        with open(path, encoding="utf-8") as handle:
+            lines = [line.split() for line in handle if line.strip() and line[0] != "#"]
+    except (OSError, UnicodeDecodeError) as error:
+        raise SweepError(f"--token-file {path}: {getattr(error, 'strerror', error)}") from None
+    if any(len(fields) > 2 for fields in lines):
+        raise SweepError(f"--token-file {path}: one 'OWNER TOKEN' or 'TOKEN' a line")
+    return {(f[0] if len(f) == 2 else "default"): f[-1] for f in lines}
+
+
+def _error(status: int, message: str) -> JSONResponse:
+    return JSONResponse({"error": message}, status_code=status)
+
+
+class _Service:
+    """The routes, over one runner and its table."""
+
+    def __init__(self, runner: Runner, tokens: dict[str, str]):
+        self.runner, self.table, self.tokens = runner, runner.table, tokens
+        self.pictures: dict[tuple[str, str], bytes] = {}
+
+    def owner(self, request: Request) -> str | None:
+        """Who sent `request` (by its token), or None if nobody known."""
+        if not self.tokens:
+            return "anonymous"
+        header = request.headers.get("authorization", "")
+        given = header[7:] if header.lower().startswith("bearer ") else ""
+        given = given or request.cookies.get(COOKIE, "")
+        for owner, token in self.tokens.items():
+            if given and hmac.compare_digest(given.encode(), token.encode()):
+                return owner
+        return None
+
+    def routes(self) -> list[Route]:
+        guarded = [
+            ("/v1/jobs", self.submit, "POST"),
+            ("/v1/jobs", self.jobs, "GET"),
+            ("/v1/jobs/{id}", self.job, "GET"),
+            ("/v1/jobs/{id}", self.cancel, "DELETE"),
+            ("/v1/jobs/{id}/events", self.events, "GET"),
+            ("/", self.page_list, "GET"),
+            ("/jobs/{id}", self.page_job, "GET"),
+            ("/jobs/{id}/{picture}.png", self.picture, "GET"),
+        ]
+        return [
+            Route("/v1/health", self.health, methods=["GET"]),
+            Route("/login", self.login, methods=["GET", "POST"]),
+            *[Route(path, self._guard(fn), methods=[method]) for path, fn, method in guarded],
+        ]
+
+    def _guard(self, endpoint):
+        async def guarded(request: Request):
+            request.state.owner = self.owner(request)
+            if request.state.owner is not None:
+                return await endpoint(request)
+            if request.url.path.startswith("/v1/"):
+                return _error(401, "a valid token is needed: Authorization: Bearer TOKEN")
+            return RedirectResponse("/login", status_code=303)
+
+        return guarded
+
+    async def health(self, request: Request) -> JSONResponse:
+        return JSONResponse({"status": "ok", "version": store.package_version()})
+
+    async def login(self, request: Request) -> Response:
+        if request.method == "POST":
+            if int(request.headers.get("content-length") or LOGIN_BYTES + 1) > LOGIN_BYTES:
+                return _error(413, f"a login form has at most {LOGIN_BYTES} bytes")
+            form = urllib.parse.parse_qs((await request.body()).decode(errors="replace"))
+            token = (form.get("token") or [""])[0]
+            response = RedirectResponse("/", status_code=303)
+            secure = request.headers.get("x-forwarded-proto", request.url.scheme) == "https"
+            response.set_cookie(COOKIE, token, httponly=True, samesite="strict", secure=secure)
+            return response
+        return HTMLResponse(
+            _page(
+                "oceanlidar: log in",
+                '<form method="post"><label>token <input type="password" name="token">'
+                "</label> <button>log in</button></form>",
+            )
+        )
+
+    async def submit(self, request: Request) -> JSONResponse:
+        body = b""
+        async for chunk in request.stream():
+            body += chunk
+            if len(body) > MAX_FILE_BYTES:
+                return _error(413, f"the sweep is larger than {MAX_FILE_BYTES:,} bytes")
+        try:
+            text = body.decode("utf-8")
+        except UnicodeDecodeError:
+            return _error(400, "the sweep is not UTF-8 text")
+        mode = request.query_params.get("mode", "new")
+        try:
+            job = await run_in_threadpool(
+                self.runner.submit, text, owner=request.state.owner, mode=mode
+            )
+        except SweepError as error:
+            return _error(400, str(error))
+        except QueueFullError as error:
+            return _error(429, str(error))
+        return JSONResponse(public(job), status_code=201)
+
+    async def jobs(self, request: Request) -> JSONResponse:
+        state = request.query_params.get("state")
+        return JSONResponse({"jobs": [public(job) for job in self.table.list(state)]})
+
+    async def job(self, request: Request) -> JSONResponse:
+        job = self.table.get(request.path_params["id"])
+        return JSONResponse(public(job)) if job else _error(404, "no such job")
+
+    async def cancel(self, request: Request) -> JSONResponse:
+        job_id = request.path_params["id"]
+        if self.table.get(job_id) is None:
+            return _error(404, "no such job")
+        if not self.runner.cancel(job_id):
+            return _error(409, f"job {job_id} has finished: nothing to cancel")
+        return JSONResponse(public(self.table.get(job_id)))
+
+    async def events(self, request: Request) -> Response:
+        job_id = request.path_params["id"]
+        if self.table.get(job_id) is None:
+            return _error(404, "no such job")
+
+        async def stream():
+            last = None
+            while True:
+                job = public(self.table.get(job_id))
+                if job != last:
+                    yield f"event: progress\ndata: {json.dumps(job)}\n\n"
+                    last = job
+                if job["state"] in FINAL:
+                    return
+                await asyncio.sleep(EVENT_TICK)
+
+        return StreamingResponse(stream(), media_type="text/event-stream")
+
+    async def page_list(self, request: Request) -> HTMLResponse:
+        jobs = self.table.list()
+        rows = "".join(
+            f"<tr><td><a href='/jobs/{j['id']}'>{j['id']}</a></td><td>{html.escape(j['name'])}"
+            f"</td><td>{html.escape(j['owner'])}</td><td class='state'>{j['state']}</td>"
+            f"<td><progress value='{j['done']}' max='{j['total']}'></progress> "
+            f"{j['done']}/{j['total']}</td><td>{_when(j['submitted'])}</td></tr>"
+            for j in jobs
+        )
+        table = (
+            "<table><tr><th>job</th><th>sweep</th><th>owner</th><th>state</th>"
+            f"<th>samples</th><th>submitted</th></tr>{rows}</table>"
+        )
+        refresh = any(j["state"] not in FINAL for j in jobs)
+        return HTMLResponse(_page("oceanlidar jobs", table, refresh=refresh))
+
+    async def page_job(self, request: Request) -> HTMLResponse:
+        job = self.table.get(request.path_params["id"])
+        if job is None:
+            return HTMLResponse(_page("no such job", "<p>no such job</p>"), status_code=404)
+        shown = public(job)
+        parts = [
+            f"<p class='state'>{job['state']} <progress value='{job['done']}' "
+            f"max='{job['total']}'></progress> {job['done']}/{job['total']} samples</p>",
+            f"<p>owner {html.escape(job['owner'])}, output <code>{html.escape(job['url'])}"
+            "</code></p>",
+        ]
+        if job["message"]:
+            parts.append(f"<p class='message'>{html.escape(job['message'])}</p>")
+        if shown["errors"]:
+            errors = "".join(
+                f"<li>sample {s}: {html.escape(r)}</li>" for s, r in shown["errors"].items()
+            )
+            parts.append(f"<ul class='errors'>{errors}</ul>")
+        if job["state"] == "succeeded":
+            parts += [
+                f"<h2>statistics</h2><img id='statistics' src='/jobs/{job['id']}/statistics.png'"
+                " alt='statistics plot'>",
+                f"<h2>first samples</h2><img id='preview' src='/jobs/{job['id']}/preview.png'"
+                " alt='preview strip'>",
+            ]
+        parts.append(f"<h2>sweep</h2><pre class='sweep'>{html.escape(job['sweep'])}</pre>")
+        title = f"oceanlidar job {job['id']}: {html.escape(job['name'])}"
+        return HTMLResponse(_page(title, "".join(parts), refresh=job["state"] not in FINAL))
+
+    async def picture(self, request: Request) -> Response:
+        job_id, kind = request.path_params["id"], request.path_params["picture"]
+        job = self.table.get(job_id)
+        if job is None or job["state"] != "succeeded" or kind not in ("statistics", "preview"):
+            return _error(404, "no such picture")
+        if (job_id, kind) not in self.pictures:
+            draw = _statistics_png if kind == "statistics" else _preview_png
+            try:
+                self.pictures[job_id, kind] = await run_in_threadpool(
+                    draw, job, self.runner.data_root
+                )
+            except SweepError as error:  # e.g. nothing swept: nothing to plot against
+                return _error(404, str(error))
+        return Response(self.pictures[job_id, kind], media_type="image/png")
+
+
+def _statistics_png(job: dict, data_root: str) -> bytes:
+    from service.plots import plot_statistics
+
+    stats = store.open_store(storage.stats_url(job["url"])).load()
+    buffer = io.BytesIO()
+    plot_statistics(stats, buffer)
+    return buffer.getvalue()
+
+
+def _preview_png(job: dict, data_root: str) -> bytes:
+    """The gated images of the first samples, one row each (rendered again, as stored)."""
+    import matplotlib.pyplot as plt
+    from PIL import Image
+
+    from service.plots import preview_figure, render_preview
+
+    plan = parse_sweep(job["sweep"], folder=data_root, max_memory=None)
+    rows = []
+    for sample in range(min(PREVIEW_SAMPLES, plan.samples)):
+        figure = preview_figure(render_preview(plan, sample), title=f"sample {sample}")
+        buffer = io.BytesIO()
+        figure.savefig(buffer, format="png")
+        plt.close(figure)
+        rows.append(Image.open(buffer).convert("RGB"))
+    strip = Image.new("RGB", (max(r.width for r in rows), sum(r.height for r in rows)), "white")
+    for index, row in enumerate(rows):
+        strip.paste(row, (0, sum(r.height for r in rows[:index])))
+    buffer = io.BytesIO()
+    strip.save(buffer, format="PNG")
+    return buffer.getvalue()
+
+
+def _when(seconds: float) -> str:
+    return time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime(seconds)) + " UTC"
+
+
+def _page(title: str, body: str, *, refresh: bool = False) -> str:
+    meta = '<meta http-equiv="refresh" content="3">' if refresh else ""
+    style = (
+        "body{font-family:sans-serif;margin:2em}td,th{padding:0.2em 0.8em;text-align:left}"
+        "pre{background:#f4f4f4;padding:1em}progress{width:10em}"
+    )
+    return (
+        f"<!doctype html><html><head><meta charset='utf-8'>{meta}<title>{title}</title>"
+        f"<style>{style}</style></head><body><h1><a href='/'>oceanlidar</a></h1>"
+        f"<h2>{title}</h2>{body}</body></html>"
+    )
+
+
+def create_app(runner: Runner, tokens: dict[str, str]) -> Starlette:
+    """The ASGI application over a started `runner`; no token: no authentication."""
+    return Starlette(routes=_Service(runner, tokens).routes())
+
+
+def serve(args, security) -> int:
+    """Run the service until interrupted (the ``serve`` command); `security` as for run."""
+    tokens = read_tokens(args.token_file)
+    if args.no_auth:
+        if args.host not in LOOPBACK:
+            raise SweepError(f"--no-auth is allowed on 127.0.0.1 only, not --host {args.host}")
+        tokens = {}
+    elif not tokens:
+        raise SweepError(
+            "no token: give --token-file PATH or OCEANLIDAR_TOKEN (or --no-auth, on "
+            "127.0.0.1 only)"
+        )
+    for flag in ("max_running", "queue_limit", "batch"):
+        if getattr(args, flag) < 1:
+            raise SweepError(f"--{flag.replace('_', '-')} must be at least 1")
+    root = storage.normalise(args.data_root, args.storage_options)
+    if "://" not in root:
+        os.makedirs(root, exist_ok=True)
+    table = JobTable(args.db)
+    with dask_client(workers=args.workers, scheduler=args.scheduler, security=security) as client:
+        runner = Runner(
+            table,
+            client,
+            data_root=root,
+            max_running=args.max_running,
+            queue_limit=args.queue_limit,
+            batch_size=args.batch,
+            storage_options=args.storage_options,
+        )
+        config = uvicorn.Config(
+            create_app(runner, tokens),
+            host=args.host,
+            port=args.port,
+            log_level="warning",
+            access_log=False,
+        )
+        runner.start()
+        print(
+            f"oceanlidar serve: http://{args.host}:{args.port} (data root {root}, jobs {args.db})",
+            file=sys.stderr,
+            flush=True,
+        )
+        try:
+            uvicorn.Server(config).run()
+        finally:
+            runner.stop()
+    return 0

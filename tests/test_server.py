@@ -1,0 +1,420 @@
+"""The batch service: a real `oceanlidar serve` process, real HTTP on loopback, real workers."""
+
+import contextlib
+import json
+import os
+import shutil
+import signal
+import subprocess
+import tempfile
+import threading
+import time
+import urllib.error
+import urllib.parse
+import urllib.request
+
+import pytest
+from conftest import TINY_SWEEP, assert_same_samples, cli_command, free_port, run_cli
+
+from service import integrity, storage
+from service.cli import main
+
+TOKEN = "s3cret-token"
+LONG = 40
+"""Realisations per point of the sweep the jobs run (two points): long enough to act on."""
+
+
+def sweep(output, *, realisations=LONG, name="served"):
+    return TINY_SWEEP.format(name=name, seed=5, realisations=realisations, output=output)
+
+
+class Server:
+    """An `oceanlidar serve` process in its own process group (its workers with it)."""
+
+    def __init__(self, folder, *args, token=TOKEN):
+        self.folder, self.args, self.token = folder, args, token
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        self.process = None
+
+    def start(self):
+        env = {"OCEANLIDAR_TOKEN": self.token} if self.token else {}
+        command, env = cli_command(
+            "serve",
+            "--port",
+            self.port,
+            "--db",
+            self.folder / "jobs.sqlite",
+            "--data-root",
+            self.folder / "data",
+            "--workers",
+            "2",
+            "--batch",
+            "1",
+            *self.args,
+            env=env,
+        )
+        self.log = open(self.folder / "server.log", "ab")
+        self.process = subprocess.Popen(
+            command,
+            cwd=self.folder,
+            env=env,
+            stdout=self.log,
+            stderr=self.log,
+            start_new_session=True,
+        )
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            assert self.process.poll() is None, (self.folder / "server.log").read_text()
+            with contextlib.suppress(OSError):
+                if self.request("GET", "/v1/health")[0] == 200:
+                    return self
+            time.sleep(0.2)
+        raise AssertionError("the server did not answer within 60 s")
+
+    def request(self, method, path, body=None, *, token=None):
+        request = urllib.request.Request(self.url + path, data=body, method=method)
+        if token or self.token:
+            request.add_header("Authorization", f"Bearer {token or self.token}")
+        try:
+            with urllib.request.urlopen(request, timeout=30) as response:
+                return response.status, json.loads(response.read())
+        except urllib.error.HTTPError as error:
+            return error.code, json.loads(error.read())
+
+    def submit(self, text, mode="new"):
+        return self.request("POST", f"/v1/jobs?mode={mode}", text.encode())
+
+    def job(self, job_id):
+        return self.request("GET", f"/v1/jobs/{job_id}")[1]
+
+    def wait(self, job_id, until, timeout=120):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            job = self.job(job_id)
+            if until(job):
+                return job
+            time.sleep(0.05)
+        raise AssertionError(f"job {job_id} never got there: {job}")
+
+    def kill(self, sig=signal.SIGKILL):
+        """Send `sig` to the server and its workers; wait for the server to end."""
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(self.process.pid, sig)
+        self.process.wait(timeout=30)
+
+    def stop(self):
+        if self.process is not None and self.process.poll() is None:
+            self.process.send_signal(signal.SIGTERM)
+            try:
+                self.process.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                pass
+        if self.process is not None:
+            with contextlib.suppress(ProcessLookupError):  # leftover workers
+                os.killpg(self.process.pid, signal.SIGKILL)
+            self.process.wait(timeout=30)
+            self.log.close()
+
+
+@contextlib.contextmanager
+def running(folder, *args, token=TOKEN):
+    server = Server(folder, *args, token=token)
+    try:
+        yield server.start()
+    finally:
+        server.stop()
+
+
+def finished(job):
+    return job["state"] in ("succeeded", "failed", "cancelled")
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """The sweep run by `oceanlidar run`."""
+    folder = tmp_path_factory.mktemp("reference")
+    (folder / "sweep.yaml").write_text(sweep("reference.zarr"))
+    result = run_cli("run", "sweep.yaml", "--workers", "1", cwd=folder)
+    assert result.returncode == 0, result.stderr
+    return folder / "reference.zarr"
+
+
+OTHER_TOKEN = "another-token"
+
+
+@pytest.fixture(scope="module")
+def service(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("service")
+    (folder / "tokens").write_text(f"# owner token\nalice {TOKEN}\nbob {OTHER_TOKEN}\n")
+    with running(folder, "--max-running", "2", "--token-file", folder / "tokens") as server:
+        yield server
+
+
+def client(monkeypatch, server, token=TOKEN):
+    """The CLI clients talk to `server` (through the environment, as users set it)."""
+    monkeypatch.setenv("OCEANLIDAR_SERVER", server.url)
+    monkeypatch.setenv("OCEANLIDAR_TOKEN", token)
+
+
+def test_submit_and_watch_gives_the_bytes_of_run(
+    service, reference, tmp_path, monkeypatch, capsys
+):
+    (tmp_path / "sweep.yaml").write_text(sweep("watched.zarr"))
+    client(monkeypatch, service)
+    assert main(["submit", str(tmp_path / "sweep.yaml")]) == 0
+    job_id = capsys.readouterr().out.strip()
+    assert main(["status", job_id, "--watch"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[-1].split()[:3] == [job_id, "succeeded", f"{2 * LONG}/{2 * LONG}"]
+    job = service.job(job_id)
+    assert job["owner"] == "alice" and job["errors"] == {}
+    assert_same_samples(job["url"], reference, names=None)
+    assert storage.root_attributes(storage.stats_url(job["url"]))[storage.KIND] == "statistics"
+    assert main(["jobs", "--state", "succeeded"]) == 0
+    assert job_id in capsys.readouterr().out
+
+
+def test_two_jobs_at_once_share_the_cluster(service, reference):
+    ids = [
+        service.request("POST", "/v1/jobs", sweep(f"shared-{n}.zarr").encode(), token=token)[1][
+            "id"
+        ]
+        for n, token in enumerate([TOKEN, OTHER_TOKEN])
+    ]
+    assert [service.job(job_id)["owner"] for job_id in ids] == ["alice", "bob"]
+    events = []
+
+    def follow():
+        request = urllib.request.Request(f"{service.url}/v1/jobs/{ids[0]}/events")
+        request.add_header("Authorization", f"Bearer {TOKEN}")
+        with urllib.request.urlopen(request, timeout=120) as stream:
+            assert stream.headers["content-type"].startswith("text/event-stream")
+            events.extend(json.loads(line[6:]) for line in stream if line.startswith(b"data: "))
+
+    follower = threading.Thread(target=follow)
+    follower.start()
+    snapshot = []
+    while not any(map(finished, snapshot)):
+        time.sleep(0.05)
+        snapshot = [service.job(job_id) for job_id in ids]
+    # when the first job ends the other has had its share of the workers too
+    done = [job["samples"]["done"] for job in snapshot]
+    assert min(done) >= 2 * LONG // 4, done
+    for job_id in ids:
+        job = service.wait(job_id, finished)
+        assert job["state"] == "succeeded", job
+        assert_same_samples(job["url"], reference, names=None)
+    follower.join(timeout=120)
+    done = [event["samples"]["done"] for event in events]
+    assert events[-1]["state"] == "succeeded" and done == sorted(done) and len(set(done)) > 2
+
+
+def test_cancel_stops_the_job_and_resume_completes_it(service, reference, monkeypatch):
+    text = sweep("cancelled.zarr")
+    job_id = service.submit(text)[1]["id"]
+    service.wait(job_id, lambda job: job["samples"]["done"] >= 4)
+    status, job = service.request("DELETE", f"/v1/jobs/{job_id}")
+    assert status == 200 and job["state"] in ("running", "cancelled"), job
+    job = service.wait(job_id, finished)
+    assert job["state"] == "cancelled", job
+    complete = integrity.completed_samples(job["url"])
+    time.sleep(2.0)  # nothing runs on after the cancel
+    assert (integrity.completed_samples(job["url"]) == complete).all()
+    assert 4 <= complete.sum() < 2 * LONG
+    assert not os.path.exists(f"{job['url']}/{storage.LOCK_NAME}")
+    client(monkeypatch, service)
+    assert main(["status", job_id]) == 1
+    status, refused = service.submit(text)
+    assert status == 400 and "already exists" in refused["error"]
+    status, again = service.submit(text, mode="resume")
+    assert status == 201
+    assert service.wait(again["id"], finished)["state"] == "succeeded"
+    assert_same_samples(job["url"], reference, names=None)
+    assert service.request("DELETE", f"/v1/jobs/{again['id']}")[0] == 409
+
+
+SLOW = """\
+name: slow
+seed: 3
+realisations: 8
+output: slow.zarr
+scene:
+  surface: {grid_size: 2048, spacing: 0.05}  # a large sea: about 0.2 s a sample
+  receiver: {pixels: 8, gates: [[2.0, 6.0]]}
+"""
+
+
+def test_cancel_lets_no_task_write_on(service):
+    job_id = service.submit(SLOW)[1]["id"]
+    service.wait(job_id, lambda job: job["samples"]["done"] >= 1)
+    assert service.request("DELETE", f"/v1/jobs/{job_id}")[0] == 200
+    job = service.wait(job_id, finished)
+    assert job["state"] == "cancelled", job
+    complete = integrity.completed_samples(job["url"])
+    assert complete.sum() == job["samples"]["done"] < 8
+    time.sleep(1.0)  # tasks that were executing ended before the job said cancelled
+    assert (integrity.completed_samples(job["url"]) == complete).all()
+
+
+def test_sigkill_mid_job_then_restart_resumes(reference, tmp_path, monkeypatch, capsys):
+    server = Server(tmp_path, "--max-running", "1")
+    try:
+        server.start()
+        first = server.submit(sweep("killed.zarr"))[1]["id"]
+        second = server.submit(sweep("waiting.zarr", realisations=1))[1]["id"]
+        third = server.submit(sweep("dropped.zarr", realisations=1))[1]["id"]
+        server.wait(first, lambda job: job["samples"]["done"] >= 6)
+        server.kill()
+        url = str(tmp_path / "data" / "killed.zarr")
+        assert 6 <= integrity.completed_samples(url).sum() < 2 * LONG
+        server.start()
+        assert server.job(second)["state"] == server.job(third)["state"] == "queued"
+        client(monkeypatch, server)
+        assert main(["cancel", third]) == 0
+        assert "cancelled" in capsys.readouterr().out
+        job = server.wait(first, finished)
+        assert job["state"] == "succeeded" and job["resumed"], job
+        assert_same_samples(url, reference, names=None)
+        assert server.wait(second, finished)["state"] == "succeeded"
+        assert server.job(third)["state"] == "cancelled"
+        assert not (tmp_path / "data" / "dropped.zarr").exists()
+    finally:
+        server.stop()
+
+
+def test_no_token_is_401_and_serve_refuses_to_run_open(service, monkeypatch, capsys):
+    assert service.request("GET", "/v1/health")[0] == 200
+    for method, path, body in [
+        ("GET", "/v1/jobs", None),
+        ("POST", "/v1/jobs", sweep("nope.zarr").encode()),
+    ]:
+        request = urllib.request.Request(service.url + path, data=body, method=method)
+        with pytest.raises(urllib.error.HTTPError) as error:
+            urllib.request.urlopen(request, timeout=30)
+        assert error.value.code == 401
+        assert service.request(method, path, body, token="wrong")[0] == 401
+    assert not (service.folder / "data" / "nope.zarr").exists()
+    # browsers: the token from /login, kept in a cookie
+    opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor())
+    with opener.open(f"{service.url}/", timeout=30) as page:
+        assert page.url.endswith("/login") and "password" in page.read().decode()
+    login = urllib.parse.urlencode({"token": TOKEN}).encode()
+    with opener.open(f"{service.url}/login", data=login, timeout=30) as page:
+        assert page.url == f"{service.url}/" and "oceanlidar jobs" in page.read().decode()
+    client(monkeypatch, service, token="")
+    assert main(["jobs"]) == 2
+    assert "a valid token is needed" in capsys.readouterr().err
+    # refused before anything starts: no cluster, no port taken
+    assert main(["serve", "--port", str(free_port())]) == 2
+    assert "no token" in capsys.readouterr().err
+    assert main(["serve", "--no-auth", "--host", "0.0.0.0"]) == 2
+    assert "127.0.0.1 only" in capsys.readouterr().err
+
+
+BAD_SWEEPS = {
+    "not yaml": ("name: [unclosed", None),
+    "no seed": ("name: x\noutput: x.zarr\n", "seed"),
+    "bad value": (sweep("x.zarr").replace("pixels: 16", "pixels: -3"), "scene.receiver.pixels"),
+    "unknown parameter": (
+        sweep("x.zarr").replace("target.shape", "target.colour"),
+        "sweep.parameters.target.colour",
+    ),
+    "measurement outside": (
+        sweep("x.zarr").replace("surface: {", "surface: {conditioning: {file: ../secret.csv}, "),
+        "scene.surface.conditioning.file",
+    ),
+}
+"""Sweeps the CLI refuses too: the same message comes back, by field path."""
+
+ESCAPES = ["/tmp/escape.zarr", "../escape.zarr", "s3://bucket/escape.zarr", "link/escape.zarr"]
+"""Outputs that leave the data root (``link`` leads out of it)."""
+
+
+def test_bad_sweeps_are_400_with_the_cli_message_and_nothing_written(service, tmp_path, capsys):
+    data = service.folder / "data"
+    before_files = sorted(p.name for p in data.iterdir())
+    before_jobs = len(service.request("GET", "/v1/jobs")[1]["jobs"])
+    for label, (text, field) in BAD_SWEEPS.items():
+        status, answer = service.submit(text)
+        assert status == 400, label
+        (tmp_path / "bad.yaml").write_text(text)
+        assert main(["validate", str(tmp_path / "bad.yaml")]) == 2
+        assert answer["error"] in capsys.readouterr().err, label
+        assert field is None or answer["error"].startswith(field), (label, answer)
+    outside = tempfile.mkdtemp()
+    try:
+        os.symlink(outside, data / "link")
+        for output in ESCAPES:
+            status, answer = service.submit(sweep(output))
+            assert status == 400 and answer["error"].startswith("output:"), (output, answer)
+        assert os.listdir(outside) == []
+    finally:
+        os.unlink(data / "link")
+        shutil.rmtree(outside)
+    assert not os.path.exists("/tmp/escape.zarr")
+    assert sorted(p.name for p in data.iterdir()) == before_files
+    assert len(service.request("GET", "/v1/jobs")[1]["jobs"]) == before_jobs
+
+
+@pytest.fixture(scope="module")
+def open_service(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("open")
+    with running(folder, "--no-auth", "--queue-limit", "1", "--max-running", "1", token="") as s:
+        yield s
+
+
+def test_queue_limit_is_429(open_service):
+    status, job = open_service.submit(sweep("first.zarr"))
+    assert status == 201 and job["state"] == "queued" and job["owner"] == "anonymous"
+    status, answer = open_service.submit(sweep("second.zarr"))
+    assert status == 429, answer
+    assert [j["id"] for j in open_service.request("GET", "/v1/jobs")[1]["jobs"]] == [job["id"]]
+    assert open_service.wait(job["id"], finished)["state"] == "succeeded"
+    status, job = open_service.submit(sweep("second.zarr", realisations=1))
+    assert status == 201
+    assert open_service.wait(job["id"], finished)["state"] == "succeeded"
+
+
+def chromium(*args, folder):
+    binary = shutil.which("chromium") or shutil.which("chromium-browser")
+    if binary is None:
+        pytest.skip("no chromium binary (apt-get install chromium); the page is not tested")
+    command = [
+        binary,
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--no-first-run",
+        f"--user-data-dir={folder / 'profile'}",
+        *args,
+    ]
+    result = subprocess.run(command, capture_output=True, text=True, timeout=120, cwd=folder)
+    assert result.returncode == 0, result.stderr
+    return result.stdout
+
+
+def test_page_shows_the_job_in_a_browser(open_service, tmp_path):
+    status, job = open_service.submit(sweep("paged.zarr", realisations=2, name="paged"))
+    assert status == 201
+    assert open_service.wait(job["id"], finished)["state"] == "succeeded"
+    listing = chromium("--dump-dom", open_service.url + "/", folder=tmp_path)
+    assert job["id"] in listing and "paged" in listing and "<progress" in listing
+    page = chromium("--dump-dom", f"{open_service.url}/jobs/{job['id']}", folder=tmp_path)
+    assert "succeeded" in page and "target.shape" in page  # its parameters
+    assert f"/jobs/{job['id']}/statistics.png" in page and f"/jobs/{job['id']}/preview.png" in page
+    for picture in ("statistics", "preview"):
+        with urllib.request.urlopen(f"{open_service.url}/jobs/{job['id']}/{picture}.png") as r:
+            assert r.headers["content-type"] == "image/png"
+            assert r.read(8) == b"\x89PNG\r\n\x1a\n"
+    shot = tmp_path / "page.png"
+    chromium(
+        f"--screenshot={shot}",
+        "--window-size=900,1400",
+        f"{open_service.url}/jobs/{job['id']}",
+        folder=tmp_path,
+    )
+    assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
