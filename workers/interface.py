@@ -100,6 +100,11 @@ class Projected:
     log_extra: np.ndarray
     log_extra_slope: np.ndarray
 
+    @property
+    def lines(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(base_u, slope_u, base_v, slope_v)``, for `workers.kernels`."""
+        return self.base_u, self.slope_u, self.base_v, self.slope_v
+
     def cross(self, levels: Levels):
         """Rays on a plane (at its depth) and their extra-path attenuation.
 

@@ -76,11 +76,13 @@ class TargetLight:
     """The target's reflectance maps per gate: gates cutting it alike share one map.
 
     Each map is a pair (fine, coarse); the coarse one holds the part of a large target
-    outside the fine grid (None when the target lies within it).
+    outside the fine grid (None when the target lies within it). `rows` spans the fine
+    rows where any map is non-zero.
     """
 
     weights: tuple[tuple[np.ndarray, np.ndarray | None], ...]
     gates: tuple[tuple[int, ...], ...]
+    rows: slice
 
 
 @dataclass(frozen=True)
@@ -289,8 +291,11 @@ def _target_light(setup, sensor, levels: Levels) -> TargetLight:
             maps[signature] = (pair[0], pair[1] if len(pair) > 1 else None)
             members[signature] = []
         members[signature].append(g)
+    used = np.flatnonzero(sum((fine.any(axis=1) for fine, _ in maps.values()), start=False))
     return TargetLight(
-        weights=tuple(maps.values()), gates=tuple(tuple(m) for m in members.values())
+        weights=tuple(maps.values()),
+        gates=tuple(tuple(m) for m in members.values()),
+        rows=slice(int(used[0]), int(used[-1]) + 1) if used.size else slice(0, 0),
     )
 
 

@@ -47,10 +47,11 @@ import xarray as xr
 
 from workers.gates import hidden_fraction
 from workers.geometry import Located
-from workers.interface import through_surface
+from workers.interface import Projected, through_surface
+from workers.kernels import Cells, gather_levels, span, splat_levels
 from workers.labels import labelled_dataset, sample_labels, target_mask
 from workers.noise import shot_noise
-from workers.planes import FrameGeometry, frame_geometry
+from workers.planes import FrameGeometry, Plane, frame_geometry
 from workers.scene import Scene
 from workers.seeds import SampleSeed
 from workers.sensor import Setup, scene_setup
@@ -130,23 +131,6 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
     down_axes = down.on_axes(axes_grid, K)
     up_axes = up.on_axes(axes_grid, K)
 
-    def sources(plane, rays, outside, ray_power):
-        """The rays' power on the plane: fine splat, and the coarse light outside it."""
-        fine = plane.grid.splat(rays, ray_power)
-        coarse = None
-        if plane.tail is not None:
-            fine += plane.tail[0]
-            coarse = plane.tail[1]
-        if outside is not None:
-            index, located = outside
-            spilled = plane.levels.coarse.splat(located, ray_power[index])
-            coarse = spilled if coarse is None else coarse + spilled
-        return fine, coarse
-
-    def sight_on(plane):
-        located, extra, _ = up_axes.cross(plane.levels)
-        return located, up.transmittance * extra
-
     pixels = setup.scene.receiver.pixels
     images = np.zeros((len(setup.gates), pixels * pixels), dtype=np.float32)
     mask = np.zeros(pixels * pixels, dtype=np.uint8)
@@ -155,25 +139,28 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
     if impostor is not None:
         plane = geometry.target_plane
         grid = plane.grid
-        rays, extra, outside = down_axes.cross(plane.levels)
+        rays, extra, _ = down_axes.cross(plane.levels)
         target_rays = rays
-        sight, sight_weight = sight_on(plane)
+        sight, sight_extra, _ = up_axes.cross(plane.levels)
         occupancy = grid.gather(impostor.occupancy, rays)
         surface_depth = grid.gather(impostor.surface_depth, rays)
         lit = np.flatnonzero(occupancy)
         mask = target_mask(grid.gather(impostor.occupancy, sight))
-        irradiance, beyond = plane.spread(*sources(plane, rays, outside, power * extra))
         light = geometry.target_light
+        fine, source = _splat(plane, down_axes, power * extra)
+        near, far, beyond = plane.spread.filtered(fine, source, rows_out=light.rows, far_out=True)
+        near += plane.levels.upsample(far, rows=light.rows)
         for (weights, coarse), gates in zip(light.weights, light.gates, strict=True):
-            radiance, _ = plane.spread(
-                irradiance * weights, None if coarse is None else beyond * coarse, far_out=False
-            )
-            seen = grid.gather(radiance, sight) * sight_weight
+            fine[:] = 0.0
+            fine[light.rows] = near * weights[light.rows]
+            source = plane.levels.downsample(fine)
+            if coarse is not None:
+                source += beyond * coarse
+            seen = np.zeros(pixels * pixels, dtype=np.float32)
+            _gather(plane, up_axes, fine, source, up.transmittance * sight_extra, seen, light.rows)
             for g in gates:
                 images[g] += seen
     for g, plane in enumerate(geometry.gate_planes):
-        rays, _, outside = down_axes.cross(plane.levels)
-        sight, _, _ = up_axes.cross(plane.levels)
         ray_power = power * setup.gate_gain(down_excess, g)
         if plane.bounds is not None and lit.size:
             # rays that meet the target lose the part of the slab behind it
@@ -187,14 +174,42 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
                 diffuse_attenuation=K * setup.secant,
             )
             ray_power[lit] *= np.sqrt(np.maximum(1.0 - hidden, 0.0))
-        radiance, _ = plane.spread(*sources(plane, rays, outside, ray_power), far_out=False)
-        if plane.occlusion is not None:
-            radiance *= plane.occlusion
-        seen = plane.grid.gather(radiance, sight)
-        seen *= up.transmittance * setup.gate_gain(up_excess, g)
-        images[g] += seen
+        fine, source = _splat(plane, down_axes, ray_power)
+        weight = up.transmittance * setup.gate_gain(up_excess, g)
+        _gather(plane, up_axes, fine, source, weight, images[g], occlusion=plane.occlusion)
     # the near and far parts of a spread each ring a little below zero where almost no
     # light lands; their sum is light, never negative
     np.maximum(images, 0.0, out=images)
     images *= np.float32(setup.scale)
     return images.reshape(len(setup.gates), pixels, pixels), mask.reshape(pixels, pixels)
+
+
+def _splat(plane: Plane, rays: Projected, power: np.ndarray):
+    """Rays onto a plane: its fine field and the coarse source of its far spread."""
+    levels = plane.levels
+    fine = np.empty(levels.fine.shape, dtype=np.float32)
+    source = np.empty(levels.coarse.shape, dtype=np.float32)
+    tails = plane.tail or (np.zeros_like(fine), np.zeros_like(source))
+    grids = (levels.fine, levels.coarse)
+    densities = tuple(np.float32(1.0 / (g.spacing_u * g.spacing_v)) for g in grids)
+    block = tuple(b.start for b in levels.block)
+    splat_levels(rays.lines, power, Cells.of(levels), densities, tails, fine, source, block)
+    return fine, source
+
+
+_NO_OCCLUSION = np.zeros((0, 0), dtype=np.float32)
+
+
+def _gather(plane, sight, fine, source, weight, out, rows=slice(None), occlusion=None):
+    """Spread a field on a plane and add it, times `weight`, at the pixels' sights to `out`.
+
+    `fine` is zero outside its `rows`; the near spread is computed on the rows that the
+    sights reach only.
+    """
+    cells, shape = Cells.of(plane.levels), plane.grid.shape
+    window = span(sight.lines, cells, shape)
+    near, far, _ = plane.spread.filtered(fine, source, rows_in=rows, rows_out=slice(*window[:2]))
+    occlusion = _NO_OCCLUSION if occlusion is None else occlusion
+    gather_levels(
+        sight.lines, cells, shape, near, window, far, plane.levels.lift, occlusion, weight, out
+    )
