@@ -85,7 +85,7 @@ def _deposit(field, row, col, value):
 
 
 @numba.njit(cache=True, nogil=True)
-def splat_levels(lines, power, cells, densities, tails, fine, source, block):
+def splat_levels(lines, power, cells, densities, fine, source, block):
     """Splat rays onto a two-level plane: the fine field and the coarse spread source.
 
     Parameters
@@ -98,52 +98,53 @@ def splat_levels(lines, power, cells, densities, tails, fine, source, block):
         The plane's map.
     densities : tuple of float32
         1 / cell area of the fine and coarse grids [1/m²].
-    tails : tuple of ndarray
-        Light already on the fine and coarse grids (the beam's tail), float32.
     fine : ndarray
-        Out: the fine field (tail plus rays), float32.
+        In zeros, out the fine field: power per area, float32.
     source : ndarray
-        Out: the coarse source of the far spread: block means of `fine` inside the fine
-        region, the tail's and the rays' light outside it, float32.
+        In zeros, out the coarse source of the far spread: block means of `fine` inside the
+        fine region, the light of the rays that miss it outside, float32.
     block : tuple of int
         Coarse (row, col) of the fine grid's first block.
+
+    Returns
+    -------
+    tuple of int
+        The fine rows and the coarse rows outside which `fine` and `source` are zero
+        (first, last + 1 of each).
 
     Notes
     -----
     Rays that miss the fine grid land on the coarse one; rays that miss both are dropped.
-    Sums are taken in float64, as ``np.bincount`` does in `PlaneGrid.splat`.
     """
     base_u, slope_u, base_v, slope_v = lines
     fine_density, coarse_density = densities
-    acc = np.zeros(fine.shape)
-    outside = np.zeros(source.shape)
+    rows, cols = fine.shape
+    top, bottom = rows, 0
+    coarse_top, coarse_bottom = source.shape[0], 0
     for i in range(power.size):
         row = _at(base_v, slope_v, i, cells.depth, cells.origin_v, cells.scale_v)
         col = _at(base_u, slope_u, i, cells.depth, cells.origin_u, cells.scale_u)
-        if not _deposit(acc, row, col, power[i] * fine_density):
-            _deposit(
-                outside,
-                row / cells.factor + cells.shift_v,
-                col / cells.factor + cells.shift_u,
-                power[i] * coarse_density,
-            )
-    rows, cols = fine.shape
-    for r in range(rows):
-        for c in range(cols):
-            fine[r, c] = np.float32(acc[r, c]) + tails[0][r, c]
-    coarse_rows, coarse_cols = source.shape
-    for r in range(coarse_rows):
-        for c in range(coarse_cols):
-            source[r, c] = np.float32(outside[r, c]) + tails[1][r, c]
+        if _deposit(fine, row, col, power[i] * fine_density):
+            top = min(top, int(row))
+            bottom = max(bottom, int(row) + 2)
+            continue
+        row = row / cells.factor + cells.shift_v
+        col = col / cells.factor + cells.shift_u
+        if _deposit(source, row, col, power[i] * coarse_density):
+            coarse_top = min(coarse_top, int(row))
+            coarse_bottom = max(coarse_bottom, int(row) + 2)
     factor = int(cells.factor)
     share = 1.0 / (factor * factor)
-    for br in range(rows // factor):
+    for br in range(top // factor, (bottom + factor - 1) // factor):
+        coarse_top = min(coarse_top, block[0] + br)
+        coarse_bottom = max(coarse_bottom, block[0] + br + 1)
         for bc in range(cols // factor):
             total = 0.0
             for r in range(br * factor, (br + 1) * factor):
                 for c in range(bc * factor, (bc + 1) * factor):
                     total += fine[r, c]
             source[block[0] + br, block[1] + bc] += np.float32(total * share)
+    return min(top, bottom), bottom, min(coarse_top, coarse_bottom), coarse_bottom
 
 
 @numba.njit(cache=True, nogil=True)
@@ -172,7 +173,7 @@ def span(lines, cells, shape):
 
 
 @numba.njit(cache=True, nogil=True)
-def gather_levels(lines, cells, shape, near, window, far, lift, occlusion, weight, out):
+def gather_levels(lines, cells, shape, parts, lift, occlusion, weight, out):
     """Add the spread field, bilinearly interpolated at each line's crossing, to `out`.
 
     Parameters
@@ -183,12 +184,11 @@ def gather_levels(lines, cells, shape, near, window, far, lift, occlusion, weigh
         The plane's map.
     shape : tuple of int
         The fine grid's shape.
-    near : ndarray
-        The near spread on the fine rows ``window[0]:window[1]``, float32.
-    window : tuple of int
-        The fine cells the lines reach (`span`).
-    far : ndarray
-        The far spread on the coarse grid, float32.
+    parts : tuple
+        ``(near, window, far, tail)``: the near spread on the fine rows
+        ``window[0]:window[1]``, the fine cells the lines reach (`span`), the far spread
+        on the coarse grid, and the beam tail's near and far spreads (size 0: none);
+        float32.
     lift : tuple
         ``((lower row, weight), (lower col, weight))`` of each fine cell on the coarse grid
         (`workers.spread.Levels.lift`).
@@ -204,6 +204,7 @@ def gather_levels(lines, cells, shape, near, window, far, lift, occlusion, weigh
     The field is first assembled on the window, ``near + upsampled far`` (times the
     occlusion), in float32 as `workers.spread.Spread` does on the whole grid.
     """
+    near, window, far, (tail_near, tail_far) = parts
     top, bottom, left, right = window
     (rl, rw), (cl, cw) = lift
     field = np.empty((bottom - top, right - left), dtype=np.float32)
@@ -211,9 +212,15 @@ def gather_levels(lines, cells, shape, near, window, far, lift, occlusion, weigh
         a, lower, upper = rl[r], _ONE - rw[r], rw[r]
         for c in range(left, right):
             b = cl[c]
-            first = far[a, b] * lower + far[a + 1, b] * upper
-            second = far[a, b + 1] * lower + far[a + 1, b + 1] * upper
-            value = near[r - top, c] + (first * (_ONE - cw[c]) + second * cw[c])
+            low = far[a, b] * lower + far[a + 1, b] * upper
+            high = far[a, b + 1] * lower + far[a + 1, b + 1] * upper
+            if tail_far.size:
+                low += tail_far[a, b] * lower + tail_far[a + 1, b] * upper
+                high += tail_far[a, b + 1] * lower + tail_far[a + 1, b + 1] * upper
+            value = near[r - top, c]
+            if tail_near.size:
+                value += tail_near[r, c]
+            value += low * (_ONE - cw[c]) + high * cw[c]
             if occlusion.size:
                 value *= occlusion[r, c]
             field[r - top, c - left] = value

@@ -51,17 +51,20 @@ LATTICE_MARGIN = 8
 
 @dataclass(frozen=True)
 class Plane:
-    """An in-water plane: its two-level grid, spread, and the beam tail landing on it.
+    """An in-water plane: its two-level grid, spread, and the beam tail's light on it.
 
-    For a gate, `spread` is the round trip (the slab's reflectance times MTF²); where the
-    target hides part of the gate's water, `bounds` holds the gate's slab bounds on the
-    target plane's grid (for the rays that meet the target) and `occlusion` the square root
-    of the fraction not hidden, seen back through the upwelling point-spread function.
+    `tail` is the light of the beam's tail (which crosses the mean sea, the same in every
+    sample) already spread: ``(near, far, outside)`` as from `Spread.filtered`, with
+    `outside` only on the target's plane. For a gate, `spread` is the round trip (the
+    slab's reflectance times MTF²); where the target hides part of the gate's water,
+    `bounds` holds the gate's slab bounds on the target plane's grid (for the rays that
+    meet the target) and `occlusion` the square root of the fraction not hidden, seen back
+    through the upwelling point-spread function.
     """
 
     levels: Levels
     spread: Spread
-    tail: tuple[np.ndarray, np.ndarray] | None
+    tail: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None
     bounds: tuple[np.ndarray, np.ndarray] | None = None
     occlusion: np.ndarray | None = None
 
@@ -220,9 +223,12 @@ def frame_geometry(key: str, frame: int) -> FrameGeometry:
             passes=count,
             gain=gain,
         )
-        planes.append(
-            Plane(levels=levels, spread=spread, tail=_beam_tail(setup, sensor, levels, tail, gate))
-        )
+        light = _beam_tail(setup, sensor, levels, tail, gate)
+        if light is not None:
+            fine, coarse = light
+            source = levels.downsample(fine) + coarse
+            light = spread.filtered(fine, source, far_out=gate is None)
+        planes.append(Plane(levels=levels, spread=spread, tail=light))
     target_plane = impostor = target_light = target_sight = None
     if t.shape != "none":
         target_plane, planes = planes[0], planes[1:]

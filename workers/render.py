@@ -138,26 +138,37 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
     lit = np.empty(0, dtype=np.intp)
     if impostor is not None:
         plane = geometry.target_plane
-        grid = plane.grid
-        rays, extra, _ = down_axes.cross(plane.levels)
+        levels, grid = plane.levels, plane.grid
+        rays, extra, _ = down_axes.cross(levels)
         target_rays = rays
-        sight, sight_extra, _ = up_axes.cross(plane.levels)
+        sight, sight_extra, _ = up_axes.cross(levels)
         occupancy = grid.gather(impostor.occupancy, rays)
         surface_depth = grid.gather(impostor.surface_depth, rays)
         lit = np.flatnonzero(occupancy)
         mask = target_mask(grid.gather(impostor.occupancy, sight))
         light = geometry.target_light
-        fine, source = _splat(plane, down_axes, power * extra)
-        near, far, beyond = plane.spread.filtered(fine, source, rows_out=light.rows, far_out=True)
-        near += plane.levels.upsample(far, rows=light.rows)
+        rows = light.rows
+        wide = any(coarse is not None for _, coarse in light.weights)
+        fine, source, rows_in = _splat(plane, down_axes, power * extra)
+        near, far, beyond = plane.spread.filtered(
+            fine, source, rows_in=rows_in, rows_out=(rows, levels.coarse_rows(rows)), far_out=wide
+        )
+        if plane.tail is not None:
+            near += plane.tail[0][rows]
+            far += plane.tail[1]
+            if wide:
+                beyond += plane.tail[2]
+        near += levels.upsample(far, rows=rows)
+        inside = (rows, levels.coarse_rows(rows))
         for (weights, coarse), gates in zip(light.weights, light.gates, strict=True):
             fine[:] = 0.0
-            fine[light.rows] = near * weights[light.rows]
-            source = plane.levels.downsample(fine)
+            np.multiply(near, weights[rows], out=fine[rows])
+            source = levels.downsample(fine)
             if coarse is not None:
                 source += beyond * coarse
             seen = np.zeros(pixels * pixels, dtype=np.float32)
-            _gather(plane, up_axes, fine, source, up.transmittance * sight_extra, seen, light.rows)
+            rows_in = inside if coarse is None else (rows, slice(None))
+            _gather(plane, up_axes, (fine, source, rows_in), up.transmittance * sight_extra, seen)
             for g in gates:
                 images[g] += seen
     for g, plane in enumerate(geometry.gate_planes):
@@ -174,9 +185,11 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
                 diffuse_attenuation=K * setup.secant,
             )
             ray_power[lit] *= np.sqrt(np.maximum(1.0 - hidden, 0.0))
-        fine, source = _splat(plane, down_axes, ray_power)
         weight = up.transmittance * setup.gate_gain(up_excess, g)
-        _gather(plane, up_axes, fine, source, weight, images[g], occlusion=plane.occlusion)
+        sources = _splat(plane, down_axes, ray_power)
+        _gather(
+            plane, up_axes, sources, weight, images[g], tail=plane.tail, occlusion=plane.occlusion
+        )
     # the near and far parts of a spread each ring a little below zero where almost no
     # light lands; their sum is light, never negative
     np.maximum(images, 0.0, out=images)
@@ -185,31 +198,36 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
 
 
 def _splat(plane: Plane, rays: Projected, power: np.ndarray):
-    """Rays onto a plane: its fine field and the coarse source of its far spread."""
+    """Rays onto a plane: its fine field, the coarse source of its far spread, their rows."""
     levels = plane.levels
-    fine = np.empty(levels.fine.shape, dtype=np.float32)
-    source = np.empty(levels.coarse.shape, dtype=np.float32)
-    tails = plane.tail or (np.zeros_like(fine), np.zeros_like(source))
+    fine = np.zeros(levels.fine.shape, dtype=np.float32)
+    source = np.zeros(levels.coarse.shape, dtype=np.float32)
     grids = (levels.fine, levels.coarse)
     densities = tuple(np.float32(1.0 / (g.spacing_u * g.spacing_v)) for g in grids)
     block = tuple(b.start for b in levels.block)
-    splat_levels(rays.lines, power, Cells.of(levels), densities, tails, fine, source, block)
-    return fine, source
+    spans = splat_levels(rays.lines, power, Cells.of(levels), densities, fine, source, block)
+    return fine, source, (slice(*spans[:2]), slice(*spans[2:]))
 
 
-_NO_OCCLUSION = np.zeros((0, 0), dtype=np.float32)
+_NONE = np.zeros((0, 0), dtype=np.float32)
 
 
-def _gather(plane, sight, fine, source, weight, out, rows=slice(None), occlusion=None):
-    """Spread a field on a plane and add it, times `weight`, at the pixels' sights to `out`.
+def _gather(plane, sight, sources, weight, out, *, tail=None, occlusion=None):
+    """Spread light on a plane and add it, times `weight`, at the pixels' sights to `out`.
 
-    `fine` is zero outside its `rows`; the near spread is computed on the rows that the
-    sights reach only.
+    `sources` is ``(fine, source, rows)`` as from `_splat`; the light of the beam's `tail`
+    (`Plane.tail`) is added to the spread. Only the rows that the sights reach are
+    brought back from the spectra.
     """
-    cells, shape = Cells.of(plane.levels), plane.grid.shape
+    levels = plane.levels
+    cells, shape = Cells.of(levels), plane.grid.shape
+    fine, source, rows_in = sources
     window = span(sight.lines, cells, shape)
-    near, far, _ = plane.spread.filtered(fine, source, rows_in=rows, rows_out=slice(*window[:2]))
-    occlusion = _NO_OCCLUSION if occlusion is None else occlusion
-    gather_levels(
-        sight.lines, cells, shape, near, window, far, plane.levels.lift, occlusion, weight, out
+    rows = slice(*window[:2])
+    near, far, _ = plane.spread.filtered(
+        fine, source, rows_in=rows_in, rows_out=(rows, levels.coarse_rows(rows))
     )
+    tails = (_NONE, _NONE) if tail is None else tail[:2]
+    occlusion = _NONE if occlusion is None else occlusion
+    parts = (near, window, far, tails)
+    gather_levels(sight.lines, cells, shape, parts, levels.lift, occlusion, weight, out)

@@ -262,6 +262,13 @@ class Levels:
             axes.append((lower, (position - lower).astype(np.float32)))
         return tuple(axes)
 
+    def coarse_rows(self, rows: slice) -> slice:
+        """The coarse rows that the bilinear upsampling of the fine `rows` reads."""
+        if rows.start == rows.stop:
+            return slice(0, 0)
+        lower = self.lift[0][0]
+        return slice(int(lower[rows.start]), int(lower[rows.stop - 1]) + 2)
+
     def upsample(self, coarse: np.ndarray, rows: slice = slice(None)) -> np.ndarray:
         """A coarse field at the fine cell centres (bilinear interpolation), float32.
 
@@ -271,6 +278,9 @@ class Levels:
         rl, rw = rl[rows], rw[rows]
         along = coarse[rl] * (1 - rw)[:, None] + coarse[rl + 1] * rw[:, None]
         return (along[:, cl] * (1 - cw) + along[:, cl + 1] * cw).astype(np.float32)
+
+
+_ALL = (slice(None), slice(None))
 
 
 def _forward(field, rows):
@@ -424,28 +434,30 @@ class Spread:
         out += levels.upsample(far)
         return out, outside
 
-    def filtered(self, fine, source, *, rows_in=slice(None), rows_out=slice(None), far_out=False):
+    def filtered(self, fine, source, *, rows_in=_ALL, rows_out=_ALL, far_out=False):
         """The two parts of a spread, before the far one is brought to the fine grid.
 
         Parameters
         ----------
         fine : ndarray
-            Field on the fine grid, float32, zero outside the fine rows `rows_in`.
+            Field on the fine grid, float32.
         source : ndarray
             The far part's source on the coarse grid: `fine`'s block means
             (`Levels.downsample`) plus the light outside the fine grid, float32.
-        rows_in, rows_out : slice, optional
-            The fine rows where `fine` may be non-zero, and those to return.
+        rows_in : tuple of slice, optional
+            The rows of `fine` and of `source` outside which they are zero.
+        rows_out : tuple of slice, optional
+            The rows of the near (fine) and far (coarse) parts to return.
         far_out : bool, optional
-            Also return the spread field outside the fine region.
+            Also return the spread field outside the fine region (all rows).
 
         Returns
         -------
         near : ndarray
-            The near spread of `fine` on the fine `rows_out`, float32.
+            The near spread of `fine` on its `rows_out`, float32.
         far : ndarray
-            The far spread of `source` on the coarse grid, float32: the whole spread is
-            ``near + levels.upsample(far)``.
+            The far spread of `source` on the coarse grid (0 outside its `rows_out`),
+            float32: the whole spread is ``near + levels.upsample(far)``.
         outside : ndarray or None
             As in `__call__`.
 
@@ -455,11 +467,14 @@ class Spread:
         zero skip the first pass and rows not needed skip the last: the same transform,
         cheaper.
         """
-        spectrum = _forward(fine, rows_in)
+        spectrum = _forward(fine, rows_in[0])
         spectrum *= self.near
-        near = _inverse(spectrum, fine.shape, rows_out)
-        spectrum = scipy.fft.rfft2(source)
-        far = scipy.fft.irfft2(spectrum * self.far, s=source.shape)
+        near = _inverse(spectrum, fine.shape, rows_out[0])
+        spectrum = _forward(source, rows_in[1])
+        far = _inverse(spectrum * self.far, source.shape, rows_out[1])
+        if rows_out[1] != slice(None):
+            far, rows = np.zeros(source.shape, dtype=np.float32), far
+            far[rows_out[1]] = rows
         if not far_out:
             return near, far, None
         outside = scipy.fft.irfft2(spectrum * self.whole, s=source.shape)
