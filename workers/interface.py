@@ -8,7 +8,7 @@ functions of the depth of the plane they cross (`Projected`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -129,15 +129,23 @@ class Projected:
         row += self.base_v
         row -= np.float32(o0 * v0 + o1 * v1)
         row *= np.float32(1.0 / grid.spacing_v)
-        extra = self.log_extra_slope * z
-        extra += self.log_extra
         rows, cols = grid.shape
         missing = np.flatnonzero((row < 0) | (row >= rows - 1) | (col < 0) | (col >= cols - 1))
         outside = None
         if missing.size:
             coarse_row, coarse_col = levels.to_coarse(row[missing], col[missing])
             outside = (missing, levels.coarse.locate_cells(coarse_row, coarse_col))
-        return grid.locate_cells(row, col), np.exp(extra, out=extra), outside
+        return grid.locate_cells(row, col), self.extra(grid.depth), outside
+
+    def extra(self, depth: float) -> np.ndarray:
+        """Attenuation of each ray's extra slant path to a plane at `depth` [1], float32."""
+        extra = self.log_extra_slope * np.float32(depth)
+        extra += self.log_extra
+        return np.exp(extra, out=extra)
+
+    def take(self, index: np.ndarray) -> Projected:
+        """The rays at `index`."""
+        return Projected(**{f.name: getattr(self, f.name)[index] for f in fields(self)})
 
 
 def ray_components(origins, directions):

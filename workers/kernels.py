@@ -15,9 +15,10 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-__all__ = ["Cells", "gather_levels", "span", "splat_levels"]
+__all__ = ["Cells", "gather_levels", "sample", "span", "splat_levels"]
 
 _ONE = np.float32(1.0)
+_ZERO = np.float32(0.0)
 
 
 class Cells(NamedTuple):
@@ -64,16 +65,33 @@ def _at(base, slope, i, depth, origin, scale):
 
 
 @numba.njit(cache=True)
+def _split(row, col, rows, cols):
+    """Cell (r, c) below-left of a point, and its fractions down and right.
+
+    As `workers.geometry.PlaneGrid.locate_cells`; r = -1 for a point off the grid.
+    """
+    if row >= 0 and col >= 0:
+        r, c = int(row), int(col)  # the floor, for values >= 0
+        if r < rows - 1 and c < cols - 1:
+            return r, c, row - np.float32(r), col - np.float32(c)
+    return -1, 0, _ZERO, _ZERO
+
+
+@numba.njit(cache=True)
+def _locate(lines, i, cells, rows, cols):
+    """`_split` of line i's crossing of the plane."""
+    base_u, slope_u, base_v, slope_v = lines
+    row = _at(base_v, slope_v, i, cells.depth, cells.origin_v, cells.scale_v)
+    col = _at(base_u, slope_u, i, cells.depth, cells.origin_u, cells.scale_u)
+    return _split(row, col, rows, cols)
+
+
+@numba.njit(cache=True)
 def _deposit(field, row, col, value):
     """Add `value` bilinearly at (row, col) of `field`; False (nothing added) outside."""
-    rows, cols = field.shape
-    r0 = np.floor(row)
-    c0 = np.floor(col)
-    if not (r0 >= 0 and r0 < rows - 1 and c0 >= 0 and c0 < cols - 1):
+    r, c, down, right = _split(row, col, field.shape[0], field.shape[1])
+    if r < 0:
         return False
-    r, c = int(r0), int(c0)
-    down = row - r0
-    right = col - c0
     left = _ONE - right
     w2 = left * down
     w3 = right * down
@@ -154,19 +172,15 @@ def span(lines, cells, shape):
     Returns the first row, the last row + 1, the first column and the last column + 1
     (all 0 if no line meets the grid).
     """
-    base_u, slope_u, base_v, slope_v = lines
     rows, cols = shape
     top, bottom, left, right = rows, 0, cols, 0
-    for i in range(base_u.size):
-        row = _at(base_v, slope_v, i, cells.depth, cells.origin_v, cells.scale_v)
-        col = _at(base_u, slope_u, i, cells.depth, cells.origin_u, cells.scale_u)
-        r0 = np.floor(row)
-        c0 = np.floor(col)
-        if r0 >= 0 and r0 < rows - 1 and c0 >= 0 and c0 < cols - 1:
-            top = min(top, int(r0))
-            bottom = max(bottom, int(r0) + 2)
-            left = min(left, int(c0))
-            right = max(right, int(c0) + 2)
+    for i in range(lines[0].size):
+        r, c, _, _ = _locate(lines, i, cells, rows, cols)
+        if r >= 0:
+            top = min(top, r)
+            bottom = max(bottom, r + 2)
+            left = min(left, c)
+            right = max(right, c + 2)
     if top >= bottom:
         return 0, 0, 0, 0
     return top, bottom, left, right
@@ -202,40 +216,39 @@ def gather_levels(lines, cells, shape, parts, lift, occlusion, weight, out):
     Notes
     -----
     The field is first assembled on the window, ``near + upsampled far`` (times the
-    occlusion), in float32 as `workers.spread.Spread` does on the whole grid.
+    occlusion), in float32 as `workers.spread.Spread` does on the whole grid; the far
+    part is interpolated along the columns once per fine row.
     """
     near, window, far, (tail_near, tail_far) = parts
     top, bottom, left, right = window
     (rl, rw), (cl, cw) = lift
     field = np.empty((bottom - top, right - left), dtype=np.float32)
+    if top == bottom:
+        return
+    first = cl[left]
+    along = np.empty(cl[right - 1] + 2 - first, dtype=np.float32)
     for r in range(top, bottom):
         a, lower, upper = rl[r], _ONE - rw[r], rw[r]
-        for c in range(left, right):
-            b = cl[c]
-            low = far[a, b] * lower + far[a + 1, b] * upper
-            high = far[a, b + 1] * lower + far[a + 1, b + 1] * upper
+        for b in range(along.size):
+            value = far[a, first + b] * lower + far[a + 1, first + b] * upper
             if tail_far.size:
-                low += tail_far[a, b] * lower + tail_far[a + 1, b] * upper
-                high += tail_far[a, b + 1] * lower + tail_far[a + 1, b + 1] * upper
+                value += tail_far[a, first + b] * lower + tail_far[a + 1, first + b] * upper
+            along[b] = value
+        for c in range(left, right):
+            b = cl[c] - first
             value = near[r - top, c]
             if tail_near.size:
                 value += tail_near[r, c]
-            value += low * (_ONE - cw[c]) + high * cw[c]
+            value += along[b] * (_ONE - cw[c]) + along[b + 1] * cw[c]
             if occlusion.size:
                 value *= occlusion[r, c]
             field[r - top, c - left] = value
-    base_u, slope_u, base_v, slope_v = lines
     rows, cols = shape
-    for i in range(base_u.size):
-        row = _at(base_v, slope_v, i, cells.depth, cells.origin_v, cells.scale_v)
-        col = _at(base_u, slope_u, i, cells.depth, cells.origin_u, cells.scale_u)
-        r0 = np.floor(row)
-        c0 = np.floor(col)
-        if not (r0 >= 0 and r0 < rows - 1 and c0 >= 0 and c0 < cols - 1):
+    for i in range(lines[0].size):
+        r, c, down, right_share = _locate(lines, i, cells, rows, cols)
+        if r < 0:
             continue
-        r, c = int(r0) - top, int(c0) - left
-        down = row - r0
-        right_share = col - c0
+        r, c = r - top, c - left
         left_share = _ONE - right_share
         w2 = left_share * down
         w3 = right_share * down
@@ -244,3 +257,36 @@ def gather_levels(lines, cells, shape, parts, lift, occlusion, weight, out):
         total += field[r + 1, c] * w2
         total += field[r + 1, c + 1] * w3
         out[i] += total * weight[i]
+
+
+@numba.njit(cache=True, nogil=True)
+def sample(lines, cells, fields, out):
+    """Bilinear values of fine-grid fields where lines cross the plane (0 off the grid).
+
+    Parameters
+    ----------
+    lines : tuple of ndarray
+        ``(base_u, slope_u, base_v, slope_v)``, float32.
+    cells : Cells
+        The plane's map.
+    fields : tuple of ndarray
+        Fields on the fine grid, float32.
+    out : ndarray, shape (len(fields), lines)
+        Out: the values, float32 (summed as `workers.geometry.PlaneGrid.gather` does).
+    """
+    rows, cols = fields[0].shape
+    for i in range(lines[0].size):
+        r, c, down, right = _locate(lines, i, cells, rows, cols)
+        if r < 0:
+            for k in range(len(fields)):
+                out[k, i] = 0.0
+            continue
+        left = _ONE - right
+        w2 = left * down
+        w3 = right * down
+        for k, field in enumerate(fields):
+            total = field[r, c] * (left - w2)
+            total += field[r, c + 1] * (right - w3)
+            total += field[r + 1, c] * w2
+            total += field[r + 1, c + 1] * w3
+            out[k, i] = total

@@ -46,9 +46,8 @@ import numpy as np
 import xarray as xr
 
 from workers.gates import hidden_fraction
-from workers.geometry import Located
 from workers.interface import Projected, through_surface
-from workers.kernels import Cells, gather_levels, span, splat_levels
+from workers.kernels import Cells, gather_levels, sample, span, splat_levels
 from workers.labels import labelled_dataset, sample_labels, target_mask
 from workers.noise import shot_noise
 from workers.planes import FrameGeometry, Plane, frame_geometry
@@ -138,14 +137,18 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
     lit = np.empty(0, dtype=np.intp)
     if impostor is not None:
         plane = geometry.target_plane
-        levels, grid = plane.levels, plane.grid
-        rays, extra, _ = down_axes.cross(levels)
-        target_rays = rays
-        sight, sight_extra, _ = up_axes.cross(levels)
-        occupancy = grid.gather(impostor.occupancy, rays)
-        surface_depth = grid.gather(impostor.surface_depth, rays)
+        levels = plane.levels
+        cells = Cells.of(levels)
+        down_maps = np.empty((2, down_axes.base_u.size), dtype=np.float32)
+        sample(down_axes.lines, cells, (impostor.occupancy, impostor.surface_depth), down_maps)
+        occupancy, surface_depth = down_maps
         lit = np.flatnonzero(occupancy)
-        mask = target_mask(grid.gather(impostor.occupancy, sight))
+        target_rays, _, _ = down_axes.take(lit).cross(levels)
+        sight = np.empty((1, up_axes.base_u.size), dtype=np.float32)
+        sample(up_axes.lines, cells, (impostor.occupancy,), sight)
+        mask = target_mask(sight[0])
+        extra = down_axes.extra(levels.fine.depth)
+        sight_extra = up_axes.extra(levels.fine.depth)
         light = geometry.target_light
         rows = light.rows
         wide = any(coarse is not None for _, coarse in light.weights)
@@ -175,8 +178,7 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
         ray_power = power * setup.gate_gain(down_excess, g)
         if plane.bounds is not None and lit.size:
             # rays that meet the target lose the part of the slab behind it
-            on_target = Located(target_rays.corners[:, lit], target_rays.weights[:, lit])
-            top, bottom = (geometry.target_plane.grid.gather(b, on_target) for b in plane.bounds)
+            top, bottom = (geometry.target_plane.grid.gather(b, target_rays) for b in plane.bounds)
             hidden = hidden_fraction(
                 surface_depth[lit],
                 occupancy[lit],
