@@ -57,7 +57,7 @@ class Cells(NamedTuple):
 
 @numba.njit(cache=True)
 def _at(base, slope, i, depth, origin, scale):
-    """Fractional cell coordinate of line i on the plane (float32, as `Projected.cross`)."""
+    """Fractional cell coordinate of line i on the plane [1], float32."""
     t = slope[i] * depth
     t = t + base[i]
     t = t - origin
@@ -260,7 +260,7 @@ def gather_levels(lines, cells, shape, parts, lift, occlusion, weight, out):
 
 
 @numba.njit(cache=True, nogil=True)
-def sample(lines, cells, fields, out):
+def sample(lines, cells, fields, box, out):
     """Bilinear values of fine-grid fields where lines cross the plane (0 off the grid).
 
     Parameters
@@ -271,22 +271,26 @@ def sample(lines, cells, fields, out):
         The plane's map.
     fields : tuple of ndarray
         Fields on the fine grid, float32.
+    box : tuple of int
+        First row, last row + 1, first column, last column + 1 of the cells outside which
+        every field is 0 (lines there are not looked up).
     out : ndarray, shape (len(fields), lines)
         Out: the values, float32 (summed as `workers.geometry.PlaneGrid.gather` does).
     """
     rows, cols = fields[0].shape
+    top, bottom, left, right = box
     for i in range(lines[0].size):
-        r, c, down, right = _locate(lines, i, cells, rows, cols)
-        if r < 0:
+        r, c, down, right_share = _locate(lines, i, cells, rows, cols)
+        if r < 0 or r + 1 < top or r >= bottom or c + 1 < left or c >= right:
             for k in range(len(fields)):
                 out[k, i] = 0.0
             continue
-        left = _ONE - right
-        w2 = left * down
-        w3 = right * down
+        left_share = _ONE - right_share
+        w2 = left_share * down
+        w3 = right_share * down
         for k, field in enumerate(fields):
-            total = field[r, c] * (left - w2)
-            total += field[r, c + 1] * (right - w3)
+            total = field[r, c] * (left_share - w2)
+            total += field[r, c + 1] * (right_share - w3)
             total += field[r + 1, c] * w2
             total += field[r + 1, c + 1] * w3
             out[k, i] = total

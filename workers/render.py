@@ -118,17 +118,18 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
     n_w = setup.water.refractive_index
     K = setup.water.diffuse_attenuation
     down = through_surface(geometry.laser_rays, surface, frame, n_w)
-    if geometry.pixel_index is not None:
-        up = down.take(geometry.pixel_index)
-    else:
-        up = through_surface(geometry.pixel_rays, surface, frame, n_w)
-    power = geometry.laser_power * down.transmittance
-
-    down_excess = down.air - np.float32(geometry.central_air)
-    up_excess = up.air - np.float32(geometry.central_air)
     axes_grid = (geometry.target_plane or geometry.gate_planes[0]).grid
     down_axes = down.on_axes(axes_grid, K)
-    up_axes = up.on_axes(axes_grid, K)
+    down_excess = down.air - np.float32(geometry.central_air)
+    index = geometry.pixel_index
+    if index is not None:
+        # the pixels' lines of sight are laser rays: take them and their gains
+        up_axes, up_transmittance = down_axes.take(index), down.transmittance[index]
+    else:
+        up = through_surface(geometry.pixel_rays, surface, frame, n_w)
+        up_axes, up_transmittance = up.on_axes(axes_grid, K), up.transmittance
+        up_excess = up.air - np.float32(geometry.central_air)
+    power = geometry.laser_power * down.transmittance
 
     pixels = setup.scene.receiver.pixels
     images = np.zeros((len(setup.gates), pixels * pixels), dtype=np.float32)
@@ -139,14 +140,14 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
         plane = geometry.target_plane
         levels = plane.levels
         cells = Cells.of(levels)
-        down_maps = np.empty((2, down_axes.base_u.size), dtype=np.float32)
-        sample(down_axes.lines, cells, (impostor.occupancy, impostor.surface_depth), down_maps)
-        occupancy, surface_depth = down_maps
+        box = _support(impostor.occupancy)
+        occupancy = _sample(down_axes, cells, (impostor.occupancy,), box)[0]
         lit = np.flatnonzero(occupancy)
-        target_rays, _, _ = down_axes.take(lit).cross(levels)
-        sight = np.empty((1, up_axes.base_u.size), dtype=np.float32)
-        sample(up_axes.lines, cells, (impostor.occupancy,), sight)
-        mask = target_mask(sight[0])
+        # the rays meeting the target, for its hiding of the gates' water
+        on_target = down_axes.take(lit)
+        whole = (0, *levels.fine.shape[:1], 0, levels.fine.shape[1])
+        surface_depth = _sample(on_target, cells, (impostor.surface_depth,), whole)[0]
+        mask = target_mask(_sample(up_axes, cells, (impostor.occupancy,), box)[0])
         extra = down_axes.extra(levels.fine.depth)
         sight_extra = up_axes.extra(levels.fine.depth)
         light = geometry.target_light
@@ -171,23 +172,25 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
                 source += beyond * coarse
             seen = np.zeros(pixels * pixels, dtype=np.float32)
             rows_in = inside if coarse is None else (rows, slice(None))
-            _gather(plane, up_axes, (fine, source, rows_in), up.transmittance * sight_extra, seen)
+            _gather(plane, up_axes, (fine, source, rows_in), up_transmittance * sight_extra, seen)
             for g in gates:
                 images[g] += seen
     for g, plane in enumerate(geometry.gate_planes):
-        ray_power = power * setup.gate_gain(down_excess, g)
+        gain = setup.gate_gain(down_excess, g)
+        ray_power = power * gain
         if plane.bounds is not None and lit.size:
             # rays that meet the target lose the part of the slab behind it
-            top, bottom = (geometry.target_plane.grid.gather(b, target_rays) for b in plane.bounds)
+            top, bottom = _sample(on_target, cells, plane.bounds, whole)
             hidden = hidden_fraction(
-                surface_depth[lit],
+                surface_depth,
                 occupancy[lit],
                 top=top,
                 bottom=bottom,
                 diffuse_attenuation=K * setup.secant,
             )
             ray_power[lit] *= np.sqrt(np.maximum(1.0 - hidden, 0.0))
-        weight = up.transmittance * setup.gate_gain(up_excess, g)
+        up_gain = gain[index] if index is not None else setup.gate_gain(up_excess, g)
+        weight = up_transmittance * up_gain
         sources = _splat(plane, down_axes, ray_power)
         _gather(
             plane, up_axes, sources, weight, images[g], tail=plane.tail, occlusion=plane.occlusion
@@ -233,3 +236,18 @@ def _gather(plane, sight, sources, weight, out, *, tail=None, occlusion=None):
     occlusion = _NONE if occlusion is None else occlusion
     parts = (near, window, far, tails)
     gather_levels(sight.lines, cells, shape, parts, levels.lift, occlusion, weight, out)
+
+
+def _sample(rays: Projected, cells: Cells, fields, box) -> np.ndarray:
+    """`workers.kernels.sample`: the fields at the rays, shape (len(fields), rays)."""
+    out = np.empty((len(fields), rays.base_u.size), dtype=np.float32)
+    sample(rays.lines, cells, tuple(fields), box, out)
+    return out
+
+
+def _support(field: np.ndarray) -> tuple[int, int, int, int]:
+    """First row, last row + 1, first column, last column + 1 of a field's non-zero cells."""
+    rows, cols = (np.flatnonzero(field.any(axis=axis)) for axis in (1, 0))
+    if not rows.size:
+        return 0, 0, 0, 0
+    return int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
