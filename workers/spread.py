@@ -287,9 +287,11 @@ def _forward(field, rows):
     """rfft2 of a real field that is zero outside `rows` (a slice of its rows)."""
     if rows == slice(None):
         return scipy.fft.rfft2(field)
-    rows_out, cols = field.shape
-    half = np.zeros((rows_out, cols // 2 + 1), dtype=np.complex64)
-    half[rows] = scipy.fft.rfft(field[rows], axis=1)
+    first, last, _ = rows.indices(field.shape[0])
+    half = np.empty((field.shape[0], field.shape[1] // 2 + 1), dtype=np.complex64)
+    half[:first] = 0.0
+    half[first:last] = scipy.fft.rfft(field[first:last], axis=1)
+    half[last:] = 0.0
     return scipy.fft.fft(half, axis=0, overwrite_x=True)
 
 
