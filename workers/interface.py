@@ -103,9 +103,9 @@ class Projected:
         extra += self.log_extra
         return np.exp(extra, out=extra)
 
-    def take(self, index: np.ndarray) -> Projected:
-        """The rays at `index` (e.g. the pixels' block of the laser lattice)."""
-        return Projected(**{f.name: getattr(self, f.name)[index] for f in fields(self)})
+    def select(self, pick) -> Projected:
+        """The rays that `pick`, a function of one component's array, keeps."""
+        return Projected(**{f.name: pick(getattr(self, f.name)) for f in fields(self)})
 
 
 def ray_components(origins, directions):

@@ -97,11 +97,20 @@ class FrameGeometry:
     pixel_rays: tuple
     laser_rays: tuple
     laser_power: np.ndarray
-    pixel_index: np.ndarray | None
+    pixel_block: tuple[int, slice] | None
     gate_planes: tuple[Plane, ...]
     target_plane: Plane | None
     impostor: Impostor | None
     target_light: TargetLight | None
+
+    def pixels(self, rays: np.ndarray) -> np.ndarray:
+        """The pixels' values of a laser-ray array, when `pixel_block` says they are rays.
+
+        ``(side, span)``: the laser lattice is side × side rays, the pixels its rows and
+        columns `span`.
+        """
+        side, span = self.pixel_block
+        return rays.reshape(side, side)[span, span].ravel()
 
 
 def _plane_levels(setup: Setup, sensor: Sensor, depth: float, passes: int) -> tuple[Levels, int]:
@@ -203,11 +212,7 @@ def frame_geometry(key: str, frame: int) -> FrameGeometry:
         and rays == r.pixels
         and sensor.laser_fov == camera.field_of_view
     )
-    pixel_index = None
-    if monostatic:
-        side = rays + 2 * margin
-        block = np.arange(margin, margin + rays)
-        pixel_index = (block[:, None] * side + block[None, :]).ravel()
+    pixel_block = (rays + 2 * margin, slice(margin, margin + rays)) if monostatic else None
 
     gains = ([1.0] if t.shape != "none" else []) + list(setup.reflectances)
     gate_index = ([None] if t.shape != "none" else []) + list(range(len(setup.gates)))
@@ -249,7 +254,7 @@ def frame_geometry(key: str, frame: int) -> FrameGeometry:
         pixel_rays=ray_components(sensor.position, pixel_directions),
         laser_rays=ray_components(laser.origins, laser.directions),
         laser_power=laser.power.astype(np.float32),
-        pixel_index=pixel_index,
+        pixel_block=pixel_block,
         gate_planes=tuple(gate_planes),
         target_plane=target_plane,
         impostor=impostor,

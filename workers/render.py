@@ -121,10 +121,11 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
     axes_grid = (geometry.target_plane or geometry.gate_planes[0]).grid
     down_axes = down.on_axes(axes_grid, K)
     down_excess = down.air - np.float32(geometry.central_air)
-    index = geometry.pixel_index
-    if index is not None:
+    monostatic = geometry.pixel_block is not None
+    if monostatic:
         # the pixels' lines of sight are laser rays: take them and their gains
-        up_axes, up_transmittance = down_axes.take(index), down.transmittance[index]
+        up_axes = down_axes.select(geometry.pixels)
+        up_transmittance = geometry.pixels(down.transmittance)
     else:
         up = through_surface(geometry.pixel_rays, surface, frame, n_w)
         up_axes, up_transmittance = up.on_axes(axes_grid, K), up.transmittance
@@ -144,7 +145,7 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
         occupancy = _sample(down_axes, cells, (impostor.occupancy,), box)[0]
         lit = np.flatnonzero(occupancy)
         # the rays meeting the target, for its hiding of the gates' water
-        on_target = down_axes.take(lit)
+        on_target = down_axes.select(lambda values: values[lit])
         whole = (0, *levels.fine.shape[:1], 0, levels.fine.shape[1])
         surface_depth = _sample(on_target, cells, (impostor.surface_depth,), whole)[0]
         mask = target_mask(_sample(up_axes, cells, (impostor.occupancy,), box)[0])
@@ -189,7 +190,7 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
                 diffuse_attenuation=K * setup.secant,
             )
             ray_power[lit] *= np.sqrt(np.maximum(1.0 - hidden, 0.0))
-        up_gain = gain[index] if index is not None else setup.gate_gain(up_excess, g)
+        up_gain = geometry.pixels(gain) if monostatic else setup.gate_gain(up_excess, g)
         weight = up_transmittance * up_gain
         sources = _splat(plane, down_axes, ray_power)
         _gather(
