@@ -2,16 +2,37 @@
 
 Both are measured in the same run, interleaved round by round (one render, one pair of
 each FFT), each timed once per round the same way, and the medians are compared (the
-machines are shared and noisy: the ratio is the figure to quote). The
-reference pair is numpy.fft on float32 (scipy.fft's, faster, is printed too; the renderer
-uses scipy.fft). Usage: ``python benchmarks/render.py [--sizes 128 256 512] [--mode
-absolute]``.
+machines are shared and noisy: the ratio is the figure to quote). Times are the process's
+CPU time (the render and the FFTs run on one thread), which other processes on the machine
+disturb far less than the wall clock. The reference pair is numpy.fft on float32
+(scipy.fft's, faster, is printed too; the renderer uses scipy.fft). Usage, from the
+repository root (so that its ``workers`` are imported): ``python -m benchmarks.render
+[--sizes 128 256 512] [--mode absolute]``.
 
 The price of linear spreading (issue #9: two-level planes wide enough that no light
 wraps around, a round-trip filter per gate, the beam's tail): on the 2-core machine,
 normalised mode (the figures before it: 6.4 / 21.6 / 132 ms at 128 / 256 / 512 pixels,
-ratios 28 / 36 / 57), now 13 / 42 / 171 ms, ratios 57 / 76 / 106 (measured once). Absolute
-radiometry adds the cost of Poisson draws at large means (about 20 ms a 256² sample).
+ratios 28 / 36 / 57), now 13 / 42 / 171 ms, ratios 57 / 76 / 106 (measured once, wall
+clock). Absolute radiometry adds the cost of Poisson draws at large means (about 20 ms a
+256² sample).
+
+Issue #10, compiled splats and gathers (`workers.kernels`), the beam tail spread once per
+plane, FFT passes skipped on rows without light or not read: CPU time, sphere, two runs
+each on the loaded 2-core machine (load 5–6), the code before / after:
+
+====== ============== ============== ============ ============
+pixels ms before      ms after       scipy ratio  numpy ratio
+====== ============== ============== ============ ============
+128    13.9–16.3      9.2–11.0       115–132 →    57–60 →
+                                     75–82        41–43
+256    44.2–47.0      28.6–30.0      134 → 79–83  79–80 → 47–49
+512    182–198        101–107        156–162 →    97–99 → 50
+                                     87–89
+====== ============== ============== ============ ============
+
+The spectra alone now take about 8.5 ms a 256² sample and 29 ms a 512² one, some 24
+scipy pairs at both sizes: the fine planes the linear spread needs (up to 486² cells for
+the deepest gates at 256²) set that floor.
 """
 
 import argparse
@@ -21,6 +42,7 @@ import time
 import numpy as np
 import scipy.fft
 
+import workers
 from service.tuning import tune_allocator
 from workers.render import render
 from workers.scene import Scene
@@ -42,9 +64,9 @@ def scene(n, *, target="sphere", mode="normalised"):
 
 
 def timed(function):
-    start = time.perf_counter()
+    start = time.process_time()
     function()
-    return time.perf_counter() - start
+    return time.process_time() - start
 
 
 def measure(n, target, rounds, mode):
@@ -71,7 +93,7 @@ def main():
     args = parser.parse_args()
     print(
         f"allocator tuned: {tune_allocator()}; six ML(DC) gates, 0.3 m sphere at 5 m, "
-        f"coastal water, {args.mode} radiometry"
+        f"coastal water, {args.mode} radiometry; workers from {workers.__path__[0]}"
     )
     print(
         f"{'pixels':>6} {'target':>7} {'sample ms':>10} {'numpy pair ms':>14} "

@@ -8,12 +8,11 @@ functions of the depth of the plane they cross (`Projected`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
 from workers.geometry import PlaneGrid
-from workers.spread import Levels
 
 __all__ = [
     "SURFACE_ITERATIONS",
@@ -31,9 +30,6 @@ SURFACE_TOLERANCE = 1e-3
 """Height change [m] below which the surface hit has converged (1 mm)."""
 
 
-_TRANSMITTED = ("air", "x", "y", "z", "tan_x", "tan_y", "secant", "transmittance")
-
-
 @dataclass(frozen=True)
 class Transmitted:
     """Rays after the surface: entry point, in-water slopes, Fresnel transmittance."""
@@ -46,10 +42,6 @@ class Transmitted:
     tan_y: np.ndarray
     secant: np.ndarray
     transmittance: np.ndarray
-
-    def take(self, index: np.ndarray) -> Transmitted:
-        """The rays at `index` (e.g. the pixels' block of the laser lattice)."""
-        return Transmitted(**{name: getattr(self, name)[index] for name in _TRANSMITTED})
 
     def on_axes(self, grid: PlaneGrid, diffuse_attenuation: float) -> Projected:
         """The rays in the horizontal axes of `grid`, ready to be crossed with any depth.
@@ -100,39 +92,20 @@ class Projected:
     log_extra: np.ndarray
     log_extra_slope: np.ndarray
 
-    def cross(self, levels: Levels):
-        """Rays on a plane (at its depth) and their extra-path attenuation.
+    @property
+    def lines(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(base_u, slope_u, base_v, slope_v)``, for `workers.kernels`."""
+        return self.base_u, self.slope_u, self.base_v, self.slope_v
 
-        Returns
-        -------
-        fine : Located
-            The rays on the fine grid (zero weight outside it).
-        extra : ndarray
-            Attenuation of each ray's extra slant path [1].
-        outside : tuple or None
-            ``(index, located)``: the rays that miss the fine grid, located on the coarse
-            grid; None when every ray lands on the fine grid.
-        """
-        grid = levels.fine
-        z = np.float32(grid.depth)
-        (o0, o1), (u0, u1), (v0, v1) = grid.origin, grid.axis_u, grid.axis_v
-        col = self.slope_u * z
-        col += self.base_u
-        col -= np.float32(o0 * u0 + o1 * u1)
-        col *= np.float32(1.0 / grid.spacing_u)
-        row = self.slope_v * z
-        row += self.base_v
-        row -= np.float32(o0 * v0 + o1 * v1)
-        row *= np.float32(1.0 / grid.spacing_v)
-        extra = self.log_extra_slope * z
+    def extra(self, depth: float) -> np.ndarray:
+        """Attenuation of each ray's extra slant path to a plane at `depth` [1], float32."""
+        extra = self.log_extra_slope * np.float32(depth)
         extra += self.log_extra
-        rows, cols = grid.shape
-        missing = np.flatnonzero((row < 0) | (row >= rows - 1) | (col < 0) | (col >= cols - 1))
-        outside = None
-        if missing.size:
-            coarse_row, coarse_col = levels.to_coarse(row[missing], col[missing])
-            outside = (missing, levels.coarse.locate_cells(coarse_row, coarse_col))
-        return grid.locate_cells(row, col), np.exp(extra, out=extra), outside
+        return np.exp(extra, out=extra)
+
+    def select(self, pick) -> Projected:
+        """The rays that `pick`, a function of one component's array, keeps."""
+        return Projected(**{f.name: pick(getattr(self, f.name)) for f in fields(self)})
 
 
 def ray_components(origins, directions):

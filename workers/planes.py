@@ -51,17 +51,20 @@ LATTICE_MARGIN = 8
 
 @dataclass(frozen=True)
 class Plane:
-    """An in-water plane: its two-level grid, spread, and the beam tail landing on it.
+    """An in-water plane: its two-level grid, spread, and the beam tail's light on it.
 
-    For a gate, `spread` is the round trip (the slab's reflectance times MTF²); where the
-    target hides part of the gate's water, `bounds` holds the gate's slab bounds on the
-    target plane's grid (for the rays that meet the target) and `occlusion` the square root
-    of the fraction not hidden, seen back through the upwelling point-spread function.
+    `tail` is the light of the beam's tail (which crosses the mean sea, the same in every
+    sample) already spread: ``(near, far, outside)`` as from `Spread.filtered`, with
+    `outside` only on the target's plane. For a gate, `spread` is the round trip (the
+    slab's reflectance times MTF²); where the target hides part of the gate's water,
+    `bounds` holds the gate's slab bounds on the target plane's grid (for the rays that
+    meet the target) and `occlusion` the square root of the fraction not hidden, seen back
+    through the upwelling point-spread function.
     """
 
     levels: Levels
     spread: Spread
-    tail: tuple[np.ndarray, np.ndarray] | None
+    tail: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None
     bounds: tuple[np.ndarray, np.ndarray] | None = None
     occlusion: np.ndarray | None = None
 
@@ -76,11 +79,13 @@ class TargetLight:
     """The target's reflectance maps per gate: gates cutting it alike share one map.
 
     Each map is a pair (fine, coarse); the coarse one holds the part of a large target
-    outside the fine grid (None when the target lies within it).
+    outside the fine grid (None when the target lies within it). `rows` spans the fine
+    rows where any map is non-zero.
     """
 
     weights: tuple[tuple[np.ndarray, np.ndarray | None], ...]
     gates: tuple[tuple[int, ...], ...]
+    rows: slice
 
 
 @dataclass(frozen=True)
@@ -92,11 +97,20 @@ class FrameGeometry:
     pixel_rays: tuple
     laser_rays: tuple
     laser_power: np.ndarray
-    pixel_index: np.ndarray | None
+    pixel_block: tuple[int, slice] | None
     gate_planes: tuple[Plane, ...]
     target_plane: Plane | None
     impostor: Impostor | None
     target_light: TargetLight | None
+
+    def pixels(self, rays: np.ndarray) -> np.ndarray:
+        """The pixels' values of a laser-ray array, when `pixel_block` says they are rays.
+
+        ``(side, span)``: the laser lattice is side × side rays, the pixels its rows and
+        columns `span`.
+        """
+        side, span = self.pixel_block
+        return rays.reshape(side, side)[span, span].ravel()
 
 
 def _plane_levels(setup: Setup, sensor: Sensor, depth: float, passes: int) -> tuple[Levels, int]:
@@ -198,11 +212,7 @@ def frame_geometry(key: str, frame: int) -> FrameGeometry:
         and rays == r.pixels
         and sensor.laser_fov == camera.field_of_view
     )
-    pixel_index = None
-    if monostatic:
-        side = rays + 2 * margin
-        block = np.arange(margin, margin + rays)
-        pixel_index = (block[:, None] * side + block[None, :]).ravel()
+    pixel_block = (rays + 2 * margin, slice(margin, margin + rays)) if monostatic else None
 
     gains = ([1.0] if t.shape != "none" else []) + list(setup.reflectances)
     gate_index = ([None] if t.shape != "none" else []) + list(range(len(setup.gates)))
@@ -218,9 +228,12 @@ def frame_geometry(key: str, frame: int) -> FrameGeometry:
             passes=count,
             gain=gain,
         )
-        planes.append(
-            Plane(levels=levels, spread=spread, tail=_beam_tail(setup, sensor, levels, tail, gate))
-        )
+        light = _beam_tail(setup, sensor, levels, tail, gate)
+        if light is not None:
+            fine, coarse = light
+            source = levels.downsample(fine) + coarse
+            light = spread.filtered(fine, source, far_out=gate is None)
+        planes.append(Plane(levels=levels, spread=spread, tail=light))
     target_plane = impostor = target_light = target_sight = None
     if t.shape != "none":
         target_plane, planes = planes[0], planes[1:]
@@ -241,7 +254,7 @@ def frame_geometry(key: str, frame: int) -> FrameGeometry:
         pixel_rays=ray_components(sensor.position, pixel_directions),
         laser_rays=ray_components(laser.origins, laser.directions),
         laser_power=laser.power.astype(np.float32),
-        pixel_index=pixel_index,
+        pixel_block=pixel_block,
         gate_planes=tuple(gate_planes),
         target_plane=target_plane,
         impostor=impostor,
@@ -289,8 +302,11 @@ def _target_light(setup, sensor, levels: Levels) -> TargetLight:
             maps[signature] = (pair[0], pair[1] if len(pair) > 1 else None)
             members[signature] = []
         members[signature].append(g)
+    used = np.flatnonzero(sum((fine.any(axis=1) for fine, _ in maps.values()), start=False))
     return TargetLight(
-        weights=tuple(maps.values()), gates=tuple(tuple(m) for m in members.values())
+        weights=tuple(maps.values()),
+        gates=tuple(tuple(m) for m in members.values()),
+        rows=slice(int(used[0]), int(used[-1]) + 1) if used.size else slice(0, 0),
     )
 
 

@@ -46,11 +46,11 @@ import numpy as np
 import xarray as xr
 
 from workers.gates import hidden_fraction
-from workers.geometry import Located
-from workers.interface import through_surface
+from workers.interface import Projected, through_surface
+from workers.kernels import Cells, gather_levels, sample, span, splat_levels
 from workers.labels import labelled_dataset, sample_labels, target_mask
 from workers.noise import shot_noise
-from workers.planes import FrameGeometry, frame_geometry
+from workers.planes import FrameGeometry, Plane, frame_geometry
 from workers.scene import Scene
 from workers.seeds import SampleSeed
 from workers.sensor import Setup, scene_setup
@@ -118,34 +118,19 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
     n_w = setup.water.refractive_index
     K = setup.water.diffuse_attenuation
     down = through_surface(geometry.laser_rays, surface, frame, n_w)
-    if geometry.pixel_index is not None:
-        up = down.take(geometry.pixel_index)
-    else:
-        up = through_surface(geometry.pixel_rays, surface, frame, n_w)
-    power = geometry.laser_power * down.transmittance
-
-    down_excess = down.air - np.float32(geometry.central_air)
-    up_excess = up.air - np.float32(geometry.central_air)
     axes_grid = (geometry.target_plane or geometry.gate_planes[0]).grid
     down_axes = down.on_axes(axes_grid, K)
-    up_axes = up.on_axes(axes_grid, K)
-
-    def sources(plane, rays, outside, ray_power):
-        """The rays' power on the plane: fine splat, and the coarse light outside it."""
-        fine = plane.grid.splat(rays, ray_power)
-        coarse = None
-        if plane.tail is not None:
-            fine += plane.tail[0]
-            coarse = plane.tail[1]
-        if outside is not None:
-            index, located = outside
-            spilled = plane.levels.coarse.splat(located, ray_power[index])
-            coarse = spilled if coarse is None else coarse + spilled
-        return fine, coarse
-
-    def sight_on(plane):
-        located, extra, _ = up_axes.cross(plane.levels)
-        return located, up.transmittance * extra
+    down_excess = down.air - np.float32(geometry.central_air)
+    monostatic = geometry.pixel_block is not None
+    if monostatic:
+        # the pixels' lines of sight are laser rays: take them and their gains
+        up_axes = down_axes.select(geometry.pixels)
+        up_transmittance = geometry.pixels(down.transmittance)
+    else:
+        up = through_surface(geometry.pixel_rays, surface, frame, n_w)
+        up_axes, up_transmittance = up.on_axes(axes_grid, K), up.transmittance
+        up_excess = up.air - np.float32(geometry.central_air)
+    power = geometry.laser_power * down.transmittance
 
     pixels = setup.scene.receiver.pixels
     images = np.zeros((len(setup.gates), pixels * pixels), dtype=np.float32)
@@ -154,47 +139,116 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
     lit = np.empty(0, dtype=np.intp)
     if impostor is not None:
         plane = geometry.target_plane
-        grid = plane.grid
-        rays, extra, outside = down_axes.cross(plane.levels)
-        target_rays = rays
-        sight, sight_weight = sight_on(plane)
-        occupancy = grid.gather(impostor.occupancy, rays)
-        surface_depth = grid.gather(impostor.surface_depth, rays)
+        levels = plane.levels
+        cells = Cells.of(levels)
+        box = _support(impostor.occupancy)
+        occupancy = _sample(down_axes, cells, (impostor.occupancy,), box)[0]
         lit = np.flatnonzero(occupancy)
-        mask = target_mask(grid.gather(impostor.occupancy, sight))
-        irradiance, beyond = plane.spread(*sources(plane, rays, outside, power * extra))
+        # the rays meeting the target, for its hiding of the gates' water
+        on_target = down_axes.select(lambda values: values[lit])
+        whole = (0, *levels.fine.shape[:1], 0, levels.fine.shape[1])
+        surface_depth = _sample(on_target, cells, (impostor.surface_depth,), whole)[0]
+        mask = target_mask(_sample(up_axes, cells, (impostor.occupancy,), box)[0])
+        extra = down_axes.extra(levels.fine.depth)
+        sight_extra = up_axes.extra(levels.fine.depth)
         light = geometry.target_light
+        rows = light.rows
+        wide = any(coarse is not None for _, coarse in light.weights)
+        fine, source, rows_in = _splat(plane, down_axes, power * extra)
+        near, far, beyond = plane.spread.filtered(
+            fine, source, rows_in=rows_in, rows_out=(rows, levels.coarse_rows(rows)), far_out=wide
+        )
+        if plane.tail is not None:
+            near += plane.tail[0][rows]
+            far += plane.tail[1]
+            if wide:
+                beyond += plane.tail[2]
+        near += levels.upsample(far, rows=rows)
+        inside = (rows, levels.coarse_rows(rows))
         for (weights, coarse), gates in zip(light.weights, light.gates, strict=True):
-            radiance, _ = plane.spread(
-                irradiance * weights, None if coarse is None else beyond * coarse, far_out=False
-            )
-            seen = grid.gather(radiance, sight) * sight_weight
+            fine[:] = 0.0
+            np.multiply(near, weights[rows], out=fine[rows])
+            source = levels.downsample(fine)
+            if coarse is not None:
+                source += beyond * coarse
+            seen = np.zeros(pixels * pixels, dtype=np.float32)
+            rows_in = inside if coarse is None else (rows, slice(None))
+            _gather(plane, up_axes, (fine, source, rows_in), up_transmittance * sight_extra, seen)
             for g in gates:
                 images[g] += seen
     for g, plane in enumerate(geometry.gate_planes):
-        rays, _, outside = down_axes.cross(plane.levels)
-        sight, _, _ = up_axes.cross(plane.levels)
-        ray_power = power * setup.gate_gain(down_excess, g)
+        gain = setup.gate_gain(down_excess, g)
+        ray_power = power * gain
         if plane.bounds is not None and lit.size:
             # rays that meet the target lose the part of the slab behind it
-            on_target = Located(target_rays.corners[:, lit], target_rays.weights[:, lit])
-            top, bottom = (geometry.target_plane.grid.gather(b, on_target) for b in plane.bounds)
+            top, bottom = _sample(on_target, cells, plane.bounds, whole)
             hidden = hidden_fraction(
-                surface_depth[lit],
+                surface_depth,
                 occupancy[lit],
                 top=top,
                 bottom=bottom,
                 diffuse_attenuation=K * setup.secant,
             )
             ray_power[lit] *= np.sqrt(np.maximum(1.0 - hidden, 0.0))
-        radiance, _ = plane.spread(*sources(plane, rays, outside, ray_power), far_out=False)
-        if plane.occlusion is not None:
-            radiance *= plane.occlusion
-        seen = plane.grid.gather(radiance, sight)
-        seen *= up.transmittance * setup.gate_gain(up_excess, g)
-        images[g] += seen
+        up_gain = geometry.pixels(gain) if monostatic else setup.gate_gain(up_excess, g)
+        weight = up_transmittance * up_gain
+        sources = _splat(plane, down_axes, ray_power)
+        _gather(
+            plane, up_axes, sources, weight, images[g], tail=plane.tail, occlusion=plane.occlusion
+        )
     # the near and far parts of a spread each ring a little below zero where almost no
     # light lands; their sum is light, never negative
     np.maximum(images, 0.0, out=images)
     images *= np.float32(setup.scale)
     return images.reshape(len(setup.gates), pixels, pixels), mask.reshape(pixels, pixels)
+
+
+def _splat(plane: Plane, rays: Projected, power: np.ndarray):
+    """Rays onto a plane: its fine field, the coarse source of its far spread, their rows."""
+    levels = plane.levels
+    fine = np.zeros(levels.fine.shape, dtype=np.float32)
+    source = np.zeros(levels.coarse.shape, dtype=np.float32)
+    grids = (levels.fine, levels.coarse)
+    densities = tuple(np.float32(1.0 / (g.spacing_u * g.spacing_v)) for g in grids)
+    block = tuple(b.start for b in levels.block)
+    spans = splat_levels(rays.lines, power, Cells.of(levels), densities, fine, source, block)
+    return fine, source, (slice(*spans[:2]), slice(*spans[2:]))
+
+
+_NONE = np.zeros((0, 0), dtype=np.float32)
+
+
+def _gather(plane, sight, sources, weight, out, *, tail=None, occlusion=None):
+    """Spread light on a plane and add it, times `weight`, at the pixels' sights to `out`.
+
+    `sources` is ``(fine, source, rows)`` as from `_splat`; the light of the beam's `tail`
+    (`Plane.tail`) is added to the spread. Only the rows that the sights reach are
+    brought back from the spectra.
+    """
+    levels = plane.levels
+    cells, shape = Cells.of(levels), plane.grid.shape
+    fine, source, rows_in = sources
+    window = span(sight.lines, cells, shape)
+    rows = slice(*window[:2])
+    near, far, _ = plane.spread.filtered(
+        fine, source, rows_in=rows_in, rows_out=(rows, levels.coarse_rows(rows))
+    )
+    tails = (_NONE, _NONE) if tail is None else tail[:2]
+    occlusion = _NONE if occlusion is None else occlusion
+    parts = (near, window, far, tails)
+    gather_levels(sight.lines, cells, shape, parts, levels.lift, occlusion, weight, out)
+
+
+def _sample(rays: Projected, cells: Cells, fields, box) -> np.ndarray:
+    """`workers.kernels.sample`: the fields at the rays, shape (len(fields), rays)."""
+    out = np.empty((len(fields), rays.base_u.size), dtype=np.float32)
+    sample(rays.lines, cells, tuple(fields), box, out)
+    return out
+
+
+def _support(field: np.ndarray) -> tuple[int, int, int, int]:
+    """First row, last row + 1, first column, last column + 1 of a field's non-zero cells."""
+    rows, cols = (np.flatnonzero(field.any(axis=axis)) for axis in (1, 0))
+    if not rows.size:
+        return 0, 0, 0, 0
+    return int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1

@@ -248,7 +248,7 @@ class Levels:
         return row / s + np.float32(r0 + shift), col / s + np.float32(c0 + shift)
 
     @functools.cached_property
-    def _interpolation(self):
+    def lift(self):
         """Per axis: lower coarse index and weight of the upper one for each fine cell."""
         rows, cols = self.fine.shape
         zero = np.float32(0)
@@ -262,16 +262,45 @@ class Levels:
             axes.append((lower, (position - lower).astype(np.float32)))
         return tuple(axes)
 
-    def upsample(self, coarse: np.ndarray) -> np.ndarray:
-        """A coarse field at the fine cell centres (bilinear interpolation), float32."""
-        (rl, rw), (cl, cw) = self._interpolation
+    def coarse_rows(self, rows: slice) -> slice:
+        """The coarse rows that the bilinear upsampling of the fine `rows` reads."""
+        if rows.start == rows.stop:
+            return slice(0, 0)
+        lower = self.lift[0][0]
+        return slice(int(lower[rows.start]), int(lower[rows.stop - 1]) + 2)
+
+    def upsample(self, coarse: np.ndarray, rows: slice = slice(None)) -> np.ndarray:
+        """A coarse field at the fine cell centres (bilinear interpolation), float32.
+
+        Only the fine `rows` are returned (default all).
+        """
+        (rl, rw), (cl, cw) = self.lift
+        rl, rw = rl[rows], rw[rows]
         along = coarse[rl] * (1 - rw)[:, None] + coarse[rl + 1] * rw[:, None]
         return (along[:, cl] * (1 - cw) + along[:, cl + 1] * cw).astype(np.float32)
 
 
-def _convolve(field, kernel):
-    """Periodic convolution: the field times a filter given on its rfft2 grid."""
-    return scipy.fft.irfft2(scipy.fft.rfft2(field) * kernel, s=field.shape)
+_ALL = (slice(None), slice(None))
+
+
+def _forward(field, rows):
+    """rfft2 of a real field that is zero outside `rows` (a slice of its rows)."""
+    if rows == slice(None):
+        return scipy.fft.rfft2(field)
+    first, last, _ = rows.indices(field.shape[0])
+    half = np.empty((field.shape[0], field.shape[1] // 2 + 1), dtype=np.complex64)
+    half[:first] = 0.0
+    half[first:last] = scipy.fft.rfft(field[first:last], axis=1)
+    half[last:] = 0.0
+    return scipy.fft.fft(half, axis=0, overwrite_x=True)
+
+
+def _inverse(spectrum, shape, rows):
+    """irfft2 of `spectrum` to `shape`, on the rows `rows` (a slice) only."""
+    if rows == slice(None):
+        return scipy.fft.irfft2(spectrum, s=shape)
+    columns = scipy.fft.ifft(spectrum, axis=0, overwrite_x=True)
+    return scipy.fft.irfft(columns[rows], n=shape[1], axis=1)
 
 
 @dataclass(frozen=True)
@@ -403,12 +432,53 @@ class Spread:
         source = levels.downsample(fine)
         if coarse is not None:
             source += coarse
-        spectrum = scipy.fft.rfft2(source)
-        far = scipy.fft.irfft2(spectrum * self.far, s=source.shape).astype(np.float32)
-        out = _convolve(fine, self.near).astype(np.float32)
+        out, far, outside = self.filtered(fine, source, far_out=far_out)
         out += levels.upsample(far)
-        if not far_out:
-            return out, None
-        outside = scipy.fft.irfft2(spectrum * self.whole, s=source.shape).astype(np.float32)
-        outside[levels.block] = 0.0
         return out, outside
+
+    def filtered(self, fine, source, *, rows_in=_ALL, rows_out=_ALL, far_out=False):
+        """The two parts of a spread, before the far one is brought to the fine grid.
+
+        Parameters
+        ----------
+        fine : ndarray
+            Field on the fine grid, float32.
+        source : ndarray
+            The far part's source on the coarse grid: `fine`'s block means
+            (`Levels.downsample`) plus the light outside the fine grid, float32.
+        rows_in : tuple of slice, optional
+            The rows of `fine` and of `source` outside which they are zero.
+        rows_out : tuple of slice, optional
+            The rows of the near (fine) and far (coarse) parts to return.
+        far_out : bool, optional
+            Also return the spread field outside the fine region (all rows).
+
+        Returns
+        -------
+        near : ndarray
+            The near spread of `fine` on its `rows_out`, float32.
+        far : ndarray
+            The far spread of `source` on the coarse grid (0 outside its `rows_out`),
+            float32: the whole spread is ``near + levels.upsample(far)``.
+        outside : ndarray or None
+            As in `__call__`.
+
+        Notes
+        -----
+        A 2-D real FFT is a pass along rows and one along columns, so rows known to be
+        zero skip the first pass and rows not needed skip the last: the same transform,
+        cheaper.
+        """
+        spectrum = _forward(fine, rows_in[0])
+        spectrum *= self.near
+        near = _inverse(spectrum, fine.shape, rows_out[0])
+        spectrum = _forward(source, rows_in[1])
+        far = _inverse(spectrum * self.far, source.shape, rows_out[1])
+        if rows_out[1] != slice(None):
+            far, rows = np.zeros(source.shape, dtype=np.float32), far
+            far[rows_out[1]] = rows
+        if not far_out:
+            return near, far, None
+        outside = scipy.fft.irfft2(spectrum * self.whole, s=source.shape)
+        outside[self.levels.block] = 0.0
+        return near, far, outside

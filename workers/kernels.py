@@ -1,0 +1,296 @@
+"""Compiled loops of the render: rays splatted onto two-level planes, pixels gathered.
+
+Each ray or pixel is located on a plane's fine grid from its in-water line
+(`workers.interface.Projected`: ``base + z·slope`` along the plane's axes), in float32 with
+the arithmetic of `workers.geometry.PlaneGrid.locate_cells`, and splatted or gathered in
+the same pass: no index or weight arrays are built. A `Cells` holds the affine map of a
+plane; the loops are compiled once by numba (cached on disk) and are sequential, so the
+same inputs give the same bytes.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numba
+import numpy as np
+
+__all__ = ["Cells", "gather_levels", "sample", "span", "splat_levels"]
+
+_ONE = np.float32(1.0)
+_ZERO = np.float32(0.0)
+
+
+class Cells(NamedTuple):
+    """The float32 map from a ray's in-water line to fractional cells of a fine grid.
+
+    ``col = (slope_u·z + base_u − origin_u) · scale_u`` and likewise for rows; with the
+    two-level plane's coarse grid, ``coarse = fine / factor + shift``.
+    """
+
+    depth: np.float32
+    origin_u: np.float32
+    scale_u: np.float32
+    origin_v: np.float32
+    scale_v: np.float32
+    factor: np.float32
+    shift_v: np.float32
+    shift_u: np.float32
+
+    @classmethod
+    def of(cls, levels) -> Cells:
+        """The map of a two-level plane (`workers.spread.Levels`)."""
+        grid = levels.fine
+        (o0, o1), (u0, u1), (v0, v1) = grid.origin, grid.axis_u, grid.axis_v
+        shift_v, shift_u = levels.to_coarse(np.float32(0), np.float32(0))
+        return cls(
+            depth=np.float32(grid.depth),
+            origin_u=np.float32(o0 * u0 + o1 * u1),
+            scale_u=np.float32(1.0 / grid.spacing_u),
+            origin_v=np.float32(o0 * v0 + o1 * v1),
+            scale_v=np.float32(1.0 / grid.spacing_v),
+            factor=np.float32(levels.factor),
+            shift_v=np.float32(shift_v),
+            shift_u=np.float32(shift_u),
+        )
+
+
+@numba.njit(cache=True)
+def _at(base, slope, i, depth, origin, scale):
+    """Fractional cell coordinate of line i on the plane [1], float32."""
+    t = slope[i] * depth
+    t = t + base[i]
+    t = t - origin
+    return t * scale
+
+
+@numba.njit(cache=True)
+def _split(row, col, rows, cols):
+    """Cell (r, c) below-left of a point, and its fractions down and right.
+
+    As `workers.geometry.PlaneGrid.locate_cells`; r = -1 for a point off the grid.
+    """
+    if row >= 0 and col >= 0:
+        r, c = int(row), int(col)  # the floor, for values >= 0
+        if r < rows - 1 and c < cols - 1:
+            return r, c, row - np.float32(r), col - np.float32(c)
+    return -1, 0, _ZERO, _ZERO
+
+
+@numba.njit(cache=True)
+def _locate(lines, i, cells, rows, cols):
+    """`_split` of line i's crossing of the plane."""
+    base_u, slope_u, base_v, slope_v = lines
+    row = _at(base_v, slope_v, i, cells.depth, cells.origin_v, cells.scale_v)
+    col = _at(base_u, slope_u, i, cells.depth, cells.origin_u, cells.scale_u)
+    return _split(row, col, rows, cols)
+
+
+@numba.njit(cache=True)
+def _deposit(field, row, col, value):
+    """Add `value` bilinearly at (row, col) of `field`; False (nothing added) outside."""
+    r, c, down, right = _split(row, col, field.shape[0], field.shape[1])
+    if r < 0:
+        return False
+    left = _ONE - right
+    w2 = left * down
+    w3 = right * down
+    field[r, c] += (left - w2) * value
+    field[r, c + 1] += (right - w3) * value
+    field[r + 1, c] += w2 * value
+    field[r + 1, c + 1] += w3 * value
+    return True
+
+
+@numba.njit(cache=True, nogil=True)
+def splat_levels(lines, power, cells, densities, fine, source, block):
+    """Splat rays onto a two-level plane: the fine field and the coarse spread source.
+
+    Parameters
+    ----------
+    lines : tuple of ndarray
+        ``(base_u, slope_u, base_v, slope_v)`` of the rays, float32.
+    power : ndarray
+        Power of each ray, float32.
+    cells : Cells
+        The plane's map.
+    densities : tuple of float32
+        1 / cell area of the fine and coarse grids [1/m²].
+    fine : ndarray
+        In zeros, out the fine field: power per area, float32.
+    source : ndarray
+        In zeros, out the coarse source of the far spread: block means of `fine` inside the
+        fine region, the light of the rays that miss it outside, float32.
+    block : tuple of int
+        Coarse (row, col) of the fine grid's first block.
+
+    Returns
+    -------
+    tuple of int
+        The fine rows and the coarse rows outside which `fine` and `source` are zero
+        (first, last + 1 of each).
+
+    Notes
+    -----
+    Rays that miss the fine grid land on the coarse one; rays that miss both are dropped.
+    """
+    base_u, slope_u, base_v, slope_v = lines
+    fine_density, coarse_density = densities
+    rows, cols = fine.shape
+    top, bottom = rows, 0
+    coarse_top, coarse_bottom = source.shape[0], 0
+    for i in range(power.size):
+        row = _at(base_v, slope_v, i, cells.depth, cells.origin_v, cells.scale_v)
+        col = _at(base_u, slope_u, i, cells.depth, cells.origin_u, cells.scale_u)
+        if _deposit(fine, row, col, power[i] * fine_density):
+            top = min(top, int(row))
+            bottom = max(bottom, int(row) + 2)
+            continue
+        row = row / cells.factor + cells.shift_v
+        col = col / cells.factor + cells.shift_u
+        if _deposit(source, row, col, power[i] * coarse_density):
+            coarse_top = min(coarse_top, int(row))
+            coarse_bottom = max(coarse_bottom, int(row) + 2)
+    factor = int(cells.factor)
+    share = 1.0 / (factor * factor)
+    for br in range(top // factor, (bottom + factor - 1) // factor):
+        coarse_top = min(coarse_top, block[0] + br)
+        coarse_bottom = max(coarse_bottom, block[0] + br + 1)
+        for bc in range(cols // factor):
+            total = 0.0
+            for r in range(br * factor, (br + 1) * factor):
+                for c in range(bc * factor, (bc + 1) * factor):
+                    total += fine[r, c]
+            source[block[0] + br, block[1] + bc] += np.float32(total * share)
+    return min(top, bottom), bottom, min(coarse_top, coarse_bottom), coarse_bottom
+
+
+@numba.njit(cache=True, nogil=True)
+def span(lines, cells, shape):
+    """The fine cells the lines' bilinear corners touch.
+
+    Returns the first row, the last row + 1, the first column and the last column + 1
+    (all 0 if no line meets the grid).
+    """
+    rows, cols = shape
+    top, bottom, left, right = rows, 0, cols, 0
+    for i in range(lines[0].size):
+        r, c, _, _ = _locate(lines, i, cells, rows, cols)
+        if r >= 0:
+            top = min(top, r)
+            bottom = max(bottom, r + 2)
+            left = min(left, c)
+            right = max(right, c + 2)
+    if top >= bottom:
+        return 0, 0, 0, 0
+    return top, bottom, left, right
+
+
+@numba.njit(cache=True, nogil=True)
+def gather_levels(lines, cells, shape, parts, lift, occlusion, weight, out):
+    """Add the spread field, bilinearly interpolated at each line's crossing, to `out`.
+
+    Parameters
+    ----------
+    lines : tuple of ndarray
+        ``(base_u, slope_u, base_v, slope_v)`` of the pixels' lines of sight, float32.
+    cells : Cells
+        The plane's map.
+    shape : tuple of int
+        The fine grid's shape.
+    parts : tuple
+        ``(near, window, far, tail)``: the near spread on the fine rows
+        ``window[0]:window[1]``, the fine cells the lines reach (`span`), the far spread
+        on the coarse grid, and the beam tail's near and far spreads (size 0: none);
+        float32.
+    lift : tuple
+        ``((lower row, weight), (lower col, weight))`` of each fine cell on the coarse grid
+        (`workers.spread.Levels.lift`).
+    occlusion : ndarray
+        Factor on each fine cell, float32 (size 0: none).
+    weight : ndarray
+        Factor on each pixel, float32.
+    out : ndarray
+        In and out: each pixel's sum, float32; pixels off the fine grid add nothing.
+
+    Notes
+    -----
+    The field is first assembled on the window, ``near + upsampled far`` (times the
+    occlusion), in float32 as `workers.spread.Spread` does on the whole grid; the far
+    part is interpolated along the columns once per fine row.
+    """
+    near, window, far, (tail_near, tail_far) = parts
+    top, bottom, left, right = window
+    (rl, rw), (cl, cw) = lift
+    field = np.empty((bottom - top, right - left), dtype=np.float32)
+    if top == bottom:
+        return
+    first = cl[left]
+    along = np.empty(cl[right - 1] + 2 - first, dtype=np.float32)
+    for r in range(top, bottom):
+        a, lower, upper = rl[r], _ONE - rw[r], rw[r]
+        for b in range(along.size):
+            value = far[a, first + b] * lower + far[a + 1, first + b] * upper
+            if tail_far.size:
+                value += tail_far[a, first + b] * lower + tail_far[a + 1, first + b] * upper
+            along[b] = value
+        for c in range(left, right):
+            b = cl[c] - first
+            value = near[r - top, c]
+            if tail_near.size:
+                value += tail_near[r, c]
+            value += along[b] * (_ONE - cw[c]) + along[b + 1] * cw[c]
+            if occlusion.size:
+                value *= occlusion[r, c]
+            field[r - top, c - left] = value
+    rows, cols = shape
+    for i in range(lines[0].size):
+        r, c, down, right_share = _locate(lines, i, cells, rows, cols)
+        if r < 0:
+            continue
+        r, c = r - top, c - left
+        left_share = _ONE - right_share
+        w2 = left_share * down
+        w3 = right_share * down
+        total = field[r, c] * (left_share - w2)
+        total += field[r, c + 1] * (right_share - w3)
+        total += field[r + 1, c] * w2
+        total += field[r + 1, c + 1] * w3
+        out[i] += total * weight[i]
+
+
+@numba.njit(cache=True, nogil=True)
+def sample(lines, cells, fields, box, out):
+    """Bilinear values of fine-grid fields where lines cross the plane (0 off the grid).
+
+    Parameters
+    ----------
+    lines : tuple of ndarray
+        ``(base_u, slope_u, base_v, slope_v)``, float32.
+    cells : Cells
+        The plane's map.
+    fields : tuple of ndarray
+        Fields on the fine grid, float32.
+    box : tuple of int
+        First row, last row + 1, first column, last column + 1 of the cells outside which
+        every field is 0 (lines there are not looked up).
+    out : ndarray, shape (len(fields), lines)
+        Out: the values, float32 (summed as `workers.geometry.PlaneGrid.gather` does).
+    """
+    rows, cols = fields[0].shape
+    top, bottom, left, right = box
+    for i in range(lines[0].size):
+        r, c, down, right_share = _locate(lines, i, cells, rows, cols)
+        if r < 0 or r + 1 < top or r >= bottom or c + 1 < left or c >= right:
+            for k in range(len(fields)):
+                out[k, i] = 0.0
+            continue
+        left_share = _ONE - right_share
+        w2 = left_share * down
+        w3 = right_share * down
+        for k, field in enumerate(fields):
+            total = field[r, c] * (left_share - w2)
+            total += field[r, c + 1] * (right_share - w3)
+            total += field[r + 1, c] * w2
+            total += field[r + 1, c + 1] * w3
+            out[k, i] = total
