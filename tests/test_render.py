@@ -478,24 +478,21 @@ def test_a_gate_opening_above_the_surface_holds_only_the_water():
 def test_a_crest_gates_less_water(height, monkeypatch):
     # A sea raised by η shortens the air path by η: within the same gate times the light
     # goes η/n less far into the water each way, so the gate's return changes by e^(-2Kη/n).
-    from workers.surface import Surface
+    from workers.surface import Cascade, Surface
 
-    def synthesize(spectrum, *, grid_size, spacing, times, **_):
-        zero = np.zeros((len(times), grid_size, grid_size), np.float32)
-        return Surface(
-            elevation=zero + np.float32(height),
-            slope_x=zero,
-            slope_y=zero,
-            spacing=spacing,
-            grid_size=grid_size,
+    def surface(setup, seed, times):
+        n, zero = 16, np.zeros((len(times), 16, 16), np.float32)
+        plane = Cascade(
+            elevation=zero + np.float32(height), slope_x=zero, slope_y=zero, spacing=1.0, grid_size=n
         )
+        return Surface(cascades=(plane,))
 
     flat = gated_water([(3.0, 6.0)], nadir=0.0)
     raised = flat.model_copy(
         update={"surface": flat.surface.model_copy(update={"spectrum": "phillips"})}
     )
     base = centre(render(flat, seed=1).expected.values[0, 0])
-    monkeypatch.setattr("workers.render.synthesize", synthesize)
+    monkeypatch.setattr("workers.sensor.Setup.surface", surface)
     value = centre(render(raised, seed=1).expected.values[0, 0])
     K = 0.2 + 0.01
     assert_allclose(value / base, np.exp(-2 * K * height / N_WATER), rtol=0.003)

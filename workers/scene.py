@@ -15,6 +15,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from workers import spectra
+from workers.cascades import MAX_CASCADES, Sea, check_patches, default_patches
 from workers.conditioning import Kriging, kriging
 from workers.water import PRESETS
 
@@ -129,10 +130,9 @@ Measurement = Annotated[
 class Conditioning(_Model):
     """Measured elevations every surface of the scene honours (conditioning by kriging).
 
-    A measurement is of the elevation the renderer sees at (x, y): the bilinear
-    interpolation of the surface grid. Points lie on the surface patch [0, N·spacing) in
-    x and y (the grid repeats with that period; a point elsewhere is refused with its
-    equivalent on the patch). Sweep files may give ``file: points.csv`` instead of
+    A measurement is of the elevation the renderer sees at (x, y): the sum of the
+    cascades' bilinear interpolations. Points lie on the coarsest cascade's patch [0, L)
+    in x and y (`Scene.sea`; a point elsewhere is refused). Sweep files may give ``file: points.csv`` instead of
     ``points``; the service reads it (see `service.sweep`). See `workers.conditioning`.
     """
 
@@ -184,10 +184,18 @@ class SurfaceSpec(_Model):
         "[m]. Off by default; it breaks the spectrum's variance.",
     )
     conditioning: Conditioning = Conditioning()
+    coarse_patches: list[PositiveFloat] | None = Field(
+        None,
+        max_length=MAX_CASCADES - 1,
+        description="Periodic patches of the coarser cascades of the multi-scale sea, each "
+        "sampled by grid_size points, increasing, each at most grid_size/16 times the one "
+        "before, the first after the finest grid_size x spacing; null: chosen from the "
+        "footprint and the spectrum (docs/model.md §1); []: the finest patch alone [m].",
+    )
     allow_repeat: bool = Field(
         False,
         description="Render even if the receiver's footprint on the sea is wider than the "
-        "periodic patch (grid_size × spacing), so that the same waves repeat inside the "
+        "coarsest cascade's periodic patch, so that the same waves repeat inside the "
         "image; refused otherwise.",
     )
 
@@ -195,6 +203,20 @@ class SurfaceSpec(_Model):
     def _even_grid(self) -> SurfaceSpec:
         if self.grid_size % 2:
             raise ValueError("grid_size must be even (FFT synthesis)")
+        return self
+
+    @model_validator(mode="after")
+    def _cascades(self) -> SurfaceSpec:
+        if self.coarse_patches:
+            try:
+                check_patches(
+                    grid_size=self.grid_size,
+                    patches=[self.grid_size * self.spacing, *self.coarse_patches],
+                )
+            except ValueError as error:
+                raise ValueError(
+                    f"coarse_patches: {error} (patch 0 is grid_size x spacing)"
+                ) from None
         return self
 
     @model_validator(mode="after")
@@ -208,11 +230,27 @@ class SurfaceSpec(_Model):
                 "conditioning: max_elevation would rescale the measured elevations away; "
                 "leave it null"
             )
-        try:
-            self.kriging()
-        except ValueError as error:
-            raise ValueError(f"conditioning.points: {error}") from None
         return self
+
+    def sea(self, span: float) -> Sea | None:
+        """The cascades of the sea (None for a flat sea).
+
+        Parameters
+        ----------
+        span : float
+            Longest chord of the receiver's footprint along x or y [m]
+            (`footprint_span`), for the default patches.
+        """
+        spectrum = self.wave_spectrum()
+        if spectrum is None:
+            return None
+        if self.coarse_patches is None:
+            patches = default_patches(
+                spectrum, grid_size=self.grid_size, spacing=self.spacing, span=span
+            )
+        else:
+            patches = (self.grid_size * self.spacing, *self.coarse_patches)
+        return Sea(spectrum=spectrum, grid_size=self.grid_size, patches=tuple(patches))
 
     def wave_spectrum(self) -> spectra.Spectrum | None:
         """The wave spectrum these settings describe (None for a flat sea)."""
@@ -230,21 +268,19 @@ class SurfaceSpec(_Model):
             return spectra.PiersonMoskowitz(**common)
         return spectra.Jonswap(**common, fetch=self.fetch)
 
-    def kriging(self) -> Kriging | None:
-        """The kriging system of `conditioning` (cached), or None without points.
+    def kriging(self, sea: Sea | None) -> Kriging | None:
+        """The kriging system of `conditioning` on `sea` (cached), or None without points.
 
         Raises
         ------
         ValueError
-            For points off the grid, duplicates or a singular system
+            For points off the coarsest patch, duplicates or a singular system
             (`workers.conditioning.kriging`).
         """
         if not self.conditioning.points:
             return None
         return kriging(
-            self.wave_spectrum(),
-            grid_size=self.grid_size,
-            spacing=self.spacing,
+            sea,
             points=tuple(tuple(point) for point in self.conditioning.points),
             noise=self.conditioning.noise,
         )
@@ -607,24 +643,40 @@ class Scene(_Model):
             )
         return self
 
-    @model_validator(mode="after")
-    def _footprint_within_sea_patch(self) -> Scene:
-        surface = self.surface
-        if surface.spectrum == "flat" or surface.allow_repeat:
-            return self
-        # The receiver's footprint, at the highest point of the sequence: a laser wider than
-        # the receiver lights sea outside the image, whose repeats the image does not show
-        # (bar the in-water spread); a narrower one lights less than the image shows.
+    def footprint(self) -> float:
+        """Longest chord of the receiver's footprint along x or y at the sequence's top [m].
+
+        A laser wider than the receiver lights sea outside the image, whose repeats the
+        image does not show (bar the in-water spread); a narrower one lights less than
+        the image shows.
+        """
         climb = self.sequence.velocity[2] * self.sequence.interval * (self.sequence.frames - 1)
-        altitude = self.platform.altitude + max(climb, 0.0)
-        span = footprint_span(
-            altitude=altitude,
+        return footprint_span(
+            altitude=self.platform.altitude + max(climb, 0.0),
             nadir=math.radians(self.platform.nadir_deg),
             azimuth=math.radians(self.platform.azimuth_deg),
             field_of_view=math.radians(self.receiver.field_of_view_deg),
         )
-        period = surface.grid_size * surface.spacing
-        if span > period:
+
+    def sea(self) -> Sea | None:
+        """The cascades of the scene's sea (`SurfaceSpec.sea` at its footprint)."""
+        return self.surface.sea(self.footprint())
+
+    @model_validator(mode="after")
+    def _footprint_within_sea_patch(self) -> Scene:
+        surface = self.surface
+        if surface.spectrum == "flat":
+            return self
+        span = self.footprint()
+        sea = surface.sea(span)
+        try:
+            surface.kriging(sea)
+        except ValueError as error:
+            raise ValueError(f"surface.conditioning.points: {error}") from None
+        period = sea.patches[-1]
+        if span > period and not surface.allow_repeat:
+            climb = self.sequence.velocity[2] * self.sequence.interval * (self.sequence.frames - 1)
+            altitude = self.platform.altitude + max(climb, 0.0)
             highest = f"{altitude:g} m at the sequence's top, " if climb > 0 else ""
             raise ValueError(
                 f"the receiver's footprint on the sea (platform.altitude "
@@ -632,10 +684,11 @@ class Scene(_Model):
                 f"{self.platform.nadir_deg:g}, platform.azimuth_deg "
                 f"{self.platform.azimuth_deg:g}, receiver.field_of_view_deg "
                 f"{self.receiver.field_of_view_deg:g}) spans {span:.2f} m, wider than the "
-                f"periodic sea patch surface.grid_size x surface.spacing = "
-                f"{surface.grid_size} x {surface.spacing:g} m = {period:.2f} m: the same waves "
-                "would repeat inside the image. Enlarge the patch, narrow the field or lower "
-                "the platform, or set surface.allow_repeat: true to render it anyway"
+                f"coarsest periodic sea patch, {period:.2f} m (surface.grid_size "
+                f"{surface.grid_size}, surface.spacing {surface.spacing:g} m, "
+                f"surface.coarse_patches {surface.coarse_patches}): the same waves would "
+                "repeat inside the image. Set surface.allow_repeat: true to render it anyway, "
+                "or leave surface.coarse_patches null, narrow the field or lower the platform"
             )
         return self
 
