@@ -12,7 +12,8 @@ from workers.scene import MLDC_GATES, Scene, footprint_span
 def test_defaults_are_the_papers_example_3_geometry():
     s = Scene()
     assert s.surface.spectrum == "elfouhaily"
-    assert (s.surface.grid_size, s.surface.spacing) == (256, 0.016)
+    assert (s.surface.grid_size, s.surface.spacing) == (256, None)
+    assert s.surface_spacing() == pytest.approx(2 * 34 * math.tan(math.radians(6.7 / 2)) / 256)
     assert (s.platform.altitude, s.receiver.field_of_view_deg) == (34.0, 6.7)
     assert s.receiver.gate_depths == MLDC_GATES
 
@@ -155,7 +156,7 @@ FOOTPRINT_FIELDS = (
 )
 
 
-SINGLE = {"coarse_patches": []}
+SINGLE = {"coarse_patches": [], "spacing": 0.016}
 
 
 @pytest.mark.parametrize(
@@ -163,7 +164,7 @@ SINGLE = {"coarse_patches": []}
     [
         # 2 H tan(α/2) = 4.21 m at 36 m, over the default 256 x 0.016 m = 4.10 m patch
         {"platform": {"altitude": 36.0}, "surface": SINGLE},
-        {"surface": {"spacing": 0.015, **SINGLE}},
+        {"surface": {**SINGLE, "spacing": 0.015}},
         {"platform": {"nadir_deg": 20.0}, "surface": SINGLE},
         # from 34 m the platform climbs 2 m during the sequence
         {
@@ -171,7 +172,7 @@ SINGLE = {"coarse_patches": []}
             "surface": SINGLE,
         },
         # 300 m: a 35 m footprint over explicit cascades of 4.1 and 32.8 m
-        {"platform": {"altitude": 300.0}, "surface": {"coarse_patches": [32.8]}},
+        {"platform": {"altitude": 300.0}, "surface": {"coarse_patches": [32.8], "spacing": 0.016}},
     ],
     ids=["higher", "smaller-patch", "oblique", "climbing", "cascades-too-small"],
 )
@@ -194,7 +195,7 @@ def test_a_footprint_wider_than_the_sea_patch_is_refused_unless_allowed(data):
 def test_the_default_footprint_fits_the_default_patch():
     scene = Scene()
     span = footprint_span(altitude=34.0, nadir=0.0, azimuth=0.0, field_of_view=FOV)
-    assert span < scene.surface.grid_size * scene.surface.spacing
+    assert span <= scene.surface.grid_size * scene.surface_spacing()
 
 
 @pytest.mark.parametrize("altitude", [36.0, 300.0, 500.0])
@@ -203,7 +204,7 @@ def test_the_default_cascades_cover_the_footprint(altitude):
     scene = Scene.model_validate({"platform": {"altitude": altitude}})
     span = footprint_span(altitude=altitude, nadir=0.0, azimuth=0.0, field_of_view=FOV)
     assert scene.sea().patches[-1] >= span
-    assert scene.sea().patches[0] == scene.surface.grid_size * scene.surface.spacing
+    assert scene.sea().patches[0] == pytest.approx(span)  # the finest covers it too
 
 
 @pytest.mark.parametrize(
@@ -222,7 +223,7 @@ def test_cli_validate_refuses_a_repeating_sea_with_a_message(tmp_path):
     sweep.write_text(
         "name: wide\nseed: 1\noutput: wide.zarr\n"
         "scene:\n  platform: {altitude: 60.0}\n  receiver: {pixels: 16}\n"
-        "  surface: {coarse_patches: []}\n"
+        "  surface: {coarse_patches: [], spacing: 0.016}\n"
     )
     result = run_cli("validate", sweep, cwd=tmp_path)
     assert result.returncode == 2

@@ -175,7 +175,14 @@ class SurfaceSpec(_Model):
     grid_size: int = Field(
         256, ge=16, le=4096, description="Points per side of the periodic surface grid [1]."
     )
-    spacing: float = Field(0.016, ge=1e-4, le=10.0, description="Surface grid spacing [m].")
+    spacing: float | None = Field(
+        None,
+        ge=1e-4,
+        le=10.0,
+        description="Grid spacing of the sea's finest cascade [m]; null: the receiver's "
+        "footprint span over grid_size, so that the finest patch covers the footprint "
+        "(docs/model.md §1).",
+    )
     max_elevation: float | None = Field(
         None,
         gt=0.0,
@@ -207,7 +214,7 @@ class SurfaceSpec(_Model):
 
     @model_validator(mode="after")
     def _cascades(self) -> SurfaceSpec:
-        if self.coarse_patches:
+        if self.coarse_patches and self.spacing is not None:
             try:
                 check_patches(
                     grid_size=self.grid_size,
@@ -232,6 +239,23 @@ class SurfaceSpec(_Model):
             )
         return self
 
+    def finest_spacing(self, span: float) -> float:
+        """`spacing`, or by default the footprint's span over `grid_size` [m].
+
+        Parameters
+        ----------
+        span : float
+            Longest chord of the receiver's footprint along x or y [m] (`footprint_span`).
+        """
+        if self.spacing is not None:
+            return self.spacing
+        if not math.isfinite(span):
+            raise ValueError(
+                "surface.spacing: the footprint reaches the horizon, so the default spacing "
+                "(footprint over grid_size) is undefined; give surface.spacing"
+            )
+        return span / self.grid_size
+
     def sea(self, span: float) -> Sea | None:
         """The cascades of the sea (None for a flat sea).
 
@@ -240,17 +264,29 @@ class SurfaceSpec(_Model):
         span : float
             Longest chord of the receiver's footprint along x or y [m]
             (`footprint_span`), for the default patches.
+
+        Raises
+        ------
+        ValueError
+            For a default spacing at a footprint that reaches the horizon, or
+            `coarse_patches` that do not fit the finest patch.
         """
         spectrum = self.wave_spectrum()
         if spectrum is None:
             return None
+        spacing = self.finest_spacing(span)
         if self.coarse_patches is None:
             patches = default_patches(
-                spectrum, grid_size=self.grid_size, spacing=self.spacing, span=span
+                spectrum, grid_size=self.grid_size, spacing=spacing, span=span
             )
         else:
-            patches = (self.grid_size * self.spacing, *self.coarse_patches)
-        return Sea(spectrum=spectrum, grid_size=self.grid_size, patches=tuple(patches))
+            patches = (self.grid_size * spacing, *self.coarse_patches)
+        try:
+            return Sea(spectrum=spectrum, grid_size=self.grid_size, patches=tuple(patches))
+        except ValueError as error:
+            raise ValueError(
+                f"surface.coarse_patches: {error} (patch 0 is grid_size x spacing)"
+            ) from None
 
     def wave_spectrum(self) -> spectra.Spectrum | None:
         """The wave spectrum these settings describe (None for a flat sea)."""
@@ -662,13 +698,19 @@ class Scene(_Model):
         """The cascades of the scene's sea (`SurfaceSpec.sea` at its footprint)."""
         return self.surface.sea(self.footprint())
 
+    def surface_spacing(self) -> float:
+        """Grid spacing of the sea's finest cascade (`SurfaceSpec.finest_spacing`) [m]."""
+        return self.surface.finest_spacing(self.footprint())
+
     @model_validator(mode="after")
     def _footprint_within_sea_patch(self) -> Scene:
         surface = self.surface
-        if surface.spectrum == "flat":
-            return self
         span = self.footprint()
         sea = surface.sea(span)
+        if sea is None:
+            if self.save_surface:
+                self.surface_spacing()
+            return self
         try:
             surface.kriging(sea)
         except ValueError as error:
@@ -685,7 +727,7 @@ class Scene(_Model):
                 f"{self.platform.azimuth_deg:g}, receiver.field_of_view_deg "
                 f"{self.receiver.field_of_view_deg:g}) spans {span:.2f} m, wider than the "
                 f"coarsest periodic sea patch, {period:.2f} m (surface.grid_size "
-                f"{surface.grid_size}, surface.spacing {surface.spacing:g} m, "
+                f"{surface.grid_size}, surface.spacing {sea.spacing(0):g} m, "
                 f"surface.coarse_patches {surface.coarse_patches}): the same waves would "
                 "repeat inside the image. Set surface.allow_repeat: true to render it anyway, "
                 "or leave surface.coarse_patches null, narrow the field or lower the platform"
