@@ -15,10 +15,13 @@ import dask
 
 from service import store
 from service.sweep import DEFAULT_MAX_MEMORY, SweepError, human_bytes, load_sweep, shown
+from workers.cascades import resolved_share
 
 __all__ = ["main"]
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
+SHOWN_SEAS = 3
+"""Most distinct seas whose resolved shares `validate` prints."""
 MAX_MEMORY_HELP = f"most memory one sample may need, GiB (default {DEFAULT_MAX_MEMORY / 2**30:g})"
 
 
@@ -139,12 +142,35 @@ def _plan_lines(plan, batch: int = 4, url: str | None = None) -> list[str]:
     return lines
 
 
+def _sea_lines(plan) -> list[str]:
+    """What the sea's cascades resolve of the spectrum, per distinct sea of the plan."""
+    seas = {}
+    for point, scene in enumerate(plan.scenes):
+        sea = scene.sea()
+        if sea is not None:
+            seas.setdefault(sea, []).append(point)
+    lines = []
+    for sea, points in list(seas.items())[:SHOWN_SEAS]:
+        elevation, slope = resolved_share(sea)
+        where = f"point {points[0]}" + (f" (+{len(points) - 1} more)" if len(points) > 1 else "")
+        patches = ", ".join(f"{patch:.4g}" for patch in sea.patches)
+        lines.append(
+            f"  sea at {where}: {len(sea.patches)} cascade(s) of {sea.grid_size}^2 points, "
+            f"patches {patches} m; they resolve {100 * elevation:.1f} % of the spectrum's "
+            f"elevation variance and {100 * slope:.1f} % of its slope variance (the rest of "
+            "the slope enters as sub-grid blur)"
+        )
+    if len(seas) > SHOWN_SEAS:
+        lines.append(f"  ... and {len(seas) - SHOWN_SEAS} more seas")
+    return lines
+
+
 def _cmd_validate(args) -> int:
     plan = _load(args)
     if not args.no_limits:
         plan.check_limits()
     store.check_uniform(plan)
-    print("\n".join(_plan_lines(plan)))
+    print("\n".join(_plan_lines(plan) + _sea_lines(plan)))
     return EXIT_OK
 
 

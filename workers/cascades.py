@@ -181,16 +181,15 @@ def _amplitudes(sea: Sea, cascade: int) -> np.ndarray:
 
 @functools.lru_cache(maxsize=64)
 def _energy_wavenumber(spectrum: Spectrum) -> float:
-    """k below which the spectrum holds ENERGY_SHARE of its elevation variance, rad/m."""
-    total = spectrum.variance()
-    low, high = math.log(1e-5), math.log(K_TOP)
-    for _ in range(40):
-        middle = 0.5 * (low + high)
-        if spectrum.variance(k_max=math.exp(middle)) < ENERGY_SHARE * total:
-            low = middle
-        else:
-            high = middle
-    return math.exp(low)
+    """k below which the spectrum holds ENERGY_SHARE of its elevation variance, rad/m.
+
+    The cumulative variance ∫ k S(k) d(ln k) by the trapezoid rule on 4001 points of
+    ln k from 10⁻⁵ to K_TOP rad/m (steps of 0.005), interpolated linearly in ln k.
+    """
+    u = np.linspace(math.log(1e-5), math.log(K_TOP), 4001)
+    density = np.exp(u) * spectrum.omnidirectional(np.exp(u))
+    cumulative = np.concatenate([[0.0], np.cumsum(0.5 * (density[1:] + density[:-1]))])
+    return float(np.exp(np.interp(ENERGY_SHARE * cumulative[-1], cumulative, u)))
 
 
 def default_patches(spectrum: Spectrum, *, grid_size: int, spacing: float, span: float):
@@ -258,6 +257,7 @@ def _full_slope_tensor(spectrum: Spectrum) -> np.ndarray:
     return tensor * spectrum.slope_variance(k_max=K_TOP) / (xx + yy)
 
 
+@functools.lru_cache(maxsize=32)
 def subgrid_slope_covariance(sea: Sea) -> np.ndarray:
     r"""Covariance of the slopes the cascades do not show at a random point (2 × 2).
 
@@ -274,7 +274,8 @@ def subgrid_slope_covariance(sea: Sea) -> np.ndarray:
     Returns
     -------
     numpy.ndarray
-        Σ (dimensionless), float64 of shape (2, 2), indexed (x, y).
+        Σ (dimensionless), float64 of shape (2, 2), indexed (x, y); read-only, cached
+        per sea.
     """
     tensor = _full_slope_tensor(sea.spectrum).copy()
     for cascade in range(len(sea.patches)):
@@ -286,7 +287,9 @@ def subgrid_slope_covariance(sea: Sea) -> np.ndarray:
             [np.sum(power * kx * ky), np.sum(power * ky * ky)],
         ]
     values, vectors = np.linalg.eigh(0.5 * (tensor + tensor.T))
-    return (vectors * np.maximum(values, 0.0)) @ vectors.T
+    covariance = (vectors * np.maximum(values, 0.0)) @ vectors.T
+    covariance.flags.writeable = False
+    return covariance
 
 
 def resolved_share(sea: Sea) -> tuple[float, float]:
