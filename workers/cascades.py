@@ -246,7 +246,7 @@ def _full_slope_tensor(spectrum: Spectrum) -> np.ndarray:
     phi = np.linspace(-np.pi, np.pi, 72, endpoint=False)
     k = np.exp(u)[:, None]
     psi = phi[None, :] + spectrum.wind_direction
-    density = spectrum.omnidirectional(k) * spectrum.spreading(k, phi[None, :]) * k**2
+    density = spectrum.omnidirectional(k) * spectrum.spreading(k, phi[None, :]) * k**3
     weights = np.full(u.size, u[1] - u[0])
     weights[[0, -1]] *= 0.5
     angular = 2.0 * np.pi / phi.size
