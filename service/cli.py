@@ -15,7 +15,7 @@ import dask
 
 from service import store
 from service.sweep import DEFAULT_MAX_MEMORY, SweepError, human_bytes, load_sweep, shown
-from workers.cascades import resolved_share
+from workers.cascades import describe
 
 __all__ = ["main"]
 
@@ -144,22 +144,15 @@ def _plan_lines(plan, batch: int = 4, url: str | None = None) -> list[str]:
 
 def _sea_lines(plan) -> list[str]:
     """What the sea's cascades resolve of the spectrum, per distinct sea of the plan."""
-    seas = {}
+    seas: dict = {}
     for point, scene in enumerate(plan.scenes):
-        sea = scene.sea()
-        if sea is not None:
+        if (sea := scene.sea()) is not None:
             seas.setdefault(sea, []).append(point)
-    lines = []
-    for sea, points in list(seas.items())[:SHOWN_SEAS]:
-        elevation, slope = resolved_share(sea)
-        where = f"point {points[0]}" + (f" (+{len(points) - 1} more)" if len(points) > 1 else "")
-        patches = ", ".join(f"{patch:.4g}" for patch in sea.patches)
-        lines.append(
-            f"  sea at {where}: {len(sea.patches)} cascade(s) of {sea.grid_size}^2 points, "
-            f"patches {patches} m; they resolve {100 * elevation:.1f} % of the spectrum's "
-            f"elevation variance and {100 * slope:.1f} % of its slope variance (the rest of "
-            "the slope enters as sub-grid blur)"
-        )
+    lines = [
+        f"  sea at point {points[0]}{f' (+{len(points) - 1} more)' if len(points) > 1 else ''}:"
+        f" {describe(sea)}"
+        for sea, points in list(seas.items())[:SHOWN_SEAS]
+    ]
     if len(seas) > SHOWN_SEAS:
         lines.append(f"  ... and {len(seas) - SHOWN_SEAS} more seas")
     return lines

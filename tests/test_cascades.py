@@ -1,12 +1,13 @@
 """Tests of the multi-scale sea (issue #14): bands, variances, sub-grid slopes, repetition."""
 
+import itertools
 import math
 
 import numpy as np
 import pytest
+from conftest import run_cli
 from numpy.testing import assert_allclose
 
-from conftest import run_cli
 from workers.cascades import K_TOP, Sea, resolved_share, subgrid_slope_covariance
 from workers.render import render
 from workers.scene import Scene
@@ -26,7 +27,7 @@ def test_bands_are_disjoint_and_tile_the_disc_below_the_finest_nyquist():
     bands = [sea.band(c) for c in range(3)]
     assert bands[0][1] == pytest.approx(math.pi / sea.spacing(0))
     assert bands[-1][0] == 0.0
-    for finer, coarser in zip(bands, bands[1:], strict=False):
+    for finer, coarser in itertools.pairwise(bands):
         assert coarser[1] == finer[0] and coarser[0] < coarser[1]
     for cascade, (low, high) in enumerate(bands):
         k = sea.wavenumbers(cascade)

@@ -40,7 +40,8 @@ def cascade_covariance(sea, cascade, dx, dy, lag):
     k = sea.wavenumbers(cascade)
     kx, ky = k[None, :], k[:, None]
     omega = dispersion(np.hypot(kx, ky))
-    phase = kx[..., None] * np.asarray(dx) + ky[..., None] * np.asarray(dy) - omega[..., None] * lag
+    phase = kx[..., None] * np.asarray(dx) + ky[..., None] * np.asarray(dy)
+    phase -= omega[..., None] * lag
     return np.einsum("ij,ijp->p", a.astype(np.float64) ** 2, np.cos(phase))
 
 

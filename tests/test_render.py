@@ -482,9 +482,8 @@ def test_a_crest_gates_less_water(height, monkeypatch):
 
     def surface(setup, seed, times):
         n, zero = 16, np.zeros((len(times), 16, 16), np.float32)
-        plane = Cascade(
-            elevation=zero + np.float32(height), slope_x=zero, slope_y=zero, spacing=1.0, grid_size=n
-        )
+        raised = zero + np.float32(height)
+        plane = Cascade(elevation=raised, slope_x=zero, slope_y=zero, spacing=1.0, grid_size=n)
         return Surface(cascades=(plane,))
 
     flat = gated_water([(3.0, 6.0)], nadir=0.0)

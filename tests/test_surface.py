@@ -9,7 +9,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from workers.cascades import Sea
 from workers.spectra import Elfouhaily, Phillips, Spectrum, dispersion
-from workers.surface import Cascade, Surface
+from workers.surface import Cascade
 from workers.surface import synthesize as draw_sea
 
 
@@ -222,9 +222,10 @@ def test_same_seed_gives_the_same_bytes_and_frames_share_one_realisation():
     first = synthesize(spectrum, **grid, rng=np.random.default_rng(11), times=(0.0, 0.4))
     second = synthesize(spectrum, **grid, rng=np.random.default_rng(11), times=(0.0, 0.4))
     for name in ("elevation", "slope_x", "slope_y"):
-        assert getattr(first.cascades[0], name).tobytes() == getattr(
-            second.cascades[0], name
-        ).tobytes()
+        assert (
+            getattr(first.cascades[0], name).tobytes()
+            == getattr(second.cascades[0], name).tobytes()
+        )
     x, y = np.random.default_rng(0).uniform(-5, 5, (2, 100))
     assert first.slopes_at(x, y)[0].tobytes() == second.slopes_at(x, y)[0].tobytes()
     later = synthesize(spectrum, **grid, rng=np.random.default_rng(11), times=(0.4,))

@@ -37,6 +37,7 @@ __all__ = [
     "Sea",
     "check_patches",
     "default_patches",
+    "describe",
     "resolved_share",
     "subgrid_slope_covariance",
 ]
@@ -181,7 +182,7 @@ def _amplitudes(sea: Sea, cascade: int) -> np.ndarray:
 
 @functools.lru_cache(maxsize=64)
 def _energy_wavenumber(spectrum: Spectrum) -> float:
-    """k below which the spectrum holds ENERGY_SHARE of its elevation variance, rad/m.
+    """The wavenumber below which the spectrum holds ENERGY_SHARE of Var η, rad/m.
 
     The cumulative variance ∫ k S(k) d(ln k) by the trapezoid rule on 4001 points of
     ln k from 10⁻⁵ to K_TOP rad/m (steps of 0.005), interpolated linearly in ln k.
@@ -309,3 +310,15 @@ def resolved_share(sea: Sea) -> tuple[float, float]:
         slope += float(np.sum(power * (k[None, :] ** 2 + k[:, None] ** 2)))
     spectrum = sea.spectrum
     return elevation / spectrum.variance(), slope / spectrum.slope_variance(k_max=K_TOP)
+
+
+def describe(sea: Sea) -> str:
+    """One sentence: the cascades and the shares of the spectrum they resolve."""
+    elevation, slope = resolved_share(sea)
+    patches = ", ".join(f"{patch:.4g}" for patch in sea.patches)
+    return (
+        f"{len(sea.patches)} cascade(s) of {sea.grid_size}^2 points, patches {patches} m; they "
+        f"resolve {100 * elevation:.1f} % of the spectrum's elevation variance and "
+        f"{100 * slope:.1f} % of its slope variance (the rest of the slope enters as sub-grid "
+        "blur)"
+    )

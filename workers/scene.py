@@ -132,8 +132,9 @@ class Conditioning(_Model):
 
     A measurement is of the elevation the renderer sees at (x, y): the sum of the
     cascades' bilinear interpolations. Points lie on the coarsest cascade's patch [0, L)
-    in x and y (`Scene.sea`; a point elsewhere is refused). Sweep files may give ``file: points.csv`` instead of
-    ``points``; the service reads it (see `service.sweep`). See `workers.conditioning`.
+    in x and y (`Scene.sea`; a point elsewhere is refused). Sweep files may give
+    ``file: points.csv`` instead of ``points``; the service reads it (see
+    `service.sweep`). See `workers.conditioning`.
     """
 
     points: list[Measurement] | None = Field(

@@ -387,8 +387,11 @@ class Modes:
     subgrid_key: int
 
     def spectrum_at(self, cascade: int, time: float) -> np.ndarray:
-        r""":math:`\tilde h(\mathbf k, t) = h_0 e^{-i\omega t} + \overline{h_0(-\mathbf k)}
-        e^{i\omega t}` of a cascade on the half-plane, complex64, m."""
+        r"""A cascade's modes at time t (s) on the half-plane, complex64, m.
+
+        :math:`\tilde h(\mathbf k, t) = h_0 e^{-i\omega t}
+        + \overline{h_0(-\mathbf k)} e^{i\omega t}`.
+        """
         setup = _setup(self.sea, cascade)
         cycles = setup.omega * (time / (2.0 * np.pi))
         cycles -= np.floor(cycles)
@@ -437,9 +440,7 @@ class Modes:
         times = np.asarray(times, dtype=np.float64)
         if times.ndim != 1 or times.size == 0 or not np.all(np.isfinite(times)):
             raise ValueError(f"times must be a non-empty sequence of finite seconds, got {times}")
-        if max_elevation is not None and not (
-            math.isfinite(max_elevation) and max_elevation > 0
-        ):
+        if max_elevation is not None and not (math.isfinite(max_elevation) and max_elevation > 0):
             raise ValueError(
                 f"max_elevation must be a positive number of metres, got {max_elevation}"
             )
@@ -530,8 +531,9 @@ def draw(sea: Sea, rng) -> Modes:
 def synthesize(
     sea: Sea, *, rng, times: Sequence[float] = (0.0,), max_elevation: float | None = None
 ) -> Surface:
-    """One random realisation of the sea at one or more times: :func:`draw` then
-    :meth:`Modes.surface`, with their parameters.
+    """One random realisation of the sea at one or more times.
+
+    :func:`draw` then :meth:`Modes.surface`, with their parameters.
 
     Notes
     -----
