@@ -254,6 +254,8 @@ def _full_slope_tensor(spectrum: Spectrum) -> np.ndarray:
     moments = [np.cos(psi) ** 2, np.cos(psi) * np.sin(psi), np.sin(psi) ** 2]
     xx, xy, yy = ((weights @ (density * m)).sum() * angular for m in moments)
     tensor = np.array([[xx, xy], [xy, yy]])
+    if xx + yy <= 0:  # a spectrum narrower than this grid: no tail to speak of
+        return tensor
     # the trace from the spectrum's own quadrature, the shape from this one
     return tensor * spectrum.slope_variance(k_max=K_TOP) / (xx + yy)
 

@@ -212,7 +212,8 @@ class SubgridSlopes:
     r"""The slopes finer than the finest grid: a Gaussian blur of the facets' normals.
 
     Every cell of the finest grid (Δ₀ × Δ₀, frame by frame) gets its own slope
-    :math:`\mathbf s = F\mathbf z`, F Fᵀ = Σ (:func:`workers.cascades.subgrid_slope_covariance`)
+    :math:`\mathbf s = F\mathbf z`, F Fᵀ = Σ
+    (:func:`workers.cascades.subgrid_slope_covariance`)
     and z two standard normals; a point's slopes are the resolved ones plus the s of its
     cell, so refraction scatters the rays with the unresolved slope variance. z is a
     hash of (cell, frame, key) (SplitMix64, then Box–Muller), so it is the same whatever
@@ -224,7 +225,7 @@ class SubgridSlopes:
     Parameters
     ----------
     factor : numpy.ndarray
-        F, the lower Cholesky factor of Σ (dimensionless), (2, 2).
+        F, a square root of Σ (F Fᵀ = Σ, dimensionless), (2, 2).
     cell : float
         Δ₀, m.
     key : int
@@ -253,8 +254,10 @@ class SubgridSlopes:
         radius = np.sqrt(np.float32(-2.0) * np.log(first))
         angle = np.float32(2.0 * np.pi) * second
         normal_x, normal_y = radius * np.cos(angle), radius * np.sin(angle)
-        (f00, _), (f10, f11) = np.asarray(self.factor, np.float32)
-        return (f00 * normal_x).reshape(shape), (f10 * normal_x + f11 * normal_y).reshape(shape)
+        (f00, f01), (f10, f11) = np.asarray(self.factor, np.float32)
+        slope_x = f00 * normal_x + f01 * normal_y
+        slope_y = f10 * normal_x + f11 * normal_y
+        return slope_x.reshape(shape), slope_y.reshape(shape)
 
 
 @dataclass(frozen=True, eq=False)
@@ -457,8 +460,8 @@ class Modes:
                     fields[cascade, component, frame] = scipy.fft.irfft2(
                         product, s=(n, n), norm="forward"
                     )
-        covariance = subgrid_slope_covariance(sea)
-        factor = np.linalg.cholesky(covariance + 1e-30 * np.eye(2))
+        values, vectors = np.linalg.eigh(subgrid_slope_covariance(sea))
+        factor = vectors * np.sqrt(np.maximum(values, 0.0))  # F Fᵀ = Σ
         surface = self._assemble(fields, factor)
         if max_elevation is not None:
             peak = float(np.abs(surface.elevation).max())
