@@ -277,15 +277,20 @@ def test_paper_shading_returns_about_three_times_lambert():
     lambert_scene = paper_scene.model_copy(
         update={"target": paper_scene.target.model_copy(update={"shading": "lambert"})}
     )
-    paper, lambert = render(paper_scene, seed=2), render(lambert_scene, seed=2)
-    mask = paper.target_mask.values[0].astype(bool)
-    assert np.array_equal(mask, lambert.target_mask.values[0])
-    a, b = paper.expected.values[0, 0], lambert.expected.values[0, 0]
     # outside the silhouette the two agree; inside, paper weights integrate to 2πr²
-    # (limb-brightened), lambert to (2/3)πr²: three times the return, blurred a little
-    far = ~mask
-    assert 2.0 < a[mask].sum() / b[mask].sum() < 4.0
-    assert a[far].sum() > b[far].sum() * 0.99
+    # (limb-brightened), lambert to (2/3)πr²: three times the return, blurred a little.
+    # Summed over four seas: which parts of the sphere a rough sea lights varies (the
+    # ratio of one realisation ranges over 1.7-3.0 with the multi-scale sea).
+    inside = [0.0, 0.0]
+    for seed in range(1, 5):
+        paper, lambert = render(paper_scene, seed=seed), render(lambert_scene, seed=seed)
+        mask = paper.target_mask.values[0].astype(bool)
+        assert np.array_equal(mask, lambert.target_mask.values[0])
+        a, b = paper.expected.values[0, 0], lambert.expected.values[0, 0]
+        inside[0] += a[mask].sum()
+        inside[1] += b[mask].sum()
+        assert a[~mask].sum() > b[~mask].sum() * 0.99
+    assert 2.0 < inside[0] / inside[1] < 4.0
 
 
 @pytest.mark.parametrize("K", [0.0, 0.05, 0.8], ids=["K0", "K0.05", "K0.8"])
