@@ -1,10 +1,11 @@
 """Conditioning cost: a sample conditioned on 100 measured points over an unconditioned one.
 
 The same scene with and without ``surface.conditioning`` (100 points scattered over the
-surface patch, elevations drawn from the sea's own variance, 1 mm noise), measured in one
+finest patch, elevations drawn from the sea's own variance, 1 mm noise), measured in one
 run, interleaved round by round, medians compared (the machines are shared and noisy: the
 ratio is the figure to quote). Two costs: the whole rendered sample (``render``) and the
-surface synthesis alone (``synthesize``), the part conditioning changes; the kriging system
+surface synthesis alone (``draw``, ``Kriging.condition``, ``Modes.surface``), the part
+conditioning changes, over every cascade of the default multi-scale sea; the kriging system
 is built once per scene (cached) and reported apart. ``--times`` spreads the points over that
 many distinct measurement times (one extra irfft2 + rfft2 each).
 Usage: ``python benchmarks/conditioning.py [--sizes 128 256 512] [--times 1]``.
@@ -17,19 +18,18 @@ import time
 import numpy as np
 
 from service.tuning import tune_allocator
-from workers.conditioning import kriging, space_time_covariance
+from workers.conditioning import kriging
 from workers.render import render
 from workers.scene import Scene
-from workers.surface import synthesize
+from workers.surface import draw
 
 
 def scenes(n, points, times):
-    # As benchmarks/render.py: the surface patch covers the ~4 m footprint at every size.
+    # As benchmarks/render.py: the finest patch covers the ~4 m footprint at every size.
     base = {"surface": {"grid_size": n, "spacing": 4.1 / n}, "receiver": {"pixels": n}}
     free = Scene.model_validate(base)
-    sea = free.surface.wave_spectrum()
     rng = np.random.default_rng(0)
-    std = np.sqrt(space_time_covariance(sea, grid_size=n, spacing=4.1 / n)[0, 0])
+    std = np.sqrt(free.sea().spectrum.variance())
     patch = 4.1 * (1 - 1e-9)
     data = [
         [x, y, e, t]
@@ -54,9 +54,9 @@ def timed(function):
 def measure(n, points, times, rounds):
     free, tied = scenes(n, points, times)
     kriging.cache_clear()
-    build = timed(tied.surface.kriging)
-    surface = {"grid_size": n, "spacing": 4.1 / n}
-    sea, system = free.surface.wave_spectrum(), tied.surface.kriging()
+    sea = tied.sea()
+    build = timed(lambda: tied.surface.kriging(sea))
+    system = tied.surface.kriging(sea)
     render(free, seed=0)
     render(tied, seed=0)
     columns = {"render free": [], "render tied": [], "surface free": [], "surface tied": []}
@@ -64,10 +64,10 @@ def measure(n, points, times, rounds):
         columns["render free"].append(timed(lambda seed=seed: render(free, seed=seed)))
         columns["render tied"].append(timed(lambda seed=seed: render(tied, seed=seed)))
         rng = np.random.default_rng(seed)
-        columns["surface free"].append(timed(lambda rng=rng: synthesize(sea, **surface, rng=rng)))
+        columns["surface free"].append(timed(lambda rng=rng: draw(sea, rng).surface()))
         rng = np.random.default_rng(seed)
         columns["surface tied"].append(
-            timed(lambda rng=rng: synthesize(sea, **surface, rng=rng, conditioning=system))
+            timed(lambda rng=rng: system.condition(draw(sea, rng), rng).surface())
         )
     return build, {name: statistics.median(values) for name, values in columns.items()}
 

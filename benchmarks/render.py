@@ -4,10 +4,13 @@ Both are measured in the same run, interleaved round by round (one render, one p
 each FFT), each timed once per round the same way, and the medians are compared (the
 machines are shared and noisy: the ratio is the figure to quote). Times are the process's
 CPU time (the render and the FFTs run on one thread), which other processes on the machine
-disturb far less than the wall clock. The reference pair is numpy.fft on float32
-(scipy.fft's, faster, is printed too; the renderer uses scipy.fft). Usage, from the
-repository root (so that its ``workers`` are imported): ``python -m benchmarks.render
-[--sizes 128 256 512] [--mode absolute]``.
+disturb far less than the wall clock. The multi-scale sea (issue #14: the default cascades
+over the same finest grid, sub-grid slopes) is also timed against the single patch of the
+same grid (``surface.coarse_patches: []``), in the same rounds; its target is at most 1.5
+times the single patch. The reference pair is numpy.fft on float32 (scipy.fft's, faster, is
+printed too; the renderer uses scipy.fft). Usage, from the repository root (so that its
+``workers`` are imported): ``python -m benchmarks.render [--sizes 128 256 512] [--mode
+absolute]``.
 
 The price of linear spreading (issue #9: two-level planes wide enough that no light
 wraps around, a round-trip filter per gate, the beam's tail): on the 2-core machine,
@@ -48,14 +51,18 @@ from workers.render import render
 from workers.scene import Scene
 
 
-def scene(n, *, target="sphere", mode="normalised"):
-    # The surface patch covers the ~4 m footprint at every size (n points, 4.1 m / n apart).
+def scene(n, *, target="sphere", mode="normalised", single=False):
+    # The finest patch covers the ~4 m footprint at every size (n points, 4.1 m / n apart);
+    # `single`: that patch alone, else the default coarser cascades too.
     radiometry = {"mode": mode}
     if mode == "normalised":
         radiometry["white_plane_photons"] = 13.0
+    surface = {"grid_size": n, "spacing": 4.1 / n}
+    if single:
+        surface["coarse_patches"] = []
     return Scene.model_validate(
         {
-            "surface": {"grid_size": n, "spacing": 4.1 / n},
+            "surface": surface,
             "target": {"shape": target},
             "receiver": {"pixels": n},
             "radiometry": radiometry,
@@ -71,15 +78,20 @@ def timed(function):
 
 def measure(n, target, rounds, mode):
     s = scene(n, target=target, mode=mode)
+    one = scene(n, target=target, mode=mode, single=True)
     a = np.random.default_rng(0).standard_normal((n, n), dtype=np.float32)
     render(s, seed=0)
-    samples, numpy_pairs, scipy_pairs = [], [], []
+    render(one, seed=0)
+    samples, singles, numpy_pairs, scipy_pairs = [], [], [], []
     for seed in range(1, rounds + 1):
         samples.append(timed(lambda seed=seed: render(s, seed=seed)))
+        singles.append(timed(lambda seed=seed: render(one, seed=seed)))
         numpy_pairs.append(timed(lambda: np.fft.irfft2(np.fft.rfft2(a), s=a.shape)))
         scipy_pairs.append(timed(lambda: scipy.fft.irfft2(scipy.fft.rfft2(a), s=a.shape)))
     return (
+        len(s.sea().patches),
         statistics.median(samples),
+        statistics.median(singles),
         statistics.median(numpy_pairs),
         statistics.median(scipy_pairs),
     )
@@ -96,14 +108,17 @@ def main():
         f"coastal water, {args.mode} radiometry; workers from {workers.__path__[0]}"
     )
     print(
-        f"{'pixels':>6} {'target':>7} {'sample ms':>10} {'numpy pair ms':>14} "
-        f"{'ratio':>6} {'scipy pair ms':>14} {'ratio':>6}"
+        f"{'pixels':>6} {'target':>7} {'cascades':>8} {'sample ms':>10} {'1 patch ms':>10} "
+        f"{'ratio':>6} {'numpy pair ms':>14} {'ratio':>6} {'scipy pair ms':>14} {'ratio':>6}"
     )
     for n in args.sizes:
         for target in ("sphere", "none"):
-            sample, numpy_pair, scipy_pair = measure(n, target, args.rounds, args.mode)
+            cascades, sample, single, numpy_pair, scipy_pair = measure(
+                n, target, args.rounds, args.mode
+            )
             print(
-                f"{n:>6} {target:>7} {sample * 1e3:>10.1f} {numpy_pair * 1e3:>14.3f} "
+                f"{n:>6} {target:>7} {cascades:>8} {sample * 1e3:>10.1f} {single * 1e3:>10.1f} "
+                f"{sample / single:>6.2f} {numpy_pair * 1e3:>14.3f} "
                 f"{sample / numpy_pair:>6.1f} {scipy_pair * 1e3:>14.3f} "
                 f"{sample / scipy_pair:>6.1f}"
             )

@@ -17,10 +17,13 @@ from service import integrity, lock, storage, store
 from service.client import COMMANDS, add_commands
 from service.inputs import SweepError, shown
 from service.sweep import DEFAULT_MAX_MEMORY, human_bytes, load_sweep
+from workers.cascades import describe
 
 __all__ = ["main"]
 
 EXIT_OK, EXIT_FAILURE, EXIT_BAD_INPUT = 0, 1, 2
+SHOWN_SEAS = 3
+"""Most distinct seas whose resolved shares `validate` prints."""
 MAX_MEMORY_HELP = f"most memory one sample may need, GiB (default {DEFAULT_MAX_MEMORY / 2**30:g})"
 
 
@@ -142,12 +145,28 @@ def _plan_lines(plan, batch: int = 4, url: str | None = None) -> list[str]:
     return lines
 
 
+def _sea_lines(plan) -> list[str]:
+    """What the sea's cascades resolve of the spectrum, per distinct sea of the plan."""
+    seas: dict = {}
+    for point, scene in enumerate(plan.scenes):
+        if (sea := scene.sea()) is not None:
+            seas.setdefault(sea, []).append(point)
+    lines = [
+        f"  sea at point {points[0]}{f' (+{len(points) - 1} more)' if len(points) > 1 else ''}:"
+        f" {describe(sea)}"
+        for sea, points in list(seas.items())[:SHOWN_SEAS]
+    ]
+    if len(seas) > SHOWN_SEAS:
+        lines.append(f"  ... and {len(seas) - SHOWN_SEAS} more seas")
+    return lines
+
+
 def _cmd_validate(args) -> int:
     plan = _load(args)
     if not args.no_limits:
         plan.check_limits()
     store.check_uniform(plan)
-    print("\n".join(_plan_lines(plan)))
+    print("\n".join(_plan_lines(plan) + _sea_lines(plan)))
     return EXIT_OK
 
 

@@ -100,7 +100,7 @@ def check_uniform(plan: Plan) -> None:
         "sequence.frames": lambda s: s.sequence.frames,
         "save_surface": lambda s: s.save_surface,
         "surface.grid_size": lambda s: s.surface.grid_size if s.save_surface else None,
-        "surface.spacing": lambda s: s.surface.spacing if s.save_surface else None,
+        "surface.spacing": lambda s: s.surface_spacing() if s.save_surface else None,
     }
     for path, get in fields.items():
         if any(get(scene) != get(first) for scene in plan.scenes[1:]):
@@ -202,7 +202,7 @@ def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -
             {"long_name": "Monte Carlo realisation index", "units": "1"},
         ),
     }
-    axis = np.arange(first.surface.grid_size) * first.surface.spacing
+    axis = np.arange(first.surface.grid_size) * first.surface_spacing()
     for name in ("sx", "sy"):
         if name in table:
             coords[name] = (name, axis, dict(table[name][2]))

@@ -23,6 +23,7 @@ from pydantic import ValidationError
 from service.inputs import SweepError, read_text, read_yaml, shown, strict_numbers
 from service.measurements import inline_measurements
 from service.schema import Distribution, Sweep, Values, scene_field
+from workers.cascades import MAX_CASCADES
 from workers.scene import Scene
 
 __all__ = ["Plan", "human_bytes", "load_sweep", "memory_estimate", "parse_sweep"]
@@ -137,9 +138,10 @@ def memory_estimate(scene: dict) -> int:
     already builds its kriging system. An empirical bound on peak allocations measured on
     the renderer of 2026-11-23 (the shipped configs need 0.8 to 5 times less): per frame,
     256 bytes per pixel and gate (plane grids, MTF filters, images; the frames' geometry
-    is cached) and 128 bytes per surface grid point; the kriging system of measurements at
-    G distinct times holds about 8 + G(G + 1)/8 complex grids (one covariance grid per
-    time lag, G(G + 1)/2 of them, built in turn).
+    is cached) and 128 bytes per surface grid point and cascade (``surface.coarse_patches``
+    plus one, or at most `workers.cascades.MAX_CASCADES` by default); the kriging system of
+    measurements at G distinct times holds about 8 + G(G + 1)/8 complex grids per cascade
+    (one covariance grid per time lag, G(G + 1)/2 of them, built in turn).
 
     Returns
     -------
@@ -154,10 +156,12 @@ def memory_estimate(scene: dict) -> int:
         gates = 6 if gates == "mldc" else len(gates)
         points = ((scene.get("surface") or {}).get("conditioning") or {}).get("points") or []
         times = len({point[3] if len(point) > 3 else 0.0 for point in points})
+        patches = (scene.get("surface") or {}).get("coarse_patches")
+        cascades = MAX_CASCADES if patches is None else len(patches) + 1
     except (TypeError, ValueError, AttributeError, IndexError):
         return 0
-    render = frames * (256 * pixels**2 * (gates + 1) + 128 * grid**2)
-    kriging = 16 * grid**2 * (8 + times * (times + 1) / 8) if points else 0
+    render = frames * (256 * pixels**2 * (gates + 1) + 128 * grid**2 * cascades)
+    kriging = 16 * grid**2 * cascades * (8 + times * (times + 1) / 8) if points else 0
     return int(render + kriging)
 
 

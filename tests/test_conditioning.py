@@ -11,29 +11,48 @@ from pydantic import ValidationError
 from service.inputs import SweepError
 from service.plots import preview_figure
 from service.sweep import load_sweep, parse_sweep
+from workers.cascades import Sea
 from workers.conditioning import kriging, space_time_covariance
 from workers.render import render
 from workers.scene import Scene
 from workers.spectra import Elfouhaily, dispersion
-from workers.surface import surface_amplitudes, synthesize
+from workers.surface import draw
 
 # 64 × 1 m: a 3 m/s sea whose correlation falls below 4 % beyond 8 m and 0.5 % beyond 16 m,
 # so "far from the data" exists on the patch.
 N, SPACING = 64, 1.0
 SEA = Elfouhaily(wind_speed=3.0)
+ONE = Sea(SEA, N, (N * SPACING,))
+# The same sea in three cascades of 64 points: 4, 16 and 64 m. The finer cascades are
+# periodic, so data condition them at their images too: a place far from the data is
+# also far from those images (x and y ≡ 1 m mod 4 and mod 16, 9.9 m from the nearest).
+THREE = Sea(SEA, N, (4.0, 16.0, 64.0))
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
 
-def mode_sum_covariance(spectrum, n, spacing, dx, dy, lag):
-    """Oracle: Σ_k a² cos(k·Δx − ω Δt) summed mode by mode (float64 a from float32)."""
-    a = surface_amplitudes(spectrum, grid_size=n, spacing=spacing).astype(np.float32)
-    k = 2 * np.pi * np.fft.fftfreq(n, d=spacing)
+def mode_sum_covariance(sea, dx, dy, lag):
+    """Oracle: Σ_c Σ_k a_c² cos(k·Δx − ω Δt) summed mode by mode (float64 a from float32)."""
+    return sum(cascade_covariance(sea, c, dx, dy, lag) for c in range(len(sea.patches)))
+
+
+def cascade_covariance(sea, cascade, dx, dy, lag):
+    """Oracle: Σ_k a_c² cos(k·Δx − ω Δt) of one cascade."""
+    a = sea.amplitudes(cascade).astype(np.float32)
+    k = sea.wavenumbers(cascade)
     kx, ky = k[None, :], k[:, None]
     omega = dispersion(np.hypot(kx, ky))
-    phase = (
-        kx[..., None] * np.asarray(dx) + ky[..., None] * np.asarray(dy) - omega[..., None] * lag
-    )
+    phase = kx[..., None] * np.asarray(dx) + ky[..., None] * np.asarray(dy)
+    phase -= omega[..., None] * lag
     return np.einsum("ij,ijp->p", a.astype(np.float64) ** 2, np.cos(phase))
+
+
+def conditioned(system, rng, times=(0.0,)):
+    """A conditioned draw: the unconditional modes, corrected, evolved to `times`."""
+    return system.condition(draw(system.sea, rng), rng).surface(times)
+
+
+def free(sea, rng, times=(0.0,)):
+    return draw(sea, rng).surface(times)
 
 
 def stencil(x, y, spacing):
@@ -45,23 +64,27 @@ def stencil(x, y, spacing):
     return [(a * spacing, b * spacing) for a, b in nodes], weights
 
 
-def point_covariance(p, q):
-    """Oracle Cov(η(p), η(q)) of bilinear point values p, q = (x, y, t)."""
-    (nodes_p, w_p), (nodes_q, w_q) = stencil(*p[:2], SPACING), stencil(*q[:2], SPACING)
-    dx = [a[0] - b[0] for a in nodes_p for b in nodes_q]
-    dy = [a[1] - b[1] for a in nodes_p for b in nodes_q]
-    c = mode_sum_covariance(SEA, N, SPACING, dx, dy, p[2] - q[2])
-    return float(np.outer(w_p, w_q).ravel() @ c)
+def point_covariance(p, q, sea=ONE):
+    """Oracle Cov(η(p), η(q)) of point values p, q = (x, y, t): bilinear on every cascade."""
+    total = 0.0
+    for cascade in range(len(sea.patches)):
+        spacing = sea.spacing(cascade)
+        (nodes_p, w_p), (nodes_q, w_q) = stencil(*p[:2], spacing), stencil(*q[:2], spacing)
+        dx = [a[0] - b[0] for a in nodes_p for b in nodes_q]
+        dy = [a[1] - b[1] for a in nodes_p for b in nodes_q]
+        c = cascade_covariance(sea, cascade, dx, dy, p[2] - q[2])
+        total += float(np.outer(w_p, w_q).ravel() @ c)
+    return total
 
 
-def kriging_oracle(data, noise, location):
+def kriging_oracle(data, noise, location, sea=ONE):
     """Simple-kriging mean and variance of η at `location` (x, y, t) given `data`."""
-    K = np.array([[point_covariance(p, q) for q in data] for p in data])
+    K = np.array([[point_covariance(p, q, sea) for q in data] for p in data])
     K += noise**2 * np.eye(len(data))
-    c = np.array([point_covariance(location, p) for p in data])
+    c = np.array([point_covariance(location, p, sea) for p in data])
     d = np.array([p[3] for p in data])
     weights = np.linalg.solve(K, c)
-    return weights @ d, point_covariance(location, location) - weights @ c
+    return weights @ d, point_covariance(location, location, sea) - weights @ c
 
 
 def points_of(data):
@@ -70,7 +93,7 @@ def points_of(data):
 
 
 class BasisGenerator:
-    """Stands in for a Generator: its one draw is the unit vector e_index."""
+    """Stands in for a Generator: its one draw of normals is the unit vector e_index."""
 
     def __init__(self, index):
         self.index = index
@@ -79,32 +102,36 @@ class BasisGenerator:
         out[...] = 0
         out.reshape(-1)[self.index] = 1
 
+    def integers(self, low, high, dtype):
+        return 0
 
-def test_covariance_is_the_mode_sum():
-    n, spacing = 16, 0.3
-    dx, dy = np.meshgrid(np.arange(n) * spacing, np.arange(n) * spacing)
-    variance = space_time_covariance(SEA, grid_size=n, spacing=spacing)[0, 0]
+
+@pytest.mark.parametrize("cascade", [0, 1], ids=["finest", "coarser"])
+def test_covariance_is_the_mode_sum(cascade):
+    sea = Sea(SEA, 32, (9.6, 19.2))
+    spacing = sea.spacing(cascade)
+    dx, dy = np.meshgrid(np.arange(32) * spacing, np.arange(32) * spacing)
+    variance = space_time_covariance(sea, cascade=cascade)[0, 0]
     for lag in (0.0, 0.7):
-        grid = space_time_covariance(SEA, grid_size=n, spacing=spacing, lag=lag)
-        oracle = mode_sum_covariance(SEA, n, spacing, dx.ravel(), dy.ravel(), lag)
+        grid = space_time_covariance(sea, cascade=cascade, lag=lag)
+        oracle = cascade_covariance(sea, cascade, dx.ravel(), dy.ravel(), lag)
         assert_allclose(grid.ravel(), oracle, rtol=0, atol=1e-12 * variance)
 
 
 def test_covariance_is_that_of_the_synthesised_field_exactly():
     # The field is linear in its 2N² normals, η = A ξ, so its covariance is A Aᵀ:
-    # push each unit vector through the synthesis (standing Nyquist modes included).
+    # push each unit vector through the synthesis.
     n, spacing, times = 8, 0.5, (0.0, 0.9)
+    sea = Sea(SEA, n, (n * spacing,))
     columns = [
-        synthesize(SEA, grid_size=n, spacing=spacing, rng=BasisGenerator(i), times=times)
-        .elevation.reshape(len(times), -1)
-        .astype(np.float64)
+        free(sea, [BasisGenerator(i)], times).elevation.reshape(len(times), -1).astype(np.float64)
         for i in range(2 * n * n)
     ]
     A = np.stack(columns, axis=-1)  # (time, node, normal)
-    variance = space_time_covariance(SEA, grid_size=n, spacing=spacing)[0, 0]
+    variance = space_time_covariance(sea)[0, 0]
     for lag, (later, earlier) in ((0.0, (0, 0)), (0.9, (1, 0))):
         covariance = A[later] @ A[earlier].T  # Cov(η(node_a, t_later), η(node_b, t_earlier))
-        grid = space_time_covariance(SEA, grid_size=n, spacing=spacing, lag=lag)
+        grid = space_time_covariance(sea, lag=lag)
         rows, cols = np.divmod(np.arange(n * n), n)
         expected = grid[(rows[:, None] - rows[None]) % n, (cols[:, None] - cols[None]) % n]
         # float32 synthesis: rounding of 6e-8 relative on each of the 2N² terms
@@ -121,16 +148,15 @@ def test_no_data_equals_unconditional_bytes():
         assert other.expected.values.tobytes() == plain.expected.values.tobytes()
 
 
+@pytest.mark.parametrize("sea", [ONE, THREE], ids=["one-cascade", "three-cascades"])
 @pytest.mark.parametrize("off_node", [False, True], ids=["on-nodes", "between-nodes"])
-def test_data_are_honoured_to_rounding_without_noise(off_node):
+def test_data_are_honoured_to_rounding_without_noise(off_node, sea):
     shift = 0.37 if off_node else 0.0
     data = ((3.0 + shift, 5.0, 0.1, 0.0), (20.0, 41.0 + shift, -0.08, 0.0), (63.5, 0.2, 0.05, 0))
-    system = kriging(SEA, grid_size=N, spacing=SPACING, points=data, noise=0.0)
+    system = kriging(sea, points=data, noise=0.0)
     x, y, elevation, _ = np.array(data).T
     for seed in range(3):
-        surface = synthesize(
-            SEA, grid_size=N, spacing=SPACING, rng=np.random.default_rng(seed), conditioning=system
-        )
+        surface = conditioned(system, np.random.default_rng(seed))
         # float32 fields of a few cm: rounding ~1e-8 m
         assert_allclose(surface.elevation_at(x, y), elevation, rtol=0, atol=1e-6)
 
@@ -140,64 +166,64 @@ def test_data_condition_every_frame_and_the_correction_travels():
     # w = (d − η_u(x_d, t_d)) / C(0, 0): a shifted copy of the space–time covariance.
     x_d, y_d, t_d, d = 10.0, 30.0, 0.5, 0.15
     times = (0.0, 0.5, 2.0)
-    system = kriging(SEA, grid_size=N, spacing=SPACING, points=((x_d, y_d, d, t_d),), noise=0.0)
-    free = synthesize(SEA, grid_size=N, spacing=SPACING, rng=np.random.default_rng(2), times=times)
-    tied = synthesize(
-        SEA,
-        grid_size=N,
-        spacing=SPACING,
-        rng=np.random.default_rng(2),
-        times=times,
-        conditioning=system,
-    )
+    system = kriging(ONE, points=((x_d, y_d, d, t_d),), noise=0.0)
+    unconditional = free(ONE, np.random.default_rng(2), times)
+    tied = conditioned(system, np.random.default_rng(2), times)
     assert tied.elevation_at(x_d, y_d, frame=1) == pytest.approx(d, abs=1e-6)
-    c0 = space_time_covariance(SEA, grid_size=N, spacing=SPACING)[0, 0]
-    weight = (d - float(free.elevation_at(x_d, y_d, frame=1))) / c0
+    c0 = space_time_covariance(ONE)[0, 0]
+    weight = (d - float(unconditional.elevation_at(x_d, y_d, frame=1))) / c0
     nodes = np.arange(N) * SPACING
     dx, dy = np.meshgrid(nodes - x_d, nodes - y_d)
     for frame, t in enumerate(times):
-        kernel = mode_sum_covariance(SEA, N, SPACING, dx.ravel(), dy.ravel(), t - t_d)
-        correction = (tied.elevation[frame] - free.elevation[frame]).ravel()
+        kernel = mode_sum_covariance(ONE, dx.ravel(), dy.ravel(), t - t_d)
+        correction = (tied.elevation[frame] - unconditional.elevation[frame]).ravel()
         assert_allclose(correction, weight * kernel, rtol=0, atol=1e-5 * abs(weight) * c0)
     # slopes are corrected too: the slope of the correction is that of the kernel
-    assert not np.array_equal(tied.slope_x[0], free.slope_x[0])
+    tied_slope = tied.cascades[0].slope_x[0]
+    assert not np.array_equal(tied_slope, unconditional.cascades[0].slope_x[0])
 
 
-def test_draws_have_the_kriging_mean_and_variance():
+@pytest.mark.parametrize(
+    ("sea", "far"),
+    [(ONE, (40.0, 40.0)), (THREE, (49.0, 49.0))],
+    ids=["one-cascade", "three-cascades"],
+)
+def test_draws_have_the_kriging_mean_and_variance(sea, far):
     # Data at two times (0 and 1 s), one between nodes; frames at 0 and 2 s. Over M
     # draws the sample mean is within 5 standard errors sqrt(v/M) of the kriging mean,
     # and the sample variance within 5 sqrt(2/(M-1)) (relative) of the kriging variance
-    # (Gaussian sample variance), at test points on the data, between, and far away.
-    noise, draws, times = 0.01, 2000, (0.0, 2.0)
+    # (Gaussian sample variance), at test points on the data, between, and far away,
+    # with the covariance of the summed cascades.
+    noise, draws, times = 0.01, 1500, (0.0, 2.0)
     data = [(8.0, 8.0, 0.0, 0.12), (12.3, 9.0, 0.0, -0.05), (9.0, 14.0, 1.0, 0.03)]
-    system = kriging(SEA, grid_size=N, spacing=SPACING, points=points_of(data), noise=noise)
-    locations = [(8.0, 8.0, 0), (10.0, 11.0, 0), (10.0, 11.0, 1), (40.0, 40.0, 0)]
+    system = kriging(sea, points=points_of(data), noise=noise)
+    locations = [(8.0, 8.0, 0), (10.0, 11.0, 0), (10.0, 11.0, 1), (*far, 0)]
     rng = np.random.default_rng(11)
     values = np.empty((draws, len(locations)))
     for m in range(draws):
-        surface = synthesize(
-            SEA, grid_size=N, spacing=SPACING, rng=rng, times=times, conditioning=system
-        )
+        surface = conditioned(system, rng, times)
         for p, (x, y, frame) in enumerate(locations):
             values[m, p] = surface.elevation_at(x, y, frame=frame)
-    prior = point_covariance((0, 0, 0), (0, 0, 0))
+    prior = point_covariance((0, 0, 0), (0, 0, 0), sea)
+    if sea is THREE:  # the cascades hold the spectrum (its finest patch alone: 64 %)
+        assert prior > 0.95 * SEA.variance()
     for p, (x, y, frame) in enumerate(locations):
-        mean, variance = kriging_oracle(data, noise, (x, y, times[frame]))
+        mean, variance = kriging_oracle(data, noise, (x, y, times[frame]), sea)
         assert abs(values[:, p].mean() - mean) < 5 * np.sqrt(variance / draws)
         assert abs(values[:, p].var(ddof=1) / variance - 1) < 5 * np.sqrt(2 / (draws - 1))
     # at the first datum the spread is below the noise; far away it is the prior's
-    assert kriging_oracle(data, noise, (8.0, 8.0, 0.0))[1] < noise**2
-    far_mean, far_variance = kriging_oracle(data, noise, (40.0, 40.0, 0.0))
-    assert far_variance > 0.999 * prior and abs(far_mean) < 0.01 * abs(data[0][3])
-    far = values[:, 3].var(ddof=1)
-    assert abs(far / prior - 1) < 5 * np.sqrt(2 / (draws - 1))
+    assert kriging_oracle(data, noise, (8.0, 8.0, 0.0), sea)[1] < noise**2
+    far_mean, far_variance = kriging_oracle(data, noise, (*far, 0.0), sea)
+    assert far_variance > 0.99 * prior and abs(far_mean) < 0.05 * abs(data[0][3])
+    spread = values[:, 3].var(ddof=1)
+    assert abs(spread / prior - 1) < 5 * np.sqrt(2 / (draws - 1))
 
 
 @pytest.mark.parametrize(
     ("conditioning", "surface", "message"),
     [
-        ({"points": [[70.0, 3.0, 0.1]]}, {}, "off the surface grid"),
-        ({"points": [[-1.0, 3.0, 0.1]]}, {}, "x=63 m, y=3 m"),
+        ({"points": [[70.0, 3.0, 0.1]]}, {}, "off the sea's coarsest patch"),
+        ({"points": [[-1.0, 3.0, 0.1]]}, {}, "x=-1 m, y=3 m"),
         ({"points": [[1.0, 3.0, 0.1], [1.0, 3.0, 0.2]]}, {}, "points 0 and 1"),
         ({"points": [[1.0, 3.0, 0.1], [1.000001, 3.0, 0.1]]}, {}, "ill-conditioned"),
         ({"points": [[1.0, 3.0, 0.1]]}, {"spectrum": "flat"}, "flat sea"),
@@ -226,9 +252,7 @@ def test_bad_conditioning_is_refused_with_the_field(conditioning, surface, messa
 def test_singular_systems_name_the_redundant_points():
     with pytest.raises(ValueError, match=r"points 1 \(2, 3 m, t=0 s\), 2 \(2, 3 m, t=0 s\)"):
         kriging(
-            SEA,
-            grid_size=N,
-            spacing=SPACING,
+            ONE,
             points=((40.0, 40.0, 0.0), (2.0, 3.0, 0.1), (2.0 + 1e-7, 3.0, 0.1)),
             noise=0.0,
         )
@@ -288,13 +312,13 @@ def test_csv_points_are_read_relative_to_the_sweep_and_honoured(tmp_path, monkey
         ("{file: data/points.csv}", "x,y,elevation\n", "no points"),
         ("{file: data/missing.csv}", "x,y,elevation\n1,2,3\n", "No such file"),
         ("{file: data/points.csv, points: [[1, 2, 3]]}", "x,y,elevation\n1,2,3\n", "not both"),
-        ("{file: data/points.csv}", "x,y,elevation\n99,2,0.1\n", "off the surface grid"),
+        ("{file: data/points.csv}", "x,y,elevation\n99,2,0.1\n", "off the sea's coarsest patch"),
     ],
     ids=["header", "short-row", "nan", "empty", "missing", "both", "off-grid"],
 )
 def test_bad_csv_files_are_refused(tmp_path, conditioning, csv, message):
     path = write_sweep(tmp_path, conditioning, csv)
-    with pytest.raises(SweepError, match=r"scene\.surface") as error:
+    with pytest.raises(SweepError, match=r"scene.*surface\.conditioning") as error:
         load_sweep(path)
     assert message in str(error.value)
 

@@ -27,7 +27,8 @@ def reduced(path, folder):
     """A copy of the sweep file at `path`, made small, written into `folder`.
 
     One realisation per point; a coarser surface grid over the same patch (grid_size ×
-    spacing kept, so the footprint check and conditioning points see the same sea patch);
+    spacing kept, or the default spacing left to cover the footprint, so the footprint
+    check and conditioning points see the same finest patch);
     fewer pixels. A random design keeps its first `MAX_POINTS` draws (its parameters'
     ranges are unchanged, but fewer of its points run). Nothing else is changed: the
     physics, sequences, sweeps and gates are as shipped. A conditioning file is copied
@@ -36,8 +37,9 @@ def reduced(path, folder):
     sweep = yaml.safe_load(path.read_text())
     sweep["realisations"] = 1
     surface = sweep.setdefault("scene", {}).setdefault("surface", {})
-    size, spacing = surface.get("grid_size", 256), surface.get("spacing", 0.016)
-    surface["grid_size"], surface["spacing"] = SMALL_GRID, size * spacing / SMALL_GRID
+    size, surface["grid_size"] = surface.get("grid_size", 256), SMALL_GRID
+    if surface.get("spacing") is not None:
+        surface["spacing"] = size * surface["spacing"] / SMALL_GRID
     sweep["scene"].setdefault("receiver", {})["pixels"] = SMALL_PIXELS
     conditioning = surface.get("conditioning", {})
     if "file" in conditioning:

@@ -277,15 +277,20 @@ def test_paper_shading_returns_about_three_times_lambert():
     lambert_scene = paper_scene.model_copy(
         update={"target": paper_scene.target.model_copy(update={"shading": "lambert"})}
     )
-    paper, lambert = render(paper_scene, seed=2), render(lambert_scene, seed=2)
-    mask = paper.target_mask.values[0].astype(bool)
-    assert np.array_equal(mask, lambert.target_mask.values[0])
-    a, b = paper.expected.values[0, 0], lambert.expected.values[0, 0]
     # outside the silhouette the two agree; inside, paper weights integrate to 2πr²
-    # (limb-brightened), lambert to (2/3)πr²: three times the return, blurred a little
-    far = ~mask
-    assert 2.0 < a[mask].sum() / b[mask].sum() < 4.0
-    assert a[far].sum() > b[far].sum() * 0.99
+    # (limb-brightened), lambert to (2/3)πr²: three times the return, blurred a little.
+    # Summed over four seas: which parts of the sphere a rough sea lights varies (the
+    # ratio of one realisation ranges over 1.7-3.0 with the multi-scale sea).
+    inside = [0.0, 0.0]
+    for seed in range(1, 5):
+        paper, lambert = render(paper_scene, seed=seed), render(lambert_scene, seed=seed)
+        mask = paper.target_mask.values[0].astype(bool)
+        assert np.array_equal(mask, lambert.target_mask.values[0])
+        a, b = paper.expected.values[0, 0], lambert.expected.values[0, 0]
+        inside[0] += a[mask].sum()
+        inside[1] += b[mask].sum()
+        assert a[~mask].sum() > b[~mask].sum() * 0.99
+    assert 2.0 < inside[0] / inside[1] < 4.0
 
 
 @pytest.mark.parametrize("K", [0.0, 0.05, 0.8], ids=["K0", "K0.05", "K0.8"])
@@ -478,24 +483,20 @@ def test_a_gate_opening_above_the_surface_holds_only_the_water():
 def test_a_crest_gates_less_water(height, monkeypatch):
     # A sea raised by η shortens the air path by η: within the same gate times the light
     # goes η/n less far into the water each way, so the gate's return changes by e^(-2Kη/n).
-    from workers.surface import Surface
+    from workers.surface import Cascade, Surface
 
-    def synthesize(spectrum, *, grid_size, spacing, times, **_):
-        zero = np.zeros((len(times), grid_size, grid_size), np.float32)
-        return Surface(
-            elevation=zero + np.float32(height),
-            slope_x=zero,
-            slope_y=zero,
-            spacing=spacing,
-            grid_size=grid_size,
-        )
+    def surface(setup, seed, times):
+        n, zero = 16, np.zeros((len(times), 16, 16), np.float32)
+        raised = zero + np.float32(height)
+        plane = Cascade(elevation=raised, slope_x=zero, slope_y=zero, spacing=1.0, grid_size=n)
+        return Surface(cascades=(plane,))
 
     flat = gated_water([(3.0, 6.0)], nadir=0.0)
     raised = flat.model_copy(
         update={"surface": flat.surface.model_copy(update={"spectrum": "phillips"})}
     )
     base = centre(render(flat, seed=1).expected.values[0, 0])
-    monkeypatch.setattr("workers.render.synthesize", synthesize)
+    monkeypatch.setattr("workers.sensor.Setup.surface", surface)
     value = centre(render(raised, seed=1).expected.values[0, 0])
     K = 0.2 + 0.01
     assert_allclose(value / base, np.exp(-2 * K * height / N_WATER), rtol=0.003)

@@ -12,7 +12,7 @@ from scipy.optimize import brentq
 from workers.optics import fresnel_reflectance
 from workers.render import render
 from workers.scene import Scene
-from workers.surface import Surface
+from workers.surface import Cascade, Surface
 
 
 @pytest.mark.parametrize("wind_speed", [0.5, 1.0, 2.0], ids=lambda u: f"U{u:g}")
@@ -50,17 +50,18 @@ PIXELS = 64
 def sloped_sea(monkeypatch, *, slope_x=0.0, slope_y=0.0):
     """Make `render` see a sea of constant slopes (∂η/∂x, ∂η/∂y) and zero elevation."""
 
-    def synthesize(spectrum, *, grid_size, spacing, times, **_):
-        zero = np.zeros((len(times), grid_size, grid_size), np.float32)
-        return Surface(
+    def surface(setup, seed, times):
+        zero = np.zeros((len(times), 16, 16), np.float32)
+        plane = Cascade(
             elevation=zero,
             slope_x=zero + np.float32(slope_x),
             slope_y=zero + np.float32(slope_y),
-            spacing=spacing,
-            grid_size=grid_size,
+            spacing=1.0,
+            grid_size=16,
         )
+        return Surface(cascades=(plane,))
 
-    monkeypatch.setattr("workers.render.synthesize", synthesize)
+    monkeypatch.setattr("workers.sensor.Setup.surface", surface)
 
 
 def disk_scene(*, x=0.0, y=0.0, radius=0.5, depth=5.0, absorption=0.1, nadir=0.0, laser=None):

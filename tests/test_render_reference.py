@@ -16,6 +16,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from workers.render import render
 from workers.scene import Scene
+from workers.sensor import Setup
 
 REFERENCE = Path(__file__).parent / "data" / "render_reference.npz"
 
@@ -73,7 +74,7 @@ class Swell:
 def rendered(name, monkeypatch):
     """``expected`` and ``target_mask`` of the named scene over the swell, seed 3."""
     sections = {"surface": {"grid_size": 64, "spacing": 0.1}, **SCENES[name]}
-    monkeypatch.setattr("workers.render.synthesize", lambda *_, **__: Swell())
+    monkeypatch.setattr(Setup, "surface", lambda *_, **__: Swell())
     sample = render(Scene.model_validate(sections), seed=3)
     return sample.expected.values, sample.target_mask.values
 

@@ -13,7 +13,8 @@ from workers.scene import Scene, footprint_span
 def test_defaults_are_the_papers_example_3_geometry():
     s = Scene()
     assert s.surface.spectrum == "elfouhaily"
-    assert (s.surface.grid_size, s.surface.spacing) == (256, 0.016)
+    assert (s.surface.grid_size, s.surface.spacing) == (256, None)
+    assert s.surface_spacing() == pytest.approx(2 * 34 * math.tan(math.radians(6.7 / 2)) / 256)
     assert (s.platform.altitude, s.receiver.field_of_view_deg) == (34.0, 6.7)
     assert s.receiver.gate_depths == MLDC_GATES
 
@@ -156,21 +157,29 @@ FOOTPRINT_FIELDS = (
 )
 
 
+SINGLE = {"coarse_patches": [], "spacing": 0.016}
+
+
 @pytest.mark.parametrize(
     "data",
     [
         # 2 H tan(α/2) = 4.21 m at 36 m, over the default 256 x 0.016 m = 4.10 m patch
-        {"platform": {"altitude": 36.0}},
-        {"surface": {"spacing": 0.015}},
-        {"platform": {"nadir_deg": 20.0}},
+        {"platform": {"altitude": 36.0}, "surface": SINGLE},
+        {"surface": {**SINGLE, "spacing": 0.015}},
+        {"platform": {"nadir_deg": 20.0}, "surface": SINGLE},
         # from 34 m the platform climbs 2 m during the sequence
-        {"sequence": {"frames": 11, "interval": 0.2, "velocity": [0.0, 0.0, 1.0]}},
+        {
+            "sequence": {"frames": 11, "interval": 0.2, "velocity": [0.0, 0.0, 1.0]},
+            "surface": SINGLE,
+        },
+        # 300 m: a 35 m footprint over explicit cascades of 4.1 and 32.8 m
+        {"platform": {"altitude": 300.0}, "surface": {"coarse_patches": [32.8], "spacing": 0.016}},
     ],
-    ids=["higher", "smaller-patch", "oblique", "climbing"],
+    ids=["higher", "smaller-patch", "oblique", "climbing", "cascades-too-small"],
 )
 def test_a_footprint_wider_than_the_sea_patch_is_refused_unless_allowed(data):
-    # Issue #9: the sea is periodic with period grid_size x spacing; a wider footprint
-    # shows the same waves twice in one image.
+    # Issue #9: a sea of period P shows the same waves twice in one image when the
+    # footprint is wider than P; with cascades P is the coarsest patch.
     with pytest.raises(ValidationError) as info:
         Scene.model_validate(data)
     message = str(info.value)
@@ -187,7 +196,27 @@ def test_a_footprint_wider_than_the_sea_patch_is_refused_unless_allowed(data):
 def test_the_default_footprint_fits_the_default_patch():
     scene = Scene()
     span = footprint_span(altitude=34.0, nadir=0.0, azimuth=0.0, field_of_view=FOV)
-    assert span < scene.surface.grid_size * scene.surface.spacing
+    assert span <= scene.surface.grid_size * scene.surface_spacing()
+
+
+@pytest.mark.parametrize("altitude", [36.0, 300.0, 500.0])
+def test_the_default_cascades_cover_the_footprint(altitude):
+    # Issue #14: by default the coarsest cascade covers the footprint at any altitude
+    scene = Scene.model_validate({"platform": {"altitude": altitude}})
+    span = footprint_span(altitude=altitude, nadir=0.0, azimuth=0.0, field_of_view=FOV)
+    assert scene.sea().patches[-1] >= span
+    assert scene.sea().patches[0] == pytest.approx(span)  # the finest covers it too
+
+
+@pytest.mark.parametrize(
+    ("patches", "message"),
+    [([3.0], "larger than patch 0"), ([4.1, 100.0], "at most grid_size/16"), ([-1.0], "0")],
+    ids=["smaller", "too-far", "negative"],
+)
+def test_bad_coarse_patches_are_refused_with_the_field(patches, message):
+    with pytest.raises(ValidationError) as info:
+        Scene.model_validate({"surface": {"coarse_patches": patches}})
+    assert "coarse_patches" in str(info.value) and message in str(info.value)
 
 
 def test_cli_validate_refuses_a_repeating_sea_with_a_message(tmp_path):
@@ -195,6 +224,7 @@ def test_cli_validate_refuses_a_repeating_sea_with_a_message(tmp_path):
     sweep.write_text(
         "name: wide\nseed: 1\noutput: wide.zarr\n"
         "scene:\n  platform: {altitude: 60.0}\n  receiver: {pixels: 16}\n"
+        "  surface: {coarse_patches: [], spacing: 0.016}\n"
     )
     result = run_cli("validate", sweep, cwd=tmp_path)
     assert result.returncode == 2
@@ -202,6 +232,6 @@ def test_cli_validate_refuses_a_repeating_sea_with_a_message(tmp_path):
     assert "surface.allow_repeat" in result.stderr and "platform.altitude" in result.stderr
     allowed = tmp_path / "allowed.yaml"
     allowed.write_text(
-        sweep.read_text().replace("  receiver:", "  surface: {allow_repeat: true}\n  receiver:")
+        sweep.read_text().replace("coarse_patches: []", "coarse_patches: [], allow_repeat: true")
     )
     assert run_cli("validate", allowed, cwd=tmp_path).returncode == 0

@@ -8,6 +8,7 @@ import pytest
 from numpy.testing import assert_allclose
 from scipy import optimize, special
 
+from workers.cascades import Sea
 from workers.sea import SurfaceSpec
 from workers.spectra import (
     GRAVITY,
@@ -17,7 +18,6 @@ from workers.spectra import (
     PiersonMoskowitz,
     dispersion,
 )
-from workers.surface import surface_amplitudes
 
 SPECTRA = {
     "phillips": Phillips(wind_speed=5.0),
@@ -334,7 +334,7 @@ def test_every_scene_spectrum_is_finite_and_non_negative(settings, wind_speed):
     assert np.isfinite(omnidirectional).all() and (omnidirectional >= 0).all()
     # the scene grids: the default and the finest spacing of the shipped configs
     for grid_size, spacing in ((256, 0.016), (64, 0.004)):
-        amplitude = surface_amplitudes(spectrum, grid_size=grid_size, spacing=spacing)
+        amplitude = Sea(spectrum, grid_size, (grid_size * spacing,)).amplitudes(0)
         assert np.isfinite(amplitude).all()
 
 

@@ -93,9 +93,10 @@ def test_deep_gate_backscatter_matches_a_brute_force_linear_convolution(
     preset, gate, nadir, rtol, monkeypatch
 ):
     # The default (divergent, finite) beam, forward scattering on, a rough sea, a deep gate.
+    # One 5.8 m cascade (it covers the footprint), sub-grid slopes included.
     scene = Scene.model_validate(
         {
-            "surface": {"grid_size": 64, "spacing": 0.09},
+            "surface": {"grid_size": 64, "spacing": 0.09, "coarse_patches": []},
             "water": {"preset": preset},
             "platform": {"nadir_deg": nadir},
             "target": {"shape": "none"},
@@ -115,7 +116,11 @@ def test_deep_gate_backscatter_matches_a_brute_force_linear_convolution(
     finally:
         planes_module.frame_geometry.cache_clear()
     assert_allclose(fast.mean(), reference.mean(), rtol=rtol)
-    assert_allclose(fast[1:-1, 1:-1], reference[1:-1, 1:-1], rtol=2 * rtol)
+    # A pixel whose line of sight the sea's slopes push off the reference's fine grid
+    # reads nothing there (gathering is on the fine grid only): compare the others.
+    seen = reference[1:-1, 1:-1] > 0
+    assert seen.mean() > 0.99
+    assert_allclose(fast[1:-1, 1:-1][seen], reference[1:-1, 1:-1][seen], rtol=2 * rtol)
 
 
 def test_encircled_radius_matches_a_brute_force_fft_of_the_mtf():

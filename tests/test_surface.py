@@ -7,8 +7,19 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
+from workers.cascades import Sea
 from workers.spectra import Elfouhaily, Phillips, Spectrum, dispersion
-from workers.surface import Surface, surface_amplitudes, synthesize
+from workers.surface import Cascade
+from workers.surface import synthesize as draw_sea
+
+
+def synthesize(spectrum, *, grid_size, spacing, **kwargs):
+    """One realisation of the single-cascade sea of this grid."""
+    return draw_sea(Sea(spectrum, grid_size, (grid_size * spacing,)), **kwargs)
+
+
+def surface_amplitudes(spectrum, *, grid_size, spacing):
+    return Sea(spectrum, grid_size, (grid_size * spacing,)).amplitudes(0)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -35,6 +46,14 @@ class SingleMode(Spectrum):
         inside = np.abs(offset) + 0.0 * np.asarray(k, float) < 0.5 * width
         return np.where(inside, 1.0 / width, 0.0)
 
+    def directional(self, kx, ky):
+        # the grid cell of the mode, so that its integral over the cell is the variance
+        half = 0.5 * self.resolution
+        inside = (np.abs(np.asarray(kx) - self.mode[0]) < half) & (
+            np.abs(np.asarray(ky) - self.mode[1]) < half
+        )
+        return np.where(inside, self.mode_variance / self.resolution**2, 0.0)
+
 
 def _single_mode(n, spacing, cells, variance=1e-4):
     resolution = 2 * np.pi / (n * spacing)
@@ -46,17 +65,25 @@ def _wavenumbers(n, spacing):
     return 2 * np.pi * np.fft.fftfreq(n, d=spacing)
 
 
-def test_amplitudes_are_in_fft_order_with_no_mean_mode():
-    n, spacing = 32, 0.1
+def test_amplitudes_are_cell_integrals_in_fft_order_with_no_mean_mode():
+    n, spacing = 64, 0.1
     spectrum = Elfouhaily(wind_speed=6.0, wind_direction=0.4)
     amplitude = surface_amplitudes(spectrum, grid_size=n, spacing=spacing)
     assert amplitude.shape == (n, n)
     assert amplitude.dtype == np.float64
     assert amplitude[0, 0] == 0.0
+    assert not amplitude[n // 2].any() and not amplitude[:, n // 2].any()  # Nyquist
     k = _wavenumbers(n, spacing)
     dk = 2 * np.pi / (n * spacing)
-    for i, j in [(0, 1), (3, 0), (5, 29), (16, 7), (31, 16)]:
+    # far from k = 0 and from the band's edge π/Δ: Ψ at the centre of the cell
+    for i, j in [(0, 20), (3, 25), (5, 29), (40, 50)]:
         expected = math.sqrt(spectrum.directional(k[j], k[i]) * dk**2)
+        assert_allclose(amplitude[i, j], expected, rtol=1e-14)
+    # near k = 0: the midpoint rule on 4 x 4 points of the cell
+    offsets = (np.arange(4) + 0.5) / 4 - 0.5
+    for i, j in [(0, 1), (2, 63)]:
+        qx, qy = k[j] + dk * offsets[None, :], k[i] + dk * offsets[:, None]
+        expected = math.sqrt(spectrum.directional(qx, qy).mean() * dk**2)
         assert_allclose(amplitude[i, j], expected, rtol=1e-14)
 
 
@@ -79,9 +106,7 @@ def test_variances_over_realisations_match_the_resolved_spectrum(time):
     spectrum = Phillips(wind_speed=1.2, wind_direction=0.5)
     amplitude = surface_amplitudes(spectrum, grid_size=n, spacing=spacing)
     k = _wavenumbers(n, spacing)
-    nyquist = np.arange(n) == n // 2
-    kx = np.where(nyquist, 0.0, k)[None, :]  # the Nyquist mode has no grid derivative
-    ky = np.where(nyquist, 0.0, k)[:, None]
+    kx, ky = k[None, :], k[:, None]  # the Nyquist row and column hold no waves
     rng = np.random.default_rng(20240601)
     surfaces = [
         synthesize(spectrum, grid_size=n, spacing=spacing, rng=rng, times=(time,))
@@ -101,7 +126,7 @@ def test_variances_over_realisations_match_the_resolved_spectrum(time):
         effective_modes = expected**2 / np.sum(means**2)
         assert effective_modes > 20  # the statistics are not carried by a few modes
         observed = np.mean(
-            [np.mean(getattr(s, name)[0].astype(np.float64) ** 2) for s in surfaces]
+            [np.mean(getattr(s.cascades[0], name)[0].astype(np.float64) ** 2) for s in surfaces]
         )
         assert abs(observed - expected) < 5 * sigma, (name, observed, expected, sigma)
 
@@ -120,8 +145,8 @@ def test_slopes_match_centred_differences_of_a_single_mode():
     slope_y = centred_y * (ky * spacing) / math.sin(ky * spacing)
     scale = math.hypot(kx, ky) * np.abs(eta).max()
     assert scale > 0
-    assert_allclose(surface.slope_x[0], slope_x, atol=2e-6 * scale)
-    assert_allclose(surface.slope_y[0], slope_y, atol=2e-6 * scale)
+    assert_allclose(surface.cascades[0].slope_x[0], slope_x, atol=2e-6 * scale)
+    assert_allclose(surface.cascades[0].slope_y[0], slope_y, atol=2e-6 * scale)
 
 
 def test_slopes_are_the_spectral_derivative_of_the_elevation():
@@ -138,8 +163,8 @@ def test_slopes_are_the_spectral_derivative_of_the_elevation():
     transform = np.fft.fft2(eta)
     slope_x = np.fft.ifft2(1j * np.where(nyquist, 0.0, k)[None, :] * transform).real
     slope_y = np.fft.ifft2(1j * np.where(nyquist, 0.0, k)[:, None] * transform).real
-    assert_allclose(surface.slope_x[0], slope_x, atol=1e-5 * np.abs(slope_x).max())
-    assert_allclose(surface.slope_y[0], slope_y, atol=1e-5 * np.abs(slope_y).max())
+    assert_allclose(surface.cascades[0].slope_x[0], slope_x, atol=1e-5 * np.abs(slope_x).max())
+    assert_allclose(surface.cascades[0].slope_y[0], slope_y, atol=1e-5 * np.abs(slope_y).max())
 
 
 def test_field_is_real_zero_mean_and_periodic():
@@ -147,7 +172,7 @@ def test_field_is_real_zero_mean_and_periodic():
     surface = synthesize(
         Elfouhaily(wind_speed=5.0), grid_size=n, spacing=spacing, rng=np.random.default_rng(2)
     )
-    for values in (surface.elevation, surface.slope_x, surface.slope_y):
+    for values in (surface.elevation, surface.cascades[0].slope_x, surface.cascades[0].slope_y):
         assert values.dtype == np.float32
         assert values.shape == (1, n, n)
         assert np.all(np.isfinite(values))
@@ -155,8 +180,9 @@ def test_field_is_real_zero_mean_and_periodic():
     x = np.array([0.013, 0.4, 1.1])
     y = np.array([0.9, 0.002, 1.5])
     period = n * spacing
-    here = surface.sample(x, y)
-    for shifted in (surface.sample(x + period, y - 2 * period), surface.sample(x - period, y)):
+    (cascade,) = surface.cascades  # the sub-grid slopes are not periodic
+    here = cascade.sample(x, y)
+    for shifted in (cascade.sample(x + period, y - 2 * period), cascade.sample(x - period, y)):
         for a, b in zip(here, shifted, strict=True):
             assert_allclose(a, b, rtol=1e-5, atol=1e-6 * np.abs(a).max())
 
@@ -164,7 +190,7 @@ def test_field_is_real_zero_mean_and_periodic():
 @pytest.mark.parametrize("n", [32, 15], ids=["even-grid", "odd-grid"])
 @pytest.mark.parametrize(
     "cells",
-    [(6, 0), (-6, 0), (0, 6), (0, -6), (3, 4), (-5, 7)],
+    [(6, 0), (-6, 0), (0, 6), (0, -6), (3, 4), (-4, 5)],  # inside |k| < π/Δ
     ids=["+x", "-x", "+y", "-y", "oblique", "oblique-upwind"],
 )
 def test_a_single_mode_travels_towards_its_wavevector_at_the_phase_speed(cells, n):
@@ -196,7 +222,12 @@ def test_same_seed_gives_the_same_bytes_and_frames_share_one_realisation():
     first = synthesize(spectrum, **grid, rng=np.random.default_rng(11), times=(0.0, 0.4))
     second = synthesize(spectrum, **grid, rng=np.random.default_rng(11), times=(0.0, 0.4))
     for name in ("elevation", "slope_x", "slope_y"):
-        assert getattr(first, name).tobytes() == getattr(second, name).tobytes()
+        assert (
+            getattr(first.cascades[0], name).tobytes()
+            == getattr(second.cascades[0], name).tobytes()
+        )
+    x, y = np.random.default_rng(0).uniform(-5, 5, (2, 100))
+    assert first.slopes_at(x, y)[0].tobytes() == second.slopes_at(x, y)[0].tobytes()
     later = synthesize(spectrum, **grid, rng=np.random.default_rng(11), times=(0.4,))
     assert later.elevation[0].tobytes() == first.elevation[1].tobytes()
     other = synthesize(spectrum, **grid, rng=np.random.default_rng(12))
@@ -206,7 +237,7 @@ def test_same_seed_gives_the_same_bytes_and_frames_share_one_realisation():
 def _random_surface(n, spacing, frames=2, seed=0):
     rng = np.random.default_rng(seed)
     fields = rng.normal(size=(3, frames, n, n)).astype(np.float32)
-    return Surface(
+    return Cascade(
         elevation=fields[0], slope_x=fields[1], slope_y=fields[2], spacing=spacing, grid_size=n
     )
 
@@ -279,7 +310,11 @@ def test_max_elevation_rescales_the_whole_realisation():
     assert_allclose(np.abs(scaled.elevation).max(), 0.1, rtol=1e-6)
     factor = 0.1 / np.abs(plain.elevation).max()
     for name in ("elevation", "slope_x", "slope_y"):
-        assert_allclose(getattr(scaled, name), factor * getattr(plain, name), rtol=1e-5)
+        assert_allclose(
+            getattr(scaled.cascades[0], name), factor * getattr(plain.cascades[0], name), rtol=1e-5
+        )
+    x, y = np.random.default_rng(0).uniform(-5, 5, (2, 100))
+    assert_allclose(scaled.slopes_at(x, y), factor * np.array(plain.slopes_at(x, y)), rtol=1e-4)
 
 
 @pytest.mark.parametrize(
@@ -305,7 +340,7 @@ def test_surface_arrays_are_read_only_and_checked():
     with pytest.raises(ValueError):
         surface.elevation[0, 0, 0] = 1.0
     with pytest.raises(ValueError):
-        Surface(
+        Cascade(
             elevation=np.zeros((1, 8, 8)),
             slope_x=np.zeros((1, 8, 8)),
             slope_y=np.zeros((2, 8, 8)),
@@ -326,7 +361,7 @@ def test_elevation_at_equals_the_elevation_of_sample():
 def test_elevation_at_and_slopes_at_equal_sample_across_blocks_and_wraps(n):
     rng = np.random.default_rng(4)
     fields = rng.standard_normal((3, 2, n, n)).astype(np.float32)
-    surface = Surface(
+    surface = Cascade(
         elevation=fields[0], slope_x=fields[1], slope_y=fields[2], spacing=0.3, grid_size=n
     )
     # more points than one block, far outside the first period and negative

@@ -250,7 +250,7 @@ def labelled_dataset(scene, expected, image, masks, surface):
         dims, dtype, attrs = table[name]
         ds[name] = (dims, values.astype(dtype, copy=False), attrs)
     if scene.save_surface:
-        n, spacing = scene.surface.grid_size, scene.surface.spacing
+        n, spacing = scene.surface.grid_size, scene.surface_spacing()
         elevation = (
             surface.elevation if surface is not None else np.zeros((frames, n, n), np.float32)
         )

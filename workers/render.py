@@ -54,7 +54,6 @@ from workers.planes import FrameGeometry, Plane, frame_geometry
 from workers.scene import Scene
 from workers.seeds import SampleSeed
 from workers.sensor import Setup, scene_setup
-from workers.surface import synthesize
 
 __all__ = ["render", "sample_labels"]
 
@@ -85,17 +84,7 @@ def render(scene: Scene, *, seed: int | SampleSeed) -> xr.Dataset:
     setup = scene_setup(key)
     frames = scene.sequence.frames
     times = np.arange(frames) * scene.sequence.interval
-    surface = None
-    if setup.spectrum is not None:
-        surface = synthesize(
-            setup.spectrum,
-            grid_size=scene.surface.grid_size,
-            spacing=scene.surface.spacing,
-            rng=seed.surface_rng(),
-            times=tuple(times),
-            max_elevation=scene.surface.max_elevation,
-            conditioning=setup.conditioning,
-        )
+    surface = setup.surface(seed, times)
     expected = []
     masks = []
     for frame in range(frames):

@@ -14,6 +14,7 @@ import math
 import numpy as np
 from pydantic import Field, model_validator
 
+from workers.cascades import Sea
 from workers.instrument import Laser, Noise, Platform, Radiometry, Receiver, Sequence
 from workers.sea import SurfaceSpec, Target, Water
 from workers.section import Section
@@ -140,24 +141,46 @@ class Scene(Section):
             )
         return self
 
-    @model_validator(mode="after")
-    def _footprint_within_sea_patch(self) -> Scene:
-        surface = self.surface
-        if surface.spectrum == "flat" or surface.allow_repeat:
-            return self
-        # The receiver's footprint, at the highest point of the sequence: a laser wider than
-        # the receiver lights sea outside the image, whose repeats the image does not show
-        # (bar the in-water spread); a narrower one lights less than the image shows.
+    def footprint(self) -> float:
+        """Longest chord of the receiver's footprint along x or y at the sequence's top [m].
+
+        A laser wider than the receiver lights sea outside the image, whose repeats the
+        image does not show (bar the in-water spread); a narrower one lights less than
+        the image shows.
+        """
         climb = self.sequence.velocity[2] * self.sequence.interval * (self.sequence.frames - 1)
-        altitude = self.platform.altitude + max(climb, 0.0)
-        span = footprint_span(
-            altitude=altitude,
+        return footprint_span(
+            altitude=self.platform.altitude + max(climb, 0.0),
             nadir=math.radians(self.platform.nadir_deg),
             azimuth=math.radians(self.platform.azimuth_deg),
             field_of_view=math.radians(self.receiver.field_of_view_deg),
         )
-        period = surface.grid_size * surface.spacing
-        if span > period:
+
+    def sea(self) -> Sea | None:
+        """The cascades of the scene's sea (`SurfaceSpec.sea` at its footprint)."""
+        return self.surface.sea(self.footprint())
+
+    def surface_spacing(self) -> float:
+        """Grid spacing of the sea's finest cascade (`SurfaceSpec.finest_spacing`) [m]."""
+        return self.surface.finest_spacing(self.footprint())
+
+    @model_validator(mode="after")
+    def _footprint_within_sea_patch(self) -> Scene:
+        surface = self.surface
+        span = self.footprint()
+        sea = surface.sea(span)
+        if sea is None:
+            if self.save_surface:
+                self.surface_spacing()
+            return self
+        try:
+            surface.kriging(sea)
+        except ValueError as error:
+            raise ValueError(f"surface.conditioning.points: {error}") from None
+        period = sea.patches[-1]
+        if span > period and not surface.allow_repeat:
+            climb = self.sequence.velocity[2] * self.sequence.interval * (self.sequence.frames - 1)
+            altitude = self.platform.altitude + max(climb, 0.0)
             highest = f"{altitude:g} m at the sequence's top, " if climb > 0 else ""
             raise ValueError(
                 f"the receiver's footprint on the sea (platform.altitude "
@@ -165,10 +188,11 @@ class Scene(Section):
                 f"{self.platform.nadir_deg:g}, platform.azimuth_deg "
                 f"{self.platform.azimuth_deg:g}, receiver.field_of_view_deg "
                 f"{self.receiver.field_of_view_deg:g}) spans {span:.2f} m, wider than the "
-                f"periodic sea patch surface.grid_size x surface.spacing = "
-                f"{surface.grid_size} x {surface.spacing:g} m = {period:.2f} m: the same waves "
-                "would repeat inside the image. Enlarge the patch, narrow the field or lower "
-                "the platform, or set surface.allow_repeat: true to render it anyway"
+                f"coarsest periodic sea patch, {period:.2f} m (surface.grid_size "
+                f"{surface.grid_size}, surface.spacing {sea.spacing(0):g} m, "
+                f"surface.coarse_patches {surface.coarse_patches}): the same waves would "
+                "repeat inside the image. Set surface.allow_repeat: true to render it anyway, "
+                "or leave surface.coarse_patches null, narrow the field or lower the platform"
             )
         return self
 

@@ -7,17 +7,21 @@ carries its unit in its description (see `workers.scene`).
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import Field, model_validator
 
 from workers import spectra
+from workers.cascades import MAX_CASCADES, Sea, check_patches, default_patches
 from workers.conditioning import Kriging, kriging
 from workers.section import Section
 from workers.water import PRESETS
 
 __all__ = ["Conditioning", "SurfaceSpec", "Target", "Water"]
+
+PositiveFloat = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
 
 Measurement = Annotated[
     list[Annotated[float, Field(allow_inf_nan=False)]], Field(min_length=3, max_length=4)
@@ -27,11 +31,11 @@ Measurement = Annotated[
 class Conditioning(Section):
     """Measured elevations every surface of the scene honours (conditioning by kriging).
 
-    A measurement is of the elevation the renderer sees at (x, y): the bilinear
-    interpolation of the surface grid. Points lie on the surface patch [0, N·spacing) in
-    x and y (the grid repeats with that period; a point elsewhere is refused with its
-    equivalent on the patch). Sweep files may give ``file: points.csv`` instead of
-    ``points``; the service reads it (see `service.measurements`). See `workers.conditioning`.
+    A measurement is of the elevation the renderer sees at (x, y): the sum of the
+    cascades' bilinear interpolations. Points lie on the coarsest cascade's patch [0, L)
+    in x and y (`Scene.sea`; a point elsewhere is refused). Sweep files may give
+    ``file: points.csv`` instead of ``points``; the service reads it (see
+    `service.measurements`). See `workers.conditioning`.
     """
 
     points: list[Measurement] | None = Field(
@@ -73,7 +77,14 @@ class SurfaceSpec(Section):
     grid_size: int = Field(
         256, ge=16, le=4096, description="Points per side of the periodic surface grid [1]."
     )
-    spacing: float = Field(0.016, ge=1e-4, le=10.0, description="Surface grid spacing [m].")
+    spacing: float | None = Field(
+        None,
+        ge=1e-4,
+        le=10.0,
+        description="Grid spacing of the sea's finest cascade [m]; null: the receiver's "
+        "footprint span over grid_size, so that the finest patch covers the footprint "
+        "(docs/model.md §1).",
+    )
     max_elevation: float | None = Field(
         None,
         gt=0.0,
@@ -82,10 +93,18 @@ class SurfaceSpec(Section):
         "[m]. Off by default; it breaks the spectrum's variance.",
     )
     conditioning: Conditioning = Conditioning()
+    coarse_patches: list[PositiveFloat] | None = Field(
+        None,
+        max_length=MAX_CASCADES - 1,
+        description="Periodic patches of the coarser cascades of the multi-scale sea, each "
+        "sampled by grid_size points, increasing, each at most grid_size/16 times the one "
+        "before, the first after the finest grid_size x spacing; null: chosen from the "
+        "footprint and the spectrum (docs/model.md §1); []: the finest patch alone [m].",
+    )
     allow_repeat: bool = Field(
         False,
         description="Render even if the receiver's footprint on the sea is wider than the "
-        "periodic patch (grid_size × spacing), so that the same waves repeat inside the "
+        "coarsest cascade's periodic patch, so that the same waves repeat inside the "
         "image; refused otherwise.",
     )
 
@@ -93,6 +112,20 @@ class SurfaceSpec(Section):
     def _even_grid(self) -> SurfaceSpec:
         if self.grid_size % 2:
             raise ValueError("grid_size must be even (FFT synthesis)")
+        return self
+
+    @model_validator(mode="after")
+    def _cascades(self) -> SurfaceSpec:
+        if self.coarse_patches and self.spacing is not None:
+            try:
+                check_patches(
+                    grid_size=self.grid_size,
+                    patches=[self.grid_size * self.spacing, *self.coarse_patches],
+                )
+            except ValueError as error:
+                raise ValueError(
+                    f"coarse_patches: {error} (patch 0 is grid_size x spacing)"
+                ) from None
         return self
 
     @model_validator(mode="after")
@@ -106,11 +139,56 @@ class SurfaceSpec(Section):
                 "conditioning: max_elevation would rescale the measured elevations away; "
                 "leave it null"
             )
-        try:
-            self.kriging()
-        except ValueError as error:
-            raise ValueError(f"conditioning.points: {error}") from None
         return self
+
+    def finest_spacing(self, span: float) -> float:
+        """`spacing`, or by default the footprint's span over `grid_size` [m].
+
+        Parameters
+        ----------
+        span : float
+            Longest chord of the receiver's footprint along x or y [m] (`footprint_span`).
+        """
+        if self.spacing is not None:
+            return self.spacing
+        if not math.isfinite(span):
+            raise ValueError(
+                "surface.spacing: the footprint reaches the horizon, so the default spacing "
+                "(footprint over grid_size) is undefined; give surface.spacing"
+            )
+        return span / self.grid_size
+
+    def sea(self, span: float) -> Sea | None:
+        """The cascades of the sea (None for a flat sea).
+
+        Parameters
+        ----------
+        span : float
+            Longest chord of the receiver's footprint along x or y [m]
+            (`footprint_span`), for the default patches.
+
+        Raises
+        ------
+        ValueError
+            For a default spacing at a footprint that reaches the horizon, or
+            `coarse_patches` that do not fit the finest patch.
+        """
+        spectrum = self.wave_spectrum()
+        if spectrum is None:
+            return None
+        spacing = self.finest_spacing(span)
+        if self.coarse_patches is None:
+            patches = default_patches(
+                spectrum, grid_size=self.grid_size, spacing=spacing, span=span
+            )
+        else:
+            patches = (self.grid_size * spacing, *self.coarse_patches)
+        try:
+            return Sea(spectrum=spectrum, grid_size=self.grid_size, patches=tuple(patches))
+        except ValueError as error:
+            raise ValueError(
+                f"surface.coarse_patches: {error} (patch 0 is grid_size x spacing)"
+            ) from None
 
     def wave_spectrum(self) -> spectra.Spectrum | None:
         """The wave spectrum these settings describe (None for a flat sea)."""
@@ -128,21 +206,19 @@ class SurfaceSpec(Section):
             return spectra.PiersonMoskowitz(**common)
         return spectra.Jonswap(**common, fetch=self.fetch)
 
-    def kriging(self) -> Kriging | None:
-        """The kriging system of `conditioning` (cached), or None without points.
+    def kriging(self, sea: Sea | None) -> Kriging | None:
+        """The kriging system of `conditioning` on `sea` (cached), or None without points.
 
         Raises
         ------
         ValueError
-            For points off the grid, duplicates or a singular system
+            For points off the coarsest patch, duplicates or a singular system
             (`workers.conditioning.kriging`).
         """
         if not self.conditioning.points:
             return None
         return kriging(
-            self.wave_spectrum(),
-            grid_size=self.grid_size,
-            spacing=self.spacing,
+            sea,
             points=tuple(tuple(point) for point in self.conditioning.points),
             noise=self.conditioning.noise,
         )

@@ -42,9 +42,15 @@ class SampleSeed:
                     f"SampleSeed.{name} must be a non-negative integer, got {value!r}"
                 )
 
-    def surface_rng(self):
-        """Generator for the surface realisation."""
-        sequence = np.random.SeedSequence(self.root, spawn_key=(_SURFACE, self.realisation))
+    def surface_rng(self, cascade: int = 0):
+        """Generator for cascade `cascade` (finest first) of the surface realisation.
+
+        Each cascade has its own stream, so a scene whose sea has one more (coarser)
+        cascade draws the same waves in the cascades they share.
+        """
+        sequence = np.random.SeedSequence(
+            self.root, spawn_key=(_SURFACE, self.realisation, int(cascade))
+        )
         return np.random.Generator(np.random.PCG64(sequence))
 
     def noise_rng(self):

@@ -12,12 +12,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from workers.cascades import Sea
 from workers.conditioning import Kriging
 from workers.gates import central_paths, gate_gain, sight_lines, slab_bounds
 from workers.geometry import LaserRays, PinholeCamera, PlaneGrid, flat_sea_point
 from workers.optics import fresnel_reflectance
 from workers.radiometry import photoelectrons_per_signal, pixel_solid_angle
 from workers.scene import Scene
+from workers.seeds import SampleSeed
+from workers.surface import Surface, draw
 from workers.target import Impostor
 from workers.water import (
     WaterOptics,
@@ -32,7 +35,7 @@ class Setup:
 
     scene: Scene
     water: WaterOptics
-    spectrum: object
+    sea: Sea | None
     conditioning: Kriging | None
     gates: tuple[tuple[float, float], ...]
     reference_depths: tuple[float, ...]
@@ -40,6 +43,20 @@ class Setup:
     scale: float
     refracted_nadir: float
     secant: float
+
+    def surface(self, seed: SampleSeed, times) -> Surface | None:
+        """The sample's sea at `times` [s]: drawn, conditioned on the scene's data (None: flat).
+
+        Cascade c draws from ``seed.surface_rng(c)``, the measurement noise of the
+        conditioning from cascade 0's stream after its normals.
+        """
+        if self.sea is None:
+            return None
+        rngs = [seed.surface_rng(c) for c in range(len(self.sea.patches))]
+        modes = draw(self.sea, rngs)
+        if self.conditioning is not None:
+            modes = self.conditioning.condition(modes, rngs[0])
+        return modes.surface(times, max_elevation=self.scene.surface.max_elevation)
 
     def gate_gain(self, excess, gate: int):
         """`workers.gates.gate_gain` of this scene's gate number `gate` [1]."""
@@ -95,11 +112,12 @@ def scene_setup(key: str) -> Setup:
         for (top, bottom), reference in zip(gates, references, strict=True)
     )
     scale = _signal_scale(scene)
+    sea = scene.sea()
     return Setup(
         scene=scene,
         water=water,
-        spectrum=scene.surface.wave_spectrum(),
-        conditioning=scene.surface.kriging(),
+        sea=sea,
+        conditioning=scene.surface.kriging(sea),
         gates=gates,
         reference_depths=references,
         reflectances=reflectances,

@@ -1,8 +1,12 @@
-r"""FFT synthesis of a Gaussian, homogeneous, periodic sea surface and its slopes.
+r"""FFT synthesis of a Gaussian, homogeneous multi-scale sea surface and its slopes.
 
-The surface is a sum of Fourier modes on an N × N periodic grid of spacing Δ, with
-grid coordinates :math:`x_j = j\Delta` (j = 0 … N-1) and wavenumbers on the FFT grid,
-:math:`\Delta k = 2\pi / (N\Delta)`. Arrays are indexed (t, y, x): axis -1 is x.
+A sea (:class:`workers.cascades.Sea`) is a sum of cascades, each a sum of Fourier modes on
+an N × N periodic grid of spacing Δ_c, with grid coordinates :math:`x_j = j\Delta_c`
+(j = 0 … N-1) and wavenumbers on the FFT grid, :math:`\Delta k = 2\pi / (N\Delta_c)`;
+each cascade holds its own band of the spectrum. Synthesis is in two steps, so that
+conditioning (:mod:`workers.conditioning`) composes on top of it: :func:`draw` draws the
+complex amplitudes (:class:`Modes`), :meth:`Modes.surface` evolves them to the frames'
+times (:class:`Surface`). Arrays are indexed (t, y, x): axis -1 is x.
 """
 
 from __future__ import annotations
@@ -11,28 +15,22 @@ import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.fft
 
-from workers.spectra import Spectrum, dispersion
+from workers.cascades import Sea, subgrid_slope_covariance
+from workers.spectra import dispersion
 
-if TYPE_CHECKING:
-    from workers.conditioning import Kriging
+__all__ = ["Cascade", "Modes", "SubgridSlopes", "Surface", "draw", "synthesize"]
 
-# Points per block in Surface.sample. The temporaries of a block (256 KiB for an index
+# Points per block in Cascade.sample. The temporaries of a block (256 KiB for an index
 # array) are reused from the heap when glibc's mmap threshold is raised
 # (service.tuning.tune_allocator, or glibc's own dynamic threshold after the first free);
 # page faults on fresh mappings were measured to make a 262144-point call four times
 # slower. Larger blocks pay less per-call overhead: 32768 was measured 1.5 times faster
 # than 8192 for 65536 points with the tuned allocator.
 _SAMPLE_BLOCK = 32768
-
-
-def _wavenumbers(grid_size: int, spacing: float) -> np.ndarray:
-    """FFT-ordered wavenumbers 2π·fftfreq(N, Δ), rad/m (float64)."""
-    return 2.0 * np.pi * np.fft.fftfreq(grid_size, d=spacing)
 
 
 def _check_grid(grid_size, spacing) -> None:
@@ -42,80 +40,9 @@ def _check_grid(grid_size, spacing) -> None:
         raise ValueError(f"spacing must be a positive number of metres, got {spacing!r}")
 
 
-def surface_amplitudes(spectrum: Spectrum, *, grid_size: int, spacing: float) -> np.ndarray:
-    r"""Root-mean-square amplitude of each Fourier mode of the grid, m.
-
-    .. math::
-
-        a(\mathbf k) = \sqrt{\Psi(k_x, k_y)\,\Delta k^2},\qquad
-        \Delta k = \frac{2\pi}{N\Delta},\qquad
-        \sum_{\mathbf k} a^2 = \sum_{\mathbf k} \Psi\,\Delta k^2,
-
-    with Ψ = ``spectrum.directional``; the mean (k = 0) mode has no energy.
-
-    Parameters
-    ----------
-    spectrum : workers.spectra.Spectrum
-        Directional wave spectrum.
-    grid_size : int
-        Number N of grid points along x and along y.
-    spacing : float
-        Grid spacing Δ, m.
-
-    Returns
-    -------
-    numpy.ndarray
-        a, m, float64 of shape (N, N) in FFT order: element [i, j] belongs to
-        k_y = 2π·fftfreq(N, Δ)[i], k_x = 2π·fftfreq(N, Δ)[j].
-
-    Notes
-    -----
-    A pure function of its inputs (spectra are frozen dataclasses), so callers may
-    cache it; :func:`synthesize` does. The Nyquist row and column (even N) take Ψ at
-    k = -π/Δ, the value of ``fftfreq``.
-    """
-    _check_grid(grid_size, spacing)
-    k = _wavenumbers(int(grid_size), spacing)
-    dk = 2.0 * np.pi / (grid_size * spacing)
-    return np.sqrt(spectrum.directional(k[None, :], k[:, None])) * dk
-
-
-@dataclass(frozen=True)
-class _Setup:
-    """Per-(spectrum, grid) arrays for :func:`synthesize`, half-plane (rfft) layout."""
-
-    amplitude: np.ndarray  # (N, N) float32, sqrt(Ψ Δk²) in FFT order
-    mirror: np.ndarray  # (N·(N//2+1),) flat index into (N, N) of -k for each half-plane k
-    omega: np.ndarray  # (N, N//2+1) float64, ω(|k|) from `dispersion`, rad/s
-    derivative: np.ndarray  # (3, N, N//2+1) complex64: 1, i k_x, i k_y (0 at Nyquist)
-
-
-@functools.lru_cache(maxsize=16)
-def _setup(spectrum: Spectrum, grid_size: int, spacing: float) -> _Setup:
-    n = grid_size
-    half = n // 2 + 1
-    k = _wavenumbers(n, spacing)
-    kx, ky = k[None, :half], k[:, None]
-    # The Nyquist mode (-1)^j has no derivative on the grid: i k η̂ there would break
-    # Hermitian symmetry, so its derivative is set to zero.
-    kx_derivative = np.where(np.arange(half) == n / 2, 0.0, kx)
-    ky_derivative = np.where(np.arange(n)[:, None] == n / 2, 0.0, ky)
-    derivative = np.empty((3, n, half), np.complex64)
-    derivative[0] = 1.0
-    derivative[1] = 1j * kx_derivative
-    derivative[2] = 1j * ky_derivative
-    rows = (-np.arange(n)) % n
-    columns = (-np.arange(half)) % n
-    mirror = (rows[:, None] * n + columns[None, :]).ravel()
-    amplitude = surface_amplitudes(spectrum, grid_size=n, spacing=spacing).astype(np.float32)
-    for array in (amplitude, mirror, derivative):
-        array.flags.writeable = False
-    return _Setup(amplitude, mirror, dispersion(np.hypot(kx, ky)), derivative)
-
-
 @dataclass(frozen=True, eq=False)
-class Surface:
-    """A synthesised sea surface: elevation and slopes on a periodic grid, per frame.
+class Cascade:
+    """One cascade of a synthesised sea: elevation and slopes on a periodic grid, per frame.
 
     Parameters
     ----------
@@ -265,82 +192,356 @@ class Surface:
             np.add(high_right, low_right, out=result)
 
 
-def synthesize(
-    spectrum: Spectrum,
-    *,
-    grid_size: int,
-    spacing: float,
-    rng: np.random.Generator,
-    times: Sequence[float] = (0.0,),
-    max_elevation: float | None = None,
-    conditioning: Kriging | None = None,
-) -> Surface:
-    r"""One random realisation of the sea surface, at one or more times.
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_MIX_1 = np.uint64(0xBF58476D1CE4E5B9)
+_MIX_2 = np.uint64(0x94D049BB133111EB)
 
-    Each wave mode travels towards its wavevector with the gravity–capillary
-    frequency ω(k) of :func:`workers.spectra.dispersion` (after Tessendorf 2001, with
-    the sign of time chosen so that energy at **k** travels towards **k**):
 
-    .. math::
+def _mix(z: np.ndarray) -> np.ndarray:
+    """SplitMix64's finaliser (Steele, Lea & Flood 2014) on uint64 arrays, in place."""
+    z ^= z >> np.uint64(30)
+    z *= _MIX_1
+    z ^= z >> np.uint64(27)
+    z *= _MIX_2
+    z ^= z >> np.uint64(31)
+    return z
 
-        \tilde h(\mathbf k, t) = h_0(\mathbf k)\,e^{-i\omega t}
-        + \overline{h_0(-\mathbf k)}\,e^{i\omega t},\qquad
-        h_0(\mathbf k) = \tfrac12\,a(\mathbf k)\,(\xi_1 + i\xi_2),
 
-    .. math::
+@dataclass(frozen=True, eq=False)
+class SubgridSlopes:
+    r"""The slopes finer than the finest grid: a Gaussian blur of the facets' normals.
 
-        \eta(\mathbf x, t) = \sum_{\mathbf k} \tilde h(\mathbf k, t)
-        e^{i\mathbf k\cdot\mathbf x},\qquad
-        \partial_x\eta = \sum_{\mathbf k} i k_x \tilde h\,
-        e^{i\mathbf k\cdot\mathbf x},\qquad
-        \partial_y\eta = \sum_{\mathbf k} i k_y \tilde h\,
-        e^{i\mathbf k\cdot\mathbf x},
-
-    with ξ independent standard normals and a from :func:`surface_amplitudes`. Since
-    :math:`\tilde h(-\mathbf k) = \overline{\tilde h(\mathbf k)}` the field is real, and
-    :math:`\operatorname{E}\,\overline{\eta^2} = \sum_{\mathbf k} \Psi\,\Delta k^2`
-    at every t (the resolved band of the spectrum).
+    Every cell of the finest grid (Δ₀ × Δ₀, frame by frame) gets its own slope
+    :math:`\mathbf s = F\mathbf z`, F Fᵀ = Σ
+    (:func:`workers.cascades.subgrid_slope_covariance`)
+    and z two standard normals; a point's slopes are the resolved ones plus the s of its
+    cell, so refraction scatters the rays with the unresolved slope variance. z is a
+    hash of (cell, frame, key) (SplitMix64, then Box–Muller), so it is the same whatever
+    the order, number or grouping of the points asked for, never periodic, and fixed by
+    the seed through `key`. Cells are independent: the unresolved waves are shorter
+    than 2Δ₀, and a cell is Δ₀ wide. Frames are independent: waves that short (periods
+    below 0.1 s at Δ₀ = 1.6 cm) decorrelate between frames.
 
     Parameters
     ----------
-    spectrum : workers.spectra.Spectrum
-        Directional wave spectrum.
-    grid_size : int
-        Number N of grid points along x and along y.
-    spacing : float
-        Grid spacing Δ, m.
-    rng : numpy.random.Generator
-        Source of the 2N² normal draws, all made once: every time shows the same
-        realisation.
-    times : sequence of float, optional
-        Times t of the frames, s.
-    max_elevation : float or None, optional
-        If given, m (> 0): the realisation (elevation and slopes, all frames) is
-        rescaled so that max |η| over all frames equals it (the "maximum wave
-        elevation" of Carmona et al. 2000). Off by default.
-    conditioning : workers.conditioning.Kriging or None, optional
-        Measured elevations the realisation must honour, from
-        :func:`workers.conditioning.kriging` for this spectrum and grid. The
-        unconditional draw is corrected by kriging its residual at the data, the
-        measurement noise drawn from ``rng`` after the 2N² normals, so that without it
-        the draws (and bytes) are unchanged. Exclusive with ``max_elevation``, which
-        would rescale the data away.
+    factor : numpy.ndarray
+        F, a square root of Σ (F Fᵀ = Σ, dimensionless), (2, 2).
+    cell : float
+        Δ₀, m.
+    key : int
+        64-bit key drawn from the surface's random stream.
+    """
 
-    Returns
-    -------
-    Surface
-        Elevation and slopes, float32 of shape (len(times), N, N).
+    factor: np.ndarray
+    cell: float
+    key: int
+
+    def at(self, x, y, frame):
+        """The sub-grid slopes (∂η/∂x, ∂η/∂y) at points, float32 of their broadcast shape."""
+        inverse = np.float32(1.0 / self.cell)
+        x, y = np.broadcast_arrays(x, y)
+        shape = x.shape
+        column = np.floor(np.multiply(x.ravel(), inverse, dtype=np.float32)).astype(np.int64)
+        row = np.floor(np.multiply(y.ravel(), inverse, dtype=np.float32)).astype(np.int64)
+        frame_key = (self.key ^ (int(frame) * 0x632BE59BD9B4E019)) & 0xFFFFFFFFFFFFFFFF
+        seed = _mix(np.array([frame_key], np.uint64))[0]
+        word = column.view(np.uint64) * _GOLDEN
+        word ^= _mix(row.view(np.uint64) + seed)
+        word = _mix(word)
+        scale = np.float32(2.0**-24)
+        first = ((word >> np.uint64(40)).astype(np.float32) + np.float32(0.5)) * scale
+        second = ((word & np.uint64(0xFFFFFF)).astype(np.float32) + np.float32(0.5)) * scale
+        radius = np.sqrt(np.float32(-2.0) * np.log(first))
+        angle = np.float32(2.0 * np.pi) * second
+        normal_x, normal_y = radius * np.cos(angle), radius * np.sin(angle)
+        (f00, f01), (f10, f11) = np.asarray(self.factor, np.float32)
+        slope_x = f00 * normal_x + f01 * normal_y
+        slope_y = f10 * normal_x + f11 * normal_y
+        return slope_x.reshape(shape), slope_y.reshape(shape)
+
+
+@dataclass(frozen=True, eq=False)
+class Surface:
+    """A synthesised multi-scale sea: its cascades summed, plus the sub-grid slopes.
+
+    Parameters
+    ----------
+    cascades : tuple of Cascade
+        The cascades, finest first, with the same frames.
+    subgrid : SubgridSlopes or None, optional
+        The slopes finer than the finest grid (None: left out).
 
     Notes
     -----
-    Slopes are spectral derivatives; the derivative of the Nyquist mode along its own
-    axis (even N) is set to zero. On the Nyquist row and column k and -k are the same
-    grid point, so those modes (a fraction ~2/N of the grid) are standing rather than
-    travelling waves; their variance is still Ψ Δk². Rescaling by ``max_elevation``
-    changes the variance of the realisation away from Σ Ψ Δk²: the surface then no
-    longer follows the spectrum's amplitude, only its shape. The per-(spectrum, grid)
-    arrays are cached (16 entries); a frame costs three inverse real FFTs of N × N, and
-    conditioning one inverse and one forward real FFT per distinct measurement time.
+    A point's elevation is the sum of the cascades' bilinear values; its slopes the
+    sum of theirs plus the sub-grid slopes of its cell. The sum is periodic only with
+    a common multiple of the patches.
+    """
+
+    cascades: tuple[Cascade, ...]
+    subgrid: SubgridSlopes | None = None
+
+    def __post_init__(self):
+        frames = {cascade.elevation.shape[0] for cascade in self.cascades}
+        if len(frames) != 1:
+            raise ValueError(f"the cascades must share their frames, got {sorted(frames)}")
+
+    @property
+    def spacing(self) -> float:
+        """Spacing Δ₀ of the finest grid, m."""
+        return self.cascades[0].spacing
+
+    @property
+    def grid_size(self) -> int:
+        """Number N of points per side of the finest grid."""
+        return self.cascades[0].grid_size
+
+    @functools.cached_property
+    def elevation(self) -> np.ndarray:
+        """The summed elevation on the finest grid's nodes [0, NΔ₀)², m, (T, N, N) float32."""
+        finest = self.cascades[0]
+        nodes = np.arange(finest.grid_size) * finest.spacing
+        x, y = nodes[None, :], nodes[:, None]
+        out = finest.elevation.copy()
+        for frame in range(out.shape[0]):
+            for cascade in self.cascades[1:]:
+                out[frame] += cascade.elevation_at(x, y, frame)
+        out.flags.writeable = False
+        return out
+
+    def sample(self, x, y, frame=0):
+        """Elevation and slopes at world points (see `Cascade.sample`), float32.
+
+        Returns
+        -------
+        elevation, slope_x, slope_y : numpy.ndarray
+            η (m), ∂η/∂x and ∂η/∂y (sub-grid slopes included).
+        """
+        eta = self.elevation_at(x, y, frame)
+        return (eta, *self.slopes_at(x, y, frame))
+
+    def elevation_at(self, x, y, frame=0):
+        """Elevation at world points, m: the sum of the cascades' bilinear values."""
+        total = self.cascades[0].elevation_at(x, y, frame)
+        for cascade in self.cascades[1:]:
+            total += cascade.elevation_at(x, y, frame)
+        return total
+
+    def slopes_at(self, x, y, frame=0):
+        """Slopes ∂η/∂x, ∂η/∂y at world points [1]: the cascades' plus the sub-grid ones."""
+        slope_x, slope_y = self.cascades[0].slopes_at(x, y, frame)
+        for cascade in self.cascades[1:]:
+            more_x, more_y = cascade.slopes_at(x, y, frame)
+            slope_x += more_x
+            slope_y += more_y
+        if self.subgrid is not None:
+            more_x, more_y = self.subgrid.at(x, y, frame)
+            slope_x += more_x
+            slope_y += more_y
+        return slope_x, slope_y
+
+
+@dataclass(frozen=True)
+class _Setup:
+    """Per-(sea, cascade) arrays for the synthesis, half-plane (rfft) layout."""
+
+    amplitude: np.ndarray  # (N, N) float32, a(k) of the cascade in FFT order
+    mirror: np.ndarray  # (N·(N//2+1),) flat index into (N, N) of -k for each half-plane k
+    omega: np.ndarray  # (N, N//2+1) float64, ω(|k|) from `dispersion`, rad/s
+    derivative: np.ndarray  # (2, N, N//2+1) complex64: i k_x, i k_y
+
+
+@functools.lru_cache(maxsize=32)
+def _setup(sea: Sea, cascade: int) -> _Setup:
+    n = sea.grid_size
+    half = n // 2 + 1
+    k = sea.wavenumbers(cascade)
+    kx, ky = k[None, :half], k[:, None]
+    derivative = np.empty((2, n, half), np.complex64)
+    derivative[0] = 1j * kx
+    derivative[1] = 1j * ky
+    rows = (-np.arange(n)) % n
+    columns = (-np.arange(half)) % n
+    mirror = (rows[:, None] * n + columns[None, :]).ravel()
+    amplitude = sea.amplitudes(cascade).astype(np.float32)
+    for array in (amplitude, mirror, derivative):
+        array.flags.writeable = False
+    return _Setup(amplitude, mirror, dispersion(np.hypot(kx, ky)), derivative)
+
+
+@dataclass(frozen=True, eq=False)
+class Modes:
+    r"""The complex amplitudes of one drawn sea, per cascade, on the half-plane.
+
+    Attributes
+    ----------
+    sea : workers.cascades.Sea
+        The layout.
+    ahead, behind : tuple of numpy.ndarray
+        Per cascade, :math:`h_0(\mathbf k)` and :math:`\overline{h_0(-\mathbf k)}`, m,
+        complex (N, N//2 + 1).
+    subgrid_key : int
+        Key of the sub-grid slopes (:class:`SubgridSlopes`).
+    """
+
+    sea: Sea
+    ahead: tuple[np.ndarray, ...]
+    behind: tuple[np.ndarray, ...]
+    subgrid_key: int
+
+    def spectrum_at(self, cascade: int, time: float) -> np.ndarray:
+        r"""A cascade's modes at time t (s) on the half-plane, complex64, m.
+
+        :math:`\tilde h(\mathbf k, t) = h_0 e^{-i\omega t}
+        + \overline{h_0(-\mathbf k)} e^{i\omega t}`.
+        """
+        setup = _setup(self.sea, cascade)
+        cycles = setup.omega * (time / (2.0 * np.pi))
+        cycles -= np.floor(cycles)
+        phase = (2.0 * np.pi * cycles).astype(np.float32)
+        rotation = np.empty(phase.shape, np.complex64)
+        np.cos(phase, out=rotation.real)
+        np.sin(phase, out=rotation.imag)
+        spectrum = np.multiply(self.behind[cascade], rotation, dtype=np.complex64)
+        np.conjugate(rotation, out=rotation)
+        rotation *= self.ahead[cascade]
+        spectrum += rotation
+        return spectrum
+
+    def elevation_grid(self, cascade: int, time: float) -> np.ndarray:
+        """A cascade's elevation on its grid at time t (s), m, (N, N) float32."""
+        n = self.sea.grid_size
+        return scipy.fft.irfft2(self.spectrum_at(cascade, time), s=(n, n), norm="forward")
+
+    def surface(self, times: Sequence[float] = (0.0,), *, max_elevation=None) -> Surface:
+        r"""The sea at the frames' times: every cascade evolved, its slopes derived.
+
+        .. math::
+
+            \eta_c(\mathbf x, t) = \sum_{\mathbf k} \tilde h_c(\mathbf k, t)
+            e^{i\mathbf k\cdot\mathbf x},\qquad
+            \partial_x\eta_c = \sum_{\mathbf k} i k_x \tilde h_c\,
+            e^{i\mathbf k\cdot\mathbf x},\qquad
+            \partial_y\eta_c = \sum_{\mathbf k} i k_y \tilde h_c\,
+            e^{i\mathbf k\cdot\mathbf x}.
+
+        Parameters
+        ----------
+        times : sequence of float, optional
+            Times t of the frames, s.
+        max_elevation : float or None, optional
+            If given, m (> 0): the realisation (cascades and sub-grid slopes, all
+            frames) is rescaled so that max |η| over the finest grid's nodes and all
+            frames equals it (the "maximum wave elevation" of Carmona et al. 2000). It
+            then no longer follows the spectrum's amplitude, only its shape.
+
+        Returns
+        -------
+        Surface
+            Cascades of float32 fields of shape (len(times), N, N).
+        """
+        times = np.asarray(times, dtype=np.float64)
+        if times.ndim != 1 or times.size == 0 or not np.all(np.isfinite(times)):
+            raise ValueError(f"times must be a non-empty sequence of finite seconds, got {times}")
+        if max_elevation is not None and not (math.isfinite(max_elevation) and max_elevation > 0):
+            raise ValueError(
+                f"max_elevation must be a positive number of metres, got {max_elevation}"
+            )
+        sea, n = self.sea, self.sea.grid_size
+        fields = np.empty((len(sea.patches), 3, times.size, n, n), np.float32)
+        for cascade in range(len(sea.patches)):
+            derivative = _setup(sea, cascade).derivative
+            for frame, time in enumerate(times):
+                spectrum = self.spectrum_at(cascade, time)
+                # One transform per field: scipy's batched irfft2 is several times slower.
+                fields[cascade, 0, frame] = scipy.fft.irfft2(spectrum, s=(n, n), norm="forward")
+                for component in (1, 2):
+                    product = derivative[component - 1] * spectrum
+                    fields[cascade, component, frame] = scipy.fft.irfft2(
+                        product, s=(n, n), norm="forward"
+                    )
+        values, vectors = np.linalg.eigh(subgrid_slope_covariance(sea))
+        factor = vectors * np.sqrt(np.maximum(values, 0.0))  # F Fᵀ = Σ
+        surface = self._assemble(fields, factor)
+        if max_elevation is not None:
+            peak = float(np.abs(surface.elevation).max())
+            if peak == 0:
+                raise ValueError("max_elevation cannot rescale a flat surface (zero spectrum)")
+            scale = max_elevation / peak
+            fields *= np.float32(scale)
+            surface = self._assemble(fields, factor * scale)
+        return surface
+
+    def _assemble(self, fields, factor) -> Surface:
+        cascades = tuple(
+            Cascade(
+                elevation=field[0],
+                slope_x=field[1],
+                slope_y=field[2],
+                spacing=self.sea.spacing(cascade),
+                grid_size=self.sea.grid_size,
+            )
+            for cascade, field in enumerate(fields)
+        )
+        subgrid = SubgridSlopes(factor=factor, cell=self.sea.spacing(0), key=self.subgrid_key)
+        return Surface(cascades=cascades, subgrid=subgrid)
+
+
+def draw(sea: Sea, rng) -> Modes:
+    r"""Draw the complex amplitudes of one realisation of the sea.
+
+    Per cascade (after Tessendorf 2001, with the sign of time chosen so that energy at
+    **k** travels towards **k**):
+
+    .. math::
+
+        h_0(\mathbf k) = \tfrac12\,a(\mathbf k)\,(\xi_1 + i\xi_2),
+
+    ξ independent standard normals and a from :meth:`workers.cascades.Sea.amplitudes`.
+    Since :math:`\tilde h(-\mathbf k) = \overline{\tilde h(\mathbf k)}` the field is
+    real, and :math:`\operatorname{E}\eta^2 = \sum_c \sum_{\mathbf k} a_c^2` at every
+    node of every cascade and every t, the spectrum's band integral over |k| < π/Δ₀.
+
+    Parameters
+    ----------
+    sea : workers.cascades.Sea
+        The layout.
+    rng : numpy.random.Generator or sequence of them
+        One generator per cascade (finest first), or one for all, drawn in that order:
+        2N² normals per cascade, then (from the first) one 64-bit sub-grid key.
+
+    Returns
+    -------
+    Modes
+    """
+    count = len(sea.patches)
+    rngs = (rng,) * count if isinstance(rng, np.random.Generator) else tuple(rng)
+    if len(rngs) != count:
+        raise ValueError(f"need one generator per cascade ({count}), got {len(rngs)}")
+    n = sea.grid_size
+    ahead, behind = [], []
+    for cascade, generator in enumerate(rngs):
+        setup = _setup(sea, cascade)
+        h0 = np.empty((n, n), np.complex64)
+        generator.standard_normal(out=h0.view(np.float32), dtype=np.float32)
+        h0 *= 0.5 * setup.amplitude
+        ahead.append(np.ascontiguousarray(h0[:, : n // 2 + 1]))
+        behind.append(np.conj(h0.ravel().take(setup.mirror)).reshape(ahead[-1].shape))
+    key = int(rngs[0].integers(0, 2**63, dtype=np.int64))
+    return Modes(sea=sea, ahead=tuple(ahead), behind=tuple(behind), subgrid_key=key)
+
+
+def synthesize(
+    sea: Sea, *, rng, times: Sequence[float] = (0.0,), max_elevation: float | None = None
+) -> Surface:
+    """One random realisation of the sea at one or more times.
+
+    :func:`draw` then :meth:`Modes.surface`, with their parameters.
+
+    Notes
+    -----
+    Every frame shows the same realisation. A frame costs three inverse real FFTs of
+    N × N per cascade; the per-(sea, cascade) arrays are cached (32 entries).
 
     References
     ----------
@@ -350,69 +551,4 @@ def synthesize(
        surface, §3 and §5. Report, Dept. of Operations Research & Financial
        Engineering, Princeton University, June 30, 2000.
     """
-    _check_grid(grid_size, spacing)
-    n = int(grid_size)
-    times = np.asarray(times, dtype=np.float64)
-    if times.ndim != 1 or times.size == 0 or not np.all(np.isfinite(times)):
-        raise ValueError(f"times must be a non-empty sequence of finite seconds, got {times}")
-    if max_elevation is not None and not (math.isfinite(max_elevation) and max_elevation > 0):
-        raise ValueError(f"max_elevation must be a positive number of metres, got {max_elevation}")
-    if conditioning is not None:
-        if max_elevation is not None:
-            raise ValueError("conditioning and max_elevation exclude each other")
-        if (conditioning.spectrum, conditioning.grid_size, conditioning.spacing) != (
-            spectrum,
-            n,
-            float(spacing),
-        ):
-            raise ValueError("conditioning was built for another spectrum or grid")
-    setup = _setup(spectrum, n, float(spacing))
-
-    h0 = np.empty((n, n), np.complex64)
-    rng.standard_normal(out=h0.view(np.float32), dtype=np.float32)
-    h0 *= 0.5 * setup.amplitude
-    forward = np.ascontiguousarray(h0[:, : n // 2 + 1])
-    backward = np.conj(h0.ravel().take(setup.mirror)).reshape(forward.shape)
-
-    rotation = np.empty(forward.shape, np.complex64)
-    spectrum_t = np.empty(forward.shape, np.complex64)
-    product = np.empty(forward.shape, np.complex64)
-
-    def at_time(time):
-        """h̃(k, t) on the half-plane, into `spectrum_t` (uses `rotation`, `product`)."""
-        cycles = setup.omega * (time / (2.0 * np.pi))
-        cycles -= np.floor(cycles)
-        phase = (2.0 * np.pi * cycles).astype(np.float32)
-        np.cos(phase, out=rotation.real)
-        np.sin(phase, out=rotation.imag)
-        np.multiply(backward, rotation, out=spectrum_t)
-        np.conjugate(rotation, out=rotation)
-        np.multiply(forward, rotation, out=product)
-        return np.add(spectrum_t, product, out=spectrum_t)
-
-    if conditioning is not None:
-        ahead, behind = conditioning.correction(
-            lambda time: scipy.fft.irfft2(at_time(time), s=(n, n), norm="forward"), rng
-        )
-        forward += ahead
-        backward += behind
-
-    fields = np.empty((3, times.size, n, n), np.float32)
-    for frame, time in enumerate(times):
-        at_time(time)
-        # One transform per field: scipy's batched irfft2 is several times slower.
-        for component, derivative in enumerate(setup.derivative):
-            np.multiply(derivative, spectrum_t, out=product)
-            fields[component, frame] = scipy.fft.irfft2(product, s=(n, n), norm="forward")
-    if max_elevation is not None:
-        peak = float(np.abs(fields[0]).max())
-        if peak == 0:
-            raise ValueError("max_elevation cannot rescale a flat surface (zero spectrum)")
-        fields *= np.float32(max_elevation / peak)
-    return Surface(
-        elevation=fields[0],
-        slope_x=fields[1],
-        slope_y=fields[2],
-        spacing=float(spacing),
-        grid_size=n,
-    )
+    return draw(sea, rng).surface(times, max_elevation=max_elevation)

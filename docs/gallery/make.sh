@@ -11,6 +11,7 @@ oceanlidar preview configs/paper/example3.yaml --sample 4 --output $out/example3
 oceanlidar preview configs/paper/example4.yaml --sample 0 --output $out/example4-mine.png
 oceanlidar preview configs/paper/example4.yaml --sample 4 --output $out/example4-no-mine.png
 oceanlidar preview configs/paper/mldc-strip.yaml --output $out/mldc-strip.png
+oceanlidar preview configs/mldc-strip-300m.yaml --output $out/mldc-strip-300m.png
 oceanlidar preview configs/conditioned.yaml --sample 0 --output $out/conditioned-0.png
 oceanlidar preview configs/conditioned.yaml --sample 1 --output $out/conditioned-1.png
 work=$(mktemp -d)
