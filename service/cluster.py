@@ -10,6 +10,11 @@ from distributed import Client, LocalCluster
 
 __all__ = ["ClusterError", "dask_client"]
 
+CLOSE_TIMEOUT = 60.0
+"""Longest wait for the embedded cluster's workers to exit, s."""
+
+_log = logging.getLogger(__name__)
+
 
 class ClusterError(RuntimeError):
     """The dask cluster cannot be reached or used."""
@@ -32,15 +37,21 @@ def dask_client(*, workers: int | None, scheduler: str | None, security=None):
         with client:
             yield client
         return
-    with (
-        LocalCluster(
-            n_workers=workers or os.cpu_count() or 1,
-            threads_per_worker=1,
-            processes=True,
-            host="127.0.0.1",
-            dashboard_address=None,
-            silence_logs=logging.CRITICAL,
-        ) as cluster,
-        Client(cluster) as client,
-    ):
-        yield client
+    cluster = LocalCluster(
+        n_workers=workers or os.cpu_count() or 1,
+        threads_per_worker=1,
+        processes=True,
+        host="127.0.0.1",
+        dashboard_address=None,
+        silence_logs=logging.CRITICAL,
+    )
+    try:
+        with Client(cluster) as client:
+            yield client
+    finally:
+        # A worker slow to exit (a loaded machine) must not turn a finished run into a
+        # traceback: what it wrote is complete, and its process is killed at exit anyway.
+        try:
+            cluster.close(timeout=CLOSE_TIMEOUT)
+        except TimeoutError:
+            _log.warning("the embedded dask cluster did not shut down within %g s", CLOSE_TIMEOUT)

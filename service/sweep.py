@@ -25,6 +25,7 @@ from service.measurements import inline_measurements
 from service.schema import Distribution, Sweep, Values, scene_field
 from workers.cascades import MAX_CASCADES
 from workers.scene import Scene
+from workers.spread import MAX_COARSE
 
 __all__ = ["Plan", "human_bytes", "load_sweep", "memory_estimate", "parse_sweep"]
 
@@ -135,13 +136,17 @@ def memory_estimate(scene: dict) -> int:
     """Memory [bytes] that rendering one sample of a raw scene needs: an upper estimate.
 
     Read from the scene's values before anything is built, since validating a scene
-    already builds its kriging system. An empirical bound on peak allocations measured on
-    the renderer of 2026-11-23 (the shipped configs need 0.8 to 5 times less): per frame,
-    256 bytes per pixel and gate (plane grids, MTF filters, images; the frames' geometry
-    is cached) and 128 bytes per surface grid point and cascade (``surface.coarse_patches``
-    plus one, or at most `workers.cascades.MAX_CASCADES` by default); the kriging system of
-    measurements at G distinct times holds about 8 + G(G + 1)/8 complex grids per cascade
-    (one covariance grid per time lag, G(G + 1)/2 of them, built in turn).
+    already builds its kriging system. An empirical bound on peak allocations (traced by
+    ``tracemalloc``, every cache of `workers` empty) of the multi-scale, compiled renderer
+    of 2026-11-23: the shipped configs need 1.25 to 7 times less (`tests/test_sweep.py`
+    holds it to small scenes of every kind). Once a sample: a floor of 384 bytes per cell of
+    a `workers.spread.MAX_COARSE`-sided coarse plane (the planes' least size) and 128 bytes
+    per surface grid point and cascade (``surface.coarse_patches`` plus one, or at most
+    `workers.cascades.MAX_CASCADES` by default); then per frame 512 bytes per pixel and
+    gate (the frame's geometry, which stays cached, its plane grids and MTF filters, the
+    images) and 32 per grid point and cascade (the evolved sea). The kriging system of
+    measurements at G distinct times holds about 8 + G(G + 1)/8 complex grids per
+    cascade (one covariance grid per time lag, G(G + 1)/2 of them, built in turn).
 
     Returns
     -------
@@ -160,7 +165,8 @@ def memory_estimate(scene: dict) -> int:
         cascades = MAX_CASCADES if patches is None else len(patches) + 1
     except (TypeError, ValueError, AttributeError, IndexError):
         return 0
-    render = frames * (256 * pixels**2 * (gates + 1) + 128 * grid**2 * cascades)
+    once = 384 * MAX_COARSE**2 + 128 * grid**2 * cascades
+    render = once + frames * (512 * pixels**2 * (gates + 1) + 32 * grid**2 * cascades)
     kriging = 16 * grid**2 * cascades * (8 + times * (times + 1) / 8) if points else 0
     return int(render + kriging)
 

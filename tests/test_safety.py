@@ -427,3 +427,24 @@ def test_a_stale_lock_is_taken_over_by_one_run_only(tmp_path, monkeypatch):
     assert "locked by another run" in dict(outcomes)["refused"]
     assert not (url / storage.LOCK_NAME).exists()
     assert not (url / (storage.LOCK_NAME + lock.TAKEOVER_SUFFIX)).exists()
+
+
+def test_a_cluster_slow_to_shut_down_does_not_fail_a_finished_run(monkeypatch, caplog):
+    # A loaded machine: a worker outlives the close's deadline after the run has written
+    # everything. The old client turned that into a TimeoutError traceback and exit 1.
+    from distributed import LocalCluster
+
+    import service.cluster
+
+    class SlowToClose(LocalCluster):
+        def close(self, *args, **kwargs):
+            super().close(*args, **kwargs)
+            raise TimeoutError
+
+    def threaded(**options):
+        return SlowToClose(**{**options, "processes": False, "protocol": "tcp://"})
+
+    monkeypatch.setattr(service.cluster, "LocalCluster", threaded)
+    with service.cluster.dask_client(workers=1, scheduler=None) as client:
+        assert client.submit(sum, [1, 2]).result() == 3
+    assert "did not shut down" in caplog.text

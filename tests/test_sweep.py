@@ -4,12 +4,14 @@ import os
 import subprocess
 import sys
 import textwrap
+import tracemalloc
 
 import pytest
 from conftest import cli_command, run_cli
 
 from service.inputs import SweepError
-from service.sweep import load_sweep, parse_sweep
+from service.sweep import load_sweep, memory_estimate, parse_sweep
+from workers.render import render
 from workers.scene import Scene
 
 BASE = """\
@@ -365,4 +367,52 @@ def test_memory_is_estimated_before_anything_is_built(tmp_path, capsys):
     sweep.write_text(frames)
     assert main(["validate", str(sweep)]) == 2
     assert "--max-memory" in capsys.readouterr().err
-    assert main(["validate", str(sweep), "--max-memory", "200"]) == 0
+    assert main(["validate", str(sweep), "--max-memory", "400"]) == 0
+
+
+def _empty_worker_caches():
+    for module in list(sys.modules.values()):
+        if getattr(module, "__name__", "").startswith("workers."):
+            for value in list(vars(module).values()):
+                if callable(getattr(value, "cache_clear", None)):
+                    value.cache_clear()
+
+
+@pytest.mark.parametrize(
+    "sections",
+    [
+        {"receiver": {"pixels": 16, "gates": [[2.0, 6.0]]}, "surface": {"grid_size": 32}},
+        {"receiver": {"pixels": 48}},
+        {"receiver": {"pixels": 24}, "sequence": {"frames": 3, "interval": 0.05}},
+        {
+            "receiver": {"pixels": 32, "gates": [[0.5, 10.0]]},
+            "sequence": {"frames": 4, "interval": 0.2, "velocity": [0.0, 0.0, 10.0]},
+            "surface": {"allow_repeat": True},
+        },
+        {
+            "receiver": {"pixels": 24},
+            "surface": {"grid_size": 64, "conditioning": {"points": [[0.5, 0.5, 0.1]]}},
+        },
+        {
+            "platform": {"nadir_deg": 25.0, "altitude": 60.0},
+            "receiver": {"pixels": 40},
+            "target": {"shape": "disk", "radius": 3.0},
+            "surface": {"allow_repeat": True},
+        },
+    ],
+    ids=["one-gate", "mldc", "frames", "climbing", "conditioned", "oblique-high"],
+)
+def test_the_memory_estimate_bounds_the_render_from_above(sections):
+    # peak allocations of a first sample (every cache empty), traced: the estimate must
+    # hold it, and stay within 8x of it (a bound that refuses nothing is no bound)
+    render(Scene.model_validate({"receiver": {"pixels": 8}}), seed=0)  # a process's once
+    scene = Scene.model_validate(sections)
+    estimate = memory_estimate(scene.model_dump(mode="json"))
+    _empty_worker_caches()
+    tracemalloc.start()
+    try:
+        render(scene, seed=1)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak <= estimate <= 8 * peak, (peak / 2**20, estimate / 2**20)
