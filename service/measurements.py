@@ -32,6 +32,11 @@ def inline_measurements(data: dict, folder: Path) -> None:
             f"{place}.file: must name a file in the sweep file's folder or below it, "
             f"got {shown(name)}"
         )
+    if not (folder / relative).resolve().is_relative_to(Path(folder).resolve()):
+        raise SweepError(
+            f"{place}.file: {shown(name)} leads out of the sweep file's folder (a symbolic "
+            "link); copy the file there"
+        )
     if conditioning.get("points") is not None:
         raise SweepError(f"{place}: give points or file, not both")
     conditioning["points"] = read_measurements(folder / relative, place=f"{place}.file")

@@ -321,11 +321,15 @@ def test_a_huge_file_is_refused_after_reading_the_limit(tmp_path):
         ("/etc/passwd", "in the sweep file's folder or below it"),
         ("../elsewhere/points.csv", "in the sweep file's folder or below it"),
         ("secret.csv", "must start with the header line"),
+        ("link.csv", "leads out of the sweep file's folder"),
     ],
-    ids=["absolute", "parent", "not-csv"],
+    ids=["absolute", "parent", "not-csv", "link-out"],
 )
 def test_measurement_files_stay_beside_the_sweep_and_are_never_echoed(tmp_path, name, message):
     (tmp_path / "secret.csv").write_text("root:hunter2:0:0\nmore:secret\n")
+    outside = tmp_path.parent / f"{tmp_path.name}-outside.csv"
+    outside.write_text("x,y,elevation\n0.5,0.5,0.1\n")
+    (tmp_path / "link.csv").symlink_to(outside)  # a valid file, but not the folder's
     with pytest.raises(SweepError, match=message) as error:
         load_sweep(conditioned(tmp_path, name))
     assert "hunter2" not in str(error.value) and "root:" not in str(error.value)
