@@ -9,7 +9,6 @@ realisations per point.
 from __future__ import annotations
 
 import math
-import re
 from typing import Annotated, Any, Literal
 
 import numpy as np
@@ -171,6 +170,5 @@ def scene_field(path: str):
 
 
 def field_units(path: str) -> str:
-    """The unit a scene field's description gives in brackets at its end ('1' if none)."""
-    found = re.search(r"\[([^\]]+)\]\.?\s*$", scene_field(path).description or "")
-    return found.group(1) if found else "1"
+    """The unit a scene field declares (`workers.section.units`; "1": dimensionless)."""
+    return scene_field(path).json_schema_extra["units"]

@@ -4,7 +4,7 @@ import math
 
 import pytest
 from conftest import run_cli
-from pydantic import ValidationError
+from pydantic import BaseModel, ValidationError
 
 from workers.instrument import MLDC_GATES
 from workers.scene import Scene, footprint_span
@@ -205,3 +205,21 @@ def test_cli_validate_refuses_a_repeating_sea_with_a_message(tmp_path):
         sweep.read_text().replace("  receiver:", "  surface: {allow_repeat: true}\n  receiver:")
     )
     assert run_cli("validate", allowed, cwd=tmp_path).returncode == 0
+
+
+def scene_leaves(model=Scene, prefix=""):
+    """(dotted path, pydantic field) of every value of the scene, sections walked into."""
+    for name, field in model.model_fields.items():
+        annotation = field.annotation
+        if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+            yield from scene_leaves(annotation, f"{prefix}{name}.")
+        else:
+            yield f"{prefix}{name}", field
+
+
+def test_every_scene_field_declares_its_unit_as_data():
+    leaves = dict(scene_leaves())
+    assert len(leaves) > 40 and "surface.conditioning.noise" in leaves
+    for path, field in leaves.items():
+        extra = field.json_schema_extra
+        assert isinstance(extra, dict) and extra.get("units"), f"{path} declares no unit"

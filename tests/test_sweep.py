@@ -6,8 +6,10 @@ import sys
 import textwrap
 
 import pytest
+import xarray as xr
 from conftest import cli_command, run_cli
 
+from service import store
 from service.inputs import SweepError
 from service.sweep import load_sweep, parse_sweep
 from workers.scene import Scene
@@ -366,3 +368,39 @@ def test_memory_is_estimated_before_anything_is_built(tmp_path, capsys):
     assert main(["validate", str(sweep)]) == 2
     assert "--max-memory" in capsys.readouterr().err
     assert main(["validate", str(sweep), "--max-memory", "200"]) == 0
+
+
+def test_the_store_carries_every_swept_fields_unit(tmp_path):
+    """The seven fields whose unit the store once gave as 1 (units were read from prose)."""
+    expected = {
+        "target.x": "m",
+        "target.y": "m",
+        "surface.max_elevation": "m",
+        "water.theta0": "rad",
+        "platform.azimuth_deg": "degree",
+        "receiver.field_of_view_deg": "degree",
+        "laser.field_of_view_deg": "degree",
+        "target.depth": "m",
+        "water.absorption": "1/m",
+        "sequence.interval": "s",
+        "surface.grid_size": "1",
+    }
+    values = {
+        "target.x": [0.5, 1.0],
+        "target.y": [0.5, 1.0],
+        "surface.max_elevation": [0.1, 0.2],
+        "water.theta0": [0.1, 0.12],
+        "platform.azimuth_deg": [0.0, 10.0],
+        "receiver.field_of_view_deg": [6.0, 6.7],
+        "laser.field_of_view_deg": [6.0, 6.7],
+        "target.depth": [3.0, 4.0],
+        "water.absorption": [0.1, 0.2],
+        "sequence.interval": [0.1, 0.2],
+        "surface.grid_size": [32, 32],
+    }
+    lines = "".join(f"    {path}: {{values: {v}}}\n" for path, v in values.items())
+    plan = parse_sweep(BASE + "sweep:\n  method: zip\n  parameters:\n" + lines)
+    url = str(tmp_path / "units.zarr")
+    store.create_store(plan, url)
+    ds = xr.open_zarr(url)
+    assert {path: ds[path].attrs["units"] for path in expected} == expected

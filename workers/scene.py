@@ -1,10 +1,11 @@
 """The parameters of one sample: a frozen, validated description of the scene.
 
-Every field carries its unit in its description, a default and a valid range. Angles that a
-person types are in degrees and named ``*_deg``; everything else is SI (metres, seconds,
-1/m). The nesting is what sweep files address with dotted paths (``target.depth``; see the
-README's sweep file). The sections `Scene` nests are in `workers.sea` (surface, water,
-target) and `workers.instrument` (platform, laser, receiver, radiometry, noise, sequence).
+Every field declares its unit as data (`workers.section.units`), a default and a valid
+range. Angles that a person types are in degrees and named ``*_deg``; everything else is SI
+(metres, seconds, 1/m). The nesting is what sweep files address with dotted paths
+(``target.depth``; see the README's sweep file). The sections `Scene` nests are in
+`workers.sea` (surface, water, target) and `workers.instrument` (platform, laser, receiver,
+radiometry, noise, sequence).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from pydantic import Field, model_validator
 
 from workers.instrument import Laser, Noise, Platform, Radiometry, Receiver, Sequence
 from workers.sea import SurfaceSpec, Target, Water
-from workers.section import Section
+from workers.section import Section, units
 
 __all__ = ["Scene", "footprint_span"]
 
@@ -102,7 +103,9 @@ class Scene(Section):
     noise: Noise = Noise()
     sequence: Sequence = Sequence()
     save_surface: bool = Field(
-        False, description="Store the surface elevation of every frame with the sample."
+        False,
+        description="Store the surface elevation of every frame with the sample.",
+        json_schema_extra=units("1"),
     )
 
     @property
