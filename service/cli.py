@@ -12,10 +12,11 @@ import os
 import sys
 
 import dask
+from dask.utils import format_bytes
 
 from service import integrity, lock, storage, store
 from service.inputs import SweepError, shown
-from service.sweep import DEFAULT_MAX_MEMORY, human_bytes, load_sweep
+from service.sweep import DEFAULT_MAX_MEMORY, load_sweep
 
 __all__ = ["main"]
 
@@ -132,8 +133,8 @@ def _plan_lines(plan, batch: int = 4, url: str | None = None) -> list[str]:
         f"sweep {plan.sweep.name!r}: {len(plan.points)} parameter points x "
         f"{plan.realisations} realisations = {plan.samples} samples",
         f"  tasks: about {tasks} (batch of {batch})",
-        f"  storage: about {human_bytes(plan.total_bytes())} uncompressed "
-        f"({human_bytes(plan.sample_bytes())} per sample)",
+        f"  storage: about {format_bytes(plan.total_bytes())} uncompressed "
+        f"({format_bytes(plan.sample_bytes())} per sample)",
         f"  swept: {', '.join(plan.swept) or '(nothing)'}",
         f"  output: {url or plan.sweep.output}",
     ]
@@ -178,7 +179,7 @@ def _security(args):
 
 def _cmd_run(args) -> int:
     from service.cluster import ClusterError
-    from service.run import describe_sample, execute
+    from service.run import execute
 
     if args.workers is not None and args.workers < 1:
         raise SweepError("--workers must be at least 1")
@@ -221,10 +222,15 @@ def _cmd_run(args) -> int:
     if result.interrupted:
         print(f"interrupted: run again with --resume to complete {url}", file=sys.stderr)
         return EXIT_FAILURE
+    for sample, reason in result.refused:
+        print(
+            f"{plan.sample(sample).describe()}: bad input, not retried: {reason}", file=sys.stderr
+        )
     for sample, reason in result.rejected:
-        print(f"{describe_sample(plan, sample)} not stored: {reason}", file=sys.stderr)
+        print(f"{plan.sample(sample).describe()} not stored: {reason}", file=sys.stderr)
     for start, count, error in result.failed:
-        print(f"samples {start}..{start + count - 1} failed: {error}", file=sys.stderr)
+        for sample in range(start, start + count):
+            print(f"{plan.sample(sample).describe()} failed: {error}", file=sys.stderr)
     for start, count in result.stuck:
         print(
             f"samples {start}..{start + count - 1}: no result {args.task_timeout:g} s after "
@@ -233,7 +239,7 @@ def _cmd_run(args) -> int:
         )
     if result.stopped:
         print(f"stopped: {result.stopped}; run again with --resume", file=sys.stderr)
-    if result.failed or result.rejected or result.stuck or result.stopped:
+    if result.failed or result.refused or result.rejected or result.stuck or result.stopped:
         print("statistics not written: some samples failed", file=sys.stderr)
         return EXIT_FAILURE
     print(f"statistics: {storage.stats_url(url)}", file=sys.stderr)

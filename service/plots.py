@@ -20,7 +20,6 @@ from PIL import Image
 from service.inputs import SweepError
 from service.sweep import Plan
 from workers.render import render
-from workers.seeds import SampleSeed
 
 __all__ = ["plot_detection", "plot_statistics", "preview_figure", "render_preview", "save_preview"]
 
@@ -30,15 +29,11 @@ DPI = 100
 
 def render_preview(plan: Plan, sample: int) -> xr.Dataset:
     """Render sample `sample` of a sweep exactly as the service would, with its surface."""
-    if not 0 <= sample < plan.samples:
-        raise SweepError(f"--sample {sample}: the sweep has samples 0..{plan.samples - 1}")
-    point, realisation = divmod(sample, plan.realisations)
-    scene = plan.scenes[point]
+    address = plan.sample(sample)
+    scene = address.scene
     if not scene.save_surface:
         scene = scene.model_copy(update={"save_surface": True})
-    return render(
-        scene, seed=SampleSeed(root=plan.sweep.seed, point=point, realisation=realisation)
-    )
+    return render(scene, seed=address.seed)
 
 
 def preview_figure(ds: xr.Dataset, *, frame: int = 0, title: str = "", measurements=None):

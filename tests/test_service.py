@@ -316,3 +316,21 @@ def test_the_embedded_cluster_listens_on_loopback_only():
         opened = listening() - before
     assert opened, "the cluster should listen somewhere"
     assert {address.ip for _, address in opened} == {"127.0.0.1"}
+
+
+def test_a_scene_that_cannot_be_rendered_is_refused_once_with_its_parameters(tmp_path):
+    """A singular kriging system is the input's error: reported per sample, never retried."""
+    near = "[[1.0, 2.0, 0.1], [1.000001, 2.0, 0.1]]"
+    text = SWEEP.replace(
+        "allow_repeat: true}", f"allow_repeat: true, conditioning: {{points: {near}}}}}"
+    )
+    sweep = write(tmp_path / "singular.yaml", text)
+    result = run_cli("run", sweep, "--workers", 1, "--batch", 3, cwd=tmp_path)
+    assert result.returncode == 1, result.stderr
+    refused = re.findall(
+        r"sample (\d+) \(point \d: (.*?)\): bad input, not retried", result.stderr
+    )
+    assert [int(sample) for sample, _ in refused] == list(range(12))
+    assert refused[4][1] == "target.depth=3.0, target.shape='none'; realisation 1"
+    assert "ill-conditioned" in result.stderr and " failed: " not in result.stderr
+    assert "Traceback" not in result.stderr

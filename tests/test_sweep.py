@@ -351,7 +351,7 @@ def test_memory_is_estimated_before_anything_is_built(tmp_path, capsys):
     from service.cli import main
 
     frames = BASE.replace("pixels: 16}", "pixels: 1024}\n  sequence: {frames: 64}")
-    with pytest.raises(SweepError, match=r"would need about .* GiB .* over the limit of 4\.0 GiB"):
+    with pytest.raises(SweepError, match=r"would need about .* GiB .* limit of 4\.00 GiB"):
         parse_sweep(frames)
     assert parse_sweep(frames, max_memory=None).scenes[0].receiver.pixels == 1024
     # 24 measurement times on a 2048² grid: the kriging system alone, refused unbuilt

@@ -44,7 +44,7 @@ import scipy.fft
 from workers.spectra import Spectrum, dispersion
 from workers.surface import surface_amplitudes
 
-__all__ = ["RCOND", "Kriging", "kriging", "space_time_covariance"]
+__all__ = ["RCOND", "Kriging", "check_points", "kriging", "space_time_covariance"]
 
 RCOND = 1e-9
 """Smallest accepted ratio of the smallest to the largest eigenvalue of K (1 / condition
@@ -234,6 +234,54 @@ class Kriging:
         return ahead, behind
 
 
+def check_points(points, *, grid_size: int, spacing: float) -> np.ndarray:
+    """Measured points checked without building anything: finite, on the patch, each once.
+
+    Parameters
+    ----------
+    points : sequence of sequence of float
+        Measurements (x, y, elevation) or (x, y, elevation, time), as `kriging` takes them.
+    grid_size : int
+        Number N of grid points along x and along y.
+    spacing : float
+        Grid spacing Δ, m.
+
+    Returns
+    -------
+    numpy.ndarray
+        The points as rows (x, y, elevation, time), float64 of shape (D, 4).
+
+    Raises
+    ------
+    ValueError
+        For no point, a value not finite, a point outside the patch (with its periodic
+        equivalent inside), or two points at the same place and time.
+    """
+    n, spacing = int(grid_size), float(spacing)
+    data = np.array([(*p[:3], p[3] if len(p) > 3 else 0.0) for p in points], dtype=np.float64)
+    if data.ndim != 2 or data.shape[0] == 0:
+        raise ValueError("conditioning needs at least one point [x, y, elevation(, time)]")
+    if not np.all(np.isfinite(data)):
+        raise ValueError("conditioning points must be finite numbers")
+    period = n * spacing
+    for index, (x, y) in enumerate(data[:, :2]):
+        if not (0.0 <= x < period and 0.0 <= y < period):
+            raise ValueError(
+                f"point {index} (x={x:g} m, y={y:g} m) lies off the surface grid, which "
+                f"covers [0, {period:g}) m in x and y and repeats with that period; the same "
+                f"place on the grid is x={x % period:g} m, y={y % period:g} m"
+            )
+    seen: dict[tuple[float, float, float], int] = {}
+    for index, (x, y, _, t) in enumerate(data):
+        first = seen.setdefault((x, y, t), index)
+        if first != index:
+            raise ValueError(
+                f"points {first} and {index} are both at x={x:g} m, y={y:g} m, t={t:g} s; "
+                "give each place and time once"
+            )
+    return data
+
+
 @functools.lru_cache(maxsize=16)
 def kriging(
     spectrum: Spectrum,
@@ -288,29 +336,9 @@ def kriging(
        Uncertainty, 2nd ed., §7.3.1 (conditioning by kriging). Wiley.
     """
     n, spacing = int(grid_size), float(spacing)
-    data = np.array([(*p[:3], p[3] if len(p) > 3 else 0.0) for p in points], dtype=np.float64)
-    if data.ndim != 2 or data.shape[0] == 0:
-        raise ValueError("conditioning needs at least one point [x, y, elevation(, time)]")
-    if not np.all(np.isfinite(data)):
-        raise ValueError("conditioning points must be finite numbers")
+    data = check_points(points, grid_size=n, spacing=spacing)
     if not (np.isfinite(noise) and noise >= 0):
         raise ValueError(f"noise must be a non-negative number of metres, got {noise}")
-    period = n * spacing
-    for index, (x, y) in enumerate(data[:, :2]):
-        if not (0.0 <= x < period and 0.0 <= y < period):
-            raise ValueError(
-                f"point {index} (x={x:g} m, y={y:g} m) lies off the surface grid, which "
-                f"covers [0, {period:g}) m in x and y and repeats with that period; the same "
-                f"place on the grid is x={x % period:g} m, y={y % period:g} m"
-            )
-    seen: dict[tuple[float, float, float], int] = {}
-    for index, (x, y, _, t) in enumerate(data):
-        first = seen.setdefault((x, y, t), index)
-        if first != index:
-            raise ValueError(
-                f"points {first} and {index} are both at x={x:g} m, y={y:g} m, t={t:g} s; "
-                "give each place and time once"
-            )
 
     scaled = data[:, :2] / spacing
     corner = np.floor(scaled)

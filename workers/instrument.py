@@ -85,8 +85,11 @@ class Laser(Section):
 
 
 GateList = Annotated[
-    list[
-        tuple[Annotated[float, Field(ge=0.0, le=500.0)], Annotated[float, Field(ge=0.0, le=500.0)]]
+    tuple[
+        tuple[
+            Annotated[float, Field(ge=0.0, le=500.0)], Annotated[float, Field(ge=0.0, le=500.0)]
+        ],
+        ...,
     ],
     Field(min_length=1, max_length=32),
 ]

@@ -81,8 +81,7 @@ def render(scene: Scene, *, seed: int | SampleSeed) -> xr.Dataset:
     """
     if not isinstance(seed, SampleSeed):
         seed = SampleSeed(root=int(seed))
-    key = scene.model_dump_json()
-    setup = scene_setup(key)
+    setup = scene_setup(scene)
     frames = scene.sequence.frames
     times = np.arange(frames) * scene.sequence.interval
     surface = None
@@ -94,12 +93,12 @@ def render(scene: Scene, *, seed: int | SampleSeed) -> xr.Dataset:
             rng=seed.surface_rng(),
             times=tuple(times),
             max_elevation=scene.surface.max_elevation,
-            conditioning=setup.conditioning,
+            conditioning=scene.surface.kriging(),  # cached; None without points
         )
     expected = []
     masks = []
     for frame in range(frames):
-        geometry = frame_geometry(key, frame)
+        geometry = frame_geometry(scene, frame)
         signal, mask = _render_frame(setup, geometry, surface, frame)
         expected.append(signal)
         masks.append(mask)

@@ -13,14 +13,14 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from workers import spectra
-from workers.conditioning import Kriging, kriging
-from workers.section import Section, units
+from workers.conditioning import Kriging, check_points, kriging
+from workers.section import SceneError, Section, units
 from workers.water import PRESETS
 
 __all__ = ["Conditioning", "SurfaceSpec", "Target", "Water"]
 
 Measurement = Annotated[
-    list[Annotated[float, Field(allow_inf_nan=False)]], Field(min_length=3, max_length=4)
+    tuple[Annotated[float, Field(allow_inf_nan=False)], ...], Field(min_length=3, max_length=4)
 ]
 
 
@@ -34,7 +34,7 @@ class Conditioning(Section):
     ``points``; the service reads it (see `service.measurements`). See `workers.conditioning`.
     """
 
-    points: list[Measurement] | None = Field(
+    points: tuple[Measurement, ...] | None = Field(
         None,
         max_length=1000,
         description="Measured points [x, y, elevation] or [x, y, elevation, time], time "
@@ -132,8 +132,8 @@ class SurfaceSpec(Section):
                 "conditioning: max_elevation would rescale the measured elevations away; "
                 "leave it null"
             )
-        try:
-            self.kriging()
+        try:  # on the patch, each place and time once; the system is built to render
+            check_points(self.conditioning.points, grid_size=self.grid_size, spacing=self.spacing)
         except ValueError as error:
             raise ValueError(f"conditioning.points: {error}") from None
         return self
@@ -157,21 +157,26 @@ class SurfaceSpec(Section):
     def kriging(self) -> Kriging | None:
         """The kriging system of `conditioning` (cached), or None without points.
 
+        Validation checks the points alone (`workers.conditioning.check_points`); whether
+        their system is regular is known once it is built, here, to render.
+
         Raises
         ------
-        ValueError
-            For points off the grid, duplicates or a singular system
-            (`workers.conditioning.kriging`).
+        SceneError
+            For a singular or ill-conditioned system (`workers.conditioning.kriging`).
         """
         if not self.conditioning.points:
             return None
-        return kriging(
-            self.wave_spectrum(),
-            grid_size=self.grid_size,
-            spacing=self.spacing,
-            points=tuple(tuple(point) for point in self.conditioning.points),
-            noise=self.conditioning.noise,
-        )
+        try:
+            return kriging(
+                self.wave_spectrum(),
+                grid_size=self.grid_size,
+                spacing=self.spacing,
+                points=self.conditioning.points,
+                noise=self.conditioning.noise,
+            )
+        except ValueError as error:
+            raise SceneError(f"surface.conditioning.points: {error}") from None
 
 
 class Water(Section):

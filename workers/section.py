@@ -8,7 +8,15 @@ declare ``"1"``.
 
 from pydantic import BaseModel, ConfigDict
 
-__all__ = ["Section", "units"]
+__all__ = ["SceneError", "Section", "units"]
+
+
+class SceneError(ValueError):
+    """A scene valid field by field that cannot be rendered (a singular kriging system).
+
+    An error in the input, found when the scene's work is built: the same on every retry,
+    so the service reports it with the sample's parameters and never retries it.
+    """
 
 
 class Section(BaseModel):

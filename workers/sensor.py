@@ -12,7 +12,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from workers.conditioning import Kriging
 from workers.gates import central_paths, gate_gain, sight_lines, slab_bounds
 from workers.geometry import LaserRays, PinholeCamera, PlaneGrid, flat_sea_point
 from workers.optics import fresnel_reflectance
@@ -33,7 +32,6 @@ class Setup:
     scene: Scene
     water: WaterOptics
     spectrum: object
-    conditioning: Kriging | None
     gates: tuple[tuple[float, float], ...]
     reference_depths: tuple[float, ...]
     reflectances: tuple[float, ...]
@@ -56,9 +54,8 @@ class Setup:
 
 
 @functools.lru_cache(maxsize=32)
-def scene_setup(key: str) -> Setup:
-    """What every frame of every sample of a scene shares (cached by the scene's JSON)."""
-    scene = Scene.model_validate_json(key)
+def scene_setup(scene: Scene) -> Setup:
+    """What every frame of every sample of a scene shares (cached by the scene, hashable)."""
     w = scene.water
     coefficients = w.coefficients
     coefficients.update(
@@ -99,7 +96,6 @@ def scene_setup(key: str) -> Setup:
         scene=scene,
         water=water,
         spectrum=scene.surface.wave_spectrum(),
-        conditioning=scene.surface.kriging(),
         gates=gates,
         reference_depths=references,
         reflectances=reflectances,
