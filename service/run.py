@@ -345,6 +345,8 @@ def execute(
     workers: int | None = None,
     scheduler: str | None = None,
     security=None,
+    dashboard: bool = False,
+    verbose: bool = False,
     resume: bool = False,
     verify: bool = False,
     overwrite: bool = False,
@@ -357,6 +359,7 @@ def execute(
 
     With `resume` and `verify`, every completed sample is read back first
     (`service.integrity.verify`) and the damaged ones are rendered again with the missing ones.
+    `dashboard` and `verbose` go to `service.cluster.dask_client`.
 
     Everything is checked before anything is deleted or written, once before taking the
     store's writer lock (so a refused run leaves no trace) and again holding it (another
@@ -370,7 +373,8 @@ def execute(
         with storage.storage_errors(url):
             resuming, old_files, old_stats = _check_output(plan, url, **options)
         # connect before touching storage: an unreachable cluster leaves everything as it was
-        with dask_client(workers=workers, scheduler=scheduler, security=security) as client:
+        cluster = {"workers": workers, "scheduler": scheduler, "security": security}
+        with dask_client(**cluster, dashboard=dashboard, verbose=verbose) as client:
             probe = client.submit(lock.check_workers_see, url, storage_options, token, pure=False)
             try:
                 probe.result(timeout=PROBE_TIMEOUT)

@@ -2,7 +2,8 @@
 
 `load_sweep` reads a sweep file safely (`service.inputs`), inlines its measurement files
 (`service.measurements`), validates it against the schema (`service.schema`) and every
-point's scene, and expands the parameters into points (``grid``, ``zip`` or ``random``).
+point's scene, and expands the parameters into points (``grid``, ``zip``, ``random``, or
+the space-filling ``latin_hypercube`` and ``sobol`` of `scipy.stats.qmc`).
 `Plan.sample` addresses the samples, in one place: sample ``s`` is realisation
 ``s % realisations`` of point ``s // realisations``, with the random streams of
 `workers.seeds.SampleSeed` keyed by (root seed, point, realisation).
@@ -22,10 +23,11 @@ from typing import Any
 import numpy as np
 from dask.utils import format_bytes
 from pydantic import ValidationError
+from scipy.stats import qmc
 
 from service.inputs import SweepError, read_text, read_yaml, shown, strict_numbers
 from service.measurements import inline_measurements
-from service.schema import Distribution, Sweep, Values, scene_field
+from service.schema import Distribution, Sweep, Value, Values, scene_field
 from workers.scene import Scene
 from workers.seeds import SampleSeed
 
@@ -343,6 +345,8 @@ def _expand(sweep: Sweep) -> list[dict[str, Any]]:
     params = spec.parameters
     if not params:
         return [{}]
+    if spec.method in ("latin_hypercube", "sobol"):
+        return _design(sweep)
     if spec.method == "random":
         rng = np.random.Generator(
             np.random.PCG64(np.random.SeedSequence(sweep.seed, spawn_key=(2,)))
@@ -373,3 +377,35 @@ def _expand(sweep: Sweep) -> list[dict[str, Any]]:
         )
     combos = itertools.product(*lists.values())
     return [dict(zip(lists, combo, strict=True)) for combo in combos]
+
+
+def _design(sweep: Sweep) -> list[dict[str, Any]]:
+    """Points of a Latin hypercube or a scrambled Sobol sequence, in file order.
+
+    One dimension per parameter that varies (a fixed ``value`` takes none): a distribution
+    maps the design's coordinate u in [0, 1) through its inverse CDF
+    (`service.schema.Distribution.quantile`), a list of values picks ``values[⌊u n⌋]``.
+    The design's generator is seeded by the sweep's seed (its own stream, apart from
+    ``random``'s), so the points depend on the file alone.
+    """
+    spec = sweep.sweep
+    varying = [path for path, p in spec.parameters.items() if not isinstance(p, Value)]
+    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(sweep.seed, spawn_key=(3,))))
+    if not varying:
+        unit = np.empty((spec.count, 0))
+    elif spec.method == "latin_hypercube":
+        unit = qmc.LatinHypercube(d=len(varying), rng=rng).random(spec.count)
+    else:
+        unit = qmc.Sobol(d=len(varying), rng=rng).random_base2(int(spec.count).bit_length() - 1)
+    columns = {}
+    for path, p in spec.parameters.items():
+        if isinstance(p, Value):
+            columns[path] = [p.value] * spec.count
+            continue
+        u = unit[:, varying.index(path)]
+        if isinstance(p, Distribution):
+            columns[path] = p.quantile(u)
+        else:
+            picks = np.minimum((u * len(p.values)).astype(int), len(p.values) - 1)
+            columns[path] = [p.values[i] for i in picks]
+    return [{path: columns[path][i] for path in spec.parameters} for i in range(spec.count)]

@@ -5,6 +5,7 @@ import subprocess
 import sys
 import textwrap
 
+import numpy as np
 import pytest
 import xarray as xr
 from conftest import cli_command, run_cli
@@ -404,3 +405,55 @@ def test_the_store_carries_every_swept_fields_unit(tmp_path):
     store.create_store(plan, url)
     ds = xr.open_zarr(url)
     assert {path: ds[path].attrs["units"] for path in expected} == expected
+
+
+DESIGN = """
+    sweep:
+      method: {method}
+      count: {count}
+      parameters:
+        target.depth: {{distribution: uniform, min: 2.0, max: 10.0}}
+        water.theta0: {{distribution: uniform, min: 0.05, max: 0.15}}
+        target.radius: {{value: 0.2}}
+        target.shape: {{values: [sphere, disk]}}
+"""
+
+
+def design(method, count, seed=3):
+    text = BASE + textwrap.dedent(DESIGN.format(method=method, count=count))
+    plan = parse_sweep(replaced(text, "seed: 3", f"seed: {seed}"))
+    depth = np.array([point["target.depth"] for point in plan.points])
+    theta0 = np.array([point["water.theta0"] for point in plan.points])
+    return plan, (depth - 2.0) / 8.0, (theta0 - 0.05) / 0.1
+
+
+@pytest.mark.parametrize("method", ["latin_hypercube", "sobol"])
+def test_space_filling_designs_stratify_every_parameter(method):
+    count = 16
+    plan, depth, theta0 = design(method, count)
+    assert len(plan.points) == count
+    for u in (depth, theta0):  # one point in each of the count equal strata, per parameter
+        assert sorted(np.floor(u * count).astype(int)) == list(range(count))
+    assert {point["target.radius"] for point in plan.points} == {0.2}
+    shapes = [point["target.shape"] for point in plan.points]
+    assert shapes.count("sphere") == shapes.count("disk") == count // 2
+    again, _, _ = design(method, count)
+    assert again.points == plan.points and again.digest == plan.digest
+    other, _, _ = design(method, count, seed=4)
+    assert other.points != plan.points
+
+
+def test_sobol_points_form_a_net_over_two_parameters():
+    # the first two Sobol dimensions are a (0, 4, 2)-net in base 2 (scrambling keeps it):
+    # every elementary box 2^-a x 2^-(4 - a) holds exactly one of the 16 points
+    _, depth, theta0 = design("sobol", 16)
+    for a in range(5):
+        boxes = np.floor(depth * 2**a).astype(int) * 2 ** (4 - a) + np.floor(
+            theta0 * 2 ** (4 - a)
+        ).astype(int)
+        assert sorted(boxes) == list(range(16)), a
+
+
+def test_sobol_needs_a_power_of_two():
+    with pytest.raises(SweepError, match="power of two, not 12"):
+        design("sobol", 12)
