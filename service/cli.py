@@ -75,7 +75,11 @@ def configure_logging(verbosity: int) -> None:
 
 
 def _capped(message: str) -> str:
-    """`message` with every line cut to `MESSAGE_LINE` characters."""
+    """`message` with every line cut to `MESSAGE_LINE` characters.
+
+    Not `textwrap.shorten`, which joins the lines and cuts at words: each line of a
+    multi-line message (one per parameter point or field) keeps its place.
+    """
     return "\n".join(
         line if len(line) <= MESSAGE_LINE else f"{line[:MESSAGE_LINE]}... (cut)"
         for line in message.splitlines()

@@ -1,4 +1,9 @@
-"""The progress line of a run: samples done, samples/s, time left."""
+"""The progress line of a run: samples done, samples/s, time left.
+
+Kept rather than dask's progress bars (`distributed.progress`), which follow a fixed set of
+futures: a run submits its tasks a window at a time, counts samples rather than tasks and
+starts from the samples a resumed store already holds.
+"""
 
 from __future__ import annotations
 

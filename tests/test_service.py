@@ -382,10 +382,11 @@ def test_a_scene_that_cannot_be_rendered_is_refused_once_with_its_parameters(tmp
     sweep = write(tmp_path / "singular.yaml", text)
     result = run_cli("run", sweep, "--workers", 1, "--batch", 3, cwd=tmp_path)
     assert result.returncode == 1, result.stderr
-    refused = re.findall(
-        r"sample (\d+) \(point \d: (.*?)\): bad input, not retried", result.stderr
-    )
+    err = result.stderr
+    reason = "12 samples refused (bad input, not retried): surface.conditioning.points: "
+    assert err.count(reason) == 1 and "ill-conditioned" in err
+    refused = re.findall(r"^  sample (\d+) \(point \d: (.*)\)$", err, re.M)
     assert [int(sample) for sample, _ in refused] == list(range(12))
     assert refused[4][1] == "target.depth=3.0, target.shape='none'; realisation 1"
-    assert "ill-conditioned" in result.stderr and " failed: " not in result.stderr
+    assert " failed: " not in err
     assert "Traceback" not in result.stderr
