@@ -135,6 +135,11 @@ def parser() -> argparse.ArgumentParser:
         default=None,
         help="worker processes the run time is estimated for (default: one per core)",
     )
+    validate.add_argument(
+        "--no-estimate",
+        action="store_true",
+        help="skip the timed render of sample 0's first frame (and the run-time estimate)",
+    )
     _limits(validate)
 
     commands.add_parser("schema", help="print the JSON Schema of sweep files (for editors)")

@@ -78,16 +78,24 @@ def run_time(*, samples: int, scenes: int, setup: float, per_sample: float, work
 
 
 def _timed_render(plan: Plan) -> tuple[float, float]:
-    """Seconds of a first render of sample 0 (setup included) and of the next sample."""
+    """Seconds of a scene's setup and of one sample, from renders of sample 0's first frame.
+
+    The first frame is rendered twice (the second time set up) and both times are scaled
+    by the number of frames: each frame has its own geometry and its own light.
+    """
+    sample = plan.sample(0)
+    sequence = sample.scene.sequence
+    first_frame = sample.scene.model_copy(
+        update={"sequence": sequence.model_copy(update={"frames": 1})}
+    )
     timings = []
-    for index in (0, min(1, plan.samples - 1)):
-        sample = plan.sample(index)
+    for _ in range(2):
         started = time.perf_counter()
         try:
-            render(sample.scene, seed=sample.seed)
+            render(first_frame, seed=sample.seed)
         except SceneError as error:
             raise SweepError(f"{sample.describe()}: {error}") from None
-        timings.append(time.perf_counter() - started)
+        timings.append(sequence.frames * (time.perf_counter() - started))
     first, second = timings
     return max(first - second, 0.0), second
 
@@ -96,6 +104,11 @@ def cmd_validate(args) -> int:
     """Check a sweep; print its plan, an estimated run time and, if asked, its scene."""
     plan = load(args)
     print("\n".join(plan_lines(plan)))
+    if args.show_scene:
+        print("# the scene of point 0, every default filled in (units: `oceanlidar schema`)")
+        print(yaml.safe_dump(plan.scenes[0].model_dump(mode="json"), sort_keys=False), end="")
+    if args.no_estimate:
+        return EXIT_OK
     setup, per_sample = _timed_render(plan)
     workers = args.workers or os.cpu_count() or 1
     seconds = run_time(
@@ -109,9 +122,6 @@ def cmd_validate(args) -> int:
         f"  run time: about {format_time(seconds)} on {workers} worker(s) (a sample renders "
         f"in {format_time(per_sample)}, a scene's setup takes {format_time(setup)})"
     )
-    if args.show_scene:
-        print("# the scene of point 0, every default filled in (units: `oceanlidar schema`)")
-        print(yaml.safe_dump(plan.scenes[0].model_dump(mode="json"), sort_keys=False), end="")
     return EXIT_OK
 
 

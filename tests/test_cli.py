@@ -67,7 +67,9 @@ def test_validate_estimates_the_run_and_shows_the_resolved_scene(tmp_path, capsy
     assert main(["validate", str(sweep), "--show-scene", "--workers", "2"]) == 0
     out = capsys.readouterr().out
     assert "  run time: about " in out and "on 2 worker(s)" in out
-    shown = yaml.safe_load(out.split("(units: `oceanlidar schema`)\n", 1)[1])
+    shown = yaml.safe_load(
+        out.split("(units: `oceanlidar schema`)\n", 1)[1].split("  run time")[0]
+    )
     scene = load_sweep(sweep).scenes[0]
     assert shown["water"]["theta0"] == 0.12 and shown["platform"]["altitude"] == 34.0
     assert Scene.model_validate(shown) == scene
