@@ -33,7 +33,7 @@ class UnavailableError(RuntimeError):
 
 def add_commands(commands) -> None:
     """Add ``serve``, ``submit``, ``jobs``, ``status`` and ``cancel`` to `commands`."""
-    from service.cli import _json_object
+    from service.parser import json_object
 
     serve = commands.add_parser("serve", help="run the batch service (HTTP API and web page)")
     serve.add_argument(
@@ -46,7 +46,7 @@ def add_commands(commands) -> None:
         default="oceanlidar-data",
         help="folder or URL prefix that every job's output lies under (default: %(default)s)",
     )
-    serve.add_argument("--storage-options", type=_json_object, help="data root's fsspec options")
+    serve.add_argument("--storage-options", type=json_object, help="data root's fsspec options")
     serve.add_argument("--token-file", help="tokens, 'OWNER TOKEN' a line (else OCEANLIDAR_TOKEN)")
     serve.add_argument("--no-auth", action="store_true", help="no token (127.0.0.1 only)")
     serve.add_argument("--max-running", type=int, default=4, help="jobs run at once (default 4)")
@@ -183,10 +183,10 @@ def _cmd_cancel(args) -> int:
 
 
 def _cmd_serve(args) -> int:
-    from service.cli import _security
+    from service.run_commands import security
     from service.server import serve
 
-    return serve(args, _security(args))
+    return serve(args, security(args))
 
 
 def _client(command):

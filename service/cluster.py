@@ -3,30 +3,66 @@
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import logging
 import os
 
 from distributed import Client, LocalCluster
+from distributed.diagnostics.plugin import WorkerPlugin
+
+from service.inputs import SweepError
 
 __all__ = ["ClusterError", "dask_client"]
 
 CLOSE_TIMEOUT = 60.0
 """Longest wait for the embedded cluster's workers to exit, s."""
 
-_log = logging.getLogger(__name__)
+log = logging.getLogger("oceanlidar")
 
 
 class ClusterError(RuntimeError):
     """The dask cluster cannot be reached or used."""
 
 
+class WarningsToLogging(WorkerPlugin):
+    """Route a worker's Python warnings to its logging, kept off the console unless verbose.
+
+    The embedded cluster's workers write to the console the run was started from; a
+    warning a worker raises would print there raw, once per process.
+    """
+
+    name = "oceanlidar-warnings"
+
+    def __init__(self, verbose: bool):
+        self.verbose = verbose
+
+    def setup(self, worker):
+        """Capture the worker's warnings (logged at WARNING, printed only if verbose)."""
+        logging.captureWarnings(True)
+        captured = logging.getLogger("py.warnings")
+        captured.handlers = [logging.StreamHandler()] if self.verbose else [logging.NullHandler()]
+        captured.setLevel(logging.WARNING if self.verbose else logging.ERROR)
+
+
 @contextlib.contextmanager
-def dask_client(*, workers: int | None, scheduler: str | None, security=None):
+def dask_client(
+    *,
+    workers: int | None,
+    scheduler: str | None,
+    security=None,
+    dashboard: bool = False,
+    verbose: bool = False,
+):
     """A client for an existing scheduler, or for an embedded LocalCluster on 127.0.0.1.
 
     `security` (a `distributed.Security`) defaults to dask's configuration, where TLS
-    files and ``require-encryption`` can be set (``DASK_DISTRIBUTED__COMM__...``).
+    files and ``require-encryption`` can be set (``DASK_DISTRIBUTED__COMM__...``). With
+    `dashboard`, the embedded scheduler serves dask's dashboard on a free loopback port
+    (bokeh needed) and its link is logged; either way its HTTP server takes a free port,
+    never a busy default. `verbose` lets the embedded workers' logs and warnings through.
     """
+    if dashboard and importlib.util.find_spec("bokeh") is None:
+        raise SweepError("--dashboard needs bokeh: pip install 'oceanlidar[dashboard]'")
     if scheduler is not None:
         try:
             client = Client(scheduler, security=security, timeout="30s")
@@ -35,6 +71,8 @@ def dask_client(*, workers: int | None, scheduler: str | None, security=None):
                 f"cannot connect to the scheduler at {scheduler}: {error}"
             ) from None
         with client:
+            if dashboard:
+                log.info("dashboard: %s", client.dashboard_link)
             yield client
         return
     cluster = LocalCluster(
@@ -42,11 +80,15 @@ def dask_client(*, workers: int | None, scheduler: str | None, security=None):
         threads_per_worker=1,
         processes=True,
         host="127.0.0.1",
-        dashboard_address=None,
-        silence_logs=logging.CRITICAL,
+        dashboard_address="127.0.0.1:0",
+        scheduler_kwargs={"dashboard": dashboard},
+        silence_logs=logging.WARNING if verbose else logging.CRITICAL,
     )
     try:
         with Client(cluster) as client:
+            client.register_plugin(WarningsToLogging(verbose))
+            if dashboard:
+                log.info("dashboard: %s", client.dashboard_link)
             yield client
     finally:
         # A worker slow to exit (a loaded machine) must not turn a finished run into a
@@ -54,4 +96,4 @@ def dask_client(*, workers: int | None, scheduler: str | None, security=None):
         try:
             cluster.close(timeout=CLOSE_TIMEOUT)
         except TimeoutError:
-            _log.warning("the embedded dask cluster did not shut down within %g s", CLOSE_TIMEOUT)
+            log.warning("the embedded dask cluster did not shut down within %g s", CLOSE_TIMEOUT)

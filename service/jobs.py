@@ -24,7 +24,7 @@ import fsspec
 
 from service import integrity, storage, store
 from service.inputs import MAX_FILE_BYTES, SweepError, shown
-from service.run import describe_sample, execute
+from service.run import execute
 from service.sweep import DEFAULT_MAX_MEMORY, parse_sweep
 
 __all__ = ["ACTIVE", "FINAL", "JobTable", "QueueFullError", "Runner", "confine_output"]
@@ -330,7 +330,7 @@ class Runner:
             message = str(error) if isinstance(error, SweepError) else repr(error)
             self.table.set_state(job_id, "failed", finished=time.time(), message=message)
             return
-        errors = {str(sample): reason for sample, reason in result.rejected}
+        errors = {str(sample): reason for sample, reason in result.rejected + result.refused}
         for start, count, error in result.failed:
             errors.update({str(s): error for s in range(start, start + count)})
         for start, count in result.stuck:
@@ -348,7 +348,7 @@ class Runner:
             message = "cancelled; submit it again with resume to complete it"
             self.table.set_state(job_id, "cancelled", message=message, done=done, **fields)
         elif errors or result.stopped:
-            problems = [describe_sample(plan, int(s)) for s in list(errors)[:3]]
+            problems = [plan.sample(int(s)).describe() for s in list(errors)[:3]]
             message = result.stopped or "failed: " + "; ".join(problems)
             self.table.set_state(job_id, "failed", message=message, **fields)
         else:

@@ -8,6 +8,9 @@ Matplotlib runs headless (Agg); nothing here is needed to simulate, only to look
 
 from __future__ import annotations
 
+import functools
+import textwrap
+
 import matplotlib
 
 matplotlib.use("Agg")
@@ -20,34 +23,34 @@ from PIL import Image
 from service.inputs import SweepError
 from service.sweep import Plan
 from workers.render import render
-from workers.seeds import SampleSeed
 
 __all__ = ["plot_detection", "plot_statistics", "preview_figure", "render_preview", "save_preview"]
 
 PANEL_INCHES = 2.2
 DPI = 100
+TITLE_CHARACTERS = 28
+"""Characters of a title a panel's width holds at 9 points (longer titles wrap)."""
 
 
 def render_preview(plan: Plan, sample: int) -> xr.Dataset:
     """Render sample `sample` of a sweep exactly as the service would, with its surface."""
-    if not 0 <= sample < plan.samples:
-        raise SweepError(f"--sample {sample}: the sweep has samples 0..{plan.samples - 1}")
-    point, realisation = divmod(sample, plan.realisations)
-    scene = plan.scenes[point]
+    address = plan.sample(sample)
+    scene = address.scene
     if not scene.save_surface:
         scene = scene.model_copy(update={"save_surface": True})
-    return render(
-        scene, seed=SampleSeed(root=plan.sweep.seed, point=point, realisation=realisation)
-    )
+    return render(scene, seed=address.seed)
 
 
-def preview_figure(ds: xr.Dataset, *, frame: int = 0, title: str = "", measurements=None):
+def preview_figure(
+    ds: xr.Dataset, *, frame: int = 0, title: str = "", measurements=None, scale=None
+):
     """The gated images of one frame side by side, deeper to the right, and the sea.
 
     Parameters
     ----------
     ds : xarray.Dataset
-        One rendered sample (`workers.render.render`) with ``surface_elevation``.
+        One sample, rendered (`workers.render.render`) or read from a store; the sea is
+        drawn when it holds ``surface_elevation``.
     frame : int
         Frame to draw.
     title : str
@@ -55,6 +58,9 @@ def preview_figure(ds: xr.Dataset, *, frame: int = 0, title: str = "", measureme
     measurements : array_like or None
         Points the surface was conditioned on, one [x, y, ...] row each (m); drawn as
         red dots on the sea.
+    scale : tuple of float or None
+        (low, high) of every gate's colour scale, in the image's units; None: each panel
+        its own.
 
     Returns
     -------
@@ -64,10 +70,12 @@ def preview_figure(ds: xr.Dataset, *, frame: int = 0, title: str = "", measureme
         target's mask outline.
     """
     gates = ds.sizes["gate"]
+    panels = gates + ("surface_elevation" in ds)
+    low, high = scale if scale is not None else (None, None)
     figure, axes = plt.subplots(
         1,
-        gates + 1,
-        figsize=(PANEL_INCHES * (gates + 1), PANEL_INCHES + 0.6),
+        panels,
+        figsize=(PANEL_INCHES * panels, PANEL_INCHES + 0.6),
         dpi=DPI,
         squeeze=False,
     )
@@ -77,7 +85,9 @@ def preview_figure(ds: xr.Dataset, *, frame: int = 0, title: str = "", measureme
     mask = ds["target_mask"].isel(frame=frame).values
     for g in range(gates):
         top, bottom = float(ds.gate_top[g]), float(ds.gate_bottom[g])
-        shown = axes[g].imshow(images[g], cmap="gray", interpolation="nearest")
+        shown = axes[g].imshow(
+            images[g], cmap="gray", interpolation="nearest", vmin=low, vmax=high
+        )
         if mask.any():
             axes[g].contour(mask, levels=[0.5], colors="tab:red", linewidths=0.5, alpha=0.5)
         axes[g].set_title(f"gate {g + 1}: {top:.1f}–{bottom:.1f} m", fontsize=8)
@@ -86,7 +96,16 @@ def preview_figure(ds: xr.Dataset, *, frame: int = 0, title: str = "", measureme
         bar = figure.colorbar(shown, ax=axes[g], fraction=0.046, pad=0.02)
         bar.ax.tick_params(labelsize=6)
         bar.set_label(units, fontsize=6)
-    sea = axes[gates]
+    if panels > gates:
+        _draw_sea(figure, axes[gates], ds, frame, measurements)
+    if title:
+        figure.suptitle(textwrap.fill(title, TITLE_CHARACTERS * panels), fontsize=9)
+    figure.tight_layout()
+    return figure
+
+
+def _draw_sea(figure, sea, ds: xr.Dataset, frame: int, measurements) -> None:
+    """The surface elevation of `frame` with the platform's ground point and the data."""
     elevation = ds["surface_elevation"].isel(frame=frame)
     extent = [float(ds.sx[0]), float(ds.sx[-1]), float(ds.sy[0]), float(ds.sy[-1])]
     shown = sea.imshow(elevation.values, origin="lower", extent=extent, cmap="ocean")
@@ -112,10 +131,6 @@ def preview_figure(ds: xr.Dataset, *, frame: int = 0, title: str = "", measureme
     bar = figure.colorbar(shown, ax=sea, fraction=0.046, pad=0.02)
     bar.ax.tick_params(labelsize=6)
     bar.set_label("elevation (m)", fontsize=6)
-    if title:
-        figure.suptitle(title, fontsize=9)
-    figure.tight_layout()
-    return figure
 
 
 def _pixels(figure) -> Image.Image:
@@ -125,27 +140,48 @@ def _pixels(figure) -> Image.Image:
     return picture
 
 
-def save_preview(ds: xr.Dataset, path: str, *, title: str = "", measurements=None) -> int:
-    """Write a PNG of the first frame, or an animated GIF of every frame.
+def save_preview(
+    ds: xr.Dataset,
+    path: str,
+    *,
+    frame: int | None = None,
+    shared_scale: bool = False,
+    title: str = "",
+    measurements=None,
+) -> int:
+    """Write a PNG of one frame (`frame`, default 0), or an animated GIF of every frame.
 
-    ``title`` and ``measurements`` are passed to `preview_figure`.
+    With `shared_scale`, every gate of every frame is drawn on one colour scale (the
+    image's least and greatest values over the sample), so brightness compares across
+    gates and frames. ``title`` and ``measurements`` are passed to `preview_figure`.
 
     Returns
     -------
     int
         Frames written.
+
+    Raises
+    ------
+    SweepError
+        For a frame the sample lacks, a frame given for a GIF, or another file type.
     """
     lower = path.lower()
+    count = ds.sizes["frame"]
+    if frame is not None and not 0 <= frame < count:
+        raise SweepError(f"--frame {frame}: the sample has frames 0..{count - 1}")
+    image = ds["image"].values
+    scale = (float(image.min()), float(image.max())) if shared_scale else None
+    draw = functools.partial(
+        preview_figure, ds, title=title, measurements=measurements, scale=scale
+    )
     if lower.endswith(".gif"):
-        frames = [
-            _pixels(preview_figure(ds, frame=frame, title=title, measurements=measurements))
-            for frame in range(ds.sizes["frame"])
-        ]
+        if frame is not None:
+            raise SweepError(f"--frame {frame}: a GIF holds every frame; write a .png for one")
+        frames = [_pixels(draw(frame=index)) for index in range(count)]
         frames[0].save(path, save_all=True, append_images=frames[1:], duration=200, loop=0)
         return len(frames)
     if lower.endswith(".png"):
-        figure = preview_figure(ds, frame=0, title=title, measurements=measurements)
-        _pixels(figure).save(path)
+        _pixels(draw(frame=frame or 0)).save(path)
         return 1
     raise SweepError(f"--output {path}: write a .png (one frame) or a .gif (all frames)")
 

@@ -1,9 +1,16 @@
-"""The progress line of a run: samples done, samples/s, time left."""
+"""The progress line of a run: samples done, samples/s, time left.
+
+Kept rather than dask's progress bars (`distributed.progress`), which follow a fixed set of
+futures: a run submits its tasks a window at a time, counts samples rather than tasks and
+starts from the samples a resumed store already holds.
+"""
 
 from __future__ import annotations
 
 import sys
 import time
+
+from dask.utils import format_time
 
 __all__ = ["Progress"]
 
@@ -33,14 +40,13 @@ class Progress:
         self.last = now
         elapsed = max(now - self.start, 1e-9)
         rate = self.fresh / elapsed
-        left = (self.total - self.done) / rate if rate > 0 else float("inf")
+        left = "?" if rate <= 0 else format_time((self.total - self.done) / rate)
+        if self.done >= self.total:
+            left = "0 s"
         width = 30
         filled = int(width * self.done / max(self.total, 1))
         bar = "#" * filled + "-" * (width - filled)
-        line = (
-            f"[{bar}] {self.done}/{self.total} samples  {rate:.2f} samples/s  "
-            f"left {_duration(left)}"
-        )
+        line = f"[{bar}] {self.done}/{self.total} samples  {rate:.2f} samples/s  left {left}"
         self.stream.write(("\r" + line) if self.tty else line + "\n")
         self.stream.flush()
 
@@ -49,12 +55,3 @@ class Progress:
         if self.tty:
             self.stream.write("\n")
             self.stream.flush()
-
-
-def _duration(seconds: float) -> str:
-    if seconds == float("inf"):
-        return "?"
-    seconds = round(seconds)
-    hours, rest = divmod(seconds, 3600)
-    minutes, secs = divmod(rest, 60)
-    return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes}:{secs:02d}"

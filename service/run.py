@@ -4,8 +4,13 @@ Samples are grouped into tasks of consecutive samples; each task renders its sam
 writes them as whole chunks (`service.integrity.write_samples`). Submission is bounded: at most
 a few tasks per worker thread are in flight, so the client's memory stays flat whatever the
 sweep's size. Results never depend on worker count, order or retries: every sample's random
-streams are keyed by its position (`workers.seeds.SampleSeed`) and a retried task rewrites
+streams are keyed by its position (`service.sweep.Plan.sample`) and a retried task rewrites
 the same bytes.
+
+Two kinds of failure: a runtime failure (a worker lost, a storage hiccup) is retried; a
+sample whose scene cannot be rendered (`workers.section.SceneError`, an error in the input)
+or whose values are invalid would fail alike on every retry, so its task reports it and
+goes on: it is never retried.
 """
 
 from __future__ import annotations
@@ -23,19 +28,17 @@ from distributed import Client, wait
 
 from service import integrity, lock, storage, store
 from service.cluster import ClusterError, dask_client
-from service.inputs import SweepError, shown
+from service.inputs import SweepError
 from service.progress import Progress
 from service.stats import write_statistics
 from service.sweep import Plan
 from service.tuning import tune_allocator
 from workers.render import render
-from workers.scene import Scene
-from workers.seeds import SampleSeed
+from workers.section import SceneError
 
 __all__ = [
     "RunCancelledError",
     "RunResult",
-    "describe_sample",
     "execute",
     "render_batch",
     "run_plan",
@@ -66,44 +69,40 @@ def render_batch(url, start, jobs, storage_options=None):
     start : int
         Index of the first sample.
     jobs : list of tuple
-        ``(scene_json, root, point, realisation)`` per sample.
+        ``(scene, seed)`` per sample: its `workers.scene.Scene` (hashable, sent as it is)
+        and `workers.seeds.SampleSeed`.
     storage_options : dict, optional
         fsspec options.
 
     Returns
     -------
     list of tuple
-        ``(sample, reason)`` for every sample rejected by `service.integrity.invalid_values`:
-        those are neither written nor marked complete; the valid samples around them are.
+        ``(sample, reason, refused)`` for every sample not written: ``refused`` True for a
+        scene that cannot be rendered (`workers.section.SceneError`), False for values
+        rejected by `service.integrity.invalid_values`. Those are neither written nor
+        marked complete; the valid samples around them are.
     """
     tune_allocator()
     group = store.open_group(url, storage_options)
     rejected = []
     first, valid = start, []
-    for offset, (scene, root, point, realisation) in enumerate(jobs):
-        sample = render(
-            Scene.model_validate_json(scene),
-            seed=SampleSeed(root=root, point=point, realisation=realisation),
-        )
-        reason = integrity.invalid_values(sample)
+    for offset, (scene, seed) in enumerate(jobs):
+        try:
+            sample = render(scene, seed=seed)
+        except SceneError as error:
+            sample, reason, refused = None, str(error), True
+        else:
+            reason, refused = integrity.invalid_values(sample), False
         if reason is None:
             valid.append(sample)
             continue
-        rejected.append((start + offset, reason))
+        rejected.append((start + offset, reason, refused))
         if valid:
             integrity.write_samples(group, first, valid)
         first, valid = start + offset + 1, []
     if valid:
         integrity.write_samples(group, first, valid)
     return rejected
-
-
-def describe_sample(plan: Plan, sample: int) -> str:
-    """Sample `sample` by its parameter point, swept values and realisation."""
-    point, realisation = divmod(sample, plan.realisations)
-    values = ", ".join(f"{path}={shown(value)}" for path, value in plan.points[point].items())
-    where = f"point {point}" + (f": {values}" if values else "")
-    return f"sample {sample} ({where}; realisation {realisation})"
 
 
 def task_batches(plan: Plan, todo, batch_size: int) -> Iterator[tuple[int, list]]:
@@ -114,7 +113,6 @@ def task_batches(plan: Plan, todo, batch_size: int) -> Iterator[tuple[int, list]
     tuple
         ``(start, jobs)`` as `render_batch` takes them.
     """
-    scenes = {}
     run: list = []
     start = previous = None
     for sample in todo:
@@ -124,10 +122,8 @@ def task_batches(plan: Plan, todo, batch_size: int) -> Iterator[tuple[int, list]
             run = []
         if not run:
             start = sample
-        point, realisation = divmod(sample, plan.realisations)
-        if point not in scenes:
-            scenes = {point: plan.scenes[point].model_dump_json()}
-        run.append((scenes[point], plan.sweep.seed, point, realisation))
+        address = plan.sample(sample)
+        run.append((address.scene, address.seed))
         previous = sample
     if run:
         yield start, run
@@ -142,8 +138,10 @@ class RunResult:
     """What a run did.
 
     ``failed`` holds ``(start, count, error)`` for tasks that raised or lost their worker;
-    ``rejected`` holds ``(sample, reason)`` for samples rendered with invalid values
-    (`service.integrity.invalid_values`), neither written nor marked complete; ``damaged``
+    ``refused`` holds ``(sample, reason)`` for samples whose scene cannot be rendered
+    (`workers.section.SceneError`: bad input, not retried); ``rejected`` holds
+    ``(sample, reason)`` for samples rendered with invalid values
+    (`service.integrity.invalid_values`); neither are written nor marked complete; ``damaged``
     holds ``(sample, reason)`` for samples that ``verify`` found damaged and recomputed;
     ``stuck`` holds ``(start, count)`` for tasks given up after the task timeout;
     ``stopped`` says why a run stopped early (a storage failure no retry cures).
@@ -153,6 +151,7 @@ class RunResult:
     written: int = 0
     skipped: int = 0
     failed: list = field(default_factory=list)
+    refused: list = field(default_factory=list)
     rejected: list = field(default_factory=list)
     damaged: list = field(default_factory=list)
     stuck: list = field(default_factory=list)
@@ -301,9 +300,10 @@ def _submit_bounded(
             for future in done:
                 start, count, _ = running.pop(future)
                 if future.status == "finished":
-                    rejected = future.result()
-                    result.written += count - len(rejected)
-                    result.rejected += rejected
+                    unwritten = future.result()
+                    result.written += count - len(unwritten)
+                    for sample, reason, refused in unwritten:
+                        (result.refused if refused else result.rejected).append((sample, reason))
                     progress.update(count)
                 elif _lasting_storage_error(error := future.exception()):
                     result.stopped = f"{url}: {error.strerror} (errno {error.errno})"
@@ -375,6 +375,8 @@ def execute(
     workers: int | None = None,
     scheduler: str | None = None,
     security=None,
+    dashboard: bool = False,
+    verbose: bool = False,
     resume: bool = False,
     verify: bool = False,
     overwrite: bool = False,
@@ -390,6 +392,7 @@ def execute(
 
     With `resume` and `verify`, every completed sample is read back first
     (`service.integrity.verify`) and the damaged ones are rendered again with the missing ones.
+    `dashboard` and `verbose` go to `service.cluster.dask_client`.
 
     Everything is checked before anything is deleted or written, once before taking the
     store's writer lock (so a refused run leaves no trace) and again holding it (another
@@ -407,7 +410,12 @@ def execute(
             resuming, old_files, old_stats = _check_output(plan, url, **options)
         # connect before touching storage: an unreachable cluster leaves everything as it was
         connect = functools.partial(
-            dask_client, workers=workers, scheduler=scheduler, security=security
+            dask_client,
+            workers=workers,
+            scheduler=scheduler,
+            security=security,
+            dashboard=dashboard,
+            verbose=verbose,
         )
         with contextlib.nullcontext(client) if client is not None else connect() as client:
             probe = client.submit(lock.check_workers_see, url, storage_options, token, pure=False)
@@ -440,6 +448,7 @@ def execute(
             if not (
                 result.interrupted
                 or result.failed
+                or result.refused
                 or result.rejected
                 or result.stuck
                 or result.stopped

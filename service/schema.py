@@ -2,23 +2,37 @@
 
 A sweep is a scene (defaults for every sample), a set of parameters addressed by dotted
 paths into the scene (``target.depth``; `scene_field`), a method that turns them into
-parameter points (``grid``, ``zip`` or ``random``), and a number of Monte Carlo
-realisations per point.
+parameter points (``grid``, ``zip``, or `SAMPLED` ones: ``random`` and the space-filling
+designs of `scipy.stats.qmc`, ``latin_hypercube`` and ``sobol``), and a number of Monte
+Carlo realisations per point. `sweep_json_schema` is the file's JSON Schema, for editors.
 """
 
 from __future__ import annotations
 
 import math
-import re
 from typing import Annotated, Any, Literal
 
 import numpy as np
+import scipy.stats
 from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, model_validator
 
 from service.inputs import SweepError
 from workers.scene import Scene
 
-__all__ = ["Distribution", "Sweep", "SweepSpec", "Value", "Values", "field_units", "scene_field"]
+__all__ = [
+    "SAMPLED",
+    "Distribution",
+    "Sweep",
+    "SweepSpec",
+    "Value",
+    "Values",
+    "field_units",
+    "scene_field",
+    "sweep_json_schema",
+]
+
+SAMPLED = ("random", "latin_hypercube", "sobol")
+"""Methods that draw `count` points from distributions (and from lists, uniformly)."""
 
 
 class _Model(BaseModel):
@@ -38,7 +52,7 @@ class Value(_Model):
 
 
 class Distribution(_Model):
-    """A random distribution, for ``method: random``."""
+    """A distribution, for the `SAMPLED` methods (``random``, ``latin_hypercube``, ``sobol``)."""
 
     distribution: Literal["uniform", "log_uniform", "normal", "int_uniform"]
     min: float | None = None
@@ -82,6 +96,24 @@ class Distribution(_Model):
             math.ceil(self.min), math.floor(self.max), count, endpoint=True
         ).tolist()
 
+    def quantile(self, u: np.ndarray) -> list:
+        """The values at probabilities `u` in [0, 1) (inverse CDF), as plain Python numbers.
+
+        A design stratified in `u` (a Latin hypercube, a Sobol net) stays stratified in
+        probability. `u` is kept inside the open interval by 2⁻⁵³ so that a normal
+        distribution stays finite.
+        """
+        u = np.clip(u, 2.0**-53, 1.0 - 2.0**-53)
+        if self.distribution == "uniform":
+            return (self.min + u * (self.max - self.min)).tolist()
+        if self.distribution == "log_uniform":
+            low, high = np.log(self.min), np.log(self.max)
+            return np.exp(low + u * (high - low)).tolist()
+        if self.distribution == "normal":
+            return scipy.stats.norm.ppf(u, loc=self.mu, scale=self.sigma).tolist()
+        low, high = math.ceil(self.min), math.floor(self.max)
+        return np.minimum(low + np.floor(u * (high - low + 1)), high).astype(int).tolist()
+
 
 def _parameter_kind(data: Any) -> str | None:
     for model, kind in ((Values, "list"), (Value, "fixed"), (Distribution, "random")):
@@ -109,21 +141,28 @@ Parameter = Annotated[
 class SweepSpec(_Model):
     """How parameters combine into points."""
 
-    method: Literal["grid", "zip", "random"] = "grid"
+    method: Literal["grid", "zip", "random", "latin_hypercube", "sobol"] = "grid"
     count: int | None = Field(None, ge=1, le=10_000_000)
     parameters: dict[str, Parameter] = Field(default_factory=dict)
 
     @model_validator(mode="after")
     def _consistent(self) -> SweepSpec:
-        if self.method == "random":
+        if self.method in SAMPLED:
             if self.count is None:
-                raise ValueError("method random needs a count")
+                raise ValueError(f"method {self.method} needs a count")
         elif self.count is not None:
-            raise ValueError(f"count applies to method random only, not {self.method}")
-        if self.method != "random":
+            raise ValueError(f"count applies to methods {', '.join(SAMPLED)}, not {self.method}")
+        if self.method == "sobol" and self.count & (self.count - 1):
+            raise ValueError(
+                f"method sobol needs a count that is a power of two, not {self.count}: its "
+                "balance (one point in every elementary interval) holds for 2^m points"
+            )
+        if self.method not in SAMPLED:
             for path, parameter in self.parameters.items():
                 if isinstance(parameter, Distribution):
-                    raise ValueError(f"{path}: distributions need method random")
+                    raise ValueError(
+                        f"{path}: distributions need method {', '.join(SAMPLED[:-1])} or sobol"
+                    )
         if self.method == "zip":
             lengths = {
                 path: len(p.values) for path, p in self.parameters.items() if isinstance(p, Values)
@@ -171,6 +210,28 @@ def scene_field(path: str):
 
 
 def field_units(path: str) -> str:
-    """The unit a scene field's description gives in brackets at its end ('1' if none)."""
-    found = re.search(r"\[([^\]]+)\]\.?\s*$", scene_field(path).description or "")
-    return found.group(1) if found else "1"
+    """The unit a scene field declares (`workers.section.units`; "1": dimensionless)."""
+    return scene_field(path).json_schema_extra["units"]
+
+
+def sweep_json_schema() -> dict:
+    """The JSON Schema (2020-12) of sweep files, the scene's sections and units included.
+
+    `Sweep` takes the scene as a mapping (the service validates it as `workers.scene.Scene`
+    once measurement files are read); here the scene's own schema stands in its place, with
+    the ``file`` a conditioning may give instead of ``points`` (`service.measurements`).
+    Every scene field carries ``units`` (`workers.section.units`).
+    """
+    schema = Sweep.model_json_schema()
+    scene = Scene.model_json_schema()
+    definitions = schema.setdefault("$defs", {})
+    definitions.update(scene.pop("$defs", {}))
+    definitions["Scene"] = scene
+    definitions["Conditioning"]["properties"]["file"] = {
+        "type": "string",
+        "description": "CSV file of measured points (header x,y,elevation[,time]), relative "
+        "to the sweep file; instead of points.",
+    }
+    described = schema["properties"]["scene"].get("description", "")
+    schema["properties"]["scene"] = {"$ref": "#/$defs/Scene", "description": described}
+    return {"$schema": "https://json-schema.org/draft/2020-12/schema", **schema}

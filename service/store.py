@@ -27,7 +27,6 @@ from service.storage import KIND, LOCK_NAME
 from service.sweep import Plan
 from workers.labels import rendered_variables
 from workers.render import render, sample_labels
-from workers.seeds import SampleSeed
 
 __all__ = [
     "CODECS",
@@ -112,11 +111,8 @@ def check_uniform(plan: Plan) -> None:
 
 def sample_dataset(plan: Plan, sample: int) -> xr.Dataset:
     """Render sample `sample` of the plan, with its per-sample coordinates."""
-    point, realisation = divmod(sample, plan.realisations)
-    return render(
-        plan.scenes[point],
-        seed=SampleSeed(root=plan.sweep.seed, point=point, realisation=realisation),
-    )
+    address = plan.sample(sample)
+    return render(address.scene, seed=address.seed)
 
 
 def _coordinate_array(values: list) -> np.ndarray:

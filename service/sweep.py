@@ -2,8 +2,11 @@
 
 `load_sweep` reads a sweep file safely (`service.inputs`), inlines its measurement files
 (`service.measurements`), validates it against the schema (`service.schema`) and every
-point's scene, and expands the parameters into points (``grid``, ``zip`` or ``random``).
-Sample ``s`` is realisation ``s % realisations`` of point ``s // realisations``.
+point's scene, and expands the parameters into points (``grid``, ``zip``, ``random``, or
+the space-filling ``latin_hypercube`` and ``sobol`` of `scipy.stats.qmc`).
+`Plan.sample` addresses the samples, in one place: sample ``s`` is realisation
+``s % realisations`` of point ``s // realisations``, with the random streams of
+`workers.seeds.SampleSeed` keyed by (root seed, point, realisation).
 """
 
 from __future__ import annotations
@@ -18,16 +21,19 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from dask.utils import format_bytes
 from pydantic import ValidationError
+from scipy.stats import qmc
 
 from service.inputs import SweepError, read_text, read_yaml, shown, strict_numbers
 from service.measurements import inline_measurements
-from service.schema import Distribution, Sweep, Values, scene_field
+from service.schema import Distribution, Sweep, Value, Values, scene_field
 from workers.cascades import MAX_CASCADES
 from workers.scene import Scene
+from workers.seeds import SampleSeed
 from workers.spread import MAX_COARSE
 
-__all__ = ["Plan", "human_bytes", "load_sweep", "memory_estimate", "parse_sweep"]
+__all__ = ["Plan", "Sample", "load_sweep", "memory_estimate", "parse_sweep"]
 
 MAX_POINTS = 10_000_000
 DEFAULT_MAX_SAMPLES = 1_000_000
@@ -38,6 +44,38 @@ sets another, ``--no-limits`` lifts it."""
 MAX_TRAVEL = 100_000.0
 """Farthest the platform may fly during a sequence [m]: beyond 100 km, float32 ray
 coordinates resolve less than a centimetre, coarser than the surface grids need."""
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One sample of a plan: where it sits, what it renders, and how to name it.
+
+    Attributes
+    ----------
+    index : int
+        Position in the store's ``sample`` dimension.
+    point, realisation : int
+        Its parameter point and Monte Carlo realisation.
+    scene : Scene
+        The point's scene.
+    seed : SampleSeed
+        Its random streams (surface by realisation, noise by point and realisation).
+    values : dict
+        The point's swept values, by dotted path.
+    """
+
+    index: int
+    point: int
+    realisation: int
+    scene: Scene
+    seed: SampleSeed
+    values: dict[str, Any]
+
+    def describe(self) -> str:
+        """The sample by its point, swept values and realisation, for messages."""
+        values = ", ".join(f"{path}={shown(value)}" for path, value in self.values.items())
+        where = f"point {self.point}" + (f": {values}" if values else "")
+        return f"sample {self.index} ({where}; realisation {self.realisation})"
 
 
 @dataclass(frozen=True)
@@ -80,6 +118,26 @@ class Plan:
         """Dotted paths that vary across the sweep, in file order."""
         return tuple(self.sweep.sweep.parameters)
 
+    def sample(self, index: int) -> Sample:
+        """Sample `index` (0 to `samples` - 1) of the sweep.
+
+        Raises
+        ------
+        SweepError
+            If the sweep has no such sample.
+        """
+        if not 0 <= index < self.samples:
+            raise SweepError(f"sample {index}: the sweep has samples 0..{self.samples - 1}")
+        point, realisation = divmod(int(index), self.realisations)
+        return Sample(
+            index=int(index),
+            point=point,
+            realisation=realisation,
+            scene=self.scenes[point],
+            seed=SampleSeed(root=self.sweep.seed, point=point, realisation=realisation),
+            values=self.points[point],
+        )
+
     def sample_bytes(self) -> int:
         """Estimated stored bytes of the largest sample (uncompressed)."""
         return max(_sample_bytes(scene) for scene in self.scenes)
@@ -98,8 +156,8 @@ class Plan:
             )
         if self.total_bytes() > max_bytes:
             raise SweepError(
-                f"the sweep would store about {human_bytes(self.total_bytes())}, over the "
-                f"limit of {human_bytes(max_bytes)}; pass --no-limits to run it anyway"
+                f"the sweep would store about {format_bytes(self.total_bytes())}, over the "
+                f"limit of {format_bytes(max_bytes)}; pass --no-limits to run it anyway"
             )
 
 
@@ -111,15 +169,6 @@ def _sample_bytes(scene: Scene) -> int:
     if scene.save_surface:
         size += frames * scene.surface.grid_size**2 * 4
     return size
-
-
-def human_bytes(n: float) -> str:
-    """A byte count for people (binary units)."""
-    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
-        if n < 1024 or unit == "TiB":
-            return f"{n:.1f} {unit}"
-        n /= 1024
-    return f"{n:.1f} TiB"
 
 
 def _raw(data: dict, path: str) -> Any:
@@ -175,9 +224,9 @@ def _check_memory(scene: dict, max_memory: float | None) -> None:
     estimate = memory_estimate(scene)
     if max_memory is not None and estimate > max_memory:
         raise SweepError(
-            f"scene: one sample would need about {human_bytes(estimate)} of memory to render "
+            f"scene: one sample would need about {format_bytes(estimate)} of memory to render "
             f"(surface.grid_size, receiver.pixels, sequence.frames, measurement times), over "
-            f"the limit of {human_bytes(max_memory)}; pass --max-memory GIB or --no-limits "
+            f"the limit of {format_bytes(max_memory)}; pass --max-memory GIB or --no-limits "
             "to run it anyway"
         )
 
@@ -306,6 +355,8 @@ def _expand(sweep: Sweep) -> list[dict[str, Any]]:
     params = spec.parameters
     if not params:
         return [{}]
+    if spec.method in ("latin_hypercube", "sobol"):
+        return _design(sweep)
     if spec.method == "random":
         rng = np.random.Generator(
             np.random.PCG64(np.random.SeedSequence(sweep.seed, spawn_key=(2,)))
@@ -336,3 +387,35 @@ def _expand(sweep: Sweep) -> list[dict[str, Any]]:
         )
     combos = itertools.product(*lists.values())
     return [dict(zip(lists, combo, strict=True)) for combo in combos]
+
+
+def _design(sweep: Sweep) -> list[dict[str, Any]]:
+    """Points of a Latin hypercube or a scrambled Sobol sequence, in file order.
+
+    One dimension per parameter that varies (a fixed ``value`` takes none): a distribution
+    maps the design's coordinate u in [0, 1) through its inverse CDF
+    (`service.schema.Distribution.quantile`), a list of values picks ``values[⌊u n⌋]``.
+    The design's generator is seeded by the sweep's seed (its own stream, apart from
+    ``random``'s), so the points depend on the file alone.
+    """
+    spec = sweep.sweep
+    varying = [path for path, p in spec.parameters.items() if not isinstance(p, Value)]
+    rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(sweep.seed, spawn_key=(3,))))
+    if not varying:
+        unit = np.empty((spec.count, 0))
+    elif spec.method == "latin_hypercube":
+        unit = qmc.LatinHypercube(d=len(varying), rng=rng).random(spec.count)
+    else:
+        unit = qmc.Sobol(d=len(varying), rng=rng).random_base2(int(spec.count).bit_length() - 1)
+    columns = {}
+    for path, p in spec.parameters.items():
+        if isinstance(p, Value):
+            columns[path] = [p.value] * spec.count
+            continue
+        u = unit[:, varying.index(path)]
+        if isinstance(p, Distribution):
+            columns[path] = p.quantile(u)
+        else:
+            picks = np.minimum((u * len(p.values)).astype(int), len(p.values) - 1)
+            columns[path] = [p.values[i] for i in picks]
+    return [{path: columns[path][i] for path in spec.parameters} for i in range(spec.count)]

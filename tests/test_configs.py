@@ -1,5 +1,6 @@
 """The shipped sweep files: each runs end to end, and each says what it models."""
 
+import ast
 import shutil
 
 import numpy as np
@@ -78,3 +79,31 @@ def test_only_the_papers_examples_use_the_papers_shading(path):
     # Every scene of the sweep counts, defaults and swept values included.
     plan = load_sweep(path)
     assert {scene.target.shading for scene in plan.scenes} == {"lambert"}
+
+
+MODULES = sorted(
+    path for package in ("workers", "service") for path in (ROOT / package).glob("[!_]*.py")
+)
+
+
+def code_lines(path):
+    """Lines of code: docstrings (module, class, function), comments and blanks aside."""
+    source = path.read_text()
+    docstrings = set()
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Module | ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef):
+            first = node.body[0] if node.body else None
+            if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant):
+                if isinstance(first.value.value, str):
+                    docstrings.update(range(first.lineno, first.end_lineno + 1))
+    return sum(
+        1
+        for number, line in enumerate(source.splitlines(), 1)
+        if line.strip() and not line.strip().startswith("#") and number not in docstrings
+    )
+
+
+@pytest.mark.parametrize("path", MODULES, ids=[f"{p.parent.name}/{p.name}" for p in MODULES])
+def test_every_module_is_small_and_in_the_architecture(path):
+    assert code_lines(path) <= 350
+    assert f"| `{path.name}` |" in (ROOT / "ARCHITECTURE.md").read_text()

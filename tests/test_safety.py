@@ -243,7 +243,8 @@ def test_a_sample_with_non_finite_values_is_reported_and_never_marked_complete(
         main(["run", str(sweep), "--output", str(output), "--batch", "3", "--workers", "1"]) == 1
     )
     err = capsys.readouterr().err
-    assert "sample 4 (point 1: target.shape='none'; realisation 1) not stored" in err
+    assert "1 sample not stored: expected holds 1 non-finite value" in err
+    assert "\n  sample 4 (point 1: target.shape='none'; realisation 1)\n" in err
     assert "expected holds 1 non-finite value" in err and "Traceback" not in err
     assert xr.open_zarr(output)["completed"].values.tolist() == [1, 1, 1, 1, 0, 1]
     assert not list((output / "expected").glob("c.4.*"))
@@ -319,7 +320,8 @@ def test_a_frozen_task_is_given_up_and_named(tmp_path, monkeypatch, capsys, thre
     release.set()
     err = capsys.readouterr().err
     # tasks queued behind the frozen one on its worker may be given up too
-    assert "samples 2..2: no result 1 s after submission (a frozen worker?)" in err
+    assert "stuck: no result 1 s after submission (a frozen worker?); given up" in err
+    assert "\n  sample 2 (point 0: target.shape='sphere'; realisation 2)\n" in err
     assert "statistics not written" in err
 
 

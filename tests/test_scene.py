@@ -4,9 +4,10 @@ import math
 
 import pytest
 from conftest import run_cli
-from pydantic import ValidationError
+from pydantic import BaseModel, ValidationError
 
 from workers.instrument import MLDC_GATES
+from workers.render import render
 from workers.scene import Scene, footprint_span
 
 
@@ -235,3 +236,51 @@ def test_cli_validate_refuses_a_repeating_sea_with_a_message(tmp_path):
         sweep.read_text().replace("coarse_patches: []", "coarse_patches: [], allow_repeat: true")
     )
     assert run_cli("validate", allowed, cwd=tmp_path).returncode == 0
+
+
+def scene_leaves(model=Scene, prefix=""):
+    """(dotted path, pydantic field) of every value of the scene, sections walked into."""
+    for name, field in model.model_fields.items():
+        annotation = field.annotation
+        if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+            yield from scene_leaves(annotation, f"{prefix}{name}.")
+        else:
+            yield f"{prefix}{name}", field
+
+
+def test_every_scene_field_declares_its_unit_as_data():
+    leaves = dict(scene_leaves())
+    assert len(leaves) > 40 and "surface.conditioning.noise" in leaves
+    for path, field in leaves.items():
+        extra = field.json_schema_extra
+        assert isinstance(extra, dict) and extra.get("units"), f"{path} declares no unit"
+
+
+def test_scenes_are_hashable_and_equal_by_value():
+    data = {
+        "receiver": {"gates": [[2.0, 6.0], [5.0, 9.0]]},
+        "surface": {"conditioning": {"points": [[1.0, 2.0, 0.1], [2.0, 1.0, 0.0, 0.5]]}},
+    }
+    first = Scene.model_validate(data)
+    again = Scene.model_validate({**data, "water": {"preset": "coastal"}})
+    assert first == again and hash(first) == hash(again)
+    assert {first: "cached"}[again] == "cached"
+    assert first != Scene.model_validate({**data, "receiver": {"gates": [[2.0, 7.0]]}})
+
+
+def test_a_render_never_round_trips_its_scene_through_json(monkeypatch):
+    scene = Scene.model_validate(
+        {
+            "surface": {"grid_size": 32, "spacing": 0.1, "allow_repeat": True},
+            "receiver": {"pixels": 16, "gates": [[2.0, 6.0]]},
+            "radiometry": {"mode": "normalised", "white_plane_photons": 0},
+        }
+    )
+
+    def refused(*args, **kwargs):
+        raise AssertionError("the scene went through JSON")
+
+    monkeypatch.setattr(Scene, "model_dump_json", refused)
+    monkeypatch.setattr(Scene, "model_validate_json", refused)
+    ds = render(scene, seed=1)
+    assert ds.expected.shape == (1, 1, 16, 16)

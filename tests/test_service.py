@@ -4,12 +4,14 @@ import os
 import re
 import signal
 import subprocess
+import textwrap
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 import xarray as xr
+import yaml
 from conftest import ROOT, run_cli, start_cli
 
 from service import integrity, storage, store
@@ -263,6 +265,59 @@ def test_readme_training_example_runs(tmp_path, monkeypatch):
     exec(compile(code, "README.md", "exec"), {})
 
 
+FENCE = re.compile(r"^ {0,3}(`{3,}|~{3,})\s*([^`\s]*)")
+
+
+def code_blocks(text):
+    """CommonMark fenced blocks: (first line, last line or None if never closed, language,
+    lines)."""
+    blocks, opened = [], None
+    for number, line in enumerate(text.splitlines(), 1):
+        fence = FENCE.match(line)
+        if opened is None:
+            if fence:
+                opened = (number, fence.group(1), fence.group(2), [])
+            continue
+        start, marker, language, lines = opened
+        closing = fence and fence.group(1)[0] == marker[0] and len(fence.group(1)) >= len(marker)
+        if closing and not fence.group(2) and line.strip() == fence.group(1):
+            blocks.append((start, number, language, lines))
+            opened = None
+        else:
+            lines.append(line)
+    if opened is not None:
+        blocks.append((opened[0], None, opened[2], opened[3]))
+    return blocks
+
+
+def test_readme_fences_close_and_swallow_no_section():
+    readme = (ROOT / "README.md").read_text()
+    blocks = code_blocks(readme)
+    assert len(blocks) >= 7
+    for start, end, language, lines in blocks:
+        assert end is not None, f"README line {start}: a code fence that never closes"
+        swallowed = [line for line in lines if re.match(r"#{1,6} \S", line)]
+        assert not swallowed, f"README line {start}: a code block swallows {swallowed}"
+        if language == "yaml":  # prose swallowed by a block is not YAML
+            yaml.safe_load(textwrap.dedent("\n".join(lines)))
+        if language == "python":
+            compile("\n".join(lines), f"README.md line {start}", "exec")
+    code = {number for start, end, _, _ in blocks for number in range(start, end + 1)}
+    headings = [
+        line
+        for number, line in enumerate(readme.splitlines(), 1)
+        if number not in code and line.startswith("#")
+    ]
+    assert {"### The sweep file", "### The dataset", "## Layout"} <= set(headings)
+
+
+def test_a_swallowing_fence_is_caught():
+    broken = "intro\n\n```yaml\na: 1\n```yaml\n\n### The dataset\n\ntext\n```\n"
+    ((start, end, _, lines),) = code_blocks(broken)
+    assert (start, end) == (3, 10) and "### The dataset" in lines
+    assert code_blocks("```bash\nls\n")[0][1] is None
+
+
 def test_overwrite_never_deletes_what_is_not_a_store(tmp_path, capsys):
     victim = tmp_path / "thesis"
     (victim / "chapter").mkdir(parents=True)
@@ -316,3 +371,22 @@ def test_the_embedded_cluster_listens_on_loopback_only():
         opened = listening() - before
     assert opened, "the cluster should listen somewhere"
     assert {address.ip for _, address in opened} == {"127.0.0.1"}
+
+
+def test_a_scene_that_cannot_be_rendered_is_refused_once_with_its_parameters(tmp_path):
+    """A singular kriging system is the input's error: reported per sample, never retried."""
+    near = "[[1.0, 2.0, 0.1], [1.000001, 2.0, 0.1]]"
+    text = SWEEP.replace(
+        "allow_repeat: true}", f"allow_repeat: true, conditioning: {{points: {near}}}}}"
+    )
+    sweep = write(tmp_path / "singular.yaml", text)
+    result = run_cli("run", sweep, "--workers", 1, "--batch", 3, cwd=tmp_path)
+    assert result.returncode == 1, result.stderr
+    err = result.stderr
+    reason = "12 samples refused (bad input, not retried): surface.conditioning.points: "
+    assert err.count(reason) == 1 and "ill-conditioned" in err
+    refused = re.findall(r"^  sample (\d+) \(point \d: (.*)\)$", err, re.M)
+    assert [int(sample) for sample, _ in refused] == list(range(12))
+    assert refused[4][1] == "target.depth=3.0, target.shape='none'; realisation 1"
+    assert " failed: " not in err
+    assert "Traceback" not in result.stderr

@@ -109,10 +109,7 @@ def test_deep_gate_backscatter_matches_a_brute_force_linear_convolution(
     brute_force(monkeypatch)
     try:
         reference = render(scene, seed=3).expected.values[0, 0]
-        assert (
-            planes_module.frame_geometry(scene.model_dump_json(), 0).gate_planes[0].levels.factor
-            == 1
-        )
+        assert planes_module.frame_geometry(scene, 0).gate_planes[0].levels.factor == 1
     finally:
         planes_module.frame_geometry.cache_clear()
     assert_allclose(fast.mean(), reference.mean(), rtol=rtol)

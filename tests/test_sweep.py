@@ -6,9 +6,12 @@ import sys
 import textwrap
 import tracemalloc
 
+import numpy as np
 import pytest
+import xarray as xr
 from conftest import cli_command, run_cli
 
+from service import store
 from service.inputs import SweepError
 from service.sweep import load_sweep, memory_estimate, parse_sweep
 from workers.render import render
@@ -286,8 +289,9 @@ def test_inputs_must_be_regular_files(tmp_path, role):
     os.mkfifo(tmp_path / "fifo.yaml")
     for name in ("zero.yaml", "fifo.yaml"):
         sweep = conditioned(tmp_path, name) if role == "measurements" else tmp_path / name
-        if name == "zero.yaml":
-            with pytest.raises(SweepError, match="not a regular file"):
+        if name == "zero.yaml":  # a measurement link to /dev/zero also leads out of the folder
+            refused = "not a regular file" if role == "sweep" else "leads out of the sweep"
+            with pytest.raises(SweepError, match=refused):
                 load_sweep(sweep)
             continue
         # a FIFO blocks whoever opens it for reading: a process of its own, and a timeout
@@ -355,7 +359,7 @@ def test_memory_is_estimated_before_anything_is_built(tmp_path, capsys):
     from service.cli import main
 
     frames = BASE.replace("pixels: 16}", "pixels: 1024}\n  sequence: {frames: 64}")
-    with pytest.raises(SweepError, match=r"would need about .* GiB .* over the limit of 4\.0 GiB"):
+    with pytest.raises(SweepError, match=r"would need about .* GiB .* limit of 4\.00 GiB"):
         parse_sweep(frames)
     assert parse_sweep(frames, max_memory=None).scenes[0].receiver.pixels == 1024
     # 24 measurement times on a 2048² grid: the kriging system alone, refused unbuilt
@@ -371,7 +375,7 @@ def test_memory_is_estimated_before_anything_is_built(tmp_path, capsys):
     sweep.write_text(frames)
     assert main(["validate", str(sweep)]) == 2
     assert "--max-memory" in capsys.readouterr().err
-    assert main(["validate", str(sweep), "--max-memory", "400"]) == 0
+    assert main(["validate", str(sweep), "--max-memory", "400", "--no-estimate"]) == 0
 
 
 def _empty_worker_caches():
@@ -420,3 +424,91 @@ def test_the_memory_estimate_bounds_the_render_from_above(sections):
     finally:
         tracemalloc.stop()
     assert peak <= estimate <= 8 * peak, (peak / 2**20, estimate / 2**20)
+
+
+def test_the_store_carries_every_swept_fields_unit(tmp_path):
+    """The seven fields whose unit the store once gave as 1 (units were read from prose)."""
+    expected = {
+        "target.x": "m",
+        "target.y": "m",
+        "surface.max_elevation": "m",
+        "water.theta0": "rad",
+        "platform.azimuth_deg": "degree",
+        "receiver.field_of_view_deg": "degree",
+        "laser.field_of_view_deg": "degree",
+        "target.depth": "m",
+        "water.absorption": "1/m",
+        "sequence.interval": "s",
+        "surface.grid_size": "1",
+    }
+    values = {
+        "target.x": [0.5, 1.0],
+        "target.y": [0.5, 1.0],
+        "surface.max_elevation": [0.1, 0.2],
+        "water.theta0": [0.1, 0.12],
+        "platform.azimuth_deg": [0.0, 10.0],
+        "receiver.field_of_view_deg": [6.0, 6.7],
+        "laser.field_of_view_deg": [6.0, 6.7],
+        "target.depth": [3.0, 4.0],
+        "water.absorption": [0.1, 0.2],
+        "sequence.interval": [0.1, 0.2],
+        "surface.grid_size": [32, 32],
+    }
+    lines = "".join(f"    {path}: {{values: {v}}}\n" for path, v in values.items())
+    plan = parse_sweep(BASE + "sweep:\n  method: zip\n  parameters:\n" + lines)
+    url = str(tmp_path / "units.zarr")
+    store.create_store(plan, url)
+    ds = xr.open_zarr(url)
+    assert {path: ds[path].attrs["units"] for path in expected} == expected
+
+
+DESIGN = """
+    sweep:
+      method: {method}
+      count: {count}
+      parameters:
+        target.depth: {{distribution: uniform, min: 2.0, max: 10.0}}
+        water.theta0: {{distribution: uniform, min: 0.05, max: 0.15}}
+        target.radius: {{value: 0.2}}
+        target.shape: {{values: [sphere, disk]}}
+"""
+
+
+def design(method, count, seed=3):
+    text = BASE + textwrap.dedent(DESIGN.format(method=method, count=count))
+    plan = parse_sweep(replaced(text, "seed: 3", f"seed: {seed}"))
+    depth = np.array([point["target.depth"] for point in plan.points])
+    theta0 = np.array([point["water.theta0"] for point in plan.points])
+    return plan, (depth - 2.0) / 8.0, (theta0 - 0.05) / 0.1
+
+
+@pytest.mark.parametrize("method", ["latin_hypercube", "sobol"])
+def test_space_filling_designs_stratify_every_parameter(method):
+    count = 16
+    plan, depth, theta0 = design(method, count)
+    assert len(plan.points) == count
+    for u in (depth, theta0):  # one point in each of the count equal strata, per parameter
+        assert sorted(np.floor(u * count).astype(int)) == list(range(count))
+    assert {point["target.radius"] for point in plan.points} == {0.2}
+    shapes = [point["target.shape"] for point in plan.points]
+    assert shapes.count("sphere") == shapes.count("disk") == count // 2
+    again, _, _ = design(method, count)
+    assert again.points == plan.points and again.digest == plan.digest
+    other, _, _ = design(method, count, seed=4)
+    assert other.points != plan.points
+
+
+def test_sobol_points_form_a_net_over_two_parameters():
+    # the first two Sobol dimensions are a (0, 4, 2)-net in base 2 (scrambling keeps it):
+    # every elementary box 2^-a x 2^-(4 - a) holds exactly one of the 16 points
+    _, depth, theta0 = design("sobol", 16)
+    for a in range(5):
+        boxes = np.floor(depth * 2**a).astype(int) * 2 ** (4 - a) + np.floor(
+            theta0 * 2 ** (4 - a)
+        ).astype(int)
+        assert sorted(boxes) == list(range(16)), a
+
+
+def test_sobol_needs_a_power_of_two():
+    with pytest.raises(SweepError, match="power of two, not 12"):
+        design("sobol", 12)

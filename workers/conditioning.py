@@ -50,7 +50,7 @@ from workers.cascades import Sea
 from workers.spectra import dispersion
 from workers.surface import Modes
 
-__all__ = ["RCOND", "Kriging", "kriging", "space_time_covariance"]
+__all__ = ["RCOND", "Kriging", "check_points", "kriging", "space_time_covariance"]
 
 RCOND = 1e-9
 """Smallest accepted ratio of the smallest to the largest eigenvalue of K (1 / condition
@@ -278,6 +278,49 @@ class Kriging:
         return corrections
 
 
+def check_points(points, *, period: float) -> np.ndarray:
+    """Measured points checked without building anything: finite, on the patch, each once.
+
+    Parameters
+    ----------
+    points : sequence of sequence of float
+        Measurements (x, y, elevation) or (x, y, elevation, time), as `kriging` takes them.
+    period : float
+        Side of the sea's coarsest periodic patch (`workers.cascades.Sea.patches`), m.
+
+    Returns
+    -------
+    numpy.ndarray
+        The points as rows (x, y, elevation, time), float64 of shape (D, 4).
+
+    Raises
+    ------
+    ValueError
+        For no point, a value not finite, a point outside the coarsest patch, or two
+        points at the same place and time.
+    """
+    data = np.array([(*p[:3], p[3] if len(p) > 3 else 0.0) for p in points], dtype=np.float64)
+    if data.ndim != 2 or data.shape[0] == 0:
+        raise ValueError("conditioning needs at least one point [x, y, elevation(, time)]")
+    if not np.all(np.isfinite(data)):
+        raise ValueError("conditioning points must be finite numbers")
+    for index, (x, y) in enumerate(data[:, :2]):
+        if not (0.0 <= x < period and 0.0 <= y < period):
+            raise ValueError(
+                f"point {index} (x={x:g} m, y={y:g} m) lies off the sea's coarsest patch, "
+                f"which covers [0, {period:g}) m in x and y"
+            )
+    seen: dict[tuple[float, float, float], int] = {}
+    for index, (x, y, _, t) in enumerate(data):
+        first = seen.setdefault((x, y, t), index)
+        if first != index:
+            raise ValueError(
+                f"points {first} and {index} are both at x={x:g} m, y={y:g} m, t={t:g} s; "
+                "give each place and time once"
+            )
+    return data
+
+
 @functools.lru_cache(maxsize=16)
 def kriging(sea: Sea, *, points: tuple[tuple[float, ...], ...], noise: float) -> Kriging:
     r"""Build and check the kriging system of measured elevations.
@@ -319,28 +362,9 @@ def kriging(sea: Sea, *, points: tuple[tuple[float, ...], ...], noise: float) ->
     .. [2] Chilès, J.-P., & Delfiner, P. (2012). Geostatistics: Modeling Spatial
        Uncertainty, 2nd ed., §7.3.1 (conditioning by kriging). Wiley.
     """
-    data = np.array([(*p[:3], p[3] if len(p) > 3 else 0.0) for p in points], dtype=np.float64)
-    if data.ndim != 2 or data.shape[0] == 0:
-        raise ValueError("conditioning needs at least one point [x, y, elevation(, time)]")
-    if not np.all(np.isfinite(data)):
-        raise ValueError("conditioning points must be finite numbers")
+    data = check_points(points, period=sea.patches[-1])
     if not (np.isfinite(noise) and noise >= 0):
         raise ValueError(f"noise must be a non-negative number of metres, got {noise}")
-    period = sea.patches[-1]
-    for index, (x, y) in enumerate(data[:, :2]):
-        if not (0.0 <= x < period and 0.0 <= y < period):
-            raise ValueError(
-                f"point {index} (x={x:g} m, y={y:g} m) lies off the sea's coarsest patch, "
-                f"which covers [0, {period:g}) m in x and y"
-            )
-    seen: dict[tuple[float, float, float], int] = {}
-    for index, (x, y, _, t) in enumerate(data):
-        first = seen.setdefault((x, y, t), index)
-        if first != index:
-            raise ValueError(
-                f"points {first} and {index} are both at x={x:g} m, y={y:g} m, t={t:g} s; "
-                "give each place and time once"
-            )
 
     groups: dict[float, list[int]] = defaultdict(list)
     for index, t in enumerate(data[:, 3]):

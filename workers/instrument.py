@@ -2,7 +2,7 @@
 
 Validated settings only; the physics they describe is in `workers.geometry`,
 `workers.sensor`, `workers.gates`, `workers.radiometry` and `workers.noise`. Every field
-carries its unit in its description (see `workers.scene`).
+declares its unit as data (`workers.section.units`).
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from workers.section import Section
+from workers.section import Section, units
 
 __all__ = [
     "MLDC_GATES",
@@ -39,16 +39,23 @@ Carmona, Cérou & Blasco (2000), table 1: 12–32, 16–36, 20–40, 25–40, 35
 class Platform(Section):
     """Where the sensor head is and where it points (laser and receiver share a boresight)."""
 
-    altitude: float = Field(34.0, gt=1.0, le=5000.0, description="Height above mean sea [m].")
+    altitude: float = Field(
+        34.0, gt=1.0, le=5000.0, description="Height above mean sea.", json_schema_extra=units("m")
+    )
     nadir_deg: float = Field(
-        0.0, ge=0.0, le=60.0, description="Angle of the central ray from the vertical [deg]."
+        0.0,
+        ge=0.0,
+        le=60.0,
+        description="Angle of the central ray from the vertical.",
+        json_schema_extra=units("degree"),
     )
     azimuth_deg: float = Field(
         0.0,
         ge=-360.0,
         le=360.0,
-        description="Compass azimuth of the central ray, clockwise from north (+y) [deg]. "
+        description="Compass azimuth of the central ray, clockwise from north (+y). "
         "The image's top edge lies towards it.",
+        json_schema_extra=units("degree"),
     )
 
 
@@ -56,26 +63,33 @@ class Laser(Section):
     """The illuminating laser: a Gaussian beam I0 = J exp(-r²/a²), r = a at the field edge."""
 
     beam: Literal["divergent", "parallel"] = Field(
-        "divergent", description="`divergent` from the platform, or `parallel` rays."
+        "divergent",
+        description="`divergent` from the platform, or `parallel` rays.",
+        json_schema_extra=units("1"),
     )
     field_of_view_deg: float | None = Field(
         None,
         gt=0.0,
         le=60.0,
-        description="Full opening of the laser field [deg]; null: the receiver's.",
+        description="Full opening of the laser field; null: the receiver's.",
+        json_schema_extra=units("degree"),
     )
     rays: int | None = Field(
         None,
         ge=8,
         le=4096,
-        description="Rays per side of the laser's square ray lattice [1]; null: one per "
+        description="Rays per side of the laser's square ray lattice; null: one per "
         "receiver pixel spacing.",
+        json_schema_extra=units("1"),
     )
 
 
 GateList = Annotated[
-    list[
-        tuple[Annotated[float, Field(ge=0.0, le=500.0)], Annotated[float, Field(ge=0.0, le=500.0)]]
+    tuple[
+        tuple[
+            Annotated[float, Field(ge=0.0, le=500.0)], Annotated[float, Field(ge=0.0, le=500.0)]
+        ],
+        ...,
     ],
     Field(min_length=1, max_length=32),
 ]
@@ -84,13 +98,24 @@ GateList = Annotated[
 class Receiver(Section):
     """The gated pinhole cameras (one per gate, common boresight)."""
 
-    pixels: int = Field(128, ge=8, le=2048, description="Pixels per side of each image [1].")
+    pixels: int = Field(
+        128,
+        ge=8,
+        le=2048,
+        description="Pixels per side of each image.",
+        json_schema_extra=units("1"),
+    )
     field_of_view_deg: float = Field(
-        6.7, gt=0.1, le=60.0, description="Full field of view α [deg] (paper: 6.7)."
+        6.7,
+        gt=0.1,
+        le=60.0,
+        description="Full field of view α (paper: 6.7).",
+        json_schema_extra=units("degree"),
     )
     gates: Literal["mldc"] | GateList = Field(
         "mldc",
-        description="`mldc` (the six ML(DC) gates) or a list of [top, bottom] depths [m].",
+        description="`mldc` (the six ML(DC) gates) or a list of [top, bottom] depths.",
+        json_schema_extra=units("m"),
     )
 
     @model_validator(mode="after")
@@ -129,6 +154,7 @@ class Radiometry(Section):
         "absolute",
         description="`absolute` (the lidar equation with the system below) or `normalised` "
         "(brightness fixed per scene by `white_plane_photons`).",
+        json_schema_extra=units("1"),
     )
     white_plane_photons: float | None = Field(
         None,
@@ -136,35 +162,40 @@ class Radiometry(Section):
         le=1.0e9,
         description="Normalised mode only (required there, refused in absolute mode): mean "
         "photoelectrons a pixel gets from a ρ = 1 Lambertian plane just under a flat sea at "
-        "nadir, no water path; 0: no noise, signal in units of that plane [photoelectrons].",
+        "nadir, no water path; 0: no noise, signal in units of that plane.",
+        json_schema_extra=units("photoelectrons"),
     )
     pulse_energy: float = Field(
         0.1,
         gt=0.0,
         le=10.0,
         description="Absolute mode: energy of one laser pulse leaving the transmitter; "
-        "default 0.1 J, a flash-lamp-pumped frequency-doubled Nd:YAG [J].",
+        "default 0.1 J, a flash-lamp-pumped frequency-doubled Nd:YAG.",
+        json_schema_extra=units("J"),
     )
     wavelength: float = Field(
         532.0e-9,
         ge=350.0e-9,
         le=1100.0e-9,
         description="Absolute mode: laser wavelength, for the photon energy hc/λ only (the "
-        "water presets stay those near 514 nm); default 532 nm [m].",
+        "water presets stay those near 514 nm); default 532 nm.",
+        json_schema_extra=units("m"),
     )
     receiver_aperture: float = Field(
         0.1,
         gt=0.0,
         le=2.0,
         description="Absolute mode: entrance-pupil diameter of each gated receiver; default "
-        "0.1 m, a 150 mm f/1.5 lens on an 18 mm intensifier for a 6.7° field [m].",
+        "0.1 m, a 150 mm f/1.5 lens on an 18 mm intensifier for a 6.7° field.",
+        json_schema_extra=units("m"),
     )
     optics_transmission: float = Field(
         0.5,
         gt=0.0,
         le=1.0,
         description="Absolute mode: fraction of the light entering the aperture that reaches "
-        "the photocathode (window, lens, 532 nm band-pass filter); default 0.5 [1].",
+        "the photocathode (window, lens, 532 nm band-pass filter); default 0.5.",
+        json_schema_extra=units("1"),
     )
     quantum_efficiency: float = Field(
         0.15,
@@ -172,7 +203,8 @@ class Radiometry(Section):
         le=1.0,
         description="Absolute mode: photoelectrons per photon at the intensifier's "
         "photocathode at the laser wavelength; default 0.15, a multialkali (S-20/S-25) "
-        "cathode at 532 nm [1].",
+        "cathode at 532 nm.",
+        json_schema_extra=units("1"),
     )
 
     @model_validator(mode="after")
@@ -211,17 +243,33 @@ class Noise(Section):
             )
         return data
 
-    gain: float = Field(1.0, ge=1.0, le=1.0e6, description="ICCD gain [counts/photoelectron].")
+    gain: float = Field(
+        1.0,
+        ge=1.0,
+        le=1.0e6,
+        description="ICCD gain.",
+        json_schema_extra=units("counts/photoelectron"),
+    )
     excess_noise: float = Field(
-        1.0, ge=1.0, le=10.0, description="Excess-noise factor F of the intensifier [1]."
+        1.0,
+        ge=1.0,
+        le=10.0,
+        description="Excess-noise factor F of the intensifier.",
+        json_schema_extra=units("1"),
     )
 
 
 class Sequence(Section):
     """A video: the same surface realisation evolving while the platform moves."""
 
-    frames: int = Field(1, ge=1, le=10000, description="Number of frames [1].")
-    interval: float = Field(0.1, gt=0.0, le=3600.0, description="Time between frames [s].")
+    frames: int = Field(
+        1, ge=1, le=10000, description="Number of frames.", json_schema_extra=units("1")
+    )
+    interval: float = Field(
+        0.1, gt=0.0, le=3600.0, description="Time between frames.", json_schema_extra=units("s")
+    )
     velocity: tuple[float, float, float] = Field(
-        (0.0, 0.0, 0.0), description="Platform velocity (east, north, up) [m/s]."
+        (0.0, 0.0, 0.0),
+        description="Platform velocity (east, north, up).",
+        json_schema_extra=units("m/s"),
     )

@@ -88,7 +88,7 @@ def _in_view(sensor, grid: PlaneGrid, occupancy, refractive_index, block: int = 
 
 
 @functools.lru_cache(maxsize=256)
-def _visibility(key: str) -> tuple[int, ...]:
+def _visibility(scene: Scene) -> tuple[int, ...]:
     r"""Label of the target against each gate, from what a flat sea's pixels would show.
 
     On the first frame's target plane under a flat sea, without blur, two sums run over the
@@ -104,8 +104,7 @@ def _visibility(key: str) -> tuple[int, ...]:
     any of the slab (geometrically, whatever β(π)): ``shadow``; else ``below_gate`` (its
     visible surface lies below the slab: the pixels show nothing of it).
     """
-    setup = scene_setup(key)
-    scene = setup.scene
+    setup = scene_setup(scene)
     count = len(setup.gates)
     if scene.target.shape == "none":
         return (VISIBILITY["none"],) * count
@@ -157,7 +156,7 @@ def sample_labels(scene: Scene) -> xr.Dataset:
         ``target_present`` (), ``target_visibility`` (gate) and the coordinates
         ``gate_top``, ``gate_bottom`` (gate), ``time`` and ``platform_x/y/z`` (frame).
     """
-    setup = scene_setup(scene.model_dump_json())
+    setup = scene_setup(scene)
     gates = np.asarray(setup.gates)
     times = np.arange(scene.sequence.frames) * scene.sequence.interval
     position = np.stack([platform_position(scene, t) for t in times])
@@ -169,7 +168,7 @@ def sample_labels(scene: Scene) -> xr.Dataset:
         ),
         "target_visibility": (
             ("gate",),
-            np.asarray(_visibility(scene.model_dump_json()), dtype=np.uint8),
+            np.asarray(_visibility(scene), dtype=np.uint8),
             {
                 "long_name": "target position relative to the gate",
                 "units": "1",

@@ -15,6 +15,7 @@ from workers.gates import hidden_fraction
 from workers.geometry import LaserRays, Located, PlaneGrid, flat_sea_point
 from workers.interface import ray_components
 from workers.optics import fresnel_reflectance
+from workers.scene import Scene
 from workers.sensor import (
     Sensor,
     Setup,
@@ -167,10 +168,9 @@ def _beam_tail(setup: Setup, sensor: Sensor, levels: Levels, tail: LaserRays, ga
 
 
 @functools.lru_cache(maxsize=64)
-def frame_geometry(key: str, frame: int) -> FrameGeometry:
-    """Sensor rays, planes, filters and target maps of `frame` (cached by scene JSON, frame)."""
-    setup = scene_setup(key)
-    scene = setup.scene
+def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
+    """Sensor rays, planes, filters and target maps of `frame` (cached by scene and frame)."""
+    setup = scene_setup(scene)
     water = setup.water
     sensor = sensor_at(setup, frame)
     camera, r = sensor.camera, scene.receiver

@@ -80,15 +80,14 @@ def render(scene: Scene, *, seed: int | SampleSeed) -> xr.Dataset:
     """
     if not isinstance(seed, SampleSeed):
         seed = SampleSeed(root=int(seed))
-    key = scene.model_dump_json()
-    setup = scene_setup(key)
+    setup = scene_setup(scene)
     frames = scene.sequence.frames
     times = np.arange(frames) * scene.sequence.interval
     surface = setup.surface(seed, times)
     expected = []
     masks = []
     for frame in range(frames):
-        geometry = frame_geometry(key, frame)
+        geometry = frame_geometry(scene, frame)
         signal, mask = _render_frame(setup, geometry, surface, frame)
         expected.append(signal)
         masks.append(mask)

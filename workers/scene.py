@@ -1,10 +1,11 @@
 """The parameters of one sample: a frozen, validated description of the scene.
 
-Every field carries its unit in its description, a default and a valid range. Angles that a
-person types are in degrees and named ``*_deg``; everything else is SI (metres, seconds,
-1/m). The nesting is what sweep files address with dotted paths (``target.depth``; see the
-README's sweep file). The sections `Scene` nests are in `workers.sea` (surface, water,
-target) and `workers.instrument` (platform, laser, receiver, radiometry, noise, sequence).
+Every field declares its unit as data (`workers.section.units`), a default and a valid
+range. Angles that a person types are in degrees and named ``*_deg``; everything else is SI
+(metres, seconds, 1/m). The nesting is what sweep files address with dotted paths
+(``target.depth``; see the README's sweep file). The sections `Scene` nests are in
+`workers.sea` (surface, water, target) and `workers.instrument` (platform, laser, receiver,
+radiometry, noise, sequence).
 """
 
 from __future__ import annotations
@@ -15,9 +16,10 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from workers.cascades import Sea
+from workers.conditioning import check_points
 from workers.instrument import Laser, Noise, Platform, Radiometry, Receiver, Sequence
 from workers.sea import SurfaceSpec, Target, Water
-from workers.section import Section
+from workers.section import Section, units
 
 __all__ = ["Scene", "footprint_span"]
 
@@ -103,7 +105,9 @@ class Scene(Section):
     noise: Noise = Noise()
     sequence: Sequence = Sequence()
     save_surface: bool = Field(
-        False, description="Store the surface elevation of every frame with the sample."
+        False,
+        description="Store the surface elevation of every frame with the sample.",
+        json_schema_extra=units("1"),
     )
 
     @property
@@ -173,11 +177,12 @@ class Scene(Section):
             if self.save_surface:
                 self.surface_spacing()
             return self
-        try:
-            surface.kriging(sea)
-        except ValueError as error:
-            raise ValueError(f"surface.conditioning.points: {error}") from None
         period = sea.patches[-1]
+        if surface.conditioning.points:
+            try:  # on the patch, each place and time once; the system is built to render
+                check_points(surface.conditioning.points, period=period)
+            except ValueError as error:
+                raise ValueError(f"surface.conditioning.points: {error}") from None
         if span > period and not surface.allow_repeat:
             climb = self.sequence.velocity[2] * self.sequence.interval * (self.sequence.frames - 1)
             altitude = self.platform.altitude + max(climb, 0.0)

@@ -2,7 +2,7 @@
 
 Validated settings only; the physics they describe is in `workers.spectra`,
 `workers.surface`, `workers.conditioning`, `workers.water` and `workers.target`. Every field
-carries its unit in its description (see `workers.scene`).
+declares its unit as data (`workers.section.units`).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from pydantic import Field, model_validator
 from workers import spectra
 from workers.cascades import MAX_CASCADES, Sea, check_patches, default_patches
 from workers.conditioning import Kriging, kriging
-from workers.section import Section
+from workers.section import SceneError, Section, units
 from workers.water import PRESETS
 
 __all__ = ["Conditioning", "SurfaceSpec", "Target", "Water"]
@@ -24,7 +24,7 @@ __all__ = ["Conditioning", "SurfaceSpec", "Target", "Water"]
 PositiveFloat = Annotated[float, Field(gt=0.0, allow_inf_nan=False)]
 
 Measurement = Annotated[
-    list[Annotated[float, Field(allow_inf_nan=False)]], Field(min_length=3, max_length=4)
+    tuple[Annotated[float, Field(allow_inf_nan=False)], ...], Field(min_length=3, max_length=4)
 ]
 
 
@@ -38,15 +38,20 @@ class Conditioning(Section):
     `service.measurements`). See `workers.conditioning`.
     """
 
-    points: list[Measurement] | None = Field(
+    points: tuple[Measurement, ...] | None = Field(
         None,
         max_length=1000,
         description="Measured points [x, y, elevation] or [x, y, elevation, time], time "
-        "on the frames' clock (default 0, the first frame); null: no conditioning "
-        "[m, m, m, s].",
+        "on the frames' clock (default 0, the first frame), in m, m, m and s; null: no "
+        "conditioning.",
+        json_schema_extra=units("m, m, m, s"),
     )
     noise: float = Field(
-        0.0, ge=0.0, le=10.0, description="Measurement noise standard deviation [m]."
+        0.0,
+        ge=0.0,
+        le=10.0,
+        description="Measurement noise standard deviation.",
+        json_schema_extra=units("m"),
     )
 
 
@@ -56,56 +61,77 @@ class SurfaceSpec(Section):
     spectrum: Literal["elfouhaily", "phillips", "pierson_moskowitz", "jonswap", "flat"] = Field(
         "elfouhaily",
         description="Directional wave spectrum; `flat` is a mirror-flat sea.",
+        json_schema_extra=units("1"),
     )
     wind_speed: float = Field(
-        5.0, ge=0.5, le=30.0, description="Wind speed 10 m above the sea, U10 [m/s]."
+        5.0,
+        ge=0.5,
+        le=30.0,
+        description="Wind speed 10 m above the sea, U10.",
+        json_schema_extra=units("m/s"),
     )
     wind_direction_deg: float = Field(
         0.0,
         ge=-360.0,
         le=360.0,
-        description="Direction the wind blows towards, counter-clockwise from +x (east) [deg].",
+        description="Direction the wind blows towards, counter-clockwise from +x (east).",
+        json_schema_extra=units("degree"),
     )
-    fetch: float = Field(1.0e5, gt=0.0, le=1.0e7, description="Fetch, used by `jonswap` only [m].")
+    fetch: float = Field(
+        1.0e5,
+        gt=0.0,
+        le=1.0e7,
+        description="Fetch, used by `jonswap` only.",
+        json_schema_extra=units("m"),
+    )
     inverse_wave_age: float = Field(
         0.84,
         ge=0.84,
         le=5.0,
         description="Inverse wave age U10/c_p, used by `elfouhaily` only (0.84: fully "
-        "developed sea) [1].",
+        "developed sea).",
+        json_schema_extra=units("1"),
     )
     grid_size: int = Field(
-        256, ge=16, le=4096, description="Points per side of the periodic surface grid [1]."
+        256,
+        ge=16,
+        le=4096,
+        description="Points per side of the periodic surface grid.",
+        json_schema_extra=units("1"),
     )
     spacing: float | None = Field(
         None,
         ge=1e-4,
         le=10.0,
-        description="Grid spacing of the sea's finest cascade [m]; null: the receiver's "
+        description="Grid spacing of the sea's finest cascade; null: the receiver's "
         "footprint span over grid_size, so that the finest patch covers the footprint "
         "(docs/model.md §1).",
+        json_schema_extra=units("m"),
     )
     max_elevation: float | None = Field(
         None,
         gt=0.0,
         le=20.0,
-        description="Optional rescaling (the paper's knob): max |elevation| over the frames "
-        "[m]. Off by default; it breaks the spectrum's variance.",
+        description="Optional rescaling (the paper's knob): max |elevation| over the frames. "
+        "Off by default; it breaks the spectrum's variance.",
+        json_schema_extra=units("m"),
     )
     conditioning: Conditioning = Conditioning()
-    coarse_patches: list[PositiveFloat] | None = Field(
+    coarse_patches: tuple[PositiveFloat, ...] | None = Field(
         None,
         max_length=MAX_CASCADES - 1,
         description="Periodic patches of the coarser cascades of the multi-scale sea, each "
         "sampled by grid_size points, increasing, each at most grid_size/16 times the one "
         "before, the first after the finest grid_size x spacing; null: chosen from the "
-        "footprint and the spectrum (docs/model.md §1); []: the finest patch alone [m].",
+        "footprint and the spectrum (docs/model.md §1); []: the finest patch alone.",
+        json_schema_extra=units("m"),
     )
     allow_repeat: bool = Field(
         False,
         description="Render even if the receiver's footprint on the sea is wider than the "
         "coarsest cascade's periodic patch, so that the same waves repeat inside the "
         "image; refused otherwise.",
+        json_schema_extra=units("1"),
     )
 
     @model_validator(mode="after")
@@ -209,19 +235,20 @@ class SurfaceSpec(Section):
     def kriging(self, sea: Sea | None) -> Kriging | None:
         """The kriging system of `conditioning` on `sea` (cached), or None without points.
 
+        Validation checks the points alone (`workers.conditioning.check_points`); whether
+        their system is regular is known once it is built, here, to render.
+
         Raises
         ------
-        ValueError
-            For points off the coarsest patch, duplicates or a singular system
-            (`workers.conditioning.kriging`).
+        SceneError
+            For a singular or ill-conditioned system (`workers.conditioning.kriging`).
         """
         if not self.conditioning.points:
             return None
-        return kriging(
-            sea,
-            points=tuple(tuple(point) for point in self.conditioning.points),
-            noise=self.conditioning.noise,
-        )
+        try:
+            return kriging(sea, points=self.conditioning.points, noise=self.conditioning.noise)
+        except ValueError as error:
+            raise SceneError(f"surface.conditioning.points: {error}") from None
 
 
 class Water(Section):
@@ -233,27 +260,50 @@ class Water(Section):
     """
 
     preset: Literal["clear_ocean", "coastal", "turbid_harbour"] | None = Field(
-        "coastal", description="Petzold water type, or null for explicit coefficients."
+        "coastal",
+        description="Petzold water type, or null for explicit coefficients.",
+        json_schema_extra=units("1"),
     )
     absorption: float | None = Field(
-        None, ge=0.0, le=20.0, description="Absorption coefficient a [1/m]."
+        None,
+        ge=0.0,
+        le=20.0,
+        description="Absorption coefficient a.",
+        json_schema_extra=units("1/m"),
     )
     scattering: float | None = Field(
-        None, ge=0.0, le=50.0, description="Scattering coefficient b [1/m]."
+        None,
+        ge=0.0,
+        le=50.0,
+        description="Scattering coefficient b.",
+        json_schema_extra=units("1/m"),
     )
     backscatter: float | None = Field(
-        None, ge=0.0, le=5.0, description="Backscattering coefficient b_b [1/m]."
+        None,
+        ge=0.0,
+        le=5.0,
+        description="Backscattering coefficient b_b.",
+        json_schema_extra=units("1/m"),
     )
     phase_function: Literal["paper", "wells"] = Field(
         "paper",
         description="Small-angle phase function: `paper` (s ∝ θ^-3/2 (θ0²+θ²)^-1/2) or "
         "`wells` (closed-form MTF exponent).",
+        json_schema_extra=units("1"),
     )
     theta0: float = Field(
-        0.12, gt=0.0, le=1.0, description="Phase-function angular scale θ0 [rad] (paper: 0.12)."
+        0.12,
+        gt=0.0,
+        le=1.0,
+        description="Phase-function angular scale θ0 (paper: 0.12).",
+        json_schema_extra=units("rad"),
     )
     refractive_index: float = Field(
-        1.34, ge=1.0, le=2.0, description="Refractive index of sea water [1] (paper: 1.34)."
+        1.34,
+        ge=1.0,
+        le=2.0,
+        description="Refractive index of sea water (paper: 1.34).",
+        json_schema_extra=units("1"),
     )
     psf_truncation: float | None = Field(
         None,
@@ -261,7 +311,8 @@ class Water(Section):
         lt=1.0,
         description="Share of the scattered light at which the point-spread function is "
         "cut off, light scattered further being dropped (the paper cuts at 0.95); null: "
-        "the whole function [1].",
+        "the whole function.",
+        json_schema_extra=units("1"),
     )
 
     @model_validator(mode="after")
@@ -296,24 +347,41 @@ class Target(Section):
     """The object under the sea: a moored-mine sphere, a flat panel, or nothing."""
 
     shape: Literal["sphere", "disk", "none"] = Field(
-        "sphere", description="`sphere`, `disk` (flat horizontal panel) or `none`."
+        "sphere",
+        description="`sphere`, `disk` (flat horizontal panel) or `none`.",
+        json_schema_extra=units("1"),
     )
-    radius: float = Field(0.3, gt=0.0, le=100.0, description="Sphere or disk radius [m].")
+    radius: float = Field(
+        0.3, gt=0.0, le=100.0, description="Sphere or disk radius.", json_schema_extra=units("m")
+    )
     depth: float = Field(
-        5.0, gt=0.0, le=200.0, description="Depth of the sphere centre or of the disk [m]."
+        5.0,
+        gt=0.0,
+        le=200.0,
+        description="Depth of the sphere centre or of the disk.",
+        json_schema_extra=units("m"),
     )
     x: float | None = Field(
         None,
         ge=-1.0e4,
         le=1.0e4,
-        description="East position [m]; null puts the target on the central ray "
+        description="East position; null puts the target on the central ray "
         "(refracted by a flat sea).",
+        json_schema_extra=units("m"),
     )
     y: float | None = Field(
-        None, ge=-1.0e4, le=1.0e4, description="North position [m]; null as for `x`."
+        None,
+        ge=-1.0e4,
+        le=1.0e4,
+        description="North position; null as for `x`.",
+        json_schema_extra=units("m"),
     )
     reflectance: float = Field(
-        0.2, ge=0.0, le=1.0, description="Lambertian reflectance ρ [1] (the paper's 20 % is 0.2)."
+        0.2,
+        ge=0.0,
+        le=1.0,
+        description="Lambertian reflectance ρ (the paper's 20 % is 0.2).",
+        json_schema_extra=units("1"),
     )
     shading: Literal["lambert", "paper"] = Field(
         "lambert",
@@ -322,7 +390,8 @@ class Target(Section):
         "figures: it does not conserve energy (a white sphere returns 2x a white disk of "
         "its radius where a Lambertian one returns 2/3, and its limb pixels exceed the "
         "brightest physical value several times over, more at finer pixels); do not use "
-        "it for training data [1].",
+        "it for training data.",
+        json_schema_extra=units("1"),
     )
 
     @model_validator(mode="after")

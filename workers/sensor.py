@@ -73,9 +73,8 @@ class Setup:
 
 
 @functools.lru_cache(maxsize=32)
-def scene_setup(key: str) -> Setup:
-    """What every frame of every sample of a scene shares (cached by the scene's JSON)."""
-    scene = Scene.model_validate_json(key)
+def scene_setup(scene: Scene) -> Setup:
+    """What every frame of every sample of a scene shares (cached by the scene, hashable)."""
     w = scene.water
     coefficients = w.coefficients
     coefficients.update(

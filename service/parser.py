@@ -1,0 +1,171 @@
+"""The ``oceanlidar`` command line's arguments: one `argparse` parser, one subparser a command.
+
+Bad flags exit with status 2, argparse's own (the command line's "bad input", as
+`service.cli` uses it), after the usage line; nothing is overridden.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from service.client import add_commands
+from service.store import package_version
+from service.sweep import DEFAULT_MAX_MEMORY
+
+__all__ = ["parser"]
+
+MAX_MEMORY_HELP = f"most memory one sample may need, GiB (default {DEFAULT_MAX_MEMORY / 2**30:g})"
+
+
+def json_object(text: str) -> dict:
+    """Parse --storage-options: a JSON object."""
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise argparse.ArgumentTypeError(f"not JSON: {error}") from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError("must be a JSON object, e.g. '{\"anon\": false}'")
+    return value
+
+
+def _storage_options(command) -> None:
+    command.add_argument(
+        "--storage-options", type=json_object, default=None, help="fsspec options as JSON"
+    )
+
+
+def _limits(command) -> None:
+    command.add_argument(
+        "--no-limits", action="store_true", help="lift the size and memory limits"
+    )
+    command.add_argument("--max-memory", type=float, default=None, help=MAX_MEMORY_HELP)
+
+
+def _run(commands) -> None:
+    run = commands.add_parser("run", help="run a sweep into a zarr store")
+    run.add_argument("sweep", help="sweep YAML file")
+    run.add_argument("--output", help="store path or fsspec URL (default: the file's output)")
+    where = run.add_mutually_exclusive_group()
+    where.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="worker processes of the embedded cluster (default: one per core)",
+    )
+    where.add_argument("--scheduler", help="address of an existing dask scheduler")
+    run.add_argument(
+        "--dashboard",
+        action="store_true",
+        help="serve dask's dashboard (on 127.0.0.1 for the embedded cluster) and print its link",
+    )
+    tls = run.add_argument_group("TLS (for tls:// schedulers; else dask's configuration)")
+    tls.add_argument("--tls-ca-file", help="CA certificate(s), PEM")
+    tls.add_argument("--tls-cert", help="client certificate, PEM")
+    tls.add_argument("--tls-key", help="client private key, PEM")
+    mode = run.add_mutually_exclusive_group()
+    mode.add_argument("--resume", action="store_true", help="complete an interrupted run")
+    mode.add_argument("--overwrite", action="store_true", help="replace an existing store")
+    run.add_argument(
+        "--verify",
+        action="store_true",
+        help="with --resume: read back every completed sample, recompute damaged ones",
+    )
+    run.add_argument("--batch", type=int, default=4, help="samples per task (default 4)")
+    run.add_argument(
+        "--task-timeout",
+        type=float,
+        default=600.0,
+        help="seconds after its submission that a task is given up as stuck (default 600)",
+    )
+    _limits(run)
+    _storage_options(run)
+
+
+def _preview(commands) -> None:
+    preview = commands.add_parser(
+        "preview",
+        help="draw one sample's gated images, rendered from a sweep or read from a store",
+    )
+    preview.add_argument("source", help="sweep YAML file (rendered now) or store path or URL")
+    preview.add_argument("--sample", type=int, default=0, help="sample index (default 0)")
+    preview.add_argument(
+        "--frame", type=int, default=None, help="frame to draw as PNG (default 0)"
+    )
+    preview.add_argument(
+        "--shared-scale",
+        action="store_true",
+        help="one colour scale for every gate and frame (default: one per panel)",
+    )
+    preview.add_argument("--output", required=True, help="FILE.png, or FILE.gif for a sequence")
+    _storage_options(preview)
+
+
+def parser() -> argparse.ArgumentParser:
+    """The command line's parser: global flags, then one subcommand."""
+    top = argparse.ArgumentParser(
+        prog="oceanlidar",
+        description="Simulate airborne range-gated LIDAR images through a rough sea.",
+    )
+    top.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
+    top.add_argument(
+        "-v",
+        "--verbose",
+        action="count",
+        default=0,
+        help="more messages: -v dask's and the workers' warnings, -vv debugging",
+    )
+    top.add_argument(
+        "-q", "--quiet", action="count", default=0, help="errors only (no plan, no progress)"
+    )
+    commands = top.add_subparsers(dest="command", required=True)
+    _run(commands)
+
+    validate = commands.add_parser(
+        "validate", help="check a sweep, print its plan and an estimated run time"
+    )
+    validate.add_argument("sweep", help="sweep YAML file")
+    validate.add_argument(
+        "--show-scene",
+        action="store_true",
+        help="print the first point's scene with every default filled in (YAML)",
+    )
+    validate.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="worker processes the run time is estimated for (default: one per core)",
+    )
+    validate.add_argument(
+        "--no-estimate",
+        action="store_true",
+        help="skip the timed render of sample 0's first frame (and the run-time estimate)",
+    )
+    _limits(validate)
+
+    commands.add_parser("schema", help="print the JSON Schema of sweep files (for editors)")
+
+    info = commands.add_parser("info", help="what a store holds and how complete it is")
+    info.add_argument("store", help="store path or URL")
+    info.add_argument(
+        "--verify", action="store_true", help="read back every completed sample (slow)"
+    )
+    _storage_options(info)
+
+    stats = commands.add_parser("stats", help="(re)compute a store's statistics dataset")
+    stats.add_argument("store", help="store path or URL")
+    _storage_options(stats)
+    detect = commands.add_parser(
+        "detect", help="detection study of a store: ROC, AUC and Pd per parameter point"
+    )
+    detect.add_argument("store", help="store path or URL")
+    detect.add_argument("--output", help="DET.zarr (default: beside the store, .detect.zarr)")
+    _storage_options(detect)
+    _preview(commands)
+
+    plot = commands.add_parser("plot", help="plot a store's statistics or a detection dataset")
+    plot.add_argument("store", help="store path or URL")
+    plot.add_argument("--output", required=True, help="FILE.png")
+    _storage_options(plot)
+    add_commands(commands)
+    return top

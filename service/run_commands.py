@@ -1,0 +1,267 @@
+"""The sweep's commands: ``run``, ``validate`` (with an estimated run time) and ``schema``.
+
+Each takes the parsed arguments (`service.parser`) and returns an exit code; bad input is
+raised as `service.inputs.SweepError` and reported by `service.cli`. Messages go through
+the ``oceanlidar`` logger (``-q`` keeps the errors only), what a command prints as its
+result goes to stdout.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import sys
+import time
+
+import dask
+import yaml
+from dask.utils import format_bytes, format_time
+
+from service import storage, store
+from service.inputs import SweepError, shown
+from service.schema import sweep_json_schema
+from service.sweep import DEFAULT_MAX_MEMORY, Plan, load_sweep
+from workers.cascades import describe
+from workers.render import render
+from workers.section import SceneError
+
+__all__ = ["cmd_run", "cmd_schema", "cmd_validate", "report_samples", "run_time"]
+
+log = logging.getLogger("oceanlidar")
+
+EXIT_OK, EXIT_FAILURE = 0, 1
+SHOWN_SEAS = 3
+"""Most distinct seas whose resolved shares `validate` prints."""
+SHOWN_PROBLEMS = 20
+"""Most samples named under one reason in a report; the rest are counted."""
+
+
+def load(args) -> Plan:
+    """The plan of ``args.sweep`` under the limits the flags set, checked for one store."""
+    limit = DEFAULT_MAX_MEMORY if args.max_memory is None else args.max_memory * 2**30
+    if args.max_memory is not None and not args.max_memory > 0:
+        raise SweepError("--max-memory must be a positive number of GiB")
+    plan = load_sweep(args.sweep, max_memory=None if args.no_limits else limit)
+    if not args.no_limits:
+        plan.check_limits()
+    store.check_uniform(plan)
+    return plan
+
+
+def plan_lines(plan: Plan, batch: int = 4, url: str | None = None) -> list[str]:
+    """The plan for people: points, samples, tasks, storage, what is swept, where to."""
+    tasks = -(-plan.realisations // batch) * len(plan.points)
+    return [
+        f"sweep {plan.sweep.name!r}: {len(plan.points)} parameter points x "
+        f"{plan.realisations} realisations = {plan.samples} samples",
+        f"  tasks: about {tasks} (batch of {batch})",
+        f"  storage: about {format_bytes(plan.total_bytes())} uncompressed "
+        f"({format_bytes(plan.sample_bytes())} per sample)",
+        f"  swept: {', '.join(plan.swept) or '(nothing)'}",
+        f"  output: {url or plan.sweep.output}",
+    ]
+
+
+def run_time(*, samples: int, scenes: int, setup: float, per_sample: float, workers: int):
+    """Estimated seconds of a run: every scene's setup once, then every sample, over workers.
+
+    Parameters
+    ----------
+    samples, scenes : int
+        Samples to render, and distinct scenes among the points (each set up once per
+        worker that meets it; counted once, an underestimate when workers share scenes).
+    setup, per_sample : float
+        Seconds of one scene's setup (its frames' geometry, kriging system) and of one
+        sample once set up.
+    workers : int
+        Worker processes rendering in parallel.
+    """
+    return (scenes * setup + samples * per_sample) / max(workers, 1)
+
+
+def _timed_render(plan: Plan) -> tuple[float, float]:
+    """Seconds of a scene's setup and of one sample, from renders of sample 0's first frame.
+
+    The first frame is rendered twice (the second time set up) and both times are scaled
+    by the number of frames: each frame has its own geometry and its own light.
+    """
+    sample = plan.sample(0)
+    sequence = sample.scene.sequence
+    first_frame = sample.scene.model_copy(
+        update={"sequence": sequence.model_copy(update={"frames": 1})}
+    )
+    timings = []
+    for _ in range(2):
+        started = time.perf_counter()
+        try:
+            render(first_frame, seed=sample.seed)
+        except SceneError as error:
+            raise SweepError(f"{sample.describe()}: {error}") from None
+        timings.append(sequence.frames * (time.perf_counter() - started))
+    first, second = timings
+    return max(first - second, 0.0), second
+
+
+def _sea_lines(plan: Plan) -> list[str]:
+    """What the sea's cascades resolve of the spectrum, per distinct sea of the plan."""
+    seas: dict = {}
+    for point, scene in enumerate(plan.scenes):
+        if (sea := scene.sea()) is not None:
+            seas.setdefault(sea, []).append(point)
+    lines = [
+        f"  sea at point {points[0]}{f' (+{len(points) - 1} more)' if len(points) > 1 else ''}:"
+        f" {describe(sea)}"
+        for sea, points in list(seas.items())[:SHOWN_SEAS]
+    ]
+    if len(seas) > SHOWN_SEAS:
+        lines.append(f"  ... and {len(seas) - SHOWN_SEAS} more seas")
+    return lines
+
+
+def cmd_validate(args) -> int:
+    """Check a sweep; print its plan, its seas' resolved shares, an estimated run time."""
+    plan = load(args)
+    print("\n".join(plan_lines(plan) + _sea_lines(plan)))
+    if args.show_scene:
+        print("# the scene of point 0, every default filled in (units: `oceanlidar schema`)")
+        print(yaml.safe_dump(plan.scenes[0].model_dump(mode="json"), sort_keys=False), end="")
+    if args.no_estimate:
+        return EXIT_OK
+    setup, per_sample = _timed_render(plan)
+    workers = args.workers or os.cpu_count() or 1
+    seconds = run_time(
+        samples=plan.samples,
+        scenes=len(set(plan.scenes)),
+        setup=setup,
+        per_sample=per_sample,
+        workers=workers,
+    )
+    print(
+        f"  run time: about {format_time(seconds)} on {workers} worker(s) (a sample renders "
+        f"in {format_time(per_sample)}, a scene's setup takes {format_time(setup)})"
+    )
+    return EXIT_OK
+
+
+def cmd_schema(args) -> int:
+    """Print the JSON Schema of sweep files."""
+    print(json.dumps(sweep_json_schema(), indent=2, ensure_ascii=False))
+    return EXIT_OK
+
+
+def security(args):
+    """A `distributed.Security` from the TLS flags (all three, encryption required)."""
+    given = [args.tls_ca_file, args.tls_cert, args.tls_key]
+    if not any(given):
+        if (args.scheduler or "").startswith("tls://") and not dask.config.get(
+            "distributed.comm.tls.ca-file", None
+        ):
+            raise SweepError(
+                f"--scheduler {shown(args.scheduler)}: a tls:// scheduler needs "
+                "--tls-ca-file, --tls-cert and --tls-key (or dask's TLS configuration)"
+            )
+        return None
+    if not all(given):
+        raise SweepError("--tls-ca-file, --tls-cert and --tls-key go together")
+    for path in given:
+        if not os.path.isfile(path):
+            raise SweepError(f"{path}: no such file")
+    from distributed import Security
+
+    return Security(
+        tls_ca_file=args.tls_ca_file,
+        tls_client_cert=args.tls_cert,
+        tls_client_key=args.tls_key,
+        require_encryption=True,
+    )
+
+
+def report_samples(plan: Plan, what: str, problems: list) -> None:
+    """Log ``(sample, reason)`` problems by reason, each with its samples' parameters."""
+    by_reason: dict[str, list[int]] = {}
+    for sample, reason in problems:
+        by_reason.setdefault(reason, []).append(sample)
+    for reason, samples in by_reason.items():
+        count = f"{len(samples)} sample" + ("s" if len(samples) > 1 else "")
+        log.error("%s %s: %s", count, what, reason)
+        for sample in samples[:SHOWN_PROBLEMS]:
+            log.error("  %s", plan.sample(sample).describe())
+        if len(samples) > SHOWN_PROBLEMS:
+            log.error("  ... and %d more", len(samples) - SHOWN_PROBLEMS)
+
+
+def _check_run_flags(args) -> None:
+    if args.workers is not None and args.workers < 1:
+        raise SweepError("--workers must be at least 1")
+    if args.batch < 1:
+        raise SweepError("--batch must be at least 1")
+    if not args.task_timeout > 0:
+        raise SweepError("--task-timeout must be a positive number of seconds")
+    if args.verify and not args.resume:
+        raise SweepError("--verify goes with --resume (a new store has nothing to verify)")
+
+
+def cmd_run(args) -> int:
+    """Run a sweep into its store; report what failed, by sample and parameters."""
+    from service.cluster import ClusterError
+    from service.run import execute
+
+    _check_run_flags(args)
+    plan = load(args)
+    url = args.output or plan.sweep.output
+    for line in plan_lines(plan, args.batch, url):
+        log.info(line)
+    try:
+        with open(os.devnull, "w") as devnull:
+            result = execute(
+                plan,
+                url,
+                workers=args.workers,
+                scheduler=args.scheduler,
+                security=security(args),
+                dashboard=args.dashboard,
+                verbose=args.verbose > 0,
+                resume=args.resume,
+                verify=args.verify,
+                overwrite=args.overwrite,
+                storage_options=args.storage_options,
+                batch_size=args.batch,
+                task_timeout=args.task_timeout,
+                progress_stream=devnull if args.quiet else sys.stderr,
+            )
+    except ClusterError as error:
+        log.error("oceanlidar run: error: %s", error)
+        return EXIT_FAILURE
+    report_samples(plan, "damaged or missing, recomputed", result.damaged)
+    rate = result.written / result.seconds if result.seconds > 0 else 0.0
+    log.info(
+        "%s: wrote %d samples in %s (%.2f samples/s)%s",
+        url,
+        result.written,
+        format_time(result.seconds),
+        rate,
+        f", {result.skipped} already complete" if result.skipped else "",
+    )
+    if result.interrupted:
+        log.error("interrupted: run again with --resume to complete %s", url)
+        return EXIT_FAILURE
+    failed = [
+        (s, error) for start, count, error in result.failed for s in range(start, start + count)
+    ]
+    stuck = [
+        (s, f"no result {args.task_timeout:g} s after submission (a frozen worker?); given up")
+        for start, count in result.stuck
+        for s in range(start, start + count)
+    ]
+    report_samples(plan, "refused (bad input, not retried)", result.refused)
+    report_samples(plan, "not stored", result.rejected)
+    report_samples(plan, "failed", failed)
+    report_samples(plan, "stuck", stuck)
+    if result.stopped:
+        log.error("stopped: %s; run again with --resume", result.stopped)
+    if failed or stuck or result.refused or result.rejected or result.stopped:
+        log.error("statistics not written: some samples failed")
+        return EXIT_FAILURE
+    log.info("statistics: %s", storage.stats_url(url))
+    return EXIT_OK

@@ -1,0 +1,154 @@
+"""Command-line conventions: --version, -v/-q logging, --dashboard, schema, validate, preview."""
+
+import json
+import socket
+import warnings
+from pathlib import Path
+
+import jsonschema
+import pytest
+import xarray as xr
+import yaml
+from conftest import ROOT, TINY_SWEEP, run_cli
+
+from service import plots
+from service.cli import main
+from service.cluster import dask_client
+from service.run import render_batch, task_batches
+from service.run_commands import run_time
+from service.schema import sweep_json_schema
+from service.store import create_store, package_version
+from service.sweep import load_sweep, parse_sweep
+from workers.scene import Scene
+
+CONFIGS = sorted((ROOT / "configs").rglob("*.yaml"))
+
+
+def tiny(folder: Path, realisations=2) -> Path:
+    sweep = folder / "t.yaml"
+    sweep.write_text(
+        TINY_SWEEP.format(name="t", seed=4, realisations=realisations, output="t.zarr")
+    )
+    return sweep
+
+
+def test_version(capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["--version"])
+    assert stop.value.code == 0
+    assert capsys.readouterr().out == f"oceanlidar {package_version()}\n"
+
+
+@pytest.mark.parametrize("path", CONFIGS, ids=[p.name for p in CONFIGS])
+def test_the_schema_accepts_every_shipped_sweep(path, capsys):
+    assert main(["schema"]) == 0
+    schema = json.loads(capsys.readouterr().out)
+    jsonschema.Draft202012Validator.check_schema(schema)
+    jsonschema.validate(yaml.safe_load(path.read_text()), schema)
+
+
+def test_the_schema_knows_the_scene_and_its_units():
+    schema = sweep_json_schema()
+    validator = jsonschema.Draft202012Validator(schema)
+    good = yaml.safe_load(TINY_SWEEP.format(name="t", seed=1, realisations=1, output="o"))
+    assert not list(validator.iter_errors(good))
+    bad = {**good, "scene": {**good["scene"], "target": {"depht": 3.0}}}
+    assert any("depht" in error.message for error in validator.iter_errors(bad))
+    target = schema["$defs"]["Target"]["properties"]
+    assert target["depth"]["units"] == "m" and target["x"]["units"] == "m"
+
+
+def test_run_time_counts_each_scene_once_and_every_sample():
+    assert run_time(samples=10, scenes=2, setup=1.0, per_sample=0.5, workers=2) == 3.5
+
+
+def test_validate_estimates_the_run_and_shows_the_resolved_scene(tmp_path, capsys):
+    sweep = tiny(tmp_path)
+    assert main(["validate", str(sweep), "--show-scene", "--workers", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "  run time: about " in out and "on 2 worker(s)" in out
+    shown = yaml.safe_load(
+        out.split("(units: `oceanlidar schema`)\n", 1)[1].split("  run time")[0]
+    )
+    scene = load_sweep(sweep).scenes[0]
+    assert shown["water"]["theta0"] == 0.12 and shown["platform"]["altitude"] == 34.0
+    assert Scene.model_validate(shown) == scene
+
+
+def test_quiet_runs_print_nothing_but_errors(tmp_path, capsys):
+    sweep = tiny(tmp_path, realisations=1)
+    assert main(["-q", "run", str(sweep), "--workers", "1", "--output", str(tmp_path / "q")]) == 0
+    assert capsys.readouterr().err == ""
+
+
+@pytest.mark.parametrize("verbose", [False, True], ids=["default", "verbose"])
+def test_worker_warnings_stay_off_the_console_unless_verbose(capfd, verbose):
+    with dask_client(workers=1, scheduler=None, verbose=verbose) as client:
+        client.submit(warnings.warn, "a worker's warning", UserWarning, pure=False).result()
+    assert ("a worker's warning" in capfd.readouterr().err) == verbose
+
+
+def test_the_dashboard_link_is_printed_and_a_busy_port_is_not_reported(tmp_path):
+    with socket.socket() as busy:
+        try:
+            busy.bind(("127.0.0.1", 8787))  # dask's default port, taken
+            busy.listen()
+        except OSError:
+            pass  # someone else holds it: the same case
+        result = run_cli("run", tiny(tmp_path, 1), "--workers", 1, "--dashboard", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert "dashboard: http://127.0.0.1:" in result.stderr
+    assert "8787" not in result.stderr and "Warning" not in result.stderr
+
+
+@pytest.fixture(scope="module")
+def stored(tmp_path_factory):
+    """A tiny store of two frames, written in this process (no cluster)."""
+    folder = tmp_path_factory.mktemp("stored")
+    text = TINY_SWEEP.format(name="s", seed=2, realisations=2, output="s.zarr")
+    plan = parse_sweep(text.replace("scene:\n", "scene:\n  sequence: {frames: 2}\n"))
+    url = str(folder / "s.zarr")
+    create_store(plan, url)
+    for start, jobs in task_batches(plan, range(plan.samples), 4):
+        assert render_batch(url, start, jobs) == []
+    return url
+
+
+def test_preview_reads_a_store_and_shares_one_scale(stored, tmp_path, monkeypatch):
+    drawn = []
+
+    def spy(ds, **options):
+        drawn.append((ds, options))
+        return figure(ds, **options)
+
+    figure = plots.preview_figure
+    monkeypatch.setattr(plots, "preview_figure", spy)
+    output = tmp_path / "p.gif"
+    assert (
+        main(["preview", stored, "--sample", "3", "--shared-scale", "--output", str(output)]) == 0
+    )
+    image = xr.open_zarr(stored)["image"][3].values
+    assert [options["frame"] for _, options in drawn] == [0, 1]
+    for ds, options in drawn:
+        assert ds["image"].values.tobytes() == image.tobytes()
+        assert options["scale"] == (float(image.min()), float(image.max()))
+        assert "point 1: target.shape='none'; realisation 1" in options["title"]
+    drawn.clear()
+    assert (
+        main(
+            [
+                "preview",
+                stored,
+                "--sample",
+                "3",
+                "--frame",
+                "1",
+                "--output",
+                str(tmp_path / "a.png"),
+            ]
+        )
+        == 0
+    )
+    assert [(options["frame"], options["scale"]) for _, options in drawn] == [(1, None)]
+    shown = figure(drawn[0][0], frame=1, scale=(0.0, 7.0))
+    assert all(ax.get_images()[0].get_clim() == (0.0, 7.0) for ax in shown.axes if ax.get_images())
