@@ -232,7 +232,7 @@ class Runner:
         if len(text.encode()) > MAX_FILE_BYTES:
             raise SweepError(f"the sweep is larger than {MAX_FILE_BYTES:,} bytes")
         plan = parse_sweep(text, folder=self.data_root, max_memory=DEFAULT_MAX_MEMORY)
-        plan.check_limits()
+        plan.check_limits(remedy="split it into smaller sweeps (the service's limit)")
         store.check_uniform(plan)
         url = confine_output(plan.sweep.output, self.data_root)
         if mode == "new" and storage.occupied(url, self.storage_options):

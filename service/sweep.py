@@ -147,17 +147,23 @@ class Plan:
         r = self.sweep.realisations
         return sum(_sample_bytes(scene) * r for scene in self.scenes)
 
-    def check_limits(self, *, max_samples=DEFAULT_MAX_SAMPLES, max_bytes=DEFAULT_MAX_BYTES):
-        """Refuse sweeps beyond the size limits (the caller may lift them)."""
+    def check_limits(
+        self,
+        *,
+        max_samples=DEFAULT_MAX_SAMPLES,
+        max_bytes=DEFAULT_MAX_BYTES,
+        remedy="pass --no-limits to run it anyway",
+    ):
+        """Refuse sweeps beyond the size limits; `remedy` ends the message."""
         if self.samples > max_samples:
             raise SweepError(
                 f"the sweep has {self.samples:,} samples, over the limit of {max_samples:,}; "
-                "pass --no-limits to run it anyway"
+                f"{remedy}"
             )
         if self.total_bytes() > max_bytes:
             raise SweepError(
                 f"the sweep would store about {format_bytes(self.total_bytes())}, over the "
-                f"limit of {format_bytes(max_bytes)}; pass --no-limits to run it anyway"
+                f"limit of {format_bytes(max_bytes)}; {remedy}"
             )
 
 

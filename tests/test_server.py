@@ -342,6 +342,10 @@ def test_bad_sweeps_are_400_with_the_cli_message_and_nothing_written(service, tm
         assert main(["validate", str(tmp_path / "bad.yaml")]) == 2
         assert answer["error"] in capsys.readouterr().err, label
         assert field is None or answer["error"].startswith(field), (label, answer)
+    # the size limits name what a submitter can do, not the CLI's --no-limits
+    status, answer = service.submit(sweep("big.zarr", realisations=600_000))  # 2 points
+    assert status == 400 and "split it into smaller sweeps" in answer["error"], answer
+    assert "--no-limits" not in answer["error"]
     outside = tempfile.mkdtemp()
     try:
         os.symlink(outside, data / "link")

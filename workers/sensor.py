@@ -13,7 +13,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from workers.cascades import Sea
-from workers.conditioning import Kriging
 from workers.gates import central_paths, gate_gain, sight_lines, slab_bounds
 from workers.geometry import LaserRays, PinholeCamera, PlaneGrid, flat_sea_point
 from workers.optics import fresnel_reflectance
@@ -36,7 +35,6 @@ class Setup:
     scene: Scene
     water: WaterOptics
     sea: Sea | None
-    conditioning: Kriging | None
     gates: tuple[tuple[float, float], ...]
     reference_depths: tuple[float, ...]
     reflectances: tuple[float, ...]
@@ -54,8 +52,9 @@ class Setup:
             return None
         rngs = [seed.surface_rng(c) for c in range(len(self.sea.patches))]
         modes = draw(self.sea, rngs)
-        if self.conditioning is not None:
-            modes = self.conditioning.condition(modes, rngs[0])
+        conditioning = self.scene.surface.kriging(self.sea)  # cached; built here, to render
+        if conditioning is not None:
+            modes = conditioning.condition(modes, rngs[0])
         return modes.surface(times, max_elevation=self.scene.surface.max_elevation)
 
     def gate_gain(self, excess, gate: int):
@@ -116,7 +115,6 @@ def scene_setup(scene: Scene) -> Setup:
         scene=scene,
         water=water,
         sea=sea,
-        conditioning=scene.surface.kriging(sea),
         gates=gates,
         reference_depths=references,
         reflectances=reflectances,
