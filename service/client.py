@@ -18,7 +18,7 @@ import urllib.error
 import urllib.parse
 import urllib.request
 
-from service.inputs import SweepError, read_text
+from service.inputs import SweepError, json_object, read_text
 
 __all__ = ["COMMANDS", "add_commands"]
 
@@ -33,8 +33,6 @@ class UnavailableError(RuntimeError):
 
 def add_commands(commands) -> None:
     """Add ``serve``, ``submit``, ``jobs``, ``status`` and ``cancel`` to `commands`."""
-    from service.parser import json_object
-
     serve = commands.add_parser("serve", help="run the batch service (HTTP API and web page)")
     serve.add_argument(
         "--host", default="127.0.0.1", help="address to listen on (default: %(default)s)"

@@ -9,6 +9,8 @@ through `shown`.
 
 from __future__ import annotations
 
+import argparse
+import json
 import math
 import os
 import re
@@ -18,7 +20,7 @@ from typing import Any
 
 import yaml
 
-__all__ = ["SweepError", "read_text", "read_yaml", "shown", "strict_numbers"]
+__all__ = ["SweepError", "json_object", "read_text", "read_yaml", "shown", "strict_numbers"]
 
 MAX_FILE_BYTES = 1_000_000
 MAX_DEPTH = 20
@@ -31,6 +33,17 @@ class SweepError(ValueError):
 
 SHOWN_CHARACTERS = 60
 """Longest echo of a user's value in a message; longer ones are cut."""
+
+
+def json_object(text: str) -> dict:
+    """Parse --storage-options: a JSON object."""
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise argparse.ArgumentTypeError(f"not JSON: {error}") from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError("must be a JSON object, e.g. '{\"anon\": false}'")
+    return value
 
 
 def shown(value: Any) -> str:

@@ -7,26 +7,15 @@ Bad flags exit with status 2, argparse's own (the command line's "bad input", as
 from __future__ import annotations
 
 import argparse
-import json
 
 from service.client import add_commands
+from service.inputs import json_object
 from service.store import package_version
 from service.sweep import DEFAULT_MAX_MEMORY
 
 __all__ = ["parser"]
 
 MAX_MEMORY_HELP = f"most memory one sample may need, GiB (default {DEFAULT_MAX_MEMORY / 2**30:g})"
-
-
-def json_object(text: str) -> dict:
-    """Parse --storage-options: a JSON object."""
-    try:
-        value = json.loads(text)
-    except json.JSONDecodeError as error:
-        raise argparse.ArgumentTypeError(f"not JSON: {error}") from None
-    if not isinstance(value, dict):
-        raise argparse.ArgumentTypeError("must be a JSON object, e.g. '{\"anon\": false}'")
-    return value
 
 
 def _storage_options(command) -> None:

@@ -107,3 +107,39 @@ def code_lines(path):
 def test_every_module_is_small_and_in_the_architecture(path):
     assert code_lines(path) <= 350
     assert f"| `{path.name}` |" in (ROOT / "ARCHITECTURE.md").read_text()
+
+
+def _project_imports(path):
+    """The project modules `path` imports, at its top or inside functions."""
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module:
+            if node.module in ("workers", "service"):
+                names.update(f"{node.module}.{alias.name}" for alias in node.names)
+            elif node.module.split(".")[0] in ("workers", "service"):
+                names.add(node.module)
+        elif isinstance(node, ast.Import):
+            names.update(
+                a.name for a in node.names if a.name.split(".")[0] in ("workers", "service")
+            )
+    return names
+
+
+def test_no_import_circle():
+    # issue #13: modules import in one direction (a lazy import inside a function counts)
+    graph = {f"{p.parent.name}.{p.stem}": _project_imports(p) for p in MODULES}
+    done, path = set(), []
+
+    def visit(module):
+        if module in path:
+            raise AssertionError(" -> ".join([*path[path.index(module) :], module]))
+        if module in done or module not in graph:
+            return
+        path.append(module)
+        for imported in sorted(graph[module]):
+            visit(imported)
+        path.pop()
+        done.add(module)
+
+    for module in sorted(graph):
+        visit(module)
