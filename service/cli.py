@@ -70,7 +70,12 @@ def _parser() -> argparse.ArgumentParser:
         action="store_true",
         help="with --resume: read back every completed sample, recompute damaged ones",
     )
-    run.add_argument("--batch", type=int, default=4, help="samples per task (default 4)")
+    run.add_argument(
+        "--batch",
+        type=int,
+        default=store.SHARD_SAMPLES,
+        help=f"samples per shard and task of a new store (default {store.SHARD_SAMPLES})",
+    )
     run.add_argument(
         "--task-timeout",
         type=float,
@@ -126,12 +131,12 @@ def _load(args):
     return load_sweep(args.sweep, max_memory=None if args.no_limits else limit)
 
 
-def _plan_lines(plan, batch: int = 4, url: str | None = None) -> list[str]:
-    tasks = -(-plan.realisations // batch) * len(plan.points)
+def _plan_lines(plan, batch: int = store.SHARD_SAMPLES, url: str | None = None) -> list[str]:
+    tasks = -(-plan.samples // batch)
     lines = [
         f"sweep {plan.sweep.name!r}: {len(plan.points)} parameter points x "
         f"{plan.realisations} realisations = {plan.samples} samples",
-        f"  tasks: about {tasks} (batch of {batch})",
+        f"  tasks: {tasks} (shards of {batch} samples)",
         f"  storage: about {human_bytes(plan.total_bytes())} uncompressed "
         f"({human_bytes(plan.sample_bytes())} per sample)",
         f"  swept: {', '.join(plan.swept) or '(nothing)'}",
@@ -276,7 +281,7 @@ def _cmd_info(args) -> int:
     ds = _open(args)
     done = int(integrity.completed_samples(args.store, storage_options=args.storage_options).sum())
     total = ds.sizes["sample"]
-    swept = [c for c in ds.coords if "." in str(c)]
+    swept = [f"{name} ({path})" for name, path in store.swept_parameters(ds).items()]
     print(f"{args.store}: {ds.attrs.get('title', '')}")
     print(f"  samples: {done}/{total} complete ({100 * done / max(total, 1):.1f} %)")
     print(f"  points: {ds.attrs.get('points')}  realisations: {ds.attrs.get('realisations')}")

@@ -3,8 +3,10 @@
 The statistics dataset sits beside the store (`service.storage.stats_url`). One dask task per
 group of parameter points reads those points' samples (never the whole store), reduces them
 over realisations and frames with numpy, and writes its points' whole chunks of the
-statistics store, exactly as rendering tasks write the sample store. Samples not yet
-written are ignored. Variables:
+statistics store. Samples not yet written are ignored. The noise-free signals come from the
+per-sample means the render task computed (``target_signal``, ``background_signal``), so the
+store need not keep the noise-free images. After a resumed run only the points it wrote
+are recomputed, in place. Variables:
 
 - ``image_mean``, ``image_std`` (point, gate, y, x): mean and standard deviation images;
 - ``target_signal``, ``background_signal`` (point, gate): mean expected (noise-free)
@@ -27,15 +29,12 @@ import warnings
 import dask
 import numpy as np
 import xarray as xr
-from scipy.ndimage import maximum_filter
 
 from service import integrity, storage, store
 from service.inputs import SweepError
+from workers.labels import signal_means
 
-__all__ = ["RING_FRACTION", "point_statistics", "write_statistics"]
-
-RING_FRACTION = 0.1
-"""Width of the background ring around the target mask, as a fraction of the image."""
+__all__ = ["point_statistics", "write_statistics"]
 
 POINTS_PER_TASK = 8
 
@@ -48,21 +47,16 @@ _PER_GATE = {
 }
 
 
-def _masked_mean(values, mask):
-    """Mean of `values` (..., gate, y, x) over pixels where `mask` (..., y, x) holds."""
-    weights = mask[..., np.newaxis, :, :]
-    count = weights.sum(axis=(-2, -1))
-    total = (values * weights).sum(axis=(-2, -1))
-    return np.divide(total, count, out=np.full(total.shape, np.nan), where=count > 0)
-
-
-def point_statistics(image, expected, mask, visibility):
+def point_statistics(image, target, background, mask, visibility):
     """The statistics of one parameter point from its written samples.
 
     Parameters
     ----------
-    image, expected : ndarray, shape (samples, frames, gates, y, x)
-        Noisy and noise-free images.
+    image : ndarray, shape (samples, frames, gates, y, x)
+        Noisy images.
+    target, background : ndarray, shape (samples, frames, gates)
+        Mean noise-free signal inside the target mask and in the ring around it
+        (`workers.labels.signal_means`), NaN where the region is empty.
     mask : ndarray of bool, shape (samples, frames, y, x)
         Pixels whose ray meets the target.
     visibility : ndarray, shape (samples, gates)
@@ -80,13 +74,11 @@ def point_statistics(image, expected, mask, visibility):
         "image_mean": flat.mean(axis=0) if n else np.full(image.shape[2:], np.nan),
         "image_std": flat.std(axis=0, ddof=1) if n > 1 else np.full(image.shape[2:], np.nan),
     }
-    width = max(2, round(RING_FRACTION * mask.shape[-1]))
-    near = maximum_filter(mask, size=(1, 1, 2 * width + 1, 2 * width + 1), mode="constant")
-    ring = near & ~mask
-    target = _masked_mean(expected, mask)
-    background = _masked_mean(expected, ring)
-    difference = _masked_mean(image, mask) - _masked_mean(image, ring)
-    spread = np.sqrt(np.maximum(_masked_mean(image**2, ring) - _masked_mean(image, ring) ** 2, 0))
+    target = target.astype(np.float64)
+    background = background.astype(np.float64)
+    inside, ring = signal_means(image, mask)
+    square = signal_means(image.astype(np.float64) ** 2, mask)[1]
+    spread = np.sqrt(np.maximum(square - ring**2, 0))
     visible = mask.any(axis=(-2, -1))[..., np.newaxis] & (visibility[:, np.newaxis, :] == 1)
     with warnings.catch_warnings():
         # no target, or no background ring: those entries are NaN by design
@@ -97,7 +89,7 @@ def point_statistics(image, expected, mask, visibility):
             "target_contrast": np.nanmean(
                 (target - background) / np.where(background > 0, background, np.nan), axis=(0, 1)
             ),
-            "cnr": np.nanmean(difference / np.where(spread > 0, spread, np.nan), axis=(0, 1)),
+            "cnr": np.nanmean((inside - ring) / np.where(spread > 0, spread, np.nan), axis=(0, 1)),
             "visible_fraction": visible.mean(axis=(0, 1)),
         }
     stats.update(per_gate)
@@ -109,7 +101,7 @@ def _template(ds: xr.Dataset) -> xr.Dataset:
     realisations = int(ds.attrs["realisations"])
     gates, ny, nx = ds.sizes["gate"], ds.sizes["y"], ds.sizes["x"]
     units = ds["image"].attrs.get("units", "1")
-    signal_units = ds["expected"].attrs.get("units", "1")
+    signal_units = ds["target_signal"].attrs.get("units", "1")
     data_vars = {
         "image_mean": (
             ("point", "gate", "y", "x"),
@@ -135,7 +127,12 @@ def _template(ds: xr.Dataset) -> xr.Dataset:
         )
     first = np.arange(points) * realisations
     coords = {
-        "point": ("point", np.arange(points)),
+        "point": (
+            "point",
+            np.arange(points),
+            {"long_name": "parameter point index", "units": "1"},
+        ),
+        "gate": ds["gate"],
         "gate_top": ds["gate_top"].load(),
         "gate_bottom": ds["gate_bottom"].load(),
     }
@@ -168,7 +165,8 @@ def _reduce_points(url, target, points, done, realisations, storage_options):
         picks = [first + int(i) for i in written]
         stats = point_statistics(
             image=integrity.read_samples(source["image"], picks),
-            expected=integrity.read_samples(source["expected"], picks),
+            target=integrity.read_samples(source["target_signal"], picks),
+            background=integrity.read_samples(source["background_signal"], picks),
             mask=integrity.read_samples(source["target_mask"], picks).astype(bool),
             visibility=integrity.read_samples(source["target_visibility"], picks),
         )
@@ -178,13 +176,18 @@ def _reduce_points(url, target, points, done, realisations, storage_options):
     return len(points)
 
 
-def write_statistics(url: str, *, storage_options: dict | None = None) -> str:
+def write_statistics(
+    url: str, *, storage_options: dict | None = None, points: np.ndarray | None = None
+) -> str:
     """(Re)compute the statistics of the store at `url` and write them beside it.
 
-    The new statistics are written to a fresh store beside the old ones and moved into
-    place only when complete: a failure leaves the previous statistics as they were. The
-    caller holds the sample store's writer lock (`service.lock.writer_lock`). Runs on the
-    dask client in use (the sweep's cluster), or on local threads.
+    With `points` (after a resumed run: the points whose samples it wrote), only those
+    points are recomputed, in place, if sound statistics of this sweep are there (else
+    everything is). Otherwise new statistics are written to a fresh store beside the old
+    ones and moved into place only when complete: a failure leaves the previous statistics
+    as they were. The caller holds the sample store's writer lock
+    (`service.lock.writer_lock`). Runs on the dask client in use (the sweep's cluster), or
+    on local threads.
 
     Returns
     -------
@@ -198,6 +201,9 @@ def write_statistics(url: str, *, storage_options: dict | None = None) -> str:
     """
     ds = store.open_store(url, storage_options=storage_options)
     target = storage.stats_url(url)
+    if points is not None and _sound(ds, target, storage_options):
+        _reduce_all(ds, url, target, [int(p) for p in points], storage_options)
+        return target
     old = storage.removable_files(target, storage_options, kind="statistics")
     partial = f"{target.rstrip('/')}.partial-{uuid.uuid4().hex[:12]}"
     try:
@@ -213,6 +219,27 @@ def write_statistics(url: str, *, storage_options: dict | None = None) -> str:
     storage.remove_files(target, storage_options, old)
     storage.move(partial, target, storage_options)
     return target
+
+
+def _sound(ds: xr.Dataset, target: str, storage_options: dict | None) -> bool:
+    """Whether `target` holds statistics of the sweep of `ds`, of this version, readable.
+
+    Reads the statistics' metadata and their small per-point arrays (not the images).
+    """
+    attributes = storage.root_attributes(target, storage_options) or {}
+    if (
+        attributes.get(storage.KIND) != "statistics"
+        or attributes.get("sweep_sha256") != ds.attrs.get("sweep_sha256")
+        or attributes.get("oceanlidar_version") != store.package_version()
+    ):
+        return False
+    try:
+        stats = store.open_store(target, storage_options=storage_options)
+        small = [name for name in stats.data_vars if stats[name].ndim <= 2]
+        stats[small].load()
+    except Exception:
+        return False
+    return stats.sizes.get("point") == int(ds.attrs["points"])
 
 
 def _compute(ds: xr.Dataset, url: str, target: str, storage_options: dict | None) -> None:
@@ -231,19 +258,23 @@ def _compute(ds: xr.Dataset, url: str, target: str, storage_options: dict | None
             },
             storage_options=storage_options,
         )
-    points = int(ds.attrs["points"])
+    _reduce_all(ds, url, target, list(range(int(ds.attrs["points"]))), storage_options)
+
+
+def _reduce_all(ds: xr.Dataset, url: str, target: str, points: list[int], storage_options):
+    """Compute the statistics of `points` into the statistics store at `target`."""
     realisations = int(ds.attrs["realisations"])
-    # the flags from one listing, not one read per sample
     done = integrity.completed_samples(url, storage_options=storage_options)
+    flags = done.reshape(-1, realisations)
     tasks = [
         dask.delayed(_reduce_points)(
             url,
             target,
-            list(range(start, min(start + POINTS_PER_TASK, points))),
-            done[start * realisations : (start + POINTS_PER_TASK) * realisations],
+            points[start : start + POINTS_PER_TASK],
+            flags[points[start : start + POINTS_PER_TASK]].ravel(),
             realisations,
             storage_options,
         )
-        for start in range(0, points, POINTS_PER_TASK)
+        for start in range(0, len(points), POINTS_PER_TASK)
     ]
     dask.compute(*tasks)

@@ -83,7 +83,14 @@ def start_cli(*args, cwd, env=None, **popen):
     return subprocess.Popen(command, cwd=cwd, env=env, **popen)
 
 
-SAMPLE_VARIABLES = ("image", "expected", "target_mask", "target_visibility", "completed")
+SAMPLE_VARIABLES = (
+    "image",
+    "target_mask",
+    "target_signal",
+    "background_signal",
+    "target_visibility",
+    "completed",
+)
 
 
 def assert_same_samples(a, b, *, storage_options=None, names=SAMPLE_VARIABLES):

@@ -1,0 +1,151 @@
+"""Reading a store: as an xarray dataset, and sample by sample for training.
+
+`open_dataset` is `xarray.open_zarr` with the small per-sample variables (labels, swept
+parameters, completion flags, signal means) loaded eagerly, so that boolean selection and
+``groupby`` work without ``.compute()``, and CF attributes typed like their variable.
+`SampleDataset` is a map-style dataset in PyTorch's protocol (``__len__``,
+``__getitem__``, and ``__getitems__`` for whole batches) returning numpy arrays, without
+depending on torch: it reads a sample's chunks straight from the shards with zarr, one
+small read per array, and opens the store once per process (so it can be handed to a
+``torch.utils.data.DataLoader`` with worker processes). README, "The dataset".
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import xarray as xr
+import zarr
+
+__all__ = ["SampleDataset", "open_dataset"]
+
+SMALL_DIMENSIONS = frozenset({"sample", "frame", "gate"})
+"""Variables with only these dimensions are loaded eagerly (bytes per sample: tens)."""
+TYPED_ATTRIBUTES = ("flag_values", "valid_min", "valid_max")
+"""Attributes that CF wants of the variable's type (zarr's JSON attributes lose it)."""
+
+
+def open_dataset(url: str, *, storage_options: dict | None = None) -> xr.Dataset:
+    """Open a sweep's store (or its statistics) with the small variables in memory.
+
+    Parameters
+    ----------
+    url : str
+        A path or fsspec URL.
+    storage_options : dict, optional
+        fsspec options (credentials, endpoint).
+
+    Returns
+    -------
+    xarray.Dataset
+        Images and masks lazy (dask, one sample per chunk); every variable whose
+        dimensions are among ``sample``, ``frame`` and ``gate`` loaded.
+    """
+    ds = xr.open_zarr(url, consolidated=True, storage_options=storage_options)
+    small = [name for name, v in ds.variables.items() if set(v.dims) <= SMALL_DIMENSIONS]
+    loaded = ds[small].load()
+    ds = ds.assign(loaded.data_vars).assign_coords(loaded.coords)
+    for variable in ds.variables.values():
+        for name in TYPED_ATTRIBUTES:
+            if name in variable.attrs:
+                variable.attrs[name] = np.asarray(variable.attrs[name], dtype=variable.dtype)
+    return ds
+
+
+class SampleDataset:
+    """The samples of a store, one by one or in batches, as numpy arrays: for training.
+
+    A map-style dataset in PyTorch's protocol without depending on torch: pass it to
+    ``torch.utils.data.DataLoader`` as it is (``num_workers`` > 0 works: each worker
+    process opens the store for itself), or index it directly.
+
+    Parameters
+    ----------
+    url : str
+        The store: a path or fsspec URL.
+    arrays : sequence of str, optional
+        Per-sample arrays read from the shards at each access (``image``,
+        ``target_mask``, ``expected`` if stored, ``surface_elevation`` if saved).
+    labels : sequence of str, optional
+        Per-sample variables held in memory from the start (read once): labels,
+        signal means, swept parameters by their variable names (``target_depth``).
+    completed_only : bool, optional
+        Index only the samples written (the default); otherwise every sample, and those
+        not written read as fill values.
+    storage_options : dict, optional
+        fsspec options.
+
+    Notes
+    -----
+    Item ``i`` is the ``i``-th written sample, `sample_index` maps it to the store's
+    ``sample``. An item is a dict of numpy arrays (one per name, without the ``sample``
+    dimension) plus ``sample``. ``__getitems__`` reads a batch with one zarr call per
+    array: samples sharing a shard come from one read of it.
+    """
+
+    def __init__(
+        self,
+        url: str,
+        *,
+        arrays=("image", "target_mask"),
+        labels=("target_present", "target_visibility"),
+        completed_only: bool = True,
+        storage_options: dict | None = None,
+    ) -> None:
+        self.url = url
+        self.storage_options = storage_options
+        self.arrays = tuple(arrays)
+        group = self._open()
+        missing = [name for name in (*self.arrays, *labels) if name not in group]
+        if missing:
+            known = ", ".join(sorted(group.array_keys()))
+            raise KeyError(f"{url} has no {', '.join(missing)}; it has {known}")
+        completed = group["completed"][:].astype(bool)
+        self.sample_index = (
+            np.flatnonzero(completed) if completed_only else np.arange(completed.size)
+        )
+        self.labels = {name: group[name][:] for name in labels}
+        self._group, self._pid = group, os.getpid()
+
+    def _open(self):
+        return zarr.open_group(
+            store=self.url,
+            mode="r",
+            zarr_format=3,
+            use_consolidated=True,
+            storage_options=self.storage_options,
+        )
+
+    def _store(self):
+        """The store's zarr group, opened once per process (a forked worker reopens it)."""
+        if self._group is None or self._pid != os.getpid():
+            self._group, self._pid = self._open(), os.getpid()
+        return self._group
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_group": None, "_pid": None}
+
+    def __len__(self) -> int:
+        return int(self.sample_index.size)
+
+    def __getitem__(self, index: int) -> dict[str, np.ndarray]:
+        if not -len(self) <= index < len(self):
+            raise IndexError(f"item {index} of a dataset of {len(self)} samples")
+        return self.__getitems__([index])[0]
+
+    def __getitems__(self, indices) -> list[dict[str, np.ndarray]]:
+        """A batch of items, read with one zarr call per array."""
+        samples = self.sample_index[np.asarray(indices, dtype=np.int64)]
+        order = np.argsort(samples, kind="stable")
+        group = self._store()
+        read = {}
+        for name in self.arrays:
+            values = group[name].get_orthogonal_selection((samples[order],))
+            read[name] = np.empty_like(values)
+            read[name][order] = values
+        read.update({name: values[samples] for name, values in self.labels.items()})
+        return [
+            {"sample": np.int64(sample), **{name: read[name][i] for name in read}}
+            for i, sample in enumerate(samples)
+        ]
