@@ -319,6 +319,7 @@ def create_store(
         title=f"oceanlidar sweep {plan.sweep.name}",
         Conventions=CONVENTIONS,
         source=f"oceanlidar {package_version()}",
+        history=f"oceanlidar {package_version()} run of sweep {plan.sweep.name}",
         oceanlidar_version=package_version(),
         sweep=plan.text,
         sweep_sha256=plan.digest,

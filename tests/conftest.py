@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import xarray as xr
 
 from workers.geometry import LaserRays, PlaneGrid
@@ -146,3 +147,18 @@ def dask_processes(folder, *, workers=2, protocol="tcp", options=(), env=None):
             except subprocess.TimeoutExpired:
                 process.kill()
                 process.wait(timeout=10)
+
+
+@pytest.fixture
+def threads(monkeypatch):
+    """The embedded cluster's workers as threads of this process, to see monkeypatches."""
+    from distributed import LocalCluster
+
+    import service.cluster
+    import service.run
+
+    def threaded(**options):
+        return LocalCluster(**{**options, "processes": False, "protocol": "tcp://"})
+
+    monkeypatch.setattr(service.cluster, "LocalCluster", threaded)
+    return service.run

@@ -227,21 +227,6 @@ def test_two_fresh_runs_racing_for_one_output(tmp_path):
     assert main(["info", str(tmp_path / "one.zarr")]) == 0
 
 
-@pytest.fixture
-def threads(monkeypatch):
-    """The embedded cluster's workers as threads of this process, to see monkeypatches."""
-    from distributed import LocalCluster
-
-    import service.cluster
-    import service.run
-
-    def threaded(**options):
-        return LocalCluster(**{**options, "processes": False, "protocol": "tcp://"})
-
-    monkeypatch.setattr(service.cluster, "LocalCluster", threaded)
-    return service.run
-
-
 def test_a_sample_with_non_finite_values_is_reported_and_never_marked_complete(
     tmp_path, monkeypatch, capsys, threads
 ):
