@@ -5,20 +5,30 @@ parameters, completion flags, signal means) loaded eagerly, so that boolean sele
 ``groupby`` work without ``.compute()``, and CF attributes typed like their variable.
 `SampleDataset` is a map-style dataset in PyTorch's protocol (``__len__``,
 ``__getitem__``, and ``__getitems__`` for whole batches) returning numpy arrays, without
-depending on torch: it reads a sample's chunks straight from the shards with zarr, one
-small read per array, and opens the store once per process (so it can be handed to a
-``torch.utils.data.DataLoader`` with worker processes). README, "The dataset".
+depending on torch: it reads a sample's chunk straight from its shard file (one ranged
+read, the shard's index read once), checks its CRC32C and decompresses it, and opens the
+store once per process (so it can be handed to a ``torch.utils.data.DataLoader`` with
+worker processes). README, "The dataset".
 """
 
 from __future__ import annotations
 
+import json
 import os
 
+import google_crc32c
 import numpy as np
 import xarray as xr
 import zarr
+from numcodecs import Zstd
+
+from service.integrity import DamagedStoreError
+from service.storage import filesystem
 
 __all__ = ["SampleDataset", "open_dataset"]
+
+EMPTY = 2**64 - 1
+"""Offset and length of an inner chunk that a shard does not hold (the fill value)."""
 
 SMALL_DIMENSIONS = frozenset({"sample", "frame", "gate"})
 """Variables with only these dimensions are loaded eagerly (bytes per sample: tens)."""
@@ -53,6 +63,63 @@ def open_dataset(url: str, *, storage_options: dict | None = None) -> xr.Dataset
     return ds
 
 
+class _Shards:
+    """One sharded array of a store, read straight from its shard files.
+
+    The layout is `service.store`'s: shards of consecutive samples along the first axis,
+    one sample per inner chunk, inner codecs bytes (little-endian), zstd and CRC32C, and
+    the shard's index at its end (two little-endian uint64 per chunk, then its CRC32C).
+    """
+
+    def __init__(self, fs, root: str, name: str) -> None:
+        meta = json.loads(fs.cat_file(f"{root}/{name}/zarr.json"))
+        sharding = meta["codecs"][0]
+        config = sharding.get("configuration", {})
+        codecs = [codec["name"] for codec in config.get("codecs", [])]
+        if sharding["name"] != "sharding_indexed" or codecs != ["bytes", "zstd", "crc32c"]:
+            raise ValueError(f"{root}: {name} is not stored in shards as service.store writes")
+        self.fs, self.name = fs, name
+        self.per_shard = int(meta["chunk_grid"]["configuration"]["chunk_shape"][0])
+        self.shape = tuple(config["chunk_shape"][1:])
+        self.dtype = np.dtype(meta["data_type"]).newbyteorder("<")
+        self.fill = np.asarray(meta["fill_value"]).astype(self.dtype)
+        self.key = f"{root}/{name}/c.{{}}" + ".0" * (len(meta["shape"]) - 1)
+        self.indexes: dict[int, np.ndarray | None] = {}
+        self.codec = Zstd()
+
+    def _index(self, shard: int) -> np.ndarray | None:
+        """The shard's (offset, length) per sample; None if it holds nothing."""
+        if shard not in self.indexes:
+            size = 16 * self.per_shard + 4
+            try:
+                tail = self.fs.cat_file(self.key.format(shard), start=-size)
+            except FileNotFoundError:
+                self.indexes[shard] = None
+                return None
+            self._check(tail, f"shard {shard}'s index")
+            self.indexes[shard] = np.frombuffer(tail[:-4], "<u8").reshape(-1, 2)
+        return self.indexes[shard]
+
+    def _check(self, data: bytes, what: str) -> None:
+        if google_crc32c.value(data[:-4]) != int.from_bytes(data[-4:], "little"):
+            raise DamagedStoreError(
+                f"{what} of {self.name} fails its checksum; run the sweep again with "
+                "--resume --verify to recompute it"
+            )
+
+    def read(self, sample: int) -> np.ndarray:
+        """The sample's array (the fill value where it was never written)."""
+        shard, position = divmod(int(sample), self.per_shard)
+        index = self._index(shard)
+        if index is None or index[position, 0] == EMPTY:
+            return np.full(self.shape, self.fill, self.dtype)
+        offset, length = (int(v) for v in index[position])
+        data = self.fs.cat_file(self.key.format(shard), start=offset, end=offset + length)
+        self._check(data, f"sample {sample}: its chunk")
+        values = np.frombuffer(self.codec.decode(data[:-4]), self.dtype)
+        return values.reshape(self.shape)
+
+
 class SampleDataset:
     """The samples of a store, one by one or in batches, as numpy arrays: for training.
 
@@ -80,8 +147,8 @@ class SampleDataset:
     -----
     Item ``i`` is the ``i``-th written sample, `sample_index` maps it to the store's
     ``sample``. An item is a dict of numpy arrays (one per name, without the ``sample``
-    dimension) plus ``sample``. ``__getitems__`` reads a batch with one zarr call per
-    array: samples sharing a shard come from one read of it.
+    dimension) plus ``sample``. Arrays are read-only views of the decompressed chunk. A
+    chunk whose CRC32C fails raises `service.integrity.DamagedStoreError` naming it.
     """
 
     def __init__(
@@ -106,7 +173,7 @@ class SampleDataset:
             np.flatnonzero(completed) if completed_only else np.arange(completed.size)
         )
         self.labels = {name: group[name][:] for name in labels}
-        self._group, self._pid = group, os.getpid()
+        self._shards, self._pid = None, None
 
     def _open(self):
         return zarr.open_group(
@@ -117,14 +184,16 @@ class SampleDataset:
             storage_options=self.storage_options,
         )
 
-    def _store(self):
-        """The store's zarr group, opened once per process (a forked worker reopens it)."""
-        if self._group is None or self._pid != os.getpid():
-            self._group, self._pid = self._open(), os.getpid()
-        return self._group
+    def _readers(self) -> dict[str, _Shards]:
+        """The arrays' shard readers, made once per process (a forked worker remakes them)."""
+        if self._shards is None or self._pid != os.getpid():
+            fs, root = filesystem(self.url, self.storage_options)
+            self._shards = {name: _Shards(fs, root, name) for name in self.arrays}
+            self._pid = os.getpid()
+        return self._shards
 
     def __getstate__(self) -> dict:
-        return {**self.__dict__, "_group": None, "_pid": None}
+        return {**self.__dict__, "_shards": None, "_pid": None}
 
     def __len__(self) -> int:
         return int(self.sample_index.size)
@@ -135,17 +204,14 @@ class SampleDataset:
         return self.__getitems__([index])[0]
 
     def __getitems__(self, indices) -> list[dict[str, np.ndarray]]:
-        """A batch of items, read with one zarr call per array."""
+        """A batch of items (what a ``DataLoader`` with automatic batching asks for)."""
         samples = self.sample_index[np.asarray(indices, dtype=np.int64)]
-        order = np.argsort(samples, kind="stable")
-        group = self._store()
-        read = {}
-        for name in self.arrays:
-            values = group[name].get_orthogonal_selection((samples[order],))
-            read[name] = np.empty_like(values)
-            read[name][order] = values
-        read.update({name: values[samples] for name, values in self.labels.items()})
+        readers = self._readers()
         return [
-            {"sample": np.int64(sample), **{name: read[name][i] for name in read}}
-            for i, sample in enumerate(samples)
+            {
+                "sample": np.int64(sample),
+                **{name: reader.read(sample) for name, reader in readers.items()},
+                **{name: values[sample] for name, values in self.labels.items()},
+            }
+            for sample in samples
         ]

@@ -6,6 +6,7 @@ import os
 import pickle
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -229,10 +230,19 @@ def test_the_training_reader_returns_the_stores_samples(filled, tmp_path):
         visibility = ds["target_visibility"].values[int(b["sample"])]
         assert b["target_visibility"].tolist() == visibility.tolist()
     again = pickle.loads(pickle.dumps(full))  # as a DataLoader hands it to a worker
-    assert again._group is None
+    assert again._shards is None
     assert again[5]["image"].tobytes() == ds["image"].values[5].tobytes()
     with pytest.raises(KeyError, match="has no expected"):
         SampleDataset(url, arrays=("expected",))
+    # a flipped byte in sample 2's chunk (shard 1, first chunk) fails its CRC32C, named
+    shard = next(Path(partial, "target_mask").glob("c.1.*"))
+    data = bytearray(shard.read_bytes())
+    data[3] ^= 0x01
+    shard.write_bytes(bytes(data))
+    damaged = SampleDataset(partial)
+    assert damaged[1]["image"].tobytes() == ds["image"].values[3].tobytes()
+    with pytest.raises(integrity.DamagedStoreError, match="sample 2: its chunk of target_mask"):
+        damaged[0]
 
 
 def test_statistics_after_resume_recompute_only_the_points_written(tmp_path):
