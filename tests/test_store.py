@@ -167,6 +167,40 @@ def test_one_task_per_shard_and_a_failed_shard_rerun_one_sample_at_a_time(
         assert ours[name].values[keep].tobytes() == theirs[name].values[keep].tobytes(), name
 
 
+def test_a_shard_whose_task_is_given_up_goes_to_no_other_task(tmp_path, monkeypatch, threads):
+    """A stuck task may still write its shard: its shard's other samples are not rerun."""
+    renders: dict[int, int] = {}
+    release = threading.Event()
+
+    def frozen_then_poisoned(scene, *, seed):
+        sample = seed.point * 3 + seed.realisation
+        renders[sample] = renders.get(sample, 0) + 1
+        if sample == 3 and renders[sample] > 1 + threads.RETRIES:
+            release.wait(timeout=8)  # frozen in its own task, after the shard's task failed
+        if sample == 4:
+            raise RuntimeError("poison")
+        return render(scene, seed=seed)
+
+    monkeypatch.setattr(threads, "render", frozen_then_poisoned)
+    plan = tiny_plan(realisations=3)
+    url = str(tmp_path / "s.zarr")
+    result = execute(
+        plan,
+        url,
+        workers=1,
+        batch_size=3,
+        task_timeout=3.0,
+        progress_stream=open(os.devnull, "w"),
+    )
+    release.set()
+    # shard [3, 4, 5]: its task failed on 4; alone, 3 froze and was given up; 4 and 5 of
+    # its shard were never given to another task
+    assert result.stuck == [(3, 1), (4, 1), (5, 1)] and result.failed == []
+    assert 5 not in renders
+    done = integrity.completed_samples(url).tolist()  # 3: its own task may write it late
+    assert done[:3] + done[4:] == [True] * 3 + [False, False] + [True] * 6
+
+
 def test_open_dataset_selects_by_gate_and_groups_by_swept_parameters(filled):
     _, url = filled
     ds = open_dataset(url)
