@@ -29,6 +29,7 @@ import warnings
 import dask
 import numpy as np
 import xarray as xr
+import zarr
 
 from service import integrity, storage, store
 from service.inputs import SweepError
@@ -157,22 +158,29 @@ def _reduce_points(url, target, points, done, realisations, storage_options):
     """
     source = store.open_group(url, storage_options)
     sink = store.open_group(target, storage_options)
+    done = np.asarray(done, dtype=bool).reshape(len(points), realisations)
+    starts = np.asarray(points)[:, np.newaxis] * realisations
+    picks = (starts + np.arange(realisations))[done]
+    if picks.size == 0:
+        return len(points)
+    # all the points' samples at once: consecutive points are one slice of the store
+    names = ("image", "target_signal", "background_signal", "target_mask", "target_visibility")
+    read = {name: integrity.read_samples(source[name], picks.tolist()) for name in names}
+    owner = np.repeat(np.arange(len(points)), done.sum(axis=1))
     for index, point in enumerate(points):
-        written = np.flatnonzero(done[index * realisations : (index + 1) * realisations])
-        if written.size == 0:
+        mine = owner == index
+        if not mine.any():
             continue
-        first = point * realisations
-        picks = [first + int(i) for i in written]
         stats = point_statistics(
-            image=integrity.read_samples(source["image"], picks),
-            target=integrity.read_samples(source["target_signal"], picks),
-            background=integrity.read_samples(source["background_signal"], picks),
-            mask=integrity.read_samples(source["target_mask"], picks).astype(bool),
-            visibility=integrity.read_samples(source["target_visibility"], picks),
+            image=read["image"][mine],
+            target=read["target_signal"][mine],
+            background=read["background_signal"][mine],
+            mask=read["target_mask"][mine].astype(bool),
+            visibility=read["target_visibility"][mine],
         )
         for name, value in stats.items():
             sink[name][point] = value
-        sink["samples"][point] = written.size
+        sink["samples"][point] = int(mine.sum())
     return len(points)
 
 
@@ -182,8 +190,9 @@ def write_statistics(
     """(Re)compute the statistics of the store at `url` and write them beside it.
 
     With `points` (after a resumed run: the points whose samples it wrote), only those
-    points are recomputed, in place, if sound statistics of this sweep are there (else
-    everything is). Otherwise new statistics are written to a fresh store beside the old
+    points (and any whose statistics count other samples than the store holds) are
+    recomputed, in place, if sound statistics of this sweep are there (else everything
+    is). Otherwise new statistics are written to a fresh store beside the old
     ones and moved into place only when complete: a failure leaves the previous statistics
     as they were. The caller holds the sample store's writer lock
     (`service.lock.writer_lock`). Runs on the dask client in use (the sweep's cluster), or
@@ -201,8 +210,13 @@ def write_statistics(
     """
     ds = store.open_store(url, storage_options=storage_options)
     target = storage.stats_url(url)
-    if points is not None and _sound(ds, target, storage_options):
-        _reduce_all(ds, url, target, [int(p) for p in points], storage_options)
+    recorded = None if points is None else _recorded(ds, target, storage_options)
+    if recorded is not None:
+        # the run's points, and any whose statistics count other samples than are written
+        done = integrity.completed_samples(url, storage_options=storage_options)
+        stale = recorded != done.reshape(recorded.size, -1).sum(axis=1)
+        update = np.union1d(np.asarray(points, dtype=int), np.flatnonzero(stale))
+        _reduce_all(ds, url, target, update.tolist(), storage_options)
         return target
     old = storage.removable_files(target, storage_options, kind="statistics")
     partial = f"{target.rstrip('/')}.partial-{uuid.uuid4().hex[:12]}"
@@ -221,10 +235,11 @@ def write_statistics(
     return target
 
 
-def _sound(ds: xr.Dataset, target: str, storage_options: dict | None) -> bool:
-    """Whether `target` holds statistics of the sweep of `ds`, of this version, readable.
+def _recorded(ds: xr.Dataset, target: str, storage_options: dict | None):
+    """Samples per point that the statistics at `target` were computed from.
 
-    Reads the statistics' metadata and their small per-point arrays (not the images).
+    None unless `target` holds statistics of the sweep of `ds`, of this version, with
+    every variable and a readable ``samples`` array (their images are not read).
     """
     attributes = storage.root_attributes(target, storage_options) or {}
     if (
@@ -232,14 +247,21 @@ def _sound(ds: xr.Dataset, target: str, storage_options: dict | None) -> bool:
         or attributes.get("sweep_sha256") != ds.attrs.get("sweep_sha256")
         or attributes.get("oceanlidar_version") != store.package_version()
     ):
-        return False
+        return None
     try:
-        stats = store.open_store(target, storage_options=storage_options)
-        small = [name for name in stats.data_vars if stats[name].ndim <= 2]
-        stats[small].load()
+        group = zarr.open_group(
+            store=target,
+            mode="r",
+            zarr_format=3,
+            use_consolidated=True,
+            storage_options=storage_options,
+        )
+        if not {"image_mean", "image_std", "samples", *_PER_GATE} <= set(group.array_keys()):
+            return None
+        counts = group["samples"][:]
     except Exception:
-        return False
-    return stats.sizes.get("point") == int(ds.attrs["points"])
+        return None
+    return counts if counts.shape == (int(ds.attrs["points"]),) else None
 
 
 def _compute(ds: xr.Dataset, url: str, target: str, storage_options: dict | None) -> None:
