@@ -1,6 +1,6 @@
 """Read throughput of a store: the training reader against xarray, samples per second.
 
-Renders a sweep of 128-pixel six-gate samples with noise into a local store (shards of 16,
+Renders a sweep of 128-pixel six-gate samples with noise into a local store (shards of 8,
 the default), then reads every sample in a shuffled order, as a training epoch does, four
 ways: `service.dataset.SampleDataset` in batches (``__getitems__``, what a
 ``torch.utils.data.DataLoader`` with a batch sampler calls) and one item at a time

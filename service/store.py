@@ -62,7 +62,7 @@ RENDERED_VARIABLES = (
 SHARDED = frozenset({"image", "expected", "target_mask", "surface_elevation"})
 """Rendered variables stored one sample per chunk inside shards; the others (small) and the
 completion records take one chunk per shard."""
-SHARD_SAMPLES = 16
+SHARD_SAMPLES = 8
 """Samples per shard (and per task) unless ``--batch`` says otherwise."""
 
 FLAT_CHUNK_KEYS = {"name": "default", "separator": "."}
