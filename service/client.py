@@ -19,6 +19,7 @@ import urllib.parse
 import urllib.request
 
 from service.inputs import SweepError, json_object, read_text
+from service.store import SHARD_SAMPLES
 
 __all__ = ["COMMANDS", "add_commands"]
 
@@ -51,7 +52,12 @@ def add_commands(commands) -> None:
     serve.add_argument(
         "--queue-limit", type=int, default=100, help="most unfinished jobs (default 100)"
     )
-    serve.add_argument("--batch", type=int, default=4, help="samples per task (default 4)")
+    serve.add_argument(
+        "--batch",
+        type=int,
+        default=SHARD_SAMPLES,
+        help=f"samples per shard and task of a new store (default {SHARD_SAMPLES})",
+    )
     where = serve.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, default=None, help="embedded cluster's workers")
     where.add_argument("--scheduler", help="address of an existing dask scheduler")

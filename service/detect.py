@@ -57,8 +57,9 @@ def _point_values(ds: xr.Dataset) -> tuple[list[str], list[dict]]:
     """The swept parameters and each point's values of them."""
     realisations = int(ds.attrs["realisations"])
     first = np.arange(int(ds.attrs["points"])) * realisations
-    swept = [str(name) for name, c in ds.coords.items() if c.dims == ("sample",) and "." in name]
-    columns = {name: ds[name].values[first].tolist() for name in swept}
+    names = store.swept_parameters(ds)
+    swept = list(names.values())
+    columns = {path: ds[name].values[first].tolist() for name, path in names.items()}
     return swept, [{name: columns[name][p] for name in swept} for p in range(len(first))]
 
 
@@ -176,9 +177,9 @@ def _check_store(ds: xr.Dataset, url: str) -> None:
     for name in ("image", "completed", "target_present"):
         if name not in ds:
             raise SweepError(f"{url}: the store has no {name!r}: not a sweep's store")
-    if ds["image"].attrs.get("units") != "photoelectrons":
+    if ds["image"].dtype.kind != "u":
         raise SweepError(
-            f"{url}: images are in {ds['image'].attrs.get('units')!r}, not photoelectrons: "
+            f"{url}: images are {ds['image'].attrs.get('long_name')!r}, not photoelectrons: "
             "detection needs shot noise with no gain (radiometry with photons, noise.gain 1)"
         )
     if int(ds.attrs["realisations"]) < MIN_REALISATIONS:
@@ -311,7 +312,7 @@ def _dataset(ds, pairs, results, realisations, test) -> xr.Dataset:
         "gate_top": ds["gate_top"].load(),
         "gate_bottom": ds["gate_bottom"].load(),
     }
-    for name in _point_values(ds)[0]:
+    for name in store.swept_parameters(ds):
         coord = ds[name]
         coords[name] = (
             "point",

@@ -1,8 +1,9 @@
 """Samples written and read back whole: completion flags, checksums, valid values, `verify`.
 
-A task writes a sample's chunks only if every value is valid (`invalid_values`), then its
-CRC-32 checksum, then its completion flag (`write_samples`); `verify` reads completed
-samples back against both, and `read_samples` names the sample whose chunk is damaged.
+A task writes a sample only if every value is valid (`invalid_values`): its shard's chunks,
+then its CRC-32 checksum, then its completion flag (`write_shard`); `verify` reads
+completed samples back against both, and `read_samples` names the sample whose chunk is
+damaged.
 """
 
 from __future__ import annotations
@@ -13,8 +14,8 @@ import numpy as np
 import xarray as xr
 import zarr
 
-from service.storage import filesystem, list_files, root_attributes
-from service.store import RENDERED_VARIABLES, open_group
+from service.storage import filesystem, list_files
+from service.store import RENDERED_VARIABLES, open_group, shard_samples
 
 __all__ = [
     "DamagedStoreError",
@@ -24,12 +25,12 @@ __all__ = [
     "read_samples",
     "sample_checksum",
     "verify",
-    "write_samples",
+    "write_shard",
 ]
 
 
-def _chunk_samples(fs, folder: str) -> set[int]:
-    """Sample indices of the chunks stored in an array's folder (flat keys ``c.S...``)."""
+def _stored_shards(fs, folder: str) -> set[int]:
+    """Shard indices of the shard files stored in an array's folder (flat keys ``c.K...``)."""
     return {
         int(name.split(".")[1])
         for name in list_files(fs, folder)
@@ -40,15 +41,12 @@ def _chunk_samples(fs, folder: str) -> set[int]:
 def completed_samples(url: str, *, storage_options: dict | None = None) -> np.ndarray:
     """Boolean array: which samples are written.
 
-    A sample's completion flag is a chunk of its own, and a flag of 0 is no chunk at all
-    (zarr stores no chunk that holds only the fill value), so the flags are read from one
-    listing of the ``completed`` array, not from one read per sample.
+    The flags have one chunk per shard: one read per shard, whatever its samples.
     """
-    fs, path = filesystem(url, storage_options)
-    attributes = root_attributes(url, storage_options) or {}
-    done = np.zeros(int(attributes["points"]) * int(attributes["realisations"]), dtype=bool)
-    done[sorted(_chunk_samples(fs, f"{path}/completed"))] = True
-    return done
+    group = zarr.open_group(
+        store=url, mode="r", zarr_format=3, use_consolidated=True, storage_options=storage_options
+    )
+    return group["completed"][:].astype(bool)
 
 
 def sample_checksum(arrays: list[np.ndarray]) -> int:
@@ -59,12 +57,18 @@ def sample_checksum(arrays: list[np.ndarray]) -> int:
     return crc
 
 
+def _stored(group) -> list[str]:
+    """The rendered variables a store holds, in `RENDERED_VARIABLES` order."""
+    return [name for name in RENDERED_VARIABLES if name in group]
+
+
 def verify(url: str, storage_options: dict | None = None) -> list[tuple[int, str]]:
     """The samples marked complete whose chunks are missing, damaged or not theirs.
 
-    Every chunk of every completed sample is read back (the CRC32C codec finds a damaged
-    chunk) and the sample's arrays are compared with the checksum its task recorded
-    (which finds a chunk deleted, or swapped with another sample's).
+    Every chunk of every completed sample is read back, a shard at a time (the CRC32C
+    codec finds a damaged chunk, and then the shard is read sample by sample to name
+    it), and each sample's arrays are compared with the checksum its task recorded (which
+    finds a chunk deleted, or swapped with another sample's).
 
     Returns
     -------
@@ -75,48 +79,65 @@ def verify(url: str, storage_options: dict | None = None) -> list[tuple[int, str
     group = zarr.open_group(
         store=url, mode="r", zarr_format=3, use_consolidated=True, storage_options=storage_options
     )
-    names = [name for name in RENDERED_VARIABLES if name in group]
-    stored = {name: _chunk_samples(fs, f"{path}/{name}") for name in [*names, "checksum"]}
+    names = _stored(group)
+    size = shard_samples(group)
+    shards = {name: _stored_shards(fs, f"{path}/{name}") for name in [*names, "checksum"]}
+    done = np.flatnonzero(group["completed"][:])
     problems = []
-    for sample in np.flatnonzero(completed_samples(url, storage_options=storage_options)):
-        missing = [name for name, samples in stored.items() if sample not in samples]
+    for shard in np.unique(done // size):
+        samples = [int(s) for s in done[done // size == shard]]
+        missing = [name for name, stored in shards.items() if shard not in stored]
         if missing:
-            problems.append((int(sample), f"no {' or '.join(missing)} chunk"))
+            problems += [(s, f"no {' or '.join(missing)} shard") for s in samples]
             continue
         try:
-            crc = sample_checksum([group[name][sample] for name in names])
-            recorded = int(group["checksum"][sample])
-        except Exception as error:
-            problems.append((int(sample), f"a chunk cannot be read ({type(error).__name__})"))
-            continue
-        if crc != recorded:
-            problems.append((int(sample), "its chunks do not match its checksum"))
+            arrays = [group[name].get_orthogonal_selection((samples,)) for name in names]
+        except Exception:
+            arrays = None  # a damaged chunk: read its samples one by one below
+        recorded = group["checksum"].get_orthogonal_selection((samples,))
+        for i, sample in enumerate(samples):
+            try:
+                values = [a[i] for a in arrays] if arrays else [group[n][sample] for n in names]
+            except Exception as error:
+                problems.append((sample, f"a chunk cannot be read ({type(error).__name__})"))
+                continue
+            if sample_checksum(values) != int(recorded[i]):
+                problems.append((sample, "its chunks do not match its checksum"))
     return problems
 
 
 def mark_incomplete(url: str, samples: list[int], storage_options: dict | None = None) -> None:
     """Clear the completion flags of `samples`, so that a resumed run renders them again."""
-    completed = open_group(url, storage_options)["completed"]
-    for sample in samples:
-        completed[sample] = 0
+    if samples:
+        open_group(url, storage_options)["completed"].set_orthogonal_selection((samples,), 0)
 
 
 NON_NEGATIVE = ("image", "expected")
 """Rendered variables that are counts or intensities: never below zero."""
+FINITE = ("image", "expected", "surface_elevation")
+"""Rendered variables that must be finite (the signal means are NaN without a target)."""
 
 
 def invalid_values(sample: xr.Dataset) -> str | None:
     """Why a rendered sample may not be stored, or None if every value is valid.
 
-    Floating-point variables must be finite, counts and intensities non-negative and
-    the target mask 0 or 1: a sample that breaks any of these is never written nor marked
+    Images and surfaces must be finite, counts and intensities non-negative and within
+    their ``valid_max`` (the largest count the store's unsigned type holds), and the
+    target mask 0 or 1: a sample that breaks any of these is never written nor marked
     complete.
     """
     for name in RENDERED_VARIABLES:
         if name not in sample:
             continue
         values = sample[name].values
-        if values.dtype.kind == "f" and not np.isfinite(values).all():
+        largest = sample[name].attrs.get("valid_max")
+        if largest is not None and (values > largest).any():
+            return (
+                f"{name} holds {int(np.count_nonzero(values > largest))} count(s) over "
+                f"{largest}, the most its {np.dtype(type(largest)).name} holds (a scene "
+                "brighter than workers.labels.COUNT_HEADROOM allows)"
+            )
+        if name in FINITE and values.dtype.kind == "f" and not np.isfinite(values).all():
             count = int(np.count_nonzero(~np.isfinite(values)))
             return f"{name} holds {count} non-finite value(s) (NaN or inf)"
         if name in NON_NEGATIVE and (values < 0).any():
@@ -131,7 +152,10 @@ class DamagedStoreError(RuntimeError):
 
 
 def read_samples(array, samples: list[int]) -> np.ndarray:
-    """The chunks of `samples` from a one-sample-per-chunk array.
+    """The chunks of `samples` (ascending) from a one-sample-per-chunk array.
+
+    Consecutive samples are read as one slice (zarr's orthogonal selection costs several
+    times more per sharded chunk).
 
     Raises
     ------
@@ -139,7 +163,10 @@ def read_samples(array, samples: list[int]) -> np.ndarray:
         Naming the first sample whose chunk fails to decode (a checksum that does not
         match, truncated or foreign bytes).
     """
+    first = samples[0] if len(samples) else 0
     try:
+        if list(samples) == list(range(first, first + len(samples))):
+            return array[first : first + len(samples)]
         return array.get_orthogonal_selection((samples,))
     except Exception:
         for sample in samples:
@@ -154,23 +181,35 @@ def read_samples(array, samples: list[int]) -> np.ndarray:
         raise
 
 
-def write_samples(group, start: int, samples: list[xr.Dataset]) -> None:
-    """Write consecutive rendered samples' whole chunks, then mark them complete.
+def write_shard(group, samples: dict[int, xr.Dataset]) -> None:
+    """Write the whole shard that holds `samples` (rendered), then mark them complete.
 
-    Writes go straight to the zarr arrays the template created (one chunk per sample per
-    variable), one call per variable for the whole batch: xarray's region writes re-read
-    the store's metadata on every call, which costs more than rendering a small sample.
+    The shard's other samples already complete are read back and written again with the
+    new ones (their bytes do not change); the rest stay at the fill value and incomplete.
+    The caller owns the shard: no other task writes it meanwhile (`service.run`). Writes
+    go straight to the zarr arrays the template created, one call per variable: xarray's
+    region writes re-read the store's metadata on every call, which costs more than
+    rendering a small sample.
     """
-    region = slice(start, start + len(samples))
-    names = [name for name in RENDERED_VARIABLES if name in samples[0]]
-    stacked = {
-        name: np.stack([sample[name].values for sample in samples]).astype(group[name].dtype)
-        for name in names
-    }
-    for name in names:
-        group[name][region] = stacked[name]
-    group["checksum"][region] = np.array(
-        [sample_checksum([stacked[name][i] for name in names]) for i in range(len(samples))],
-        dtype=np.uint32,
-    )
-    group["completed"][region] = np.ones(len(samples), dtype=np.uint8)
+    size = shard_samples(group)
+    first = min(samples) // size * size
+    region = slice(first, min(first + size, group["completed"].shape[0]))
+    done = group["completed"][region].astype(bool)
+    kept = [first + int(i) for i in np.flatnonzero(done) if first + int(i) not in samples]
+    blocks = {}
+    for name in _stored(group):
+        array = group[name]
+        block = np.full((region.stop - first, *array.shape[1:]), array.fill_value, array.dtype)
+        if kept:
+            block[[k - first for k in kept]] = read_samples(array, kept)
+        for sample, rendered in samples.items():
+            block[sample - first] = rendered[name].values
+        blocks[name] = block
+    checksums = group["checksum"][region]
+    for sample in samples:
+        checksums[sample - first] = sample_checksum([b[sample - first] for b in blocks.values()])
+    for name, block in blocks.items():
+        group[name][region] = block
+    group["checksum"][region] = checksums
+    done[[s - first for s in samples]] = True
+    group["completed"][region] = done.astype(np.uint8)

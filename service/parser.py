@@ -10,7 +10,7 @@ import argparse
 
 from service.client import add_commands
 from service.inputs import json_object
-from service.store import package_version
+from service.store import SHARD_SAMPLES, package_version
 from service.sweep import DEFAULT_MAX_MEMORY
 
 __all__ = ["parser"]
@@ -60,7 +60,12 @@ def _run(commands) -> None:
         action="store_true",
         help="with --resume: read back every completed sample, recompute damaged ones",
     )
-    run.add_argument("--batch", type=int, default=4, help="samples per task (default 4)")
+    run.add_argument(
+        "--batch",
+        type=int,
+        default=SHARD_SAMPLES,
+        help=f"samples per shard and task of a new store (default {SHARD_SAMPLES})",
+    )
     run.add_argument(
         "--task-timeout",
         type=float,

@@ -20,6 +20,7 @@ import numpy as np
 import xarray as xr
 from PIL import Image
 
+from service import store
 from service.inputs import SweepError
 from service.sweep import Plan
 from workers.render import render
@@ -188,7 +189,7 @@ def save_preview(
 
 def plot_statistics(stats: xr.Dataset, path: str) -> None:
     """Target contrast and contrast-to-noise ratio against each swept parameter, per gate."""
-    swept = [name for name in stats.coords if "." in str(name)]
+    swept = list(store.swept_parameters(stats))
     if not swept:
         raise SweepError("the store sweeps no parameter: nothing to plot against")
     figure, axes = plt.subplots(
@@ -208,7 +209,8 @@ def plot_statistics(stats: xr.Dataset, path: str) -> None:
                     ax.plot(labels[order], data[order, g], ".", label=f"{top:.1f}–{bottom:.1f} m")
                 else:
                     ax.plot(labels, data[:, g], "o", label=f"{top:.1f}–{bottom:.1f} m")
-            ax.set_xlabel(f"{name} ({stats[name].attrs.get('units', '1')})", fontsize=8)
+            units = stats[name].attrs.get("units", "1")
+            ax.set_xlabel(f"{stats[name].attrs['parameter']} ({units})", fontsize=8)
             ax.set_ylabel("target contrast" if row == 0 else "CNR", fontsize=8)
             ax.axhline(0.0, color="0.7", linewidth=0.5)
             ax.tick_params(labelsize=7)
@@ -241,7 +243,7 @@ def plot_detection(detection: xr.Dataset, path: str) -> None:
         left out), one colour per detector; points that share every other parameter are
         joined by a line.
     """
-    swept = [n for n in detection.coords if "." in str(n) and str(n) != "target.shape"]
+    swept = [n for n, path in store.swept_parameters(detection).items() if path != "target.shape"]
     points = detection.sizes["point"]
     columns = max(4, len(swept))
     roc_rows = -(-points // columns)
@@ -271,7 +273,10 @@ def plot_detection(detection: xr.Dataset, path: str) -> None:
         ax.set_ylim(0.0, 1.02)
         ax.set_xlabel("false-alarm probability", fontsize=6)
         ax.set_ylabel("detection probability", fontsize=6)
-        values = [f"{str(n).split('.')[-1]}={detection[n].values[i]}" for n in swept]
+        values = [
+            f"{detection[n].attrs['parameter'].split('.')[-1]}={detection[n].values[i]}"
+            for n in swept
+        ]
         half = -(-len(values) // 2)
         ax.set_title(", ".join(values[:half]) + "\n" + ", ".join(values[half:]), fontsize=6)
         ax.tick_params(labelsize=6)

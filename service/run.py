@@ -1,11 +1,14 @@
 """Run a sweep on dask (on the client of `service.cluster`), then write its statistics.
 
-Samples are grouped into tasks of consecutive samples; each task renders its samples and
-writes them as whole chunks (`service.integrity.write_samples`). Submission is bounded: at most
-a few tasks per worker thread are in flight, so the client's memory stays flat whatever the
-sweep's size. Results never depend on worker count, order or retries: every sample's random
-streams are keyed by its position (`service.sweep.Plan.sample`) and a retried task rewrites
-the same bytes.
+One task per shard of the store (`service.store`): it renders the shard's missing samples
+and writes the whole shard (`service.integrity.write_shard`). A shard is written by one
+task at a time, never two: each shard has one task in the first pass; the samples of
+shards whose task failed are then rendered one per task with a single task in flight, and
+a shard whose task was given up as stuck (it may still be running) is never given to
+another task. Submission is bounded: at most a few tasks per worker thread are in flight,
+so the client's memory stays flat whatever the sweep's size. Results never depend on
+worker count, order or retries: every sample's random streams are keyed by its position
+(`service.sweep.Plan.sample`) and a retried task rewrites the same bytes.
 
 Two kinds of failure: a runtime failure (a worker lost, a storage hiccup) is retried; a
 sample whose scene cannot be rendered (`workers.section.SceneError`, an error in the input)
@@ -40,7 +43,7 @@ __all__ = [
     "RunCancelledError",
     "RunResult",
     "execute",
-    "render_batch",
+    "render_shard",
     "run_plan",
     "task_batches",
 ]
@@ -59,18 +62,16 @@ PROBE_TIMEOUT = 120
 """Seconds a worker has to confirm it sees the store, before anything is rendered."""
 
 
-def render_batch(url, start, jobs, storage_options=None):
-    """Render and write consecutive samples (runs on a dask worker).
+def render_shard(url, jobs, storage_options=None):
+    """Render samples of one shard and write the whole shard (runs on a dask worker).
 
     Parameters
     ----------
     url : str
         The store.
-    start : int
-        Index of the first sample.
     jobs : list of tuple
-        ``(scene, seed)`` per sample: its `workers.scene.Scene` (hashable, sent as it is)
-        and `workers.seeds.SampleSeed`.
+        ``(sample, scene, seed)`` per sample, all in one shard: its index, its
+        `workers.scene.Scene` (hashable, sent as it is) and `workers.seeds.SampleSeed`.
     storage_options : dict, optional
         fsspec options.
 
@@ -84,49 +85,41 @@ def render_batch(url, start, jobs, storage_options=None):
     """
     tune_allocator()
     group = store.open_group(url, storage_options)
-    rejected = []
-    first, valid = start, []
-    for offset, (scene, seed) in enumerate(jobs):
+    rejected, valid = [], {}
+    for sample, scene, seed in jobs:
         try:
-            sample = render(scene, seed=seed)
+            rendered = render(scene, seed=seed)
         except SceneError as error:
-            sample, reason, refused = None, str(error), True
-        else:
-            reason, refused = integrity.invalid_values(sample), False
-        if reason is None:
-            valid.append(sample)
+            rejected.append((sample, str(error), True))
             continue
-        rejected.append((start + offset, reason, refused))
-        if valid:
-            integrity.write_samples(group, first, valid)
-        first, valid = start + offset + 1, []
+        reason = integrity.invalid_values(rendered)
+        if reason is None:
+            valid[sample] = rendered
+        else:
+            rejected.append((sample, reason, False))
     if valid:
-        integrity.write_samples(group, first, valid)
+        integrity.write_shard(group, valid)
     return rejected
 
 
-def task_batches(plan: Plan, todo, batch_size: int) -> Iterator[tuple[int, list]]:
-    """Consecutive runs of the samples in `todo`, at most `batch_size` long.
+def task_batches(plan: Plan, todo, samples_per_shard: int) -> Iterator[tuple[int, list]]:
+    """The samples of `todo` (ascending) grouped by the shard that holds them.
 
     Yields
     ------
     tuple
-        ``(start, jobs)`` as `render_batch` takes them.
+        ``(first sample, jobs)`` as `render_shard` takes the jobs.
     """
     run: list = []
-    start = previous = None
     for sample in todo:
         sample = int(sample)
-        if run and (sample != previous + 1 or len(run) == batch_size):
-            yield start, run
+        if run and sample // samples_per_shard != run[0][0] // samples_per_shard:
+            yield run[0][0], run
             run = []
-        if not run:
-            start = sample
         address = plan.sample(sample)
-        run.append((address.scene, address.seed))
-        previous = sample
+        run.append((sample, address.scene, address.seed))
     if run:
-        yield start, run
+        yield run[0][0], run
 
 
 class RunCancelledError(Exception):
@@ -144,7 +137,8 @@ class RunResult:
     (`service.integrity.invalid_values`); neither are written nor marked complete; ``damaged``
     holds ``(sample, reason)`` for samples that ``verify`` found damaged and recomputed;
     ``stuck`` holds ``(start, count)`` for tasks given up after the task timeout;
-    ``stopped`` says why a run stopped early (a storage failure no retry cures).
+    ``stopped`` says why a run stopped early (a storage failure no retry cures);
+    ``points`` holds the parameter points whose samples a resumed run (re)wrote (None: all).
     """
 
     total: int
@@ -159,6 +153,7 @@ class RunResult:
     seconds: float = 0.0
     interrupted: bool = False
     max_in_flight: int = 0
+    points: np.ndarray | None = None
 
 
 def run_plan(
@@ -168,7 +163,6 @@ def run_plan(
     client: Client,
     resume: bool = False,
     storage_options: dict | None = None,
-    batch_size: int = 4,
     task_timeout: float = TASK_TIMEOUT,
     progress_stream=None,
     cancel=None,
@@ -176,26 +170,30 @@ def run_plan(
 ) -> RunResult:
     """Render every missing sample of `plan` into the store at `url`.
 
-    The store must exist (`service.store.create_store`). With `resume`, samples already
-    marked complete are skipped. Batches that fail (after dask's retries, or because a
-    worker died under them) are run again one sample at a time, one task in flight, so a
-    sample that kills its worker is reported alone and the samples that merely shared its
-    worker complete. A task without a result `task_timeout` seconds after its submission
-    (a frozen worker) is given up and reported in ``stuck``, not run again. A storage
-    failure that no retry cures (a full disk, a read-only or forbidden store) stops the
-    run at once, with one message in ``stopped``.
+    The store must exist (`service.store.create_store`); one task per shard. With
+    `resume`, samples already marked complete are skipped. Shards whose task fails (after
+    dask's retries, or because a worker died under it) have their samples run again one
+    per task, one task in flight, so a sample that kills its worker is reported alone and
+    the samples that merely shared its worker complete. A task without a result
+    `task_timeout` seconds after its submission (a frozen worker) is given up and reported
+    in ``stuck``; its shard is given to no other task. A storage failure that no retry
+    cures (a full disk, a read-only or forbidden store) stops the run at once, with one
+    message in ``stopped``.
 
     Setting `cancel` (a `threading.Event`) cancels the tasks in flight, waits for those
     already executing to end (at most `task_timeout`), and ends the run as interrupted,
     resumable. `on_progress(done, rate)` is called as samples complete
     (samples, samples/s).
     """
+    size = store.shard_samples(store.open_group(url, storage_options))
     if resume:
         done = integrity.completed_samples(url, storage_options=storage_options)
         todo = np.flatnonzero(~done)
     else:
         todo = range(plan.samples)  # lazy: the client holds no per-sample list
     result = RunResult(total=plan.samples, skipped=plan.samples - len(todo))
+    if resume:
+        result.points = np.unique(todo // plan.realisations)
     progress = Progress(plan.samples, result.skipped, progress_stream, on_progress)
     threads = sum(client.nthreads().values()) or 1
     # task keys name the sweep and the store: concurrent runs never share a task
@@ -214,12 +212,21 @@ def run_plan(
         failed=failed,
         cancel=cancel,
     )
+
+    def alone(samples):
+        """One sample per task, never of a shard whose task was given up (still running?)."""
+        for start, jobs in task_batches(plan, samples, 1):
+            if any(first // size == start // size for first, _ in result.stuck):
+                result.stuck.append((start, 1))
+                continue
+            yield start, jobs
+
     try:
-        submit(task_batches(plan, todo, batch_size), window, f"{run_id}-batch")
-        singles = [sample for start, count, _ in failed for sample in range(start, start + count)]
+        submit(task_batches(plan, todo, size), window, f"{run_id}-shard")
+        singles = sorted(sample for samples, _ in failed for sample in samples)
         failed.clear()
         if result.stopped is None:
-            submit(task_batches(plan, singles, 1), 1, f"{run_id}-alone")
+            submit(alone(singles), 1, f"{run_id}-alone")
     except KeyboardInterrupt:
         result.interrupted = True
     except RunCancelledError:
@@ -233,7 +240,7 @@ def run_plan(
     finally:
         progress.close()
         result.seconds = time.monotonic() - started
-    result.failed = failed
+    result.failed = [(samples[0], len(samples), error) for samples, error in failed]
     return result
 
 
@@ -262,7 +269,7 @@ def _submit_bounded(
     cancel=None,
 ):
     """Submit `batches` keeping at most `window` tasks in flight; record what happened."""
-    running: dict = {}  # future -> (start, count, submitted at)
+    running: dict = {}  # future -> (samples, submitted at)
 
     def submit_next() -> bool:
         try:
@@ -270,16 +277,15 @@ def _submit_bounded(
         except StopIteration:
             return False
         future = client.submit(
-            render_batch,
+            render_shard,
             url,
-            start,
             jobs,
             storage_options,
             key=f"oceanlidar-{tag}-{start}-{len(jobs)}",
             retries=RETRIES,
             pure=False,
         )
-        running[future] = (start, len(jobs), time.monotonic())
+        running[future] = ([job[0] for job in jobs], time.monotonic())
         result.max_in_flight = max(result.max_in_flight, len(running))
         return True
 
@@ -298,25 +304,25 @@ def _submit_bounded(
             if cancel is not None and cancel.is_set():
                 raise RunCancelledError
             for future in done:
-                start, count, _ = running.pop(future)
+                samples, _ = running.pop(future)
                 if future.status == "finished":
                     unwritten = future.result()
-                    result.written += count - len(unwritten)
+                    result.written += len(samples) - len(unwritten)
                     for sample, reason, refused in unwritten:
                         (result.refused if refused else result.rejected).append((sample, reason))
-                    progress.update(count)
+                    progress.update(len(samples))
                 elif _lasting_storage_error(error := future.exception()):
                     result.stopped = f"{url}: {error.strerror} (errno {error.errno})"
                 else:
-                    failed.append((start, count, repr(error)))
+                    failed.append((samples, repr(error)))
                 future.release()
             now = time.monotonic()
-            for future, (start, count, submitted) in list(running.items()):
+            for future, (samples, submitted) in list(running.items()):
                 if result.stopped is not None or now - submitted > task_timeout:
                     running.pop(future)
                     future.cancel()
                     if result.stopped is None:
-                        result.stuck.append((start, count))
+                        result.stuck.append((samples[0], samples[-1] - samples[0] + 1))
             if window > 1 and now - checked > WINDOW_REFRESH:
                 # workers join and leave: keep a few tasks per thread present now
                 checked = now
@@ -381,7 +387,7 @@ def execute(
     verify: bool = False,
     overwrite: bool = False,
     storage_options: dict | None = None,
-    batch_size: int = 4,
+    batch_size: int = store.SHARD_SAMPLES,
     task_timeout: float = TASK_TIMEOUT,
     progress_stream=None,
     client: Client | None = None,
@@ -390,9 +396,12 @@ def execute(
 ) -> RunResult:
     """Create (or reopen) the store, run the missing samples and write the statistics.
 
-    With `resume` and `verify`, every completed sample is read back first
-    (`service.integrity.verify`) and the damaged ones are rendered again with the missing ones.
-    `dashboard` and `verbose` go to `service.cluster.dask_client`.
+    `batch_size` is the samples per shard (and task) of a new store; a resumed store keeps
+    its own. With `resume` and `verify`, every completed sample is read back first
+    (`service.integrity.verify`) and the damaged ones are rendered again with the missing
+    ones. After a resumed run, only the statistics of the points it wrote are recomputed
+    (`service.stats.write_statistics`). `dashboard` and `verbose` go to
+    `service.cluster.dask_client`.
 
     Everything is checked before anything is deleted or written, once before taking the
     store's writer lock (so a refused run leaves no trace) and again holding it (another
@@ -429,7 +438,9 @@ def execute(
                 storage.remove_files(storage.stats_url(url), storage_options, old_stats)
                 storage.remove_files(url, storage_options, old_files)
                 if not resuming:
-                    store.create_store(plan, url, storage_options=storage_options)
+                    store.create_store(
+                        plan, url, storage_options=storage_options, samples_per_shard=batch_size
+                    )
             damaged = integrity.verify(url, storage_options) if resuming and verify else []
             integrity.mark_incomplete(url, [sample for sample, _ in damaged], storage_options)
             result = run_plan(
@@ -438,7 +449,6 @@ def execute(
                 client=client,
                 resume=resuming,
                 storage_options=storage_options,
-                batch_size=batch_size,
                 task_timeout=task_timeout,
                 progress_stream=progress_stream,
                 cancel=cancel,
@@ -453,5 +463,5 @@ def execute(
                 or result.stuck
                 or result.stopped
             ):
-                write_statistics(url, storage_options=storage_options)
+                write_statistics(url, storage_options=storage_options, points=result.points)
     return result

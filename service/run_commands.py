@@ -49,13 +49,13 @@ def load(args) -> Plan:
     return plan
 
 
-def plan_lines(plan: Plan, batch: int = 4, url: str | None = None) -> list[str]:
+def plan_lines(plan: Plan, batch: int = store.SHARD_SAMPLES, url: str | None = None) -> list[str]:
     """The plan for people: points, samples, tasks, storage, what is swept, where to."""
-    tasks = -(-plan.realisations // batch) * len(plan.points)
+    tasks = -(-plan.samples // batch)
     return [
         f"sweep {plan.sweep.name!r}: {len(plan.points)} parameter points x "
         f"{plan.realisations} realisations = {plan.samples} samples",
-        f"  tasks: about {tasks} (batch of {batch})",
+        f"  tasks: {tasks} (shards of {batch} samples)",
         f"  storage: about {format_bytes(plan.total_bytes())} uncompressed "
         f"({format_bytes(plan.sample_bytes())} per sample)",
         f"  swept: {', '.join(plan.swept) or '(nothing)'}",

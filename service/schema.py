@@ -14,7 +14,15 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 import scipy.stats
-from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Discriminator,
+    Field,
+    StrictBool,
+    Tag,
+    model_validator,
+)
 
 from service.inputs import SweepError
 from workers.scene import Scene
@@ -22,6 +30,7 @@ from workers.scene import Scene
 __all__ = [
     "SAMPLED",
     "Distribution",
+    "StoreSpec",
     "Sweep",
     "SweepSpec",
     "Value",
@@ -172,6 +181,15 @@ class SweepSpec(_Model):
         return self
 
 
+class StoreSpec(_Model):
+    """What the store keeps of each sample beyond its noisy image and labels."""
+
+    expected: StrictBool = False
+    """Store the noise-free ``expected`` images too (float32: most of a sample's bytes).
+    Statistics never need them (their per-sample signals are computed in the render task);
+    a detection study renders them again when they are not stored."""
+
+
 class Sweep(_Model):
     """A sweep file."""
 
@@ -181,6 +199,7 @@ class Sweep(_Model):
     output: str = Field(min_length=1, max_length=4096)
     scene: dict[str, Any] = Field(default_factory=dict)
     sweep: SweepSpec = SweepSpec()
+    store: StoreSpec = StoreSpec()
 
 
 def scene_field(path: str):

@@ -3,8 +3,10 @@
 The statistics dataset sits beside the store (`service.storage.stats_url`). One dask task per
 group of parameter points reads those points' samples (never the whole store), reduces them
 over realisations and frames with numpy, and writes its points' whole chunks of the
-statistics store, exactly as rendering tasks write the sample store. Samples not yet
-written are ignored. Variables:
+statistics store. Samples not yet written are ignored. The noise-free signals come from the
+per-sample means the render task computed (``target_signal``, ``background_signal``), so the
+store need not keep the noise-free images. After a resumed run only the points it wrote
+are recomputed, in place. Variables:
 
 - ``image_mean``, ``image_std`` (point, gate, y, x): mean and standard deviation images;
 - ``target_signal``, ``background_signal`` (point, gate): mean expected (noise-free)
@@ -27,15 +29,13 @@ import warnings
 import dask
 import numpy as np
 import xarray as xr
-from scipy.ndimage import maximum_filter
+import zarr
 
 from service import integrity, storage, store
 from service.inputs import SweepError
+from workers.labels import signal_means
 
-__all__ = ["RING_FRACTION", "point_statistics", "write_statistics"]
-
-RING_FRACTION = 0.1
-"""Width of the background ring around the target mask, as a fraction of the image."""
+__all__ = ["point_statistics", "write_statistics"]
 
 POINTS_PER_TASK = 8
 
@@ -48,21 +48,16 @@ _PER_GATE = {
 }
 
 
-def _masked_mean(values, mask):
-    """Mean of `values` (..., gate, y, x) over pixels where `mask` (..., y, x) holds."""
-    weights = mask[..., np.newaxis, :, :]
-    count = weights.sum(axis=(-2, -1))
-    total = (values * weights).sum(axis=(-2, -1))
-    return np.divide(total, count, out=np.full(total.shape, np.nan), where=count > 0)
-
-
-def point_statistics(image, expected, mask, visibility):
+def point_statistics(image, target, background, mask, visibility):
     """The statistics of one parameter point from its written samples.
 
     Parameters
     ----------
-    image, expected : ndarray, shape (samples, frames, gates, y, x)
-        Noisy and noise-free images.
+    image : ndarray, shape (samples, frames, gates, y, x)
+        Noisy images.
+    target, background : ndarray, shape (samples, frames, gates)
+        Mean noise-free signal inside the target mask and in the ring around it
+        (`workers.labels.signal_means`), NaN where the region is empty.
     mask : ndarray of bool, shape (samples, frames, y, x)
         Pixels whose ray meets the target.
     visibility : ndarray, shape (samples, gates)
@@ -80,13 +75,11 @@ def point_statistics(image, expected, mask, visibility):
         "image_mean": flat.mean(axis=0) if n else np.full(image.shape[2:], np.nan),
         "image_std": flat.std(axis=0, ddof=1) if n > 1 else np.full(image.shape[2:], np.nan),
     }
-    width = max(2, round(RING_FRACTION * mask.shape[-1]))
-    near = maximum_filter(mask, size=(1, 1, 2 * width + 1, 2 * width + 1), mode="constant")
-    ring = near & ~mask
-    target = _masked_mean(expected, mask)
-    background = _masked_mean(expected, ring)
-    difference = _masked_mean(image, mask) - _masked_mean(image, ring)
-    spread = np.sqrt(np.maximum(_masked_mean(image**2, ring) - _masked_mean(image, ring) ** 2, 0))
+    target = target.astype(np.float64)
+    background = background.astype(np.float64)
+    inside, ring = signal_means(image, mask)
+    square = signal_means(image.astype(np.float64) ** 2, mask)[1]
+    spread = np.sqrt(np.maximum(square - ring**2, 0))
     visible = mask.any(axis=(-2, -1))[..., np.newaxis] & (visibility[:, np.newaxis, :] == 1)
     with warnings.catch_warnings():
         # no target, or no background ring: those entries are NaN by design
@@ -97,7 +90,7 @@ def point_statistics(image, expected, mask, visibility):
             "target_contrast": np.nanmean(
                 (target - background) / np.where(background > 0, background, np.nan), axis=(0, 1)
             ),
-            "cnr": np.nanmean(difference / np.where(spread > 0, spread, np.nan), axis=(0, 1)),
+            "cnr": np.nanmean((inside - ring) / np.where(spread > 0, spread, np.nan), axis=(0, 1)),
             "visible_fraction": visible.mean(axis=(0, 1)),
         }
     stats.update(per_gate)
@@ -109,7 +102,7 @@ def _template(ds: xr.Dataset) -> xr.Dataset:
     realisations = int(ds.attrs["realisations"])
     gates, ny, nx = ds.sizes["gate"], ds.sizes["y"], ds.sizes["x"]
     units = ds["image"].attrs.get("units", "1")
-    signal_units = ds["expected"].attrs.get("units", "1")
+    signal_units = ds["target_signal"].attrs.get("units", "1")
     data_vars = {
         "image_mean": (
             ("point", "gate", "y", "x"),
@@ -135,7 +128,12 @@ def _template(ds: xr.Dataset) -> xr.Dataset:
         )
     first = np.arange(points) * realisations
     coords = {
-        "point": ("point", np.arange(points)),
+        "point": (
+            "point",
+            np.arange(points),
+            {"long_name": "parameter point index", "units": "1"},
+        ),
+        "gate": ds["gate"],
         "gate_top": ds["gate_top"].load(),
         "gate_bottom": ds["gate_bottom"].load(),
     }
@@ -160,31 +158,45 @@ def _reduce_points(url, target, points, done, realisations, storage_options):
     """
     source = store.open_group(url, storage_options)
     sink = store.open_group(target, storage_options)
+    done = np.asarray(done, dtype=bool).reshape(len(points), realisations)
+    starts = np.asarray(points)[:, np.newaxis] * realisations
+    picks = (starts + np.arange(realisations))[done]
+    if picks.size == 0:
+        return len(points)
+    # all the points' samples at once: consecutive points are one slice of the store
+    names = ("image", "target_signal", "background_signal", "target_mask", "target_visibility")
+    read = {name: integrity.read_samples(source[name], picks.tolist()) for name in names}
+    owner = np.repeat(np.arange(len(points)), done.sum(axis=1))
     for index, point in enumerate(points):
-        written = np.flatnonzero(done[index * realisations : (index + 1) * realisations])
-        if written.size == 0:
+        mine = owner == index
+        if not mine.any():
             continue
-        first = point * realisations
-        picks = [first + int(i) for i in written]
         stats = point_statistics(
-            image=integrity.read_samples(source["image"], picks),
-            expected=integrity.read_samples(source["expected"], picks),
-            mask=integrity.read_samples(source["target_mask"], picks).astype(bool),
-            visibility=integrity.read_samples(source["target_visibility"], picks),
+            image=read["image"][mine],
+            target=read["target_signal"][mine],
+            background=read["background_signal"][mine],
+            mask=read["target_mask"][mine].astype(bool),
+            visibility=read["target_visibility"][mine],
         )
         for name, value in stats.items():
             sink[name][point] = value
-        sink["samples"][point] = written.size
+        sink["samples"][point] = int(mine.sum())
     return len(points)
 
 
-def write_statistics(url: str, *, storage_options: dict | None = None) -> str:
+def write_statistics(
+    url: str, *, storage_options: dict | None = None, points: np.ndarray | None = None
+) -> str:
     """(Re)compute the statistics of the store at `url` and write them beside it.
 
-    The new statistics are written to a fresh store beside the old ones and moved into
-    place only when complete: a failure leaves the previous statistics as they were. The
-    caller holds the sample store's writer lock (`service.lock.writer_lock`). Runs on the
-    dask client in use (the sweep's cluster), or on local threads.
+    With `points` (after a resumed run: the points whose samples it wrote), only those
+    points (and any whose statistics count other samples than the store holds) are
+    recomputed, in place, if sound statistics of this sweep are there (else everything
+    is). Otherwise new statistics are written to a fresh store beside the old
+    ones and moved into place only when complete: a failure leaves the previous statistics
+    as they were. The caller holds the sample store's writer lock
+    (`service.lock.writer_lock`). Runs on the dask client in use (the sweep's cluster), or
+    on local threads.
 
     Returns
     -------
@@ -198,6 +210,14 @@ def write_statistics(url: str, *, storage_options: dict | None = None) -> str:
     """
     ds = store.open_store(url, storage_options=storage_options)
     target = storage.stats_url(url)
+    recorded = None if points is None else _recorded(ds, target, storage_options)
+    if recorded is not None:
+        # the run's points, and any whose statistics count other samples than are written
+        done = integrity.completed_samples(url, storage_options=storage_options)
+        stale = recorded != done.reshape(recorded.size, -1).sum(axis=1)
+        update = np.union1d(np.asarray(points, dtype=int), np.flatnonzero(stale))
+        _reduce_all(ds, url, target, update.tolist(), storage_options)
+        return target
     old = storage.removable_files(target, storage_options, kind="statistics")
     partial = f"{target.rstrip('/')}.partial-{uuid.uuid4().hex[:12]}"
     try:
@@ -213,6 +233,35 @@ def write_statistics(url: str, *, storage_options: dict | None = None) -> str:
     storage.remove_files(target, storage_options, old)
     storage.move(partial, target, storage_options)
     return target
+
+
+def _recorded(ds: xr.Dataset, target: str, storage_options: dict | None):
+    """Samples per point that the statistics at `target` were computed from.
+
+    None unless `target` holds statistics of the sweep of `ds`, of this version, with
+    every variable and a readable ``samples`` array (their images are not read).
+    """
+    attributes = storage.root_attributes(target, storage_options) or {}
+    if (
+        attributes.get(storage.KIND) != "statistics"
+        or attributes.get("sweep_sha256") != ds.attrs.get("sweep_sha256")
+        or attributes.get("oceanlidar_version") != store.package_version()
+    ):
+        return None
+    try:
+        group = zarr.open_group(
+            store=target,
+            mode="r",
+            zarr_format=3,
+            use_consolidated=True,
+            storage_options=storage_options,
+        )
+        if not {"image_mean", "image_std", "samples", *_PER_GATE} <= set(group.array_keys()):
+            return None
+        counts = group["samples"][:]
+    except Exception:
+        return None
+    return counts if counts.shape == (int(ds.attrs["points"]),) else None
 
 
 def _compute(ds: xr.Dataset, url: str, target: str, storage_options: dict | None) -> None:
@@ -231,19 +280,23 @@ def _compute(ds: xr.Dataset, url: str, target: str, storage_options: dict | None
             },
             storage_options=storage_options,
         )
-    points = int(ds.attrs["points"])
+    _reduce_all(ds, url, target, list(range(int(ds.attrs["points"]))), storage_options)
+
+
+def _reduce_all(ds: xr.Dataset, url: str, target: str, points: list[int], storage_options):
+    """Compute the statistics of `points` into the statistics store at `target`."""
     realisations = int(ds.attrs["realisations"])
-    # the flags from one listing, not one read per sample
     done = integrity.completed_samples(url, storage_options=storage_options)
+    flags = done.reshape(-1, realisations)
     tasks = [
         dask.delayed(_reduce_points)(
             url,
             target,
-            list(range(start, min(start + POINTS_PER_TASK, points))),
-            done[start * realisations : (start + POINTS_PER_TASK) * realisations],
+            points[start : start + POINTS_PER_TASK],
+            flags[points[start : start + POINTS_PER_TASK]].ravel(),
             realisations,
             storage_options,
         )
-        for start in range(0, points, POINTS_PER_TASK)
+        for start in range(0, len(points), POINTS_PER_TASK)
     ]
     dask.compute(*tasks)

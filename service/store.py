@@ -1,11 +1,15 @@
 """The sweep's zarr store: its layout and template.
 
-Layout (README, "The dataset"): dimensions ``sample, frame, gate, y, x``, one sample per chunk. The
-template (metadata and the coordinates that do not depend on rendering) is written once with
-``compute=False``; each task then writes whole chunks of its samples with region writes, and
-only after that sets their ``completed`` flags, so an interrupted run never marks a sample
-complete that is not written (`service.integrity`). Where stores live and what may be
-deleted: `service.storage`; the writer's lock: `service.lock`.
+Layout (README, "The dataset"): dimensions ``sample, frame, gate, y, x``. Samples are grouped
+in shards of consecutive samples (zarr v3 sharding), one file per shard and array; inside a
+shard, one sample per chunk, so that reading one sample stays one small read. The small
+per-sample arrays (``completed``, ``checksum``, the signal means) have one chunk per shard.
+A shard belongs to one task (`service.run`), which writes all of it. The template
+(metadata and the coordinates that do not depend on rendering) is written once with
+``compute=False``; tasks then write whole shards, and only after that set their samples'
+``completed`` flags, so an interrupted run never marks a sample complete that is not
+written (`service.integrity`). Where stores live and what may be deleted:
+`service.storage`; the writer's lock: `service.lock`.
 """
 
 from __future__ import annotations
@@ -31,17 +35,34 @@ from workers.render import render, sample_labels
 __all__ = [
     "CODECS",
     "RENDERED_VARIABLES",
+    "SHARD_SAMPLES",
     "check_uniform",
     "create_store",
     "lazy_array",
     "one_per_chunk",
     "open_group",
     "open_store",
+    "parameter_name",
     "sample_dataset",
+    "shard_samples",
+    "swept_parameters",
+    "widest_image",
 ]
 
-RENDERED_VARIABLES = ("image", "expected", "target_mask", "surface_elevation")
+RENDERED_VARIABLES = (
+    "image",
+    "expected",
+    "target_mask",
+    "surface_elevation",
+    "target_signal",
+    "background_signal",
+)
 """Per-sample variables that tasks write; the rest of a sample is written with the template."""
+SHARDED = frozenset({"image", "expected", "target_mask", "surface_elevation"})
+"""Rendered variables stored one sample per chunk inside shards; the others (small) and the
+completion records take one chunk per shard."""
+SHARD_SAMPLES = 8
+"""Samples per shard (and per task) unless ``--batch`` says otherwise."""
 
 FLAT_CHUNK_KEYS = {"name": "default", "separator": "."}
 """Chunk files named c.4.0.0.0.0 in the array's folder: one file per chunk, no folders to
@@ -76,13 +97,15 @@ def package_version() -> str:
         return "unknown"
 
 
-def lazy_array(shape: tuple, fill, dtype) -> da.Array:
+def lazy_array(shape: tuple, fill, dtype, *, multiple: int = 1) -> da.Array:
     """A dask array standing for data the template does not write (few, large chunks).
 
-    The zarr chunking comes from `one_per_chunk`: a dask graph with one chunk per sample
-    would grow with the sweep (10⁶ samples: gigabytes in the client).
+    The zarr chunking comes from the encoding: a dask graph with one chunk per sample
+    would grow with the sweep (10⁶ samples: gigabytes in the client). Dask chunks hold a
+    whole number of `multiple` leading indices (a shard).
     """
-    return da.full(shape, fill, dtype=dtype, chunks=(min(shape[0], 65536), *shape[1:]))
+    rows = min(shape[0], max(multiple, 65536 // multiple * multiple))
+    return da.full(shape, fill, dtype=dtype, chunks=(rows, *shape[1:]))
 
 
 def one_per_chunk(shape: tuple) -> dict:
@@ -90,8 +113,48 @@ def one_per_chunk(shape: tuple) -> dict:
     return {"chunks": (1, *shape), "chunk_key_encoding": FLAT_CHUNK_KEYS, "compressors": CODECS}
 
 
+def sharded(shape: tuple, samples: int) -> dict:
+    """Zarr encoding: shards of `samples` leading indices, one index per chunk inside."""
+    return {**one_per_chunk(shape), "shards": (samples, *shape)}
+
+
+def per_shard(shape: tuple, samples: int) -> dict:
+    """Zarr encoding: one chunk per shard of `samples` leading indices (small arrays)."""
+    return {**one_per_chunk(shape), "chunks": (samples, *shape)}
+
+
+def shard_samples(group) -> int:
+    """Samples per shard of a store's zarr group."""
+    return int(group["completed"].chunks[0])
+
+
+def parameter_name(path: str) -> str:
+    """The variable name of a swept dotted path: a Python identifier (``target_depth``)."""
+    return path.replace(".", "_")
+
+
+def swept_parameters(ds: xr.Dataset) -> dict[str, str]:
+    """The swept parameters of a store (or its statistics): variable name -> dotted path."""
+    return {
+        str(name): variable.attrs["parameter"]
+        for name, variable in ds.variables.items()
+        if "parameter" in variable.attrs
+    }
+
+
 def check_uniform(plan: Plan) -> None:
-    """One store holds one array shape: the shape-defining parameters must not vary."""
+    """One store holds one array shape: the shape-defining parameters must not vary.
+
+    Swept parameters' variable names (`parameter_name`) must be distinct too.
+    """
+    names = {}
+    for path in plan.swept:
+        other = names.setdefault(parameter_name(path), path)
+        if other != path:
+            raise SweepError(
+                f"sweep.parameters.{path}: its variable name {parameter_name(path)!r} is "
+                f"also that of {other}; sweep one of them"
+            )
     first = plan.scenes[0]
     fields = {
         "receiver.pixels": lambda s: s.receiver.pixels,
@@ -115,6 +178,20 @@ def sample_dataset(plan: Plan, sample: int) -> xr.Dataset:
     return render(address.scene, seed=address.seed)
 
 
+def widest_image(plan: Plan) -> tuple:
+    """The ``image`` entry of `rendered_variables` whose type holds every point's counts.
+
+    Counts take the narrowest unsigned type their scene needs (`workers.labels.count_dtype`),
+    which differs between points (a brighter target, a lower platform); the store holds
+    the widest, and the values of every point unchanged.
+    """
+    entries = {}
+    for scene in plan.scenes:
+        entry = rendered_variables(scene)["image"]
+        entries.setdefault(entry[1], entry)
+    return entries[np.result_type(*entries)]
+
+
 def _coordinate_array(values: list) -> np.ndarray:
     """Numbers as numbers; anything else (names, lists) as strings (zarr's `string`)."""
     if all(isinstance(v, bool | int | float) for v in values):
@@ -122,7 +199,13 @@ def _coordinate_array(values: list) -> np.ndarray:
     return np.asarray([v if isinstance(v, str) else json.dumps(v) for v in values], dtype=object)
 
 
-def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -> None:
+def create_store(
+    plan: Plan,
+    url: str,
+    *,
+    storage_options: dict | None = None,
+    samples_per_shard: int = SHARD_SAMPLES,
+) -> None:
     """Write the template of the store: metadata, coordinates, empty data arrays.
 
     Parameters
@@ -133,11 +216,14 @@ def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -
         A path or fsspec URL; nothing but the writer's lock may be there yet.
     storage_options : dict, optional
         fsspec options (credentials, endpoint).
+    samples_per_shard : int, optional
+        Consecutive samples per shard, the unit a task renders and writes.
     """
     check_uniform(plan)
     first = plan.scenes[0]
     # names, dimensions, dtypes and attributes from the renderer's table; nothing rendered
     table = rendered_variables(first)
+    table["image"] = widest_image(plan)
     sizes = {
         "frame": first.sequence.frames,
         "gate": len(first.receiver.gate_depths),
@@ -147,29 +233,36 @@ def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -
         "sx": first.surface.grid_size,
     }
     n = plan.samples
+    shard = min(samples_per_shard, n)
     realisations = plan.realisations
     data_vars = {}
     encoding = {}
     for name in RENDERED_VARIABLES:
-        if name not in table:
+        if name not in table or (name == "expected" and not plan.sweep.store.expected):
             continue
         dims, dtype, attrs = table[name]
         shape = tuple(sizes[dim] for dim in dims)
         fill = np.nan if dtype.kind == "f" else 0
-        data_vars[name] = (("sample", *dims), lazy_array((n, *shape), fill, dtype), dict(attrs))
-        encoding[name] = one_per_chunk(shape)
+        array = lazy_array((n, *shape), fill, dtype, multiple=shard)
+        data_vars[name] = (("sample", *dims), array, dict(attrs))
+        encoding[name] = (sharded if name in SHARDED else per_shard)(shape, shard)
     data_vars["completed"] = (
         ("sample",),
-        lazy_array((n,), 0, np.uint8),
-        {"long_name": "sample rendered and written", "units": "1"},
+        lazy_array((n,), 0, np.uint8, multiple=shard),
+        {
+            "long_name": "sample rendered and written",
+            "units": "1",
+            "flag_values": np.arange(2, dtype=np.uint8),
+            "flag_meanings": "missing written",
+        },
     )
-    encoding["completed"] = one_per_chunk(())
     data_vars["checksum"] = (
         ("sample",),
-        lazy_array((n,), 0, np.uint32),
+        lazy_array((n,), 0, np.uint32, multiple=shard),
         {"long_name": "CRC-32 of the sample's rendered arrays", "units": "1"},
     )
-    encoding["checksum"] = one_per_chunk(())
+    for name in ("completed", "checksum"):
+        encoding[name] = per_shard((), shard)
     # labels and the platform track follow from each point's scene: written once, here
     track = ["time", "platform_x", "platform_y", "platform_z"]
     labels = xr.concat(
@@ -185,6 +278,8 @@ def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -
             dict(variable.attrs),
         )
     coords = {
+        "gate": labels["gate"],
+        "frame": labels["frame"],
         "gate_top": labels["gate_top"],
         "gate_bottom": labels["gate_bottom"],
         "point": (
@@ -204,10 +299,14 @@ def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -
             coords[name] = (name, axis, dict(table[name][2]))
     for path in plan.swept:
         values = _coordinate_array([point[path] for point in plan.points])
-        coords[path] = (
+        coords[parameter_name(path)] = (
             "sample",
             np.repeat(values, realisations),
-            {"long_name": f"swept scene parameter {path}", "units": field_units(path)},
+            {
+                "long_name": f"swept scene parameter {path}",
+                "units": field_units(path),
+                "parameter": path,
+            },
         )
     ds = xr.Dataset(data_vars, coords=coords)
     for name in ds.variables:
@@ -216,6 +315,7 @@ def create_store(plan: Plan, url: str, *, storage_options: dict | None = None) -
         title=f"oceanlidar sweep {plan.sweep.name}",
         Conventions=CONVENTIONS,
         source=f"oceanlidar {package_version()}",
+        history=f"oceanlidar {package_version()} run of sweep {plan.sweep.name}",
         oceanlidar_version=package_version(),
         sweep=plan.text,
         sweep_sha256=plan.digest,

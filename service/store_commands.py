@@ -63,7 +63,7 @@ def cmd_info(args) -> int:
     ds = _open(url, args.storage_options)
     done = int(integrity.completed_samples(url, storage_options=args.storage_options).sum())
     total = ds.sizes["sample"]
-    swept = [c for c in ds.coords if "." in str(c)]
+    swept = [f"{name} ({path})" for name, path in store.swept_parameters(ds).items()]
     print(f"{url}: {ds.attrs.get('title', '')}")
     print(f"  samples: {done}/{total} complete ({100 * done / max(total, 1):.1f} %)")
     print(f"  points: {ds.attrs.get('points')}  realisations: {ds.attrs.get('realisations')}")
@@ -119,7 +119,10 @@ def _stored_sample(url: str, sample: int, storage_options: dict | None):
     if not integrity.completed_samples(url, storage_options=storage_options)[sample]:
         raise SweepError(f"--sample {sample}: not written yet in {url} (resume its run)")
     one = ds.isel(sample=sample).load()
-    values = ", ".join(f"{c}={shown(one[c].values.item())}" for c in ds.coords if "." in str(c))
+    values = ", ".join(
+        f"{path}={shown(one[name].values.item())}"
+        for name, path in store.swept_parameters(ds).items()
+    )
     where = f"point {int(one['point'])}" + (f": {values}" if values else "")
     name = ds.attrs.get("title", url)
     return one, f"{name}, sample {sample} ({where}; realisation {int(one['realisation'])})"

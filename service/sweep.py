@@ -29,6 +29,7 @@ from service.inputs import SweepError, read_text, read_yaml, shown, strict_numbe
 from service.measurements import inline_measurements
 from service.schema import Distribution, Sweep, Value, Values, scene_field
 from workers.cascades import MAX_CASCADES
+from workers.labels import count_dtype
 from workers.scene import Scene
 from workers.seeds import SampleSeed
 from workers.spread import MAX_COARSE
@@ -140,12 +141,14 @@ class Plan:
 
     def sample_bytes(self) -> int:
         """Estimated stored bytes of the largest sample (uncompressed)."""
-        return max(_sample_bytes(scene) for scene in self.scenes)
+        expected = self.sweep.store.expected
+        return max(_sample_bytes(scene, expected=expected) for scene in self.scenes)
 
     def total_bytes(self) -> int:
         """Estimated stored bytes of the whole sweep (uncompressed)."""
         r = self.sweep.realisations
-        return sum(_sample_bytes(scene) * r for scene in self.scenes)
+        expected = self.sweep.store.expected
+        return sum(_sample_bytes(scene, expected=expected) * r for scene in self.scenes)
 
     def check_limits(
         self,
@@ -167,11 +170,12 @@ class Plan:
             )
 
 
-def _sample_bytes(scene: Scene) -> int:
+def _sample_bytes(scene: Scene, *, expected: bool) -> int:
     pixels = scene.receiver.pixels**2
     frames = scene.sequence.frames
     gates = len(scene.receiver.gate_depths)
-    size = frames * (gates * pixels * 8 + pixels)
+    image = (count_dtype(scene) or np.dtype(np.float32)).itemsize
+    size = frames * (gates * pixels * (image + 4 * expected) + pixels + 8 * gates)
     if scene.save_surface:
         size += frames * scene.surface.grid_size**2 * 4
     return size
@@ -238,8 +242,16 @@ def _check_memory(scene: dict, max_memory: float | None) -> None:
 
 
 def _check_scene(raw: dict, scene: Scene) -> None:
-    """Checks of a validated scene beyond its schema: strict numbers, a bounded track."""
+    """Checks of a validated scene beyond its schema.
+
+    Strict numbers, a bounded track, counts that fit the store's unsigned integers
+    (`workers.labels.count_dtype`).
+    """
     strict_numbers(raw, scene.model_dump(), "scene")
+    try:
+        count_dtype(scene)
+    except ValueError as error:
+        raise SweepError(f"scene.{error}") from None
     sequence = scene.sequence
     travel = max(map(abs, sequence.velocity)) * ((sequence.frames - 1) * sequence.interval)
     if travel > MAX_TRAVEL:

@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import xarray as xr
 
 from workers.geometry import LaserRays, PlaneGrid
@@ -83,7 +84,14 @@ def start_cli(*args, cwd, env=None, **popen):
     return subprocess.Popen(command, cwd=cwd, env=env, **popen)
 
 
-SAMPLE_VARIABLES = ("image", "expected", "target_mask", "target_visibility", "completed")
+SAMPLE_VARIABLES = (
+    "image",
+    "target_mask",
+    "target_signal",
+    "background_signal",
+    "target_visibility",
+    "completed",
+)
 
 
 def assert_same_samples(a, b, *, storage_options=None, names=SAMPLE_VARIABLES):
@@ -139,3 +147,18 @@ def dask_processes(folder, *, workers=2, protocol="tcp", options=(), env=None):
             except subprocess.TimeoutExpired:
                 process.kill()
                 process.wait(timeout=10)
+
+
+@pytest.fixture
+def threads(monkeypatch):
+    """The embedded cluster's workers as threads of this process, to see monkeypatches."""
+    from distributed import LocalCluster
+
+    import service.cluster
+    import service.run
+
+    def threaded(**options):
+        return LocalCluster(**{**options, "processes": False, "protocol": "tcp://"})
+
+    monkeypatch.setattr(service.cluster, "LocalCluster", threaded)
+    return service.run

@@ -14,10 +14,10 @@ from conftest import ROOT, TINY_SWEEP, run_cli
 from service import plots
 from service.cli import main
 from service.cluster import dask_client
-from service.run import render_batch, task_batches
+from service.run import render_shard, task_batches
 from service.run_commands import run_time
 from service.schema import sweep_json_schema
-from service.store import create_store, package_version
+from service.store import SHARD_SAMPLES, create_store, package_version
 from service.sweep import load_sweep, parse_sweep
 from workers.scene import Scene
 
@@ -109,8 +109,8 @@ def stored(tmp_path_factory):
     plan = parse_sweep(text.replace("scene:\n", "scene:\n  sequence: {frames: 2}\n"))
     url = str(folder / "s.zarr")
     create_store(plan, url)
-    for start, jobs in task_batches(plan, range(plan.samples), 4):
-        assert render_batch(url, start, jobs) == []
+    for _, jobs in task_batches(plan, range(plan.samples), SHARD_SAMPLES):
+        assert render_shard(url, jobs) == []
     return url
 
 

@@ -66,13 +66,11 @@ class CrashOnSample(WorkerPlugin):
 def test_a_sample_that_kills_its_worker_is_reported_and_the_rest_complete(cluster, tmp_path):
     plan = parse_sweep(SWEEP)
     url = str(tmp_path / "crash.zarr")
-    create_store(plan, url)
+    create_store(plan, url, samples_per_shard=1)
     with Client(cluster, timeout="60s") as client:
         client.register_plugin(CrashOnSample(4), name="crash-on-sample-4")
         try:
-            result = run_plan(
-                plan, url, client=client, batch_size=1, progress_stream=open(os.devnull, "w")
-            )
+            result = run_plan(plan, url, client=client, progress_stream=open(os.devnull, "w"))
         finally:
             client.unregister_worker_plugin("crash-on-sample-4")
         client.wait_for_workers(2, timeout=120)
@@ -91,7 +89,7 @@ def test_a_sample_that_kills_its_worker_is_reported_and_the_rest_complete(cluste
 def test_a_worker_killed_mid_sweep_changes_no_byte(cluster, tmp_path):
     plan = parse_sweep(sweep_text(realisations=8))
     url = str(tmp_path / "killed.zarr")
-    create_store(plan, url)
+    create_store(plan, url, samples_per_shard=1)
     with Client(cluster, timeout="60s") as client:
         victim = next(iter(client.run(os.getpid).values()))
 
@@ -105,9 +103,7 @@ def test_a_worker_killed_mid_sweep_changes_no_byte(cluster, tmp_path):
 
         killer = threading.Thread(target=kill_when_started)
         killer.start()
-        result = run_plan(
-            plan, url, client=client, batch_size=1, progress_stream=open(os.devnull, "w")
-        )
+        result = run_plan(plan, url, client=client, progress_stream=open(os.devnull, "w"))
         killer.join()
         client.wait_for_workers(2, timeout=120)
     assert result.failed == [] and result.written == plan.samples

@@ -63,8 +63,8 @@ def test_every_shipped_config_runs_end_to_end(path, tmp_path):
     with xr.open_zarr(store) as ds:
         assert ds.sizes["sample"] > 0
         assert ds.completed.values.all()
-        for name in ("image", "expected"):
-            assert np.isfinite(ds[name].values).all(), name
+        image = ds["image"].values
+        assert np.isfinite(image).all() and (image >= 0).all()
 
 
 OUTSIDE_PAPER = [path for path in CONFIGS if "paper" not in path.relative_to(ROOT).parts[1:-1]]

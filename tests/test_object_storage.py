@@ -12,7 +12,7 @@ import pytest
 import xarray as xr
 from conftest import TINY_SWEEP, assert_same_samples, free_port, run_cli
 
-from service.run import execute, render_batch, task_batches
+from service.run import execute, render_shard, task_batches
 from service.store import create_store
 from service.sweep import parse_sweep
 
@@ -66,10 +66,10 @@ def s3(tmp_path_factory):
 def test_a_sweep_to_s3_resumes_to_the_bytes_of_a_local_run(s3, tmp_path):
     plan = parse_sweep(SWEEP)
     url = "s3://oceanlidar/run.zarr"
-    # a first run that stopped after two samples, as a worker leaves it
-    create_store(plan, url, storage_options=s3)
-    start, jobs = next(task_batches(plan, range(plan.samples), 2))
-    render_batch(url, start, jobs, s3)
+    # a first run that stopped after its first shard of two samples, as a worker leaves it
+    create_store(plan, url, storage_options=s3, samples_per_shard=2)
+    _, jobs = next(task_batches(plan, range(plan.samples), 2))
+    render_shard(url, jobs, s3)
     sweep = tmp_path / "s3.yaml"
     sweep.write_text(SWEEP)
     options = json.dumps(s3)

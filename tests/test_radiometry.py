@@ -123,8 +123,9 @@ def test_flat_sea_disk_follows_the_lidar_equation(altitude):
     ds = render(disk_scene(altitude), seed=1)
     value = centre(ds.expected.values[0, 0])
     assert_allclose(value, closed_form(altitude, 5.0, 0.5, 32), rtol=0.01)
-    assert ds.expected.attrs["units"] == "photoelectrons"
-    assert ds.image.attrs["units"] == "photoelectrons"
+    assert ds.expected.attrs["long_name"] == "expected photoelectron count (noise-free)"
+    assert ds.image.attrs["long_name"] == "photoelectron count with shot noise"
+    assert ds.image.dtype.kind == "u" and ds.image.attrs["units"] == "1"
 
 
 def test_module_lidar_equation_is_the_closed_form():
@@ -170,11 +171,15 @@ def test_units_follow_the_mode_and_gain():
     s = disk_scene(50.0)
     s = Scene.model_validate({**s.model_dump(), "noise": {"gain": 10.0, "excess_noise": 1.0}})
     gained = render(s, seed=1)
-    assert gained.image.attrs["units"] == "counts"
-    assert gained.expected.attrs["units"] == "photoelectrons"
+    # CF units are "1" throughout; the long name says what is counted
+    assert gained.image.attrs["long_name"].startswith("ICCD output count")
+    assert gained.image.dtype == np.float32  # gain: not whole photoelectrons
+    assert gained.expected.attrs["long_name"] == "expected photoelectron count (noise-free)"
     quiet = disk_scene(50.0, radiometry={"mode": "normalised", "white_plane_photons": 0})
     ds = render(quiet, seed=1)
-    assert ds.image.attrs["units"] == ds.expected.attrs["units"] == "1"
+    assert ds.image.attrs["units"] == ds.expected.attrs["units"] == gained.image.attrs["units"]
+    assert ds.image.attrs["units"] == "1" and ds.image.dtype == np.float32
+    assert "white plane" in ds.image.attrs["long_name"]
 
 
 @pytest.mark.parametrize(

@@ -31,6 +31,7 @@ scene:
   surface: {grid_size: 32, spacing: 0.1, allow_repeat: true}  # tiny: the sea repeats
   receiver: {pixels: 16, gates: [[2.0, 6.0], [5.0, 9.0]]}
   radiometry: {mode: normalised, white_plane_photons: 100}
+store: {expected: true}
 sweep:
   method: grid
   parameters:
@@ -72,11 +73,13 @@ def test_samples_equal_render_of_the_same_scene_and_seed(two_worker_store):
             plan.scenes[point],
             seed=SampleSeed(root=plan.sweep.seed, point=point, realisation=realisation),
         )
-        for name in ("image", "expected", "target_mask", "target_visibility", "target_present"):
-            assert ds[name][sample].values.tobytes() == alone[name].values.tobytes(), name
+        for name in alone.variables:
+            stored = ds[name].isel(sample=sample) if "sample" in ds[name].dims else ds[name]
+            assert stored.values.tobytes() == alone[name].values.tobytes(), name
+            assert stored.dtype == alone[name].dtype, name
         assert int(ds["point"][sample]) == point and int(ds["realisation"][sample]) == realisation
-        assert float(ds["target.depth"][sample]) == plan.points[point]["target.depth"]
-        assert str(ds["target.shape"][sample].values) == plan.points[point]["target.shape"]
+        assert float(ds["target_depth"][sample]) == plan.points[point]["target.depth"]
+        assert str(ds["target_shape"][sample].values) == plan.points[point]["target.shape"]
 
 
 def test_one_and_two_workers_write_the_same_bytes(two_worker_store, tmp_path):
@@ -92,10 +95,21 @@ def test_store_metadata_and_statistics(two_worker_store):
     ds = xr.open_zarr(url)
     assert ds.attrs["sweep"] == SWEEP and ds.attrs["sweep_sha256"] == plan.digest
     assert ds.attrs["Conventions"].startswith("CF-")
+    # shards of two samples (the task's batch), one sample per chunk inside
     assert ds["image"].encoding["chunks"] == (1, 1, 2, 16, 16)
+    assert ds["image"].encoding["shards"] == (2, 1, 2, 16, 16)
+    assert ds["completed"].encoding["chunks"] == (2,)
+    assert sorted(p.name for p in Path(url, "image").iterdir()) == [
+        *(f"c.{k}.0.0.0.0" for k in range(6)),
+        "zarr.json",
+    ]
     for name, variable in ds.variables.items():
         assert "units" in variable.attrs and "long_name" in variable.attrs, name
-    assert ds["target.depth"].attrs["units"] == "m"
+    assert ds["target_depth"].attrs == {
+        "long_name": "swept scene parameter target.depth",
+        "units": "m",
+        "parameter": "target.depth",
+    }
     stats = xr.open_zarr(storage.stats_url(url))
     assert stats.sizes["point"] == 4 and stats.sizes["gate"] == 2
     assert stats["gate_top"].values.tolist() == [2.0, 5.0]
@@ -114,16 +128,15 @@ def test_store_metadata_and_statistics(two_worker_store):
 
 def test_bounded_submission_and_batches(tmp_path):
     plan = parse_sweep(SWEEP)
+    # one task per shard of three samples, holding the shard's samples still to render
     batches = list(task_batches(plan, [0, 1, 2, 3, 5, 6, 7, 11], 3))
-    assert [(start, len(jobs)) for start, jobs in batches] == [(0, 3), (3, 1), (5, 3), (11, 1)]
+    assert [[job[0] for job in jobs] for _, jobs in batches] == [[0, 1, 2], [3, 5], [6, 7], [11]]
     url = str(tmp_path / "b.zarr")
-    store.create_store(plan, url)
+    store.create_store(plan, url, samples_per_shard=1)
     from service.run import run_plan
 
     with dask_client(workers=1, scheduler=None) as client:
-        result = run_plan(
-            plan, url, client=client, batch_size=1, progress_stream=open(os.devnull, "w")
-        )
+        result = run_plan(plan, url, client=client, progress_stream=open(os.devnull, "w"))
     assert result.written == 12 and result.max_in_flight <= 2
 
 
@@ -197,14 +210,14 @@ def test_existing_output_is_refused_and_left_unchanged(two_worker_store, tmp_pat
             "plain YAML",
         ),
         ("\x00\x01binary", "not YAML"),
-        (SWEEP.replace("[3.0, 6.0]", "!!set {3.0, 6.0}"), "line 12: YAML sets"),
+        (SWEEP.replace("[3.0, 6.0]", "!!set {3.0, 6.0}"), "line 13: YAML sets"),
         (
             SWEEP.replace(
                 "scene:\n", "scene:\n  sequence: {frames: 2, velocity: [1e308, 0, 0]}\n"
             ),
             "scene.sequence.velocity: the platform would fly",
         ),
-        (SWEEP + "seed: 12\n", "line 14: duplicate key 'seed' (first on line 2)"),
+        (SWEEP + "seed: 12\n", "line 15: duplicate key 'seed' (first on line 2)"),
     ],
     ids=[
         "unknown-key",
@@ -340,8 +353,8 @@ def test_list_valued_parameters_become_string_coordinates(tmp_path):
     url = str(tmp_path / "v.zarr")
     store.create_store(plan, url)
     ds = xr.open_zarr(url)
-    assert ds["sequence.velocity"].values[0] == "[0, 0, 0]"
-    assert ds["sequence.velocity"].values[-1] == "[1, 0, 0]"
+    assert ds["sequence_velocity"].values[0] == "[0, 0, 0]"
+    assert ds["sequence_velocity"].values[-1] == "[1, 0, 0]"
 
 
 @pytest.mark.parametrize("options", ["[1]", "not json"], ids=["array", "garbage"])

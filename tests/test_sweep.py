@@ -459,7 +459,8 @@ def test_the_store_carries_every_swept_fields_unit(tmp_path):
     url = str(tmp_path / "units.zarr")
     store.create_store(plan, url)
     ds = xr.open_zarr(url)
-    assert {path: ds[path].attrs["units"] for path in expected} == expected
+    names = {path: name for name, path in store.swept_parameters(ds).items()}
+    assert {path: ds[names[path]].attrs["units"] for path in expected} == expected
 
 
 DESIGN = """

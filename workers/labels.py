@@ -11,8 +11,11 @@ import functools
 
 import numpy as np
 import xarray as xr
+from scipy.ndimage import maximum_filter
 
 from workers.geometry import PlaneGrid, flat_sea_point
+from workers.optics import fresnel_reflectance
+from workers.radiometry import lidar_equation, pixel_solid_angle
 from workers.scene import Scene
 from workers.sensor import (
     fine_grid,
@@ -26,9 +29,27 @@ from workers.sensor import (
 )
 from workers.water import slab_backscatter_reflectance
 
-__all__ = ["VISIBILITY", "labelled_dataset", "rendered_variables", "sample_labels", "target_mask"]
+__all__ = [
+    "COUNT_HEADROOM",
+    "RING_FRACTION",
+    "VISIBILITY",
+    "count_dtype",
+    "labelled_dataset",
+    "rendered_variables",
+    "sample_labels",
+    "signal_means",
+    "target_mask",
+    "white_plane_count",
+]
 
 VISIBILITY = {"none": 0, "in_gate": 1, "shadow": 2, "below_gate": 3}
+RING_FRACTION = 0.1
+"""Width of the background ring around the target mask, as a fraction of the image."""
+COUNT_HEADROOM = 16.0
+"""Largest expected count of a pixel over the brightest thing a scene shows (`count_dtype`):
+room for the focusing of light by waves and for shading that returns more than a flat
+plate (a white sphere under ``shading: paper``: twice). Not a strict bound: a count beyond
+the store's type is caught when the sample is stored (``valid_max``), never wrapped."""
 
 
 def target_mask(silhouette: np.ndarray) -> np.ndarray:
@@ -142,6 +163,121 @@ def _visibility(scene: Scene) -> tuple[int, ...]:
     return tuple(labels)
 
 
+def white_plane_count(scene: Scene) -> float:
+    """Mean photoelectrons per pixel from a white plane just under a flat sea, at nadir.
+
+    ``normalised`` radiometry: `white_plane_photons` by definition. ``absolute``: the lidar
+    equation (`workers.radiometry.lidar_equation`, ρ = 1, d = 0) with the platform at its
+    lowest during the sequence.
+    """
+    r = scene.radiometry
+    if r.mode == "normalised":
+        return float(r.white_plane_photons)
+    times = np.arange(scene.sequence.frames) * scene.sequence.interval
+    lowest = min(float(platform_position(scene, t)[2]) for t in times)
+    n_w = scene.water.refractive_index
+    laser = np.radians(scene.laser.field_of_view_deg or scene.receiver.field_of_view_deg)
+    return float(
+        lidar_equation(
+            pulse_energy=r.pulse_energy,
+            wavelength=r.wavelength,
+            aperture_diameter=r.receiver_aperture,
+            optics_transmission=r.optics_transmission,
+            quantum_efficiency=r.quantum_efficiency,
+            solid_angle=pixel_solid_angle(
+                field_of_view=np.radians(scene.receiver.field_of_view_deg),
+                pixels=scene.receiver.pixels,
+            ),
+            beam_divergence=np.tan(0.5 * laser),
+            altitude=max(lowest, 1e-3),
+            depth=0.0,
+            reflectance=1.0,
+            attenuation=0.0,
+            refractive_index=n_w,
+            transmittance=1.0 - float(fresnel_reflectance(1.0, n1=1.0, n2=n_w)),
+        )
+    )
+
+
+def count_dtype(scene: Scene) -> np.dtype | None:
+    """The unsigned integer type that holds every photoelectron count of `scene`'s images.
+
+    The narrowest of uint8, uint16 and uint32 holding the largest possible count:
+    `COUNT_HEADROOM` times the count of the brightest thing the scene shows, plus ten
+    standard deviations of its Poisson noise. The brightest thing, in units of a white
+    plane just under a flat sea (`white_plane_count`), is the brightest gate's water (its
+    effective reflectance) or the target's top, its reflectance attenuated by e^(-2Kd).
+
+    Returns
+    -------
+    numpy.dtype or None
+        None when the images are not photoelectron counts (no photon budget, or an ICCD
+        gain stage whose output is not whole photoelectrons): they stay float32.
+
+    Raises
+    ------
+    ValueError
+        Naming ``radiometry``, if the counts could exceed what uint32 holds.
+    """
+    noise = scene.noise
+    if not scene.radiometry.photoelectrons or noise.gain != 1.0 or noise.excess_noise != 1.0:
+        return None
+    setup = scene_setup(scene)
+    brightest = max(setup.reflectances)
+    target = scene.target
+    if target.shape != "none":
+        top = max(target.depth - target.radius, 0.0)
+        k = setup.water.diffuse_attenuation
+        brightest = max(brightest, target.reflectance * np.exp(-2.0 * k * top))
+    white = white_plane_count(scene)
+    mean = COUNT_HEADROOM * brightest * white
+    largest = mean + 10.0 * np.sqrt(mean) + 10.0
+    for dtype in (np.uint8, np.uint16, np.uint32):
+        if largest <= np.iinfo(dtype).max:
+            return np.dtype(dtype)
+    raise ValueError(
+        f"radiometry: a white plane under the sea would give {white:.3g} photoelectrons "
+        f"per pixel, so counts could reach {largest:.3g}, more than the "
+        f"{np.iinfo(np.uint32).max} an unsigned 32-bit count holds (lower pulse_energy "
+        "or white_plane_photons)"
+    )
+
+
+def _masked_mean(values, mask):
+    """Mean of `values` (..., gate, y, x) over pixels where `mask` (..., y, x) holds."""
+    weights = mask[..., np.newaxis, :, :]
+    count = weights.sum(axis=(-2, -1))
+    total = (values * weights).sum(axis=(-2, -1))
+    return np.divide(total, count, out=np.full(total.shape, np.nan), where=count > 0)
+
+
+def signal_means(values: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean of images inside the target mask and in a background ring around it.
+
+    Parameters
+    ----------
+    values : ndarray, shape (..., gates, y, x)
+        Images (any units).
+    mask : ndarray of bool, shape (..., y, x)
+        Pixels whose ray meets the target.
+
+    Returns
+    -------
+    tuple of ndarray, shape (..., gates)
+        The means over the mask and over the ring (pixels within `RING_FRACTION` of the
+        image's width of the mask, outside it), float64; NaN where the region is empty.
+    """
+    width = max(2, round(RING_FRACTION * mask.shape[-1]))
+    size = (1,) * (mask.ndim - 2) + (2 * width + 1, 2 * width + 1)
+    ring = maximum_filter(mask, size=size, mode="constant") & ~mask
+    values = values.astype(np.float64, copy=False)
+    return _masked_mean(values, mask), _masked_mean(values, ring)
+
+
+def _index(name: str) -> dict:
+    return {"long_name": f"{name} index", "units": "1"}
+
+
 def sample_labels(scene: Scene) -> xr.Dataset:
     """The part of a sample fixed by its scene alone, whatever the seed.
 
@@ -154,7 +290,8 @@ def sample_labels(scene: Scene) -> xr.Dataset:
     -------
     xarray.Dataset
         ``target_present`` (), ``target_visibility`` (gate) and the coordinates
-        ``gate_top``, ``gate_bottom`` (gate), ``time`` and ``platform_x/y/z`` (frame).
+        ``gate`` and ``frame`` (indices), ``gate_top``, ``gate_bottom`` (gate), ``time``
+        and ``platform_x/y/z`` (frame).
     """
     setup = scene_setup(scene)
     gates = np.asarray(setup.gates)
@@ -164,7 +301,12 @@ def sample_labels(scene: Scene) -> xr.Dataset:
         "target_present": (
             (),
             np.uint8(scene.target.shape != "none"),
-            {"long_name": "a target is in the scene", "units": "1"},
+            {
+                "long_name": "a target is in the scene",
+                "units": "1",
+                "flag_values": np.arange(2, dtype=np.uint8),
+                "flag_meanings": "absent present",
+            },
         ),
         "target_visibility": (
             ("gate",),
@@ -178,6 +320,16 @@ def sample_labels(scene: Scene) -> xr.Dataset:
         ),
     }
     coords = {
+        "gate": (
+            "gate",
+            np.arange(len(gates), dtype=np.int32),
+            {"long_name": "gate index", "units": "1"},
+        ),
+        "frame": (
+            "frame",
+            np.arange(len(times), dtype=np.int32),
+            {"long_name": "frame index", "units": "1"},
+        ),
         "gate_top": ("gate", gates[:, 0], {"long_name": "gate top depth", "units": "m"}),
         "gate_bottom": ("gate", gates[:, 1], {"long_name": "gate bottom depth", "units": "m"}),
         "time": ("frame", times, {"long_name": "time", "units": "s"}),
@@ -199,34 +351,59 @@ def rendered_variables(scene: Scene) -> dict[str, tuple[tuple[str, ...], np.dtyp
     Returns
     -------
     dict
-        ``name -> (dimensions, dtype, attributes)`` for ``image``, ``expected`` and
-        ``target_mask``, and ``surface_elevation`` when the scene saves its surface (and
-        the surface axes ``sx``, ``sy``). Units: photoelectrons (``counts`` for an image
-        with ICCD gain) or ``1`` for signals in units of a white plane under the sea.
+        ``name -> (dimensions, dtype, attributes)`` for ``image``, ``expected``,
+        ``target_mask``, ``target_signal`` and ``background_signal``, and
+        ``surface_elevation`` when the scene saves its surface (and the surface axes
+        ``sx``, ``sy``). Units are CF's: photoelectron counts, ICCD output counts and
+        signals in units of a white plane under the sea are all ``1``, and the
+        ``long_name`` says which. Photoelectron counts are unsigned integers
+        (`count_dtype`, with ``valid_max``); everything else float32.
     """
     photoelectrons = scene.radiometry.photoelectrons
-    image_units = "1"
-    if photoelectrons:
-        image_units = "photoelectrons" if scene.noise.gain == 1.0 else "counts"
+    counts = count_dtype(scene)
+    if counts is not None:
+        image = {"long_name": "photoelectron count with shot noise"}
+    elif photoelectrons:
+        image = {"long_name": "ICCD output count (photoelectrons times gain, with noise)"}
+    else:
+        image = {"long_name": "noise-free signal in units of a white plane under the sea"}
+    if counts is not None:
+        image["valid_max"] = counts.type(np.iinfo(counts).max)
+    signal = (
+        "expected photoelectron count"
+        if photoelectrons
+        else "signal in units of a white plane under the sea"
+    )
     f32, u8 = np.dtype(np.float32), np.dtype(np.uint8)
     table = {
-        "image": (
-            ("frame", "gate", "y", "x"),
-            f32,
-            {"long_name": "gated receiver image with shot noise", "units": image_units},
-        ),
+        "image": (("frame", "gate", "y", "x"), counts or f32, {**image, "units": "1"}),
         "expected": (
             ("frame", "gate", "y", "x"),
             f32,
-            {
-                "long_name": "expected (noise-free) gated receiver image",
-                "units": "photoelectrons" if photoelectrons else "1",
-            },
+            {"long_name": f"{signal} (noise-free)", "units": "1"},
         ),
         "target_mask": (
             ("frame", "y", "x"),
             u8,
-            {"long_name": "pixel ray meets the target silhouette", "units": "1"},
+            {
+                "long_name": "pixel ray meets the target silhouette",
+                "units": "1",
+                "flag_values": np.arange(2, dtype=np.uint8),
+                "flag_meanings": "water target",
+            },
+        ),
+        "target_signal": (
+            ("frame", "gate"),
+            f32,
+            {"long_name": f"mean {signal} inside the target mask (noise-free)", "units": "1"},
+        ),
+        "background_signal": (
+            ("frame", "gate"),
+            f32,
+            {
+                "long_name": f"mean {signal} in the ring around the target mask (noise-free)",
+                "units": "1",
+            },
         ),
     }
     if scene.save_surface:
@@ -241,13 +418,27 @@ def rendered_variables(scene: Scene) -> dict[str, tuple[tuple[str, ...], np.dtyp
 
 
 def labelled_dataset(scene, expected, image, masks, surface):
-    """One sample as a dataset: labels, images, mask (and surface), per `rendered_variables`."""
+    """One sample as a dataset: labels, images, mask (and surface), per `rendered_variables`.
+
+    A count above the image type's ``valid_max`` (beyond `COUNT_HEADROOM`) leaves the
+    image in float32, never wrapped, so that the store refuses the sample.
+    """
     table = rendered_variables(scene)
     frames = scene.sequence.frames
     ds = sample_labels(scene)
-    for name, values in (("image", image), ("expected", expected), ("target_mask", masks)):
+    target, background = signal_means(expected, masks.astype(bool))
+    values = {
+        "image": image,
+        "expected": expected,
+        "target_mask": masks,
+        "target_signal": target,
+        "background_signal": background,
+    }
+    for name, data in values.items():
         dims, dtype, attrs = table[name]
-        ds[name] = (dims, values.astype(dtype, copy=False), attrs)
+        if "valid_max" in attrs and data.max(initial=0) > attrs["valid_max"]:
+            dtype = np.dtype(np.float32)
+        ds[name] = (dims, data.astype(dtype, copy=False), attrs)
     if scene.save_surface:
         n, spacing = scene.surface.grid_size, scene.surface_spacing()
         elevation = (

@@ -1,0 +1,87 @@
+"""Read throughput of a store: the training reader against xarray, samples per second.
+
+Renders a sweep of 128-pixel six-gate samples with noise into a local store (shards of 8,
+the default), then reads every sample in a shuffled order, as a training epoch does, four
+ways: `service.dataset.SampleDataset` in batches (``__getitems__``, what a
+``torch.utils.data.DataLoader`` with a batch sampler calls) and one item at a time
+(``__getitem__``), and ``xr.open_zarr`` in batches and one sample at a time. Each read
+returns the noisy image and the target mask. Rendering is excluded; the store is read
+once before timing, so the figures are for a warm page cache.
+Usage: ``python benchmarks/read.py [--samples 512] [--pixels 128] [--batch 32]``.
+"""
+
+import argparse
+import os
+import tempfile
+import time
+
+import numpy as np
+import xarray as xr
+
+from service.cluster import dask_client
+from service.dataset import SampleDataset
+from service.run import run_plan
+from service.store import create_store
+from service.sweep import parse_sweep
+
+SWEEP = """\
+name: read
+seed: 1
+realisations: {realisations}
+output: read.zarr
+scene:
+  surface: {{grid_size: 64, spacing: 0.064, allow_repeat: true}}
+  receiver: {{pixels: {pixels}}}
+sweep:
+  parameters:
+    target.shape: {{values: [sphere, none]}}
+"""
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--samples", type=int, default=512)
+    parser.add_argument("--pixels", type=int, default=128)
+    parser.add_argument("--batch", type=int, default=32)
+    args = parser.parse_args()
+    plan = parse_sweep(SWEEP.format(realisations=args.samples // 2, pixels=args.pixels))
+    order = np.random.default_rng(0).permutation(plan.samples)
+    batches = [order[i : i + args.batch] for i in range(0, len(order), args.batch)]
+    with tempfile.TemporaryDirectory() as folder:
+        url = os.path.join(folder, "read.zarr")
+        create_store(plan, url)
+        with dask_client(workers=2, scheduler=None) as client, open(os.devnull, "w") as quiet:
+            run_plan(plan, url, client=client, progress_stream=quiet)
+        size = sum(
+            os.path.getsize(os.path.join(root, f))
+            for root, _, files in os.walk(url)
+            for f in files
+        )
+        print(
+            f"{plan.samples} samples of {args.pixels}² pixels, six gates, with noise: "
+            f"{size / plan.samples / 1024:.1f} KiB per sample on disk"
+        )
+        reader = SampleDataset(url)
+        reader.__getitems__(order)  # warm the page cache
+        ds = xr.open_zarr(url)[["image", "target_mask"]]
+        ways = {
+            f"SampleDataset, batches of {args.batch}": lambda: [
+                reader.__getitems__(batch) for batch in batches
+            ],
+            "SampleDataset, one item at a time": lambda: [reader[i] for i in order],
+            f"xr.open_zarr, batches of {args.batch}": lambda: [
+                ds.isel(sample=np.sort(batch)).load() for batch in batches
+            ],
+            "xr.open_zarr, one sample at a time": lambda: [
+                ds.isel(sample=int(i)).load() for i in order
+            ],
+        }
+        for label, read in ways.items():
+            start = time.perf_counter()
+            read()
+            seconds = time.perf_counter() - start
+            print(f"{label:36} {plan.samples / seconds:8.0f} samples/s")
+
+
+if __name__ == "__main__":
+    main()

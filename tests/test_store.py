@@ -1,0 +1,305 @@
+"""The store's layout (issue #10): shards owned by one task, compact counts, the reader,
+xarray ergonomics, CF conventions, statistics of a resumed run."""
+
+import itertools
+import os
+import pickle
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+from conftest import TINY_SCENE, run_cli
+
+from service import integrity, store
+from service.dataset import SampleDataset, open_dataset
+from service.run import execute, render_shard, task_batches
+from service.stats import write_statistics
+from service.storage import stats_url
+from service.sweep import parse_sweep
+from workers.labels import count_dtype, labelled_dataset
+from workers.render import render
+from workers.seeds import SampleSeed
+
+SWEEP = (
+    TINY_SCENE.replace("receiver: {{pixels: 16, ", "receiver: {{pixels: 8, ")
+    + """\
+sweep:
+  parameters:
+    target.depth: {{values: [3.0, 6.0]}}
+    target.shape: {{values: [sphere, none]}}
+"""
+)
+"""Four points of tiny samples (8 px, one gate)."""
+
+
+def tiny_plan(realisations=3, **replace):
+    text = SWEEP.format(name="t", seed=4, realisations=realisations, output="t.zarr")
+    for old, new in replace.items():
+        text = text.replace(old, new)
+    return parse_sweep(text)
+
+
+def fill(plan, url, samples_per_shard=2):
+    """A store of `plan` with every sample written, in this process (no cluster)."""
+    store.create_store(plan, url, samples_per_shard=samples_per_shard)
+    for _, jobs in task_batches(plan, range(plan.samples), samples_per_shard):
+        render_shard(url, jobs)
+
+
+@pytest.fixture(scope="module")
+def filled(tmp_path_factory):
+    plan = tiny_plan()
+    url = str(tmp_path_factory.mktemp("filled") / "t.zarr")
+    fill(plan, url)
+    return plan, url
+
+
+def test_counts_take_the_narrowest_unsigned_type_and_overflow_is_refused(tmp_path):
+    widths = {}
+    for photons in (10, 2000, 1e6):
+        scene = tiny_plan(**{"white_plane_photons: 100": f"white_plane_photons: {photons}"})
+        widths[photons] = count_dtype(scene.scenes[0])
+    assert widths == {10: np.uint8, 2000: np.uint16, 1e6: np.uint32}
+    # a bright white target just under the sea could exceed uint32: refused, field named
+    sweep = tmp_path / "bright.yaml"
+    sweep.write_text(
+        TINY_SCENE.format(name="b", seed=1, realisations=1, output="b.zarr").replace(
+            "white_plane_photons: 100}",
+            "white_plane_photons: 1.0e9}\n  target: {reflectance: 1.0, depth: 0.5}",
+        )
+    )
+    result = run_cli("run", sweep, cwd=tmp_path)
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert "scene.radiometry: a white plane under the sea would give 1e+09" in result.stderr
+    assert "unsigned 32-bit" in result.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bright.yaml"]
+
+
+def test_a_count_beyond_its_type_is_never_wrapped_and_never_stored():
+    scene = tiny_plan().scenes[0]
+    assert count_dtype(scene) == np.uint8
+    expected = np.full((1, 1, 8, 8), 0.5, np.float32)
+    image = np.zeros((1, 1, 8, 8), np.float32)
+    image[0, 0, 2, 3] = 300.0  # over uint8's 255
+    ds = labelled_dataset(scene, expected, image, np.zeros((1, 8, 8), np.uint8), None)
+    assert ds["image"].dtype == np.float32 and float(ds["image"].max()) == 300.0
+    reason = integrity.invalid_values(ds)
+    assert reason is not None and "image holds 1 count(s) over 255" in reason
+
+
+def test_the_store_holds_the_widest_counts_any_point_needs(tmp_path):
+    photons = "radiometry.white_plane_photons: {values: [10, 2000]}"
+    plan = tiny_plan(realisations=1, **{"target.shape: {values: [sphere, none]}": photons})
+    assert [count_dtype(scene) for scene in plan.scenes[:2]] == [np.uint8, np.uint16]
+    url = str(tmp_path / "w.zarr")
+    fill(plan, url)
+    ds = xr.open_zarr(url)
+    assert ds["image"].dtype == np.uint16 and ds["image"].attrs["valid_max"] == 65535
+    alone = render(plan.scenes[0], seed=SampleSeed(root=4, point=0, realisation=0))
+    assert alone["image"].dtype == np.uint8
+    assert np.array_equal(ds["image"].values[0], alone["image"].values)
+
+
+def test_expected_images_are_stored_only_when_asked(filled, tmp_path):
+    plan, url = filled
+    assert "expected" not in xr.open_zarr(url)
+    text = plan.text.replace("sweep:\n", "store: {expected: true}\nsweep:\n")
+    with_expected = parse_sweep(text)
+    assert with_expected.digest != plan.digest
+    other = str(tmp_path / "e.zarr")
+    fill(with_expected, other)
+    ds, bare = xr.open_zarr(other), xr.open_zarr(url)
+    alone = render(plan.scenes[1], seed=SampleSeed(root=4, point=1, realisation=2))
+    assert ds["expected"].values[5].tobytes() == alone["expected"].values.tobytes()
+    for name in ("image", "target_mask", "target_signal", "background_signal", "checksum"):
+        if name != "checksum":
+            assert ds[name].values.tobytes() == bare[name].values.tobytes(), name
+    assert with_expected.sample_bytes() > plan.sample_bytes()
+    for value in ("maybe", "1"):
+        bad = text.replace("expected: true", f"expected: {value}")
+        with pytest.raises(Exception, match=r"store\.expected"):
+            parse_sweep(bad)
+
+
+def test_one_task_per_shard_and_a_failed_shard_rerun_one_sample_at_a_time(
+    tmp_path, monkeypatch, threads
+):
+    """No two tasks ever write one shard at once: each shard's writes are timed."""
+    writes: dict[int, list] = {}
+    lock = threading.Lock()
+    original = integrity.write_shard
+
+    def timed(group, samples):
+        started = time.monotonic()
+        time.sleep(0.05)  # widen the window an overlap would need
+        original(group, samples)
+        with lock:
+            writes.setdefault(min(samples) // 3, []).append((started, time.monotonic()))
+
+    def poisoned(scene, *, seed):
+        if (seed.point, seed.realisation) == (1, 1):
+            raise RuntimeError("poison")
+        return render(scene, seed=seed)
+
+    monkeypatch.setattr(integrity, "write_shard", timed)
+    monkeypatch.setattr(threads, "render", poisoned)
+    plan = tiny_plan(realisations=3)
+    url = str(tmp_path / "p.zarr")
+    result = execute(plan, url, workers=2, batch_size=3, progress_stream=open(os.devnull, "w"))
+    # sample 4 (point 1, realisation 1) fails alone; 3 and 5 of its shard are written
+    assert [(start, count) for start, count, _ in result.failed] == [(4, 1)]
+    done = integrity.completed_samples(url)
+    assert done.tolist() == [True] * 4 + [False] + [True] * 7
+    assert len(writes[1]) == 2  # samples 3 and 5, one task each, after the failed shard
+    for shard, spans in writes.items():
+        spans.sort()
+        for (_, end), (start, _) in itertools.pairwise(spans):
+            assert start >= end, f"shard {shard} written by two tasks at once"
+    monkeypatch.undo()
+    reference = str(tmp_path / "r.zarr")
+    fill(plan, reference, samples_per_shard=3)
+    ours, theirs = xr.open_zarr(url), xr.open_zarr(reference)
+    keep = np.flatnonzero(done)
+    for name in ("image", "target_mask", "target_signal", "checksum"):
+        assert ours[name].values[keep].tobytes() == theirs[name].values[keep].tobytes(), name
+
+
+def test_a_shard_whose_task_is_given_up_goes_to_no_other_task(tmp_path, monkeypatch, threads):
+    """A stuck task may still write its shard: its shard's other samples are not rerun."""
+    renders: dict[int, int] = {}
+    release = threading.Event()
+
+    def frozen_then_poisoned(scene, *, seed):
+        sample = seed.point * 3 + seed.realisation
+        renders[sample] = renders.get(sample, 0) + 1
+        if sample == 3 and renders[sample] > 1 + threads.RETRIES:
+            release.wait(timeout=8)  # frozen in its own task, after the shard's task failed
+        if sample == 4:
+            raise RuntimeError("poison")
+        return render(scene, seed=seed)
+
+    monkeypatch.setattr(threads, "render", frozen_then_poisoned)
+    plan = tiny_plan(realisations=3)
+    url = str(tmp_path / "s.zarr")
+    result = execute(
+        plan,
+        url,
+        workers=1,
+        batch_size=3,
+        task_timeout=3.0,
+        progress_stream=open(os.devnull, "w"),
+    )
+    release.set()
+    # shard [3, 4, 5]: its task failed on 4; alone, 3 froze and was given up; 4 and 5 of
+    # its shard were never given to another task
+    assert result.stuck == [(3, 1), (4, 1), (5, 1)] and result.failed == []
+    assert 5 not in renders
+    done = integrity.completed_samples(url).tolist()  # 3: its own task may write it late
+    assert done[:3] + done[4:] == [True] * 3 + [False, False] + [True] * 6
+
+
+def test_open_dataset_selects_by_gate_and_groups_by_swept_parameters(filled):
+    _, url = filled
+    ds = open_dataset(url)
+    assert ds.sel(gate=0).image.dims == ("sample", "frame", "y", "x")
+    assert ds["frame"].values.tolist() == [0]
+    depth = ds["target_depth"]
+    assert isinstance(depth.data, np.ndarray)  # loaded: no .compute() needed
+    assert depth.attrs["parameter"] == "target.depth" and depth.attrs["units"] == "m"
+    assert ds["target_shape"].attrs["parameter"] == "target.shape"
+    assert isinstance(ds["image"].data, type(xr.open_zarr(url)["image"].data))  # lazy
+    means = ds["target_signal"].groupby("target_depth").mean(...)
+    assert means["target_depth"].values.tolist() == [3.0, 6.0]
+    deep = ds.isel(sample=ds["target_depth"] == 6.0)
+    assert deep.sizes["sample"] == 6 and (deep["point"] >= 2).all()
+    flags = ds["target_visibility"].attrs["flag_values"]
+    assert flags.dtype == ds["target_visibility"].dtype == np.uint8
+    assert ds["image"].attrs["valid_max"].dtype == ds["image"].dtype
+    write_statistics(url)
+    stats = open_dataset(stats_url(url))
+    assert stats.sel(gate=0)["target_contrast"].dims == ("point",)
+    assert stats["target_depth"].attrs["parameter"] == "target.depth"
+
+
+def test_a_cf_checker_passes_a_small_export(filled, tmp_path):
+    from compliance_checker.runner import CheckSuite
+
+    _, url = filled
+    path = tmp_path / "export.nc"
+    open_dataset(url).to_netcdf(path)
+    suite = CheckSuite()
+    suite.load_all_available_checkers()
+    results = suite.run_all(suite.load_dataset(str(path)), ["cf:1.10"], skip_checks=[])
+    failed = [
+        (result.name, result.msgs)
+        for result in results["cf:1.10"][0]
+        if result.value[0] < result.value[1]
+    ]
+    assert failed == []
+
+
+def test_the_training_reader_returns_the_stores_samples(filled, tmp_path):
+    plan, url = filled
+    partial = str(tmp_path / "partial.zarr")
+    store.create_store(plan, partial, samples_per_shard=2)
+    _, jobs = next(task_batches(plan, [2, 3], 2))
+    render_shard(partial, jobs)
+    reader = SampleDataset(partial, labels=("target_present", "target_depth"))
+    assert len(reader) == 2 and reader.sample_index.tolist() == [2, 3]
+    ds = xr.open_zarr(url)
+    item = reader[1]
+    assert int(item["sample"]) == 3
+    assert item["image"].tobytes() == ds["image"].values[3].tobytes()
+    assert item["target_mask"].dtype == np.uint8 and item["target_depth"] == 3.0
+    with pytest.raises(IndexError):
+        reader[2]
+    full = SampleDataset(url, arrays=("image",), labels=("target_visibility",))
+    batch = full.__getitems__([7, 0, 11, 7])
+    assert [int(b["sample"]) for b in batch] == [7, 0, 11, 7]
+    for b in batch:
+        assert b["image"].tobytes() == ds["image"].values[int(b["sample"])].tobytes()
+        visibility = ds["target_visibility"].values[int(b["sample"])]
+        assert b["target_visibility"].tolist() == visibility.tolist()
+    again = pickle.loads(pickle.dumps(full))  # as a DataLoader hands it to a worker
+    assert again._shards is None
+    assert again[5]["image"].tobytes() == ds["image"].values[5].tobytes()
+    with pytest.raises(KeyError, match="has no expected"):
+        SampleDataset(url, arrays=("expected",))
+    # a flipped byte in sample 2's chunk (shard 1, first chunk) fails its CRC32C, named
+    shard = next(Path(partial, "target_mask").glob("c.1.*"))
+    data = bytearray(shard.read_bytes())
+    data[3] ^= 0x01
+    shard.write_bytes(bytes(data))
+    damaged = SampleDataset(partial)
+    assert damaged[1]["image"].tobytes() == ds["image"].values[3].tobytes()
+    with pytest.raises(integrity.DamagedStoreError, match="sample 2: its chunk of target_mask"):
+        damaged[0]
+
+
+def test_statistics_after_resume_recompute_only_the_points_written(tmp_path):
+    sweep = tmp_path / "s.yaml"
+    sweep.write_text(SWEEP.format(name="s", seed=4, realisations=3, output="s.zarr"))
+    command = ["run", sweep, "--workers", 1, "--batch", 3]
+    assert run_cli(*command, cwd=tmp_path).returncode == 0
+    stats = tmp_path / "s.stats.zarr"
+    full = xr.open_zarr(stats).load()
+    chunks = {p: p.stat().st_mtime_ns for p in stats.rglob("c.*")}
+    integrity.mark_incomplete(str(tmp_path / "s.zarr"), [4, 5])  # point 1's samples
+    time.sleep(0.01)
+    result = run_cli(*command, "--resume", cwd=tmp_path)
+    assert result.returncode == 0 and "wrote 2 samples" in result.stderr, result.stderr
+    after = {p: p.stat().st_mtime_ns for p in stats.rglob("c.*")}
+    touched = {p.relative_to(stats).as_posix() for p in chunks if after[p] != chunks[p]}
+    # the statistics store stayed in place; only point 1's chunks were written again
+    assert touched and all(name.split("/")[-1].startswith("c.1") for name in touched)
+    again = xr.open_zarr(stats).load()
+    for name in full.data_vars:
+        assert full[name].values.tobytes() == again[name].values.tobytes(), name
+    # statistics damaged beyond their images: recomputed whole, and equal
+    (stats / "samples" / "c.0").write_bytes(b"garbage")
+    write_statistics(str(tmp_path / "s.zarr"), points=np.array([1]))
+    for name in full.data_vars:
+        assert full[name].values.tobytes() == xr.open_zarr(stats)[name].values.tobytes()
