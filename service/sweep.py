@@ -194,18 +194,18 @@ def _raw(data: dict, path: str) -> Any:
 def memory_estimate(scene: dict) -> int:
     """Memory [bytes] that rendering one sample of a raw scene needs: an upper estimate.
 
-    Read from the scene's values before anything is built, since validating a scene
-    already builds its kriging system. An empirical bound on peak allocations (traced by
-    ``tracemalloc``, every cache of `workers` empty) of the multi-scale, compiled renderer
-    of 2026-11-23: the shipped configs need 1.25 to 7 times less (`tests/test_sweep.py`
-    holds it to small scenes of every kind). Once a sample: a floor of 384 bytes per cell of
-    a `workers.spread.MAX_COARSE`-sided coarse plane (the planes' least size) and 128 bytes
-    per surface grid point and cascade (``surface.coarse_patches`` plus one, or at most
-    `workers.cascades.MAX_CASCADES` by default); then per frame 512 bytes per pixel and
-    gate (the frame's geometry, which stays cached, its plane grids and MTF filters, the
-    images) and 32 per grid point and cascade (the evolved sea). The kriging system of
-    measurements at G distinct times holds about 8 + G(G + 1)/8 complex grids per
-    cascade (one covariance grid per time lag, G(G + 1)/2 of them, built in turn).
+    Read from the scene's raw values before anything is built. An empirical bound on
+    peak allocations (traced by ``tracemalloc``, every cache of `workers` empty) of the
+    multi-scale, compiled renderer of 2026-11-23: the shipped configs need 1.25 to 7 times
+    less (`tests/test_sweep.py` holds it to small scenes of every kind). Once a sample: a
+    floor of 384 bytes per cell of a `workers.spread.MAX_COARSE`-sided coarse plane (the
+    planes' least size) and 128 bytes per surface grid point and cascade
+    (``surface.coarse_patches`` plus one, or at most `workers.cascades.MAX_CASCADES` by
+    default); then per frame 512 bytes per pixel (or laser ray, if the laser's lattice is
+    the larger) and gate (the frame's geometry, which stays cached, its plane grids and MTF
+    filters, the images) and 32 per grid point and cascade (the evolved sea). The kriging
+    system of measurements at G distinct times holds about 8 + G(G + 1)/8 complex grids
+    per cascade (one covariance grid per time lag, G(G + 1)/2 of them, built in turn).
 
     Returns
     -------
@@ -215,6 +215,14 @@ def memory_estimate(scene: dict) -> int:
     try:
         grid = int(_raw(scene, "surface.grid_size"))
         pixels = int(_raw(scene, "receiver.pixels"))
+        rays = _raw(scene, "laser.rays")
+        if rays is None:  # the pixels' pitch over the laser's field (`Scene.laser_rays`)
+            receiver = float(_raw(scene, "receiver.field_of_view_deg"))
+            laser = _raw(scene, "laser.field_of_view_deg")
+            ratio = math.tan(math.radians(float(receiver if laser is None else laser) / 2))
+            ratio /= math.tan(math.radians(receiver / 2))
+            rays = max(8, round(pixels * ratio))
+        side = max(pixels, int(rays))
         frames = int(_raw(scene, "sequence.frames"))
         gates = _raw(scene, "receiver.gates")
         gates = 6 if gates == "mldc" else len(gates)
@@ -225,7 +233,7 @@ def memory_estimate(scene: dict) -> int:
     except (TypeError, ValueError, AttributeError, IndexError):
         return 0
     once = 384 * MAX_COARSE**2 + 128 * grid**2 * cascades
-    render = once + frames * (512 * pixels**2 * (gates + 1) + 32 * grid**2 * cascades)
+    render = once + frames * (512 * side**2 * (gates + 1) + 32 * grid**2 * cascades)
     kriging = 16 * grid**2 * cascades * (8 + times * (times + 1) / 8) if points else 0
     return int(render + kriging)
 

@@ -407,8 +407,9 @@ def _empty_worker_caches():
             "target": {"shape": "disk", "radius": 3.0},
             "surface": {"allow_repeat": True},
         },
+        {"receiver": {"pixels": 16}, "laser": {"rays": 512}},
     ],
-    ids=["one-gate", "mldc", "frames", "climbing", "conditioned", "oblique-high"],
+    ids=["one-gate", "mldc", "frames", "climbing", "conditioned", "oblique-high", "laser-rays"],
 )
 def test_the_memory_estimate_bounds_the_render_from_above(sections):
     # peak allocations of a first sample (every cache empty), traced: the estimate must

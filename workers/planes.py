@@ -167,7 +167,12 @@ def _beam_tail(setup: Setup, sensor: Sensor, levels: Levels, tail: LaserRays, ga
     )
 
 
-@functools.lru_cache(maxsize=64)
+GEOMETRY_CACHE = 16
+"""Frame geometries a worker process keeps (a 512-pixel one holds about 90 MB): a sweep
+over many scenes must not hold a gigabyte per scene it has met."""
+
+
+@functools.lru_cache(maxsize=GEOMETRY_CACHE)
 def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
     """Sensor rays, planes, filters and target maps of `frame` (cached by scene and frame)."""
     setup = scene_setup(scene)
