@@ -29,7 +29,7 @@ from service.inputs import SweepError
 from service.schema import field_units
 from service.storage import KIND, LOCK_NAME
 from service.sweep import Plan
-from workers.labels import rendered_variables
+from workers.labels import rendered_variables, surface_axis
 from workers.render import render, sample_labels
 
 __all__ = [
@@ -229,9 +229,10 @@ def create_store(
         "gate": len(first.receiver.gate_depths),
         "y": first.receiver.pixels,
         "x": first.receiver.pixels,
-        "sy": first.surface.grid_size,
-        "sx": first.surface.grid_size,
     }
+    axis = surface_axis(first) if first.save_surface else None
+    if axis is not None:
+        sizes.update(sy=axis.size, sx=axis.size)
     n = plan.samples
     shard = min(samples_per_shard, n)
     realisations = plan.realisations
@@ -293,9 +294,8 @@ def create_store(
             {"long_name": "Monte Carlo realisation index", "units": "1"},
         ),
     }
-    axis = np.arange(first.surface.grid_size) * first.surface_spacing()
-    for name in ("sx", "sy"):
-        if name in table:
+    if axis is not None:
+        for name in ("sx", "sy"):
             coords[name] = (name, axis, dict(table[name][2]))
     for path in plan.swept:
         values = _coordinate_array([point[path] for point in plan.points])
