@@ -165,11 +165,20 @@ def check_uniform(plan: Plan) -> None:
         "surface.spacing": lambda s: s.surface_spacing() if s.save_surface else None,
     }
     for path, get in fields.items():
-        if any(get(scene) != get(first) for scene in plan.scenes[1:]):
+        if all(get(scene) == get(first) for scene in plan.scenes[1:]):
+            continue
+        if path == "surface.spacing" and path not in plan.swept:
             raise SweepError(
-                f"sweep.parameters.{path}: cannot vary within one sweep (it sets the shape of "
-                "the stored arrays); run one sweep per value"
+                "scene.surface.spacing: with save_surface the stored surface grid must be the "
+                "same for every point, but the default surface.spacing follows the receiver's "
+                "footprint (platform.altitude, platform.nadir_deg, platform.azimuth_deg, "
+                "receiver.field_of_view_deg), which this sweep varies; set surface.spacing "
+                "(and surface.coarse_patches) explicitly"
             )
+        raise SweepError(
+            f"sweep.parameters.{path}: cannot vary within one sweep (it sets the shape of "
+            "the stored arrays); run one sweep per value"
+        )
 
 
 def sample_dataset(plan: Plan, sample: int) -> xr.Dataset:
