@@ -335,7 +335,8 @@ def test_a_surface_saved_under_a_footprint_sweep_asks_for_an_explicit_spacing(sw
 def test_a_swept_spacing_with_a_saved_surface_is_refused_by_name():
     plan = parse_sweep(
         TINY_SCENE.format(name="f", seed=1, realisations=1, output="f.zarr")
-        + "  save_surface: true\nsweep:\n  parameters:\n    surface.spacing: {values: [0.1, 0.2]}\n"
+        + "  save_surface: true\nsweep:\n  parameters:\n"
+        + "    surface.spacing: {values: [0.1, 0.2]}\n"
     )
     with pytest.raises(SweepError, match=r"sweep.parameters.surface.spacing: cannot vary"):
         store.check_uniform(plan)

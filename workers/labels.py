@@ -355,9 +355,9 @@ def rendered_variables(scene: Scene) -> dict[str, tuple[tuple[str, ...], np.dtyp
         ``name -> (dimensions, dtype, attributes)`` for ``image``, ``expected``,
         ``target_mask``, ``target_signal`` and ``background_signal``, and
         ``surface_elevation`` when the scene saves its surface (and the surface axes
-        ``sx``, ``sy``, `surface_axis`). Units are CF's: photoelectron counts, ICCD output counts and
-        signals in units of a white plane under the sea are all ``1``, and the
-        ``long_name`` says which. Photoelectron counts are unsigned integers
+        ``sx``, ``sy``: `surface_axis`). Units are CF's: photoelectron counts, ICCD
+        output counts and signals in units of a white plane under the sea are all ``1``,
+        and the ``long_name`` says which. Photoelectron counts are unsigned integers
         (`count_dtype`, with ``valid_max``); everything else float32.
     """
     photoelectrons = scene.radiometry.photoelectrons
