@@ -27,6 +27,7 @@ from workers.sensor import (
     sensor_at,
     target_centre,
 )
+from workers.surface import centred_axis
 from workers.water import slab_backscatter_reflectance
 
 __all__ = [
@@ -450,23 +451,23 @@ def labelled_dataset(scene, expected, image, masks, surface):
         ds[name] = (dims, data.astype(dtype, copy=False), attrs)
     if scene.save_surface:
         axis = surface_axis(scene)
-        elevation = np.zeros((frames, axis.size, axis.size), np.float32)
-        if surface is not None:
-            for frame in range(frames):
-                elevation[frame] = surface.elevation_at(axis[None, :], axis[:, None], frame)
+        elevation = (
+            np.zeros((frames, axis.size, axis.size), np.float32)
+            if surface is None
+            else surface.centred_elevation
+        )
         dims, dtype, attrs = table["surface_elevation"]
-        ds["surface_elevation"] = (dims, elevation.astype(dtype, copy=False), attrs)
+        ds["surface_elevation"] = (dims, elevation.astype(dtype), attrs)
         ds = ds.assign_coords(sx=("sx", axis, table["sx"][2]), sy=("sy", axis, table["sy"][2]))
     return ds
 
 
 def surface_axis(scene: Scene) -> np.ndarray:
-    r"""Where the stored surface grid lies along x (``sx``) and along y (``sy``) [m].
+    """Where the stored surface grid lies along x (``sx``) and along y (``sy``) [m].
 
-    :math:`x_j = (j - N/2)\Delta_0`, j = 0 … N: N + 1 nodes of the finest cascade's
-    spacing Δ₀, centred on the world origin, where the boresight meets mean sea level in
-    the first frame. With the default spacing (the footprint's span over N) they reach the
-    footprint's edges; a nadir-looking receiver's footprint is [−NΔ₀/2, NΔ₀/2]².
+    `workers.surface.centred_axis` of the finest cascade: N + 1 nodes Δ₀ apart, centred on
+    the world origin, where the boresight meets mean sea level in the first frame; those
+    of `workers.surface.Surface.centred_elevation`.
 
     Parameters
     ----------
@@ -483,5 +484,4 @@ def surface_axis(scene: Scene) -> np.ndarray:
     The grid stays where the first frame's footprint is: a moving platform's later
     footprints drift off it, and an oblique one's far side reaches past it.
     """
-    n = scene.surface.grid_size
-    return (np.arange(n + 1) - n / 2) * scene.surface_spacing()
+    return centred_axis(grid_size=scene.surface.grid_size, spacing=scene.surface_spacing())
