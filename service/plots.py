@@ -110,10 +110,10 @@ def _draw_sea(figure, sea, ds: xr.Dataset, frame: int, measurements) -> None:
     elevation = ds["surface_elevation"].isel(frame=frame)
     extent = [float(ds.sx[0]), float(ds.sx[-1]), float(ds.sy[0]), float(ds.sy[-1])]
     shown = sea.imshow(elevation.values, origin="lower", extent=extent, cmap="ocean")
-    # the sea is periodic: the platform's ground point is drawn on the patch it maps to
-    patch = ds.sizes["sx"] * float(ds.sx[1] - ds.sx[0])
-    ground = (float(ds.platform_x[frame]) % patch, float(ds.platform_y[frame]) % patch)
-    sea.plot(*ground, marker="+", color="tab:red", markersize=10)
+    # the grid covers the first frame's footprint; the platform's ground point, if on it
+    sea.plot(float(ds.platform_x[frame]), float(ds.platform_y[frame]), "r+", markersize=10)
+    sea.set_xlim(extent[:2])
+    sea.set_ylim(extent[2:])
     if measurements is not None and len(measurements):
         measured = np.asarray([point[:2] for point in measurements], dtype=float)
         sea.plot(

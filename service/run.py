@@ -33,7 +33,7 @@ from service import integrity, lock, storage, store
 from service.cluster import ClusterError, dask_client
 from service.inputs import SweepError
 from service.progress import Progress
-from service.stats import write_statistics
+from service.stats import check_owner, write_statistics
 from service.sweep import Plan
 from service.tuning import tune_allocator
 from workers.render import render
@@ -346,8 +346,10 @@ def _check_output(plan: Plan, url: str, *, resume, overwrite, storage_options) -
     Raises
     ------
     SweepError
-        If the output or the statistics path holds something this run may not replace.
+        If the output or the statistics path holds something this run may not replace
+        (the statistics of another store among them: `service.stats.check_owner`).
     """
+    check_owner(url, storage_options)
     stats_files = storage.removable_files(
         storage.stats_url(url), storage_options, kind="statistics"
     )

@@ -35,7 +35,7 @@ from service import integrity, storage, store
 from service.inputs import SweepError
 from workers.labels import signal_means
 
-__all__ = ["point_statistics", "write_statistics"]
+__all__ = ["check_owner", "point_statistics", "write_statistics"]
 
 POINTS_PER_TASK = 8
 
@@ -97,7 +97,7 @@ def point_statistics(image, target, background, mask, visibility):
     return {name: np.asarray(value, dtype=np.float32) for name, value in stats.items()}
 
 
-def _template(ds: xr.Dataset) -> xr.Dataset:
+def _template(ds: xr.Dataset, url: str) -> xr.Dataset:
     points = int(ds.attrs["points"])
     realisations = int(ds.attrs["realisations"])
     gates, ny, nx = ds.sizes["gate"], ds.sizes["y"], ds.sizes["x"]
@@ -145,6 +145,7 @@ def _template(ds: xr.Dataset) -> xr.Dataset:
         title=ds.attrs.get("title", "") + " statistics",
         Conventions=store.CONVENTIONS,
         sweep_sha256=ds.attrs.get("sweep_sha256", ""),
+        samples_store=_store_name(url),
         oceanlidar_version=store.package_version(),
         **{storage.KIND: "statistics"},
     )
@@ -206,11 +207,13 @@ def write_statistics(
     Raises
     ------
     SweepError
-        If the statistics path holds something other than oceanlidar statistics.
+        If the statistics path holds something other than oceanlidar statistics, or the
+        statistics of another store (`check_owner`).
     """
+    check_owner(url, storage_options)
     ds = store.open_store(url, storage_options=storage_options)
     target = storage.stats_url(url)
-    recorded = None if points is None else _recorded(ds, target, storage_options)
+    recorded = None if points is None else _recorded(ds, url, storage_options)
     if recorded is not None:
         # the run's points, and any whose statistics count other samples than are written
         done = integrity.completed_samples(url, storage_options=storage_options)
@@ -235,15 +238,58 @@ def write_statistics(
     return target
 
 
-def _recorded(ds: xr.Dataset, target: str, storage_options: dict | None):
-    """Samples per point that the statistics at `target` were computed from.
+def check_owner(url: str, storage_options: dict | None = None) -> None:
+    """Refuse to write statistics beside `url` over those of another samples store.
 
-    None unless `target` holds statistics of the sweep of `ds`, of this version, with
-    every variable and a readable ``samples`` array (their images are not read).
+    Two outputs share one statistics path (``run`` and ``run.zarr`` in one folder:
+    `service.storage.stats_url`). Statistics record the name of the store they were
+    computed from (attribute ``samples_store``, its last path component, beside
+    ``sweep_sha256``), so that a store and its statistics copied or moved together stay
+    a pair; those of another store that is still beside them are never replaced.
+
+    Parameters
+    ----------
+    url : str
+        The samples store, normalised (`service.storage.normalise`).
+    storage_options : dict, optional
+        fsspec options.
+
+    Raises
+    ------
+    SweepError
+        If the statistics path holds the statistics of another samples store there.
     """
+    target = storage.stats_url(url)
+    attributes = storage.root_attributes(target, storage_options) or {}
+    owner, name = attributes.get("samples_store"), _store_name(url)
+    if attributes.get(storage.KIND) != "statistics" or owner in (None, name):
+        return
+    other = url.rstrip("/")[: -len(name)] + str(owner)
+    if (storage.root_attributes(other, storage_options) or {}).get(storage.KIND) == "samples":
+        raise SweepError(
+            f"{target} holds the statistics of another store, {other}, which the statistics "
+            f"of {url} would replace; write this sweep to another output (or move or delete "
+            f"{other} and its statistics)"
+        )
+
+
+def _store_name(url: str) -> str:
+    """A store's name in its folder: the last component of its URL."""
+    return url.rstrip("/").rsplit("/", 1)[-1]
+
+
+def _recorded(ds: xr.Dataset, url: str, storage_options: dict | None):
+    """Samples per point that the statistics beside `url` were computed from.
+
+    None unless they are statistics of the store `ds` at `url` (by its name and its
+    sweep's hash), of this version, with every variable and a readable ``samples`` array (their
+    images are not read).
+    """
+    target = storage.stats_url(url)
     attributes = storage.root_attributes(target, storage_options) or {}
     if (
         attributes.get(storage.KIND) != "statistics"
+        or attributes.get("samples_store") != _store_name(url)
         or attributes.get("sweep_sha256") != ds.attrs.get("sweep_sha256")
         or attributes.get("oceanlidar_version") != store.package_version()
     ):
@@ -266,7 +312,7 @@ def _recorded(ds: xr.Dataset, target: str, storage_options: dict | None):
 
 def _compute(ds: xr.Dataset, url: str, target: str, storage_options: dict | None) -> None:
     """Write the statistics of `ds` (the store at `url`) into a new store at `target`."""
-    template = _template(ds)
+    template = _template(ds, url)
     with store.consolidated_v3():
         template.to_zarr(
             target,

@@ -29,7 +29,7 @@ from service.inputs import SweepError
 from service.schema import field_units
 from service.storage import KIND, LOCK_NAME
 from service.sweep import Plan
-from workers.labels import rendered_variables
+from workers.labels import rendered_variables, surface_axis
 from workers.render import render, sample_labels
 
 __all__ = [
@@ -165,11 +165,20 @@ def check_uniform(plan: Plan) -> None:
         "surface.spacing": lambda s: s.surface_spacing() if s.save_surface else None,
     }
     for path, get in fields.items():
-        if any(get(scene) != get(first) for scene in plan.scenes[1:]):
+        if all(get(scene) == get(first) for scene in plan.scenes[1:]):
+            continue
+        if path == "surface.spacing" and path not in plan.swept:
             raise SweepError(
-                f"sweep.parameters.{path}: cannot vary within one sweep (it sets the shape of "
-                "the stored arrays); run one sweep per value"
+                "scene.surface.spacing: with save_surface the stored surface grid must be the "
+                "same for every point, but the default surface.spacing follows the receiver's "
+                "footprint (platform.altitude, platform.nadir_deg, platform.azimuth_deg, "
+                "receiver.field_of_view_deg), which this sweep varies; set surface.spacing "
+                "(and surface.coarse_patches) explicitly"
             )
+        raise SweepError(
+            f"sweep.parameters.{path}: cannot vary within one sweep (it sets the shape of "
+            "the stored arrays); run one sweep per value"
+        )
 
 
 def sample_dataset(plan: Plan, sample: int) -> xr.Dataset:
@@ -229,9 +238,10 @@ def create_store(
         "gate": len(first.receiver.gate_depths),
         "y": first.receiver.pixels,
         "x": first.receiver.pixels,
-        "sy": first.surface.grid_size,
-        "sx": first.surface.grid_size,
     }
+    axis = surface_axis(first) if first.save_surface else None
+    if axis is not None:
+        sizes.update(sy=axis.size, sx=axis.size)
     n = plan.samples
     shard = min(samples_per_shard, n)
     realisations = plan.realisations
@@ -293,9 +303,8 @@ def create_store(
             {"long_name": "Monte Carlo realisation index", "units": "1"},
         ),
     }
-    axis = np.arange(first.surface.grid_size) * first.surface_spacing()
-    for name in ("sx", "sy"):
-        if name in table:
+    if axis is not None:
+        for name in ("sx", "sy"):
             coords[name] = (name, axis, dict(table[name][2]))
     for path in plan.swept:
         values = _coordinate_array([point[path] for point in plan.points])

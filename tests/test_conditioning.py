@@ -309,9 +309,10 @@ def test_csv_points_are_read_relative_to_the_sweep_and_honoured(tmp_path, monkey
     inline = parse_sweep(path.read_text().replace("{file: data/points.csv", f"{{points: {listed}"))
     assert inline.digest == plan.digest  # the digest covers the values, not the file name
     ds = render(plan.scenes[0], seed=plan.sweep.seed)
-    eta = ds.surface_elevation.values[0]
-    assert eta[6, 5] == pytest.approx(0.1, abs=1e-6)
-    assert 0.5 * (eta[20, 30] + eta[20, 31]) == pytest.approx(-0.05, abs=1e-6)
+    eta = ds.surface_elevation.isel(frame=0)
+    assert float(eta.sel(sx=5.0, sy=6.0)) == pytest.approx(0.1, abs=1e-6)
+    between = eta.sel(sx=[30.0, 31.0], sy=20.0).mean()  # bilinear at x = 30.5
+    assert float(between) == pytest.approx(-0.05, abs=1e-6)
 
 
 @pytest.mark.parametrize(

@@ -2,12 +2,13 @@
 
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose
+from numpy.testing import assert_allclose, assert_array_equal
 
 from workers.optics import fresnel_reflectance
 from workers.render import render
 from workers.scene import Scene
 from workers.seeds import SampleSeed
+from workers.sensor import scene_setup
 
 N_WATER = 1.34
 T0 = 1.0 - fresnel_reflectance(1.0, n1=1.0, n2=N_WATER)
@@ -500,3 +501,28 @@ def test_a_crest_gates_less_water(height, monkeypatch):
     value = centre(render(raised, seed=1).expected.values[0, 0])
     K = 0.2 + 0.01
     assert_allclose(value / base, np.exp(-2 * K * height / N_WATER), rtol=0.003)
+
+
+def test_saved_surface_is_the_summed_sea_over_the_footprint():
+    # The stored grid is where the image looks (the footprint, centred on the boresight's
+    # sea point at the origin), and holds the sum of all cascades, which the renderer
+    # refracts at: not the finest cascade's periodic patch [0, NΔ₀)².
+    s = scene(
+        surface={**ROUGH["surface"], "grid_size": 32, "spacing": None, "allow_repeat": False},
+        target={"shape": "sphere", "depth": 5.0, "radius": 0.6, "reflectance": 0.5},
+        save_surface=True,
+        sequence={"frames": 2, "interval": 0.5},
+    )
+    seed = SampleSeed(root=3)
+    surface = scene_setup(s).surface(seed, [0.0, 0.5])
+    assert len(surface.cascades) > 1  # a multi-scale sea, not periodic on the finest patch
+    ds = render(s, seed=seed)
+    half = 0.5 * s.footprint()  # at nadir the footprint is [-L/2, L/2]²
+    for name in ("sx", "sy"):
+        axis = ds[name].values
+        assert_allclose([axis[0], axis[-1]], [-half, half], rtol=1e-12)
+        assert_allclose(np.diff(axis), s.surface_spacing(), rtol=1e-12)
+    for frame in range(2):
+        truth = surface.elevation_at(ds.sx.values[None, :], ds.sy.values[:, None], frame)
+        assert_array_equal(ds.surface_elevation.values[frame], truth)
+    assert ds.surface_elevation.std() > 0.01  # a real sea, m

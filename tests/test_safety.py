@@ -73,6 +73,36 @@ def test_statistics_never_replace_another_sweeps_store(work, capsys):
     assert snapshot(work) == before
 
 
+def test_two_outputs_never_share_their_statistics(work, capsys):
+    # outputs "one" and "one.zarr" have one statistics path, one.stats.zarr: sweep "two"
+    # written to "one" must not replace the statistics of sweep "one" (in one.zarr)
+    assert storage.root_attributes(work / "one.stats.zarr")["samples_store"] == "one.zarr"
+    sweep_file(work, name="two", output="one", seed=4)
+    refusal = f"holds the statistics of another store, {work / 'one.zarr'}"
+    before = snapshot(work)
+    for extra in ([], ["--overwrite"]):
+        assert main(["run", "two.yaml", "--workers", "1", *extra]) == 2
+        assert refusal in capsys.readouterr().err
+        assert snapshot(work) == before
+    # sweep "two" run elsewhere, its store then moved to "one" (its statistics left behind)
+    result = run_cli("run", "two.yaml", "--output", "two.zarr", "--workers", 1, cwd=work)
+    assert result.returncode == 0, result.stderr
+    shutil.rmtree(work / "two.stats.zarr")
+    (work / "two.zarr").rename(work / "one")
+    before = snapshot(work)
+    for command in (["run", "two.yaml", "--overwrite"], ["run", "two.yaml", "--resume"]):
+        assert main([*command, "--workers", "1"]) == 2
+        assert refusal in capsys.readouterr().err
+        assert snapshot(work) == before
+    assert main(["stats", "one"]) == 2
+    assert refusal in capsys.readouterr().err
+    assert snapshot(work) == before
+    # statistics whose store is gone are the other's to replace
+    shutil.rmtree(work / "one.zarr")
+    assert main(["stats", "one"]) == 0
+    assert storage.root_attributes(work / "one.stats.zarr")["samples_store"] == "one"
+
+
 @pytest.mark.parametrize(
     "stranger",
     ["notes.txt", "image/mine.npy", "old/zarr.json"],

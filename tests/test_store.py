@@ -15,6 +15,7 @@ from conftest import TINY_SCENE, run_cli
 
 from service import integrity, store
 from service.dataset import SampleDataset, open_dataset
+from service.inputs import SweepError
 from service.run import execute, render_shard, task_batches
 from service.stats import write_statistics
 from service.storage import stats_url
@@ -303,3 +304,39 @@ def test_statistics_after_resume_recompute_only_the_points_written(tmp_path):
     write_statistics(str(tmp_path / "s.zarr"), points=np.array([1]))
     for name in full.data_vars:
         assert full[name].values.tobytes() == xr.open_zarr(stats)[name].values.tobytes()
+
+
+@pytest.mark.parametrize(
+    "swept",
+    ["platform.altitude: {values: [30.0, 40.0]}", "platform.nadir_deg: {values: [0.0, 10.0]}"],
+    ids=["altitude", "nadir"],
+)
+def test_a_surface_saved_under_a_footprint_sweep_asks_for_an_explicit_spacing(swept):
+    # the default spacing follows the footprint, so the stored grid would change shape;
+    # the message says so rather than blaming surface.spacing, which the sweep leaves alone
+    plan = parse_sweep(
+        TINY_SCENE.format(name="f", seed=1, realisations=1, output="f.zarr").replace(
+            "spacing: 0.1, ", ""
+        )
+        + f"  save_surface: true\nsweep:\n  parameters:\n    {swept}\n"
+    )
+    with pytest.raises(SweepError) as error:
+        store.check_uniform(plan)
+    message = str(error.value)
+    assert "default surface.spacing follows the receiver's footprint" in message
+    for field in ("platform.altitude", "platform.nadir_deg", "receiver.field_of_view_deg"):
+        assert field in message
+    assert "set surface.spacing (and surface.coarse_patches) explicitly" in message
+    assert "cannot vary" not in message
+    fixed = parse_sweep(plan.text.replace("grid_size: 32,", "grid_size: 32, spacing: 0.1,"))
+    store.check_uniform(fixed)  # with the spacing given the sweep is accepted
+
+
+def test_a_swept_spacing_with_a_saved_surface_is_refused_by_name():
+    plan = parse_sweep(
+        TINY_SCENE.format(name="f", seed=1, realisations=1, output="f.zarr")
+        + "  save_surface: true\nsweep:\n  parameters:\n"
+        + "    surface.spacing: {values: [0.1, 0.2]}\n"
+    )
+    with pytest.raises(SweepError, match=r"sweep.parameters.surface.spacing: cannot vary"):
+        store.check_uniform(plan)

@@ -307,8 +307,8 @@ def test_max_elevation_rescales_the_whole_realisation():
     grid = {"grid_size": 32, "spacing": 0.05, "times": (0.0, 0.5, 1.0)}
     plain = synthesize(spectrum, **grid, rng=np.random.default_rng(4))
     scaled = synthesize(spectrum, **grid, rng=np.random.default_rng(4), max_elevation=0.1)
-    assert_allclose(np.abs(scaled.elevation).max(), 0.1, rtol=1e-6)
-    factor = 0.1 / np.abs(plain.elevation).max()
+    assert_allclose(np.abs(scaled.centred_elevation).max(), 0.1, rtol=1e-6)
+    factor = 0.1 / np.abs(plain.centred_elevation).max()
     for name in ("elevation", "slope_x", "slope_y"):
         assert_allclose(
             getattr(scaled.cascades[0], name), factor * getattr(plain.cascades[0], name), rtol=1e-5

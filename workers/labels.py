@@ -27,6 +27,7 @@ from workers.sensor import (
     sensor_at,
     target_centre,
 )
+from workers.surface import centred_axis
 from workers.water import slab_backscatter_reflectance
 
 __all__ = [
@@ -38,6 +39,7 @@ __all__ = [
     "rendered_variables",
     "sample_labels",
     "signal_means",
+    "surface_axis",
     "target_mask",
     "white_plane_count",
 ]
@@ -354,9 +356,9 @@ def rendered_variables(scene: Scene) -> dict[str, tuple[tuple[str, ...], np.dtyp
         ``name -> (dimensions, dtype, attributes)`` for ``image``, ``expected``,
         ``target_mask``, ``target_signal`` and ``background_signal``, and
         ``surface_elevation`` when the scene saves its surface (and the surface axes
-        ``sx``, ``sy``). Units are CF's: photoelectron counts, ICCD output counts and
-        signals in units of a white plane under the sea are all ``1``, and the
-        ``long_name`` says which. Photoelectron counts are unsigned integers
+        ``sx``, ``sy``: `surface_axis`). Units are CF's: photoelectron counts, ICCD
+        output counts and signals in units of a white plane under the sea are all ``1``,
+        and the ``long_name`` says which. Photoelectron counts are unsigned integers
         (`count_dtype`, with ``valid_max``); everything else float32.
     """
     photoelectrons = scene.radiometry.photoelectrons
@@ -410,10 +412,18 @@ def rendered_variables(scene: Scene) -> dict[str, tuple[tuple[str, ...], np.dtyp
         table["surface_elevation"] = (
             ("frame", "sy", "sx"),
             f32,
-            {"long_name": "sea surface elevation", "units": "m"},
+            {"long_name": "sea surface elevation (all cascades) at (sx, sy)", "units": "m"},
         )
-        table["sx"] = (("sx",), np.dtype(float), {"long_name": "surface grid east", "units": "m"})
-        table["sy"] = (("sy",), np.dtype(float), {"long_name": "surface grid north", "units": "m"})
+        for name, direction in (("sx", "east"), ("sy", "north")):
+            table[name] = (
+                (name,),
+                np.dtype(float),
+                {
+                    "long_name": f"surface grid {direction} of the first frame's boresight "
+                    "sea point",
+                    "units": "m",
+                },
+            )
     return table
 
 
@@ -440,12 +450,38 @@ def labelled_dataset(scene, expected, image, masks, surface):
             dtype = np.dtype(np.float32)
         ds[name] = (dims, data.astype(dtype, copy=False), attrs)
     if scene.save_surface:
-        n, spacing = scene.surface.grid_size, scene.surface_spacing()
+        axis = surface_axis(scene)
         elevation = (
-            surface.elevation if surface is not None else np.zeros((frames, n, n), np.float32)
+            np.zeros((frames, axis.size, axis.size), np.float32)
+            if surface is None
+            else surface.centred_elevation
         )
         dims, dtype, attrs = table["surface_elevation"]
         ds["surface_elevation"] = (dims, elevation.astype(dtype), attrs)
-        axis = np.arange(n) * spacing
         ds = ds.assign_coords(sx=("sx", axis, table["sx"][2]), sy=("sy", axis, table["sy"][2]))
     return ds
+
+
+def surface_axis(scene: Scene) -> np.ndarray:
+    """Where the stored surface grid lies along x (``sx``) and along y (``sy``) [m].
+
+    `workers.surface.centred_axis` of the finest cascade: N + 1 nodes Δ₀ apart, centred on
+    the world origin, where the boresight meets mean sea level in the first frame; those
+    of `workers.surface.Surface.centred_elevation`.
+
+    Parameters
+    ----------
+    scene : Scene
+        The sample's parameters.
+
+    Returns
+    -------
+    numpy.ndarray
+        The N + 1 positions, float64 [m].
+
+    Notes
+    -----
+    The grid stays where the first frame's footprint is: a moving platform's later
+    footprints drift off it, and an oblique one's far side reaches past it.
+    """
+    return centred_axis(grid_size=scene.surface.grid_size, spacing=scene.surface_spacing())

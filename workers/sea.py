@@ -112,8 +112,9 @@ class SurfaceSpec(Section):
         None,
         gt=0.0,
         le=20.0,
-        description="Optional rescaling (the paper's knob): max |elevation| over the frames. "
-        "Off by default; it breaks the spectrum's variance.",
+        description="Optional rescaling (the paper's knob): max |elevation| over the frames, "
+        "on the stored surface grid (around the first frame's footprint). Off by default; it "
+        "breaks the spectrum's variance.",
         json_schema_extra=units("m"),
     )
     conditioning: Conditioning = Conditioning()

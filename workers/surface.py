@@ -22,7 +22,7 @@ import scipy.fft
 from workers.cascades import Sea, subgrid_slope_covariance
 from workers.spectra import dispersion
 
-__all__ = ["Cascade", "Modes", "SubgridSlopes", "Surface", "draw", "synthesize"]
+__all__ = ["Cascade", "Modes", "SubgridSlopes", "Surface", "centred_axis", "draw", "synthesize"]
 
 # Points per block in Cascade.sample. The temporaries of a block (256 KiB for an index
 # array) are reused from the heap when glibc's mmap threshold is raised
@@ -260,6 +260,31 @@ class SubgridSlopes:
         return slope_x.reshape(shape), slope_y.reshape(shape)
 
 
+def centred_axis(*, grid_size: int, spacing: float) -> np.ndarray:
+    r"""The N + 1 nodes :math:`x_j = (j - N/2)\Delta`, j = 0 … N, centred on the origin.
+
+    Parameters
+    ----------
+    grid_size : int
+        N.
+    spacing : float
+        Δ, m.
+
+    Returns
+    -------
+    numpy.ndarray
+        The positions, m, float64.
+
+    Notes
+    -----
+    The boresight meets mean sea level at the origin in the first frame
+    (`workers.geometry`), so with the finest cascade's Δ₀ and the default spacing (the
+    footprint's span over N) the grid spans the footprint: [−NΔ₀/2, NΔ₀/2] at nadir.
+    """
+    _check_grid(grid_size, spacing)
+    return (np.arange(grid_size + 1) - grid_size / 2) * spacing
+
+
 @dataclass(frozen=True, eq=False)
 class Surface:
     """A synthesised multi-scale sea: its cascades summed, plus the sub-grid slopes.
@@ -306,6 +331,24 @@ class Surface:
         for frame in range(out.shape[0]):
             for cascade in self.cascades[1:]:
                 out[frame] += cascade.elevation_at(x, y, frame)
+        out.flags.writeable = False
+        return out
+
+    @property
+    def axis(self) -> np.ndarray:
+        """Positions of `centred_elevation`'s nodes along x and along y, m (`centred_axis`)."""
+        return centred_axis(grid_size=self.grid_size, spacing=self.spacing)
+
+    @functools.cached_property
+    def centred_elevation(self) -> np.ndarray:
+        """The summed elevation (`elevation_at`) on the grid centred on the origin, m.
+
+        Nodes at (`axis`, `axis`), over the footprint (`centred_axis`): float32 of
+        shape (T, N + 1, N + 1), index order (frame, y, x).
+        """
+        x, y = self.axis[None, :], self.axis[:, None]
+        frames = self.cascades[0].elevation.shape[0]
+        out = np.stack([self.elevation_at(x, y, frame) for frame in range(frames)])
         out.flags.writeable = False
         return out
 
@@ -431,9 +474,10 @@ class Modes:
             Times t of the frames, s.
         max_elevation : float or None, optional
             If given, m (> 0): the realisation (cascades and sub-grid slopes, all
-            frames) is rescaled so that max |η| over the finest grid's nodes and all
-            frames equals it (the "maximum wave elevation" of Carmona et al. 2000). It
-            then no longer follows the spectrum's amplitude, only its shape.
+            frames) is rescaled so that max |η| over `Surface.centred_elevation` (the
+            grid centred on the origin, over the footprint) and all frames equals it (the
+            "maximum wave elevation" of Carmona et al. 2000). It then no longer
+            follows the spectrum's amplitude, only its shape.
 
         Returns
         -------
@@ -464,7 +508,7 @@ class Modes:
         factor = vectors * np.sqrt(np.maximum(values, 0.0))  # F Fᵀ = Σ
         surface = self._assemble(fields, factor)
         if max_elevation is not None:
-            peak = float(np.abs(surface.elevation).max())
+            peak = float(np.abs(surface.centred_elevation).max())
             if peak == 0:
                 raise ValueError("max_elevation cannot rescale a flat surface (zero spectrum)")
             scale = max_elevation / peak
