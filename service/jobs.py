@@ -27,7 +27,15 @@ from service.inputs import MAX_FILE_BYTES, SweepError, shown
 from service.run import execute
 from service.sweep import DEFAULT_MAX_MEMORY, parse_sweep
 
-__all__ = ["ACTIVE", "FINAL", "JobTable", "QueueFullError", "Runner", "confine_output"]
+__all__ = [
+    "ACTIVE",
+    "FINAL",
+    "ForbiddenError",
+    "JobTable",
+    "QueueFullError",
+    "Runner",
+    "confine_output",
+]
 
 ACTIVE = ("queued", "running")
 FINAL = ("succeeded", "failed", "cancelled")
@@ -48,6 +56,10 @@ CREATE TABLE IF NOT EXISTS jobs (
 
 class QueueFullError(RuntimeError):
     """The service holds as many unfinished jobs as its queue limit allows."""
+
+
+class ForbiddenError(RuntimeError):
+    """A submitter acts on another owner's job or store."""
 
 
 class JobTable:
@@ -88,6 +100,13 @@ class JobTable:
         return self._query(
             "SELECT * FROM jobs WHERE state = ? ORDER BY submitted DESC, rowid DESC", (state,)
         )
+
+    def latest(self, url: str) -> dict | None:
+        """The newest job that writes (or wrote) the store `url`, or None."""
+        rows = self._query(
+            "SELECT * FROM jobs WHERE url = ? ORDER BY submitted DESC, rowid DESC LIMIT 1", (url,)
+        )
+        return rows[0] if rows else None
 
     def update(self, job_id: str, **fields) -> None:
         """Set columns of one job."""
@@ -133,12 +152,15 @@ def confine_output(output: str, data_root: str) -> str:
     Raises
     ------
     SweepError
-        If `output` is a URL or an absolute path, or climbs out of `data_root`.
+        If `output` is a URL (chained ``::`` ones included) or an absolute path, or climbs
+        out of `data_root`, as written or as the file system opens it (links followed).
     """
     protocol, _ = fsspec.core.split_protocol(output)
     normal = os.path.normpath(output)
     if (
         protocol is not None
+        or "://" in output
+        or "::" in output
         or os.path.isabs(output)
         or normal == os.curdir
         or normal.split(os.sep)[0] == os.pardir
@@ -150,8 +172,10 @@ def confine_output(output: str, data_root: str) -> str:
     url = f"{data_root.rstrip('/')}/{normal}"
     if fsspec.core.split_protocol(data_root)[0] in (None, "file", "local"):
         root = os.path.realpath(data_root)
-        if os.path.commonpath([root, os.path.realpath(url)]) != root:
-            raise SweepError(f"output: {shown(output)} leads out of the service's data root")
+        opened = fsspec.core.url_to_fs(url)[1]  # the path the store is written at
+        for path in (url, opened):
+            if os.path.commonpath([root, os.path.realpath(path)]) != root:
+                raise SweepError(f"output: {shown(output)} leads out of the service's data root")
     return url
 
 
@@ -249,11 +273,19 @@ class Runner:
         ------
         SweepError
             For a bad sweep, or an output another unfinished job writes.
+        ForbiddenError
+            If a resume or an overwrite names a store another owner's job wrote.
         QueueFullError
             If `queue_limit` jobs are unfinished.
         """
         plan, url = self.plan(text, mode)
         with self._admit:
+            previous = self.table.latest(url)
+            if mode != "new" and previous is not None and previous["owner"] != owner:
+                raise ForbiddenError(
+                    f"output: {shown(plan.sweep.output)} was written by job {previous['id']} "
+                    f"of {previous['owner']}; only its owner may {mode} it"
+                )
             if self.table.active() >= self.queue_limit:
                 raise QueueFullError(f"{self.queue_limit} jobs are queued or running; try later")
             for job in self.table.list("queued") + self.table.list("running"):
@@ -311,8 +343,13 @@ class Runner:
 
         try:
             plan = parse_sweep(job["sweep"], folder=self.data_root, max_memory=None)
-            # an interrupted job resumes whatever it was asked: the store is its own now
-            resume = job["mode"] == "resume" or bool(job["interrupted"])
+            # an interrupted job resumes its own store (this sweep's, by its hash); one that
+            # was stopped before it made it (an overwrite that had not yet deleted the old
+            # store) starts as it was asked
+            attributes = storage.root_attributes(job["url"], self.storage_options) or {}
+            resume = job["mode"] == "resume" or (
+                bool(job["interrupted"]) and attributes.get("sweep_sha256") == plan.digest
+            )
             with open(os.devnull, "w") as quiet:
                 result = execute(
                     plan,
@@ -325,6 +362,7 @@ class Runner:
                     progress_stream=quiet,
                     cancel=cancel,
                     on_progress=progress,
+                    claim=f"oceanlidar service job {job_id}",
                 )
         except Exception as error:  # a job's failure must not take the service down
             message = str(error) if isinstance(error, SweepError) else repr(error)

@@ -58,8 +58,17 @@ def _holder(fs, lock: str) -> dict:
     return holder if isinstance(holder, dict) else {}
 
 
-def _is_stale(holder: dict) -> bool:
-    """A lock taken on this machine by a process that no longer runs."""
+def _is_stale(holder: dict, claim: str | None) -> bool:
+    """A lock taken by a process that no longer runs, or by an earlier run of `claim`.
+
+    A process that died on this machine is known dead. A lock whose ``claim`` is `claim`
+    was taken by an earlier run of the same claimant: the batch service claims a job's
+    store with the job's id (`service.jobs`), and a job is run again only once the service
+    that ran it has died, on whatever machine (a container restarted as process 1, a pod
+    with a new host name).
+    """
+    if claim is not None and holder.get("claim") == claim:
+        return True
     if holder.get("host") != socket.gethostname() or not isinstance(holder.get("pid"), int):
         return False
     try:
@@ -122,17 +131,27 @@ def _remove_stale(fs, lock: str, holder: dict, record: dict) -> None:
 
 
 @contextlib.contextmanager
-def writer_lock(url: str, storage_options: dict | None = None):
+def writer_lock(url: str, storage_options: dict | None = None, *, claim: str | None = None):
     """Hold the store's writer lock: one run (or ``stats``) writes a store at a time.
 
     The lock is the file `LOCK_NAME` in the store, created only if absent (an exclusive
     create: ``O_EXCL`` on a file system, a conditional ``If-None-Match`` put on object
     storage), holding the holder's host, process id and start time. It is removed on exit.
 
-    A lock left by a process that died on this machine is taken over, by one run only
-    when several find it at once (`_remove_stale`). A lock left by a
-    machine that crashed cannot be told from a live run elsewhere: the message names the
-    file to remove once no run is writing.
+    A lock left by a process that died on this machine, or one holding the same `claim`
+    (`_is_stale`), is taken over, by one run only when several find it at once
+    (`_remove_stale`). Any other lock left by a machine that crashed cannot be told from
+    a live run elsewhere: the message names the file to remove once no run is writing.
+
+    Parameters
+    ----------
+    url : str
+        The store.
+    storage_options : dict or None
+        fsspec options of `url`.
+    claim : str or None
+        Who the run writes for, kept in the lock: a lock of the same claim left by a run
+        that was interrupted is taken over.
 
     Yields
     ------
@@ -153,6 +172,8 @@ def writer_lock(url: str, storage_options: dict | None = None):
         "since": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "token": token,
     }
+    if claim is not None:
+        record["claim"] = claim
     with storage_errors(url):
         created = not fs.exists(path)
         if "file" in fs.protocol:
@@ -164,7 +185,7 @@ def writer_lock(url: str, storage_options: dict | None = None):
             break
         except FileExistsError:
             holder = _holder(fs, lock)
-            if attempt == 0 and _is_stale(holder):
+            if attempt == 0 and _is_stale(holder, claim):
                 _remove_stale(fs, lock, holder, record)
                 continue
             raise SweepError(

@@ -178,7 +178,9 @@ def run_plan(
     `task_timeout` seconds after its submission (a frozen worker) is given up and reported
     in ``stuck``; its shard is given to no other task. A storage failure that no retry
     cures (a full disk, a read-only or forbidden store) stops the run at once, with one
-    message in ``stopped``.
+    message in ``stopped``. Tasks of an earlier run of the same sweep into the same store
+    still executing (a service killed mid-job, on a cluster that outlived it) are waited
+    for first, at most `task_timeout` (`ClusterError` if they last longer).
 
     Setting `cancel` (a `threading.Event`) cancels the tasks in flight, waits for those
     already executing to end (at most `task_timeout`), and ends the run as interrupted,
@@ -222,6 +224,13 @@ def run_plan(
             yield start, jobs
 
     try:
+        # an earlier run of this very run (a service killed mid-job, on a cluster that
+        # outlived it) may have tasks still executing: none may write beside this run's
+        if _wait_executing(client, f"oceanlidar-{run_id}", task_timeout):
+            raise ClusterError(
+                f"tasks of an earlier run into {url} are still executing on the cluster "
+                f"after {task_timeout:.0f} s; try again once they end"
+            )
         submit(task_batches(plan, todo, size), window, f"{run_id}-shard")
         singles = sorted(sample for samples, _ in failed for sample in samples)
         failed.clear()
@@ -232,16 +241,22 @@ def run_plan(
     except RunCancelledError:
         result.interrupted = True
         # a task cannot be stopped mid-sample: let those executing end before the lock goes
-        deadline = time.monotonic() + task_timeout
-        while time.monotonic() < deadline and any(
-            client.run(_executing, f"oceanlidar-{run_id}").values()
-        ):
-            time.sleep(TICK / 5)
+        _wait_executing(client, f"oceanlidar-{run_id}", task_timeout)
     finally:
         progress.close()
         result.seconds = time.monotonic() - started
     result.failed = [(samples[0], len(samples), error) for samples, error in failed]
     return result
+
+
+def _wait_executing(client: Client, prefix: str, timeout: float) -> bool:
+    """Wait at most `timeout` s for the tasks named ``prefix...`` to end; whether some run."""
+    deadline = time.monotonic() + timeout
+    while any(client.run(_executing, prefix).values()):
+        if time.monotonic() > deadline:
+            return True
+        time.sleep(TICK / 5)
+    return False
 
 
 def _executing(prefix: str, dask_worker=None) -> int:
@@ -395,6 +410,7 @@ def execute(
     client: Client | None = None,
     cancel=None,
     on_progress=None,
+    claim: str | None = None,
 ) -> RunResult:
     """Create (or reopen) the store, run the missing samples and write the statistics.
 
@@ -410,13 +426,14 @@ def execute(
     run may have changed the output meanwhile).
 
     `client` runs the samples on a cluster already connected (`workers`, `scheduler` and
-    `security` are then unused); `cancel` and `on_progress` are passed to `run_plan`.
+    `security` are then unused); `cancel` and `on_progress` are passed to `run_plan`;
+    `claim` to `service.lock.writer_lock`.
     """
     url = storage.normalise(url, storage_options)
     options = {"resume": resume, "overwrite": overwrite, "storage_options": storage_options}
     with storage.storage_errors(url):
         _check_output(plan, url, **options)
-    with lock.writer_lock(url, storage_options) as token:
+    with lock.writer_lock(url, storage_options, claim=claim) as token:
         with storage.storage_errors(url):
             resuming, old_files, old_stats = _check_output(plan, url, **options)
         # connect before touching storage: an unreachable cluster leaves everything as it was

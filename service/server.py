@@ -34,7 +34,7 @@ from starlette.routing import Route
 from service import storage, store
 from service.cluster import dask_client
 from service.inputs import MAX_FILE_BYTES, SweepError
-from service.jobs import FINAL, JobTable, QueueFullError, Runner, public
+from service.jobs import FINAL, ForbiddenError, JobTable, QueueFullError, Runner, public
 from service.sweep import parse_sweep
 
 __all__ = ["LOOPBACK", "create_app", "read_tokens", "serve"]
@@ -47,12 +47,22 @@ LOGIN_BYTES = 4096
 """Longest login form accepted, bytes."""
 PREVIEW_SAMPLES = 3
 """Samples drawn in a finished job's preview strip."""
+_LOGIN_FORM = (
+    '<form method="post"><label>token <input type="password" name="token">'
+    "</label> <button>log in</button></form>"
+)
 
 
 def read_tokens(path: str | None) -> dict[str, str]:
     """Tokens by owner: the lines ``OWNER TOKEN`` (or ``TOKEN`` alone) of `path`.
 
     Without `path`, the ``OCEANLIDAR_TOKEN`` environment variable, owner ``default``.
+
+    Raises
+    ------
+    SweepError
+        If the file cannot be read, or names an owner or a token twice (a token must say
+        who sent it).
     """
     if path is None:
         token = os.environ.get("OCEANLIDAR_TOKEN", "").strip()
@@ -64,7 +74,12 @@ def read_tokens(path: str | None) -> dict[str, str]:
         raise SweepError(f"--token-file {path}: {getattr(error, 'strerror', error)}") from None
     if any(len(fields) > 2 for fields in lines):
         raise SweepError(f"--token-file {path}: one 'OWNER TOKEN' or 'TOKEN' a line")
-    return {(f[0] if len(f) == 2 else "default"): f[-1] for f in lines}
+    owners = [fields[0] if len(fields) == 2 else "default" for fields in lines]
+    tokens = [fields[-1] for fields in lines]
+    for kind, names in (("owner", owners), ("token", tokens)):
+        if len(set(names)) < len(names):
+            raise SweepError(f"--token-file {path}: each {kind} may appear on one line only")
+    return dict(zip(owners, tokens, strict=True))
 
 
 def _error(status: int, message: str) -> JSONResponse:
@@ -78,13 +93,14 @@ class _Service:
         self.runner, self.table, self.tokens = runner, runner.table, tokens
         self.pictures: dict[tuple[str, str], bytes] = {}
 
-    def owner(self, request: Request) -> str | None:
-        """Who sent `request` (by its token), or None if nobody known."""
+    def owner(self, request: Request, given: str | None = None) -> str | None:
+        """Who sent `request` (by its token, or the token `given`), or None if nobody known."""
         if not self.tokens:
             return "anonymous"
-        header = request.headers.get("authorization", "")
-        given = header[7:] if header.lower().startswith("bearer ") else ""
-        given = given or request.cookies.get(COOKIE, "")
+        if given is None:
+            header = request.headers.get("authorization", "")
+            given = header[7:] if header.lower().startswith("bearer ") else ""
+            given = given or request.cookies.get(COOKIE, "")
         for owner, token in self.tokens.items():
             if given and hmac.compare_digest(given.encode(), token.encode()):
                 return owner
@@ -123,21 +139,20 @@ class _Service:
 
     async def login(self, request: Request) -> Response:
         if request.method == "POST":
-            if int(request.headers.get("content-length") or LOGIN_BYTES + 1) > LOGIN_BYTES:
+            length = request.headers.get("content-length", "")
+            if not length.isdigit():
+                return _error(400, "a login form needs its Content-Length")
+            if int(length) > LOGIN_BYTES:
                 return _error(413, f"a login form has at most {LOGIN_BYTES} bytes")
             form = urllib.parse.parse_qs((await request.body()).decode(errors="replace"))
             token = (form.get("token") or [""])[0]
+            if self.owner(request, given=token) is None:
+                return HTMLResponse(_page("oceanlidar: log in", _LOGIN_FORM), status_code=401)
             response = RedirectResponse("/", status_code=303)
             secure = request.headers.get("x-forwarded-proto", request.url.scheme) == "https"
             response.set_cookie(COOKIE, token, httponly=True, samesite="strict", secure=secure)
             return response
-        return HTMLResponse(
-            _page(
-                "oceanlidar: log in",
-                '<form method="post"><label>token <input type="password" name="token">'
-                "</label> <button>log in</button></form>",
-            )
-        )
+        return HTMLResponse(_page("oceanlidar: log in", _LOGIN_FORM))
 
     async def submit(self, request: Request) -> JSONResponse:
         body = b""
@@ -156,6 +171,8 @@ class _Service:
             )
         except SweepError as error:
             return _error(400, str(error))
+        except ForbiddenError as error:
+            return _error(403, str(error))
         except QueueFullError as error:
             return _error(429, str(error))
         return JSONResponse(public(job), status_code=201)
@@ -170,8 +187,11 @@ class _Service:
 
     async def cancel(self, request: Request) -> JSONResponse:
         job_id = request.path_params["id"]
-        if self.table.get(job_id) is None:
+        job = self.table.get(job_id)
+        if job is None:
             return _error(404, "no such job")
+        if job["owner"] != request.state.owner:
+            return _error(403, f"job {job_id} is {job['owner']}'s: only its owner may cancel it")
         if not self.runner.cancel(job_id):
             return _error(409, f"job {job_id} has finished: nothing to cancel")
         return JSONResponse(public(self.table.get(job_id)))

@@ -431,6 +431,27 @@ def test_the_local_lock_is_taken_atomically(tmp_path, monkeypatch):
                 pass
 
 
+def test_a_lock_of_the_same_claim_is_taken_over_from_any_host(tmp_path):
+    # The batch service claims a job's store with the job's id; restarted (as process 1 of
+    # a new container, in a pod with another host name), it takes over its own job's lock,
+    # and nobody else's.
+    from service.inputs import SweepError
+
+    url = tmp_path / "claimed.zarr"
+    url.mkdir()
+    held = {"host": "an-earlier-pod", "pid": 1, "token": "gone", "since": "?", "claim": "job a"}
+    (url / storage.LOCK_NAME).write_text(json.dumps(held))
+    for claim in (None, "job b"):
+        with pytest.raises(SweepError, match="locked by another run"):
+            with lock.writer_lock(str(url), claim=claim):
+                pass
+        assert json.loads((url / storage.LOCK_NAME).read_text()) == held
+    with lock.writer_lock(str(url), claim="job a") as token:
+        holder = json.loads((url / storage.LOCK_NAME).read_text())
+        assert holder["token"] == token and holder["claim"] == "job a"
+    assert not (url / storage.LOCK_NAME).exists()
+
+
 def test_a_stale_lock_is_taken_over_by_one_run_only(tmp_path, monkeypatch):
     # Two runs find the same dead holder at the same moment (a barrier right after the
     # staleness check): only one may end up holding the lock, and the other is refused
@@ -447,8 +468,8 @@ def test_a_stale_lock_is_taken_over_by_one_run_only(tmp_path, monkeypatch):
     both_looked = threading.Barrier(2, timeout=10)
     is_stale = lock._is_stale
 
-    def looked(holder):
-        answer = is_stale(holder)
+    def looked(holder, claim):
+        answer = is_stale(holder, claim)
         both_looked.wait()
         return answer
 

@@ -1,10 +1,12 @@
 """The batch service: a real `oceanlidar serve` process, real HTTP on loopback, real workers."""
 
 import contextlib
+import http.client
 import json
 import os
 import shutil
 import signal
+import sqlite3
 import subprocess
 import tempfile
 import threading
@@ -214,6 +216,10 @@ def test_cancel_stops_the_job_and_resume_completes_it(service, reference, monkey
     text = sweep("cancelled.zarr")
     job_id = service.submit(text)[1]["id"]
     service.wait(job_id, lambda job: job["samples"]["done"] >= 4)
+    # only its owner cancels a job, or resumes or overwrites the store it wrote
+    status, answer = service.request("DELETE", f"/v1/jobs/{job_id}", token=OTHER_TOKEN)
+    assert status == 403 and "alice" in answer["error"], answer
+    assert service.job(job_id)["state"] == "running"
     status, job = service.request("DELETE", f"/v1/jobs/{job_id}")
     assert status == 200 and job["state"] in ("running", "cancelled"), job
     job = service.wait(job_id, finished)
@@ -227,6 +233,11 @@ def test_cancel_stops_the_job_and_resume_completes_it(service, reference, monkey
     assert main(["status", job_id]) == 1
     status, refused = service.submit(text)
     assert status == 400 and "already exists" in refused["error"]
+    for mode in ("resume", "overwrite"):
+        status, refused = service.request(
+            "POST", f"/v1/jobs?mode={mode}", text.encode(), token=OTHER_TOKEN
+        )
+        assert status == 403 and refused["error"].startswith("output:"), refused
     status, again = service.submit(text, mode="resume")
     assert status == 201
     assert service.wait(again["id"], finished)["state"] == "succeeded"
@@ -268,8 +279,22 @@ def test_sigkill_mid_job_then_restart_resumes(reference, tmp_path, monkeypatch, 
         server.kill()
         url = str(tmp_path / "data" / "killed.zarr")
         assert 6 <= integrity.completed_samples(url).sum() < 2 * LONG
+        # the server comes back as another process on another host (a restarted pod): the
+        # lock its job left still names the job, and is taken over
+        lock = tmp_path / "data" / "killed.zarr" / storage.LOCK_NAME
+        holder = json.loads(lock.read_text())
+        lock.write_text(json.dumps({**holder, "host": "an-earlier-pod", "pid": 1}))
+        # a job killed as it started, before its overwrite had replaced the old store
+        replaced = str(tmp_path / "data" / "replaced.zarr")
+        shutil.copytree(reference, replaced)
+        with sqlite3.connect(tmp_path / "jobs.sqlite") as table:
+            table.execute(
+                "UPDATE jobs SET state = 'running', mode = 'overwrite', output = ?, url = ? "
+                "WHERE id = ?",
+                ("replaced.zarr", replaced, second),
+            )
         server.start()
-        assert server.job(second)["state"] == server.job(third)["state"] == "queued"
+        assert server.job(third)["state"] == "queued"
         client(monkeypatch, server)
         assert main(["cancel", third]) == 0
         assert "cancelled" in capsys.readouterr().out
@@ -277,6 +302,8 @@ def test_sigkill_mid_job_then_restart_resumes(reference, tmp_path, monkeypatch, 
         assert job["state"] == "succeeded" and job["resumed"], job
         assert_same_samples(url, reference, names=None)
         assert server.wait(second, finished)["state"] == "succeeded"
+        done = integrity.completed_samples(replaced)
+        assert done.size == 2 and done.all()  # one realisation of two points: replaced
         assert server.job(third)["state"] == "cancelled"
         assert not (tmp_path / "data" / "dropped.zarr").exists()
     finally:
@@ -296,9 +323,20 @@ def test_no_token_is_401_and_serve_refuses_to_run_open(service, monkeypatch, cap
         assert service.request(method, path, body, token="wrong")[0] == 401
     assert not (service.folder / "data" / "nope.zarr").exists()
     # browsers: the token from /login, kept in a cookie
-    opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor())
+    cookies = urllib.request.HTTPCookieProcessor()
+    opener = urllib.request.build_opener(cookies)
     with opener.open(f"{service.url}/", timeout=30) as page:
         assert page.url.endswith("/login") and "password" in page.read().decode()
+    wrong = urllib.parse.urlencode({"token": "wrong"}).encode()
+    with pytest.raises(urllib.error.HTTPError) as error:
+        opener.open(f"{service.url}/login", data=wrong, timeout=30)
+    assert error.value.code == 401 and not list(cookies.cookiejar)
+    connection = http.client.HTTPConnection("127.0.0.1", service.port, timeout=30)
+    connection.putrequest("POST", "/login")
+    connection.putheader("Content-Length", "many")
+    connection.endheaders()
+    assert connection.getresponse().status == 400
+    connection.close()
     login = urllib.parse.urlencode({"token": TOKEN}).encode()
     with opener.open(f"{service.url}/login", data=login, timeout=30) as page:
         assert page.url == f"{service.url}/" and "oceanlidar jobs" in page.read().decode()
@@ -327,7 +365,13 @@ BAD_SWEEPS = {
 }
 """Sweeps the CLI refuses too: the same message comes back, by field path."""
 
-ESCAPES = ["/tmp/escape.zarr", "../escape.zarr", "s3://bucket/escape.zarr", "link/escape.zarr"]
+ESCAPES = [
+    "/tmp/escape.zarr",
+    "../escape.zarr",
+    "s3://bucket/escape.zarr",
+    "link/escape.zarr",
+    "simplecache::escape.zarr",
+]
 """Outputs that leave the data root (``link`` leads out of it)."""
 
 
@@ -422,3 +466,33 @@ def test_page_shows_the_job_in_a_browser(open_service, tmp_path):
         folder=tmp_path,
     )
     assert shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_token_files_name_each_owner_and_each_token_once(tmp_path):
+    from service.inputs import SweepError
+    from service.server import read_tokens
+
+    tokens = tmp_path / "tokens"
+    tokens.write_text("# owner token\nalice a-1\nbob b-2\n")
+    assert read_tokens(str(tokens)) == {"alice": "a-1", "bob": "b-2"}
+    for text, twice in [
+        ("alice a-1\nalice b-2\n", "owner"),
+        ("alice a-1\nbob a-1\n", "token"),
+        ("t-1\nt-2\n", "owner"),  # two tokens of the owner 'default'
+    ]:
+        tokens.write_text(text)
+        with pytest.raises(SweepError, match=f"each {twice} may appear on one line only"):
+            read_tokens(str(tokens))
+
+
+def test_outputs_stay_under_the_data_root(tmp_path):
+    from service.inputs import SweepError
+    from service.jobs import confine_output
+
+    root = tmp_path / "data"
+    root.mkdir()
+    assert confine_output("runs/a.zarr", str(root)) == f"{root}/runs/a.zarr"
+    os.symlink(tmp_path, root / "link")
+    for output in [*ESCAPES, "memory::a.zarr", "a.zarr::s3://bucket", ".", "a/../.."]:
+        with pytest.raises(SweepError, match=r"^output: "):
+            confine_output(output, str(root))
