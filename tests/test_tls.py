@@ -114,3 +114,22 @@ def test_a_plaintext_client_is_refused_and_nothing_is_written(tls_cluster, tmp_p
     assert "cannot connect to the scheduler" in result.stderr
     assert "Traceback" not in result.stderr
     assert not (tmp_path / "plain.zarr").exists()
+
+
+def test_the_service_runs_its_jobs_on_a_tls_cluster(tls_cluster, tmp_path):
+    from test_server import Server, finished
+
+    address, _, (ca, cert, key) = tls_cluster
+    tls = ["--tls-ca-file", ca, "--tls-cert", cert, "--tls-key", key]
+    server = Server(tmp_path, "--scheduler", address, *tls)
+    try:
+        server.start()
+        status, job = server.submit(SWEEP)
+        assert status == 201, job
+        job = server.wait(job["id"], finished)
+        assert job["state"] == "succeeded", job
+    finally:
+        server.stop()
+    local = str(tmp_path / "local.zarr")
+    execute(parse_sweep(SWEEP), local, workers=1, progress_stream=open(os.devnull, "w"))
+    assert_same_samples(job["url"], local)
