@@ -13,8 +13,12 @@ from service.inputs import SweepError, read_text, shown
 __all__ = ["inline_measurements", "read_measurements"]
 
 
-def inline_measurements(data: dict, folder: Path) -> None:
-    """Replace ``scene.surface.conditioning.file`` in `data` by the points it holds."""
+def inline_measurements(data: dict, folder: Path | str) -> None:
+    """Replace ``scene.surface.conditioning.file`` in `data` by the points it holds.
+
+    The file is read from `folder` or below it, a local folder: a URL (the batch
+    service's object-storage data root) reads no measurement file.
+    """
     scene = data.get("scene")
     surface = scene.get("surface") if isinstance(scene, dict) else None
     conditioning = surface.get("conditioning") if isinstance(surface, dict) else None
@@ -26,6 +30,12 @@ def inline_measurements(data: dict, folder: Path) -> None:
         return
     if not isinstance(name, str) or not name:
         raise SweepError(f"{place}.file: must be the path of a CSV file, got {shown(name)}")
+    if "://" in str(folder):
+        raise SweepError(
+            f"{place}.file: measurement files are read from a local folder only, not "
+            f"{shown(str(folder))}; give the points inline ({place}.points)"
+        )
+    folder = Path(folder)
     relative = os.path.normpath(name)
     if os.path.isabs(relative) or relative.split(os.sep)[0] == os.pardir:
         raise SweepError(

@@ -306,7 +306,8 @@ def parse_sweep(text: str, *, folder=None, max_memory: float | None = DEFAULT_MA
         The sweep file's text.
     folder : path-like or None, optional
         Folder that relative paths in the sweep are relative to (`load_sweep` passes the
-        sweep file's); None: the current directory.
+        sweep file's); None: the current directory. A URL (an object-storage data root)
+        reads no measurement file.
     max_memory : float or None, optional
         The most memory [bytes] one sample may need (see `load_sweep`).
 
@@ -320,7 +321,7 @@ def parse_sweep(text: str, *, folder=None, max_memory: float | None = DEFAULT_MA
     data = read_yaml(text)
     if not isinstance(data, dict):
         raise SweepError("the file must be a YAML mapping with name, seed, output and scene")
-    inline_measurements(data, Path(folder) if folder is not None else Path())
+    inline_measurements(data, folder if folder is not None else Path())
     try:
         sweep = Sweep.model_validate(data)
     except ValidationError as error:

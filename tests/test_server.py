@@ -495,3 +495,12 @@ def test_outputs_stay_under_the_data_root(tmp_path):
     for output in [*ESCAPES, "memory::a.zarr", "a.zarr::s3://bucket", ".", "a/../.."]:
         with pytest.raises(SweepError, match=r"^output: "):
             confine_output(output, str(root))
+
+
+def test_an_object_storage_data_root_reads_no_measurement_file():
+    from service.inputs import SweepError
+    from service.sweep import parse_sweep
+
+    text = sweep("x.zarr").replace("surface: {", "surface: {conditioning: {file: points.csv}, ")
+    with pytest.raises(SweepError, match=r"^scene\.surface\.conditioning\.file: .*local folder"):
+        parse_sweep(text, folder="s3://bucket/oceanlidar")
