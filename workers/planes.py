@@ -6,11 +6,11 @@
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import numpy as np
 
+from workers.caches import lru_bytes
 from workers.gates import hidden_fraction
 from workers.geometry import LaserRays, Located, PlaneGrid, flat_sea_point
 from workers.interface import ray_components
@@ -167,12 +167,14 @@ def _beam_tail(setup: Setup, sensor: Sensor, levels: Levels, tail: LaserRays, ga
     )
 
 
-GEOMETRY_CACHE = 16
-"""Frame geometries a worker process keeps (a 512-pixel one holds about 90 MB): a sweep
-over many scenes must not hold a gigabyte per scene it has met."""
+GEOMETRY_BYTES = 1 << 30
+"""Most bytes of frame geometries a worker process keeps [bytes]. A 128-pixel frame holds
+about 4 MB, a 512-pixel one about 90 MB: every frame of a 26-frame sequence stays cached up
+to 256 pixels (rebuilding them made each sample of the paper's example 1 twenty times
+slower), and a sweep over many scenes does not hold a gigabyte per scene it has met."""
 
 
-@functools.lru_cache(maxsize=GEOMETRY_CACHE)
+@lru_bytes(GEOMETRY_BYTES)
 def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
     """Sensor rays, planes, filters and target maps of `frame` (cached by scene and frame)."""
     setup = scene_setup(scene)
