@@ -47,10 +47,7 @@ DATASET_KIND = "detection"
 
 def detection_url(url: str) -> str:
     """Where the detection dataset of the store at `url` lives by default (beside it)."""
-    stem = url.rstrip("/")
-    if stem.endswith(".zarr"):
-        stem = stem[: -len(".zarr")]
-    return stem + ".detect.zarr"
+    return storage.sibling_url(url, "detect")
 
 
 def _point_values(ds: xr.Dataset) -> tuple[list[str], list[dict]]:

@@ -28,6 +28,7 @@ __all__ = [
     "removable_files",
     "remove_files",
     "root_attributes",
+    "sibling_url",
     "stats_url",
     "storage_errors",
     "store_exists",
@@ -39,12 +40,17 @@ LOCK_NAME = "oceanlidar.lock"
 """The writer's lock, a file in the store (see `service.lock.writer_lock`)."""
 
 
-def stats_url(url: str) -> str:
-    """Where the statistics dataset of the store at `url` lives (beside it)."""
+def sibling_url(url: str, kind: str) -> str:
+    """Where the `kind` dataset of the store at `url` lives: beside it, ``NAME.KIND.zarr``."""
     stem = url.rstrip("/")
     if stem.endswith(".zarr"):
         stem = stem[: -len(".zarr")]
-    return stem + ".stats.zarr"
+    return f"{stem}.{kind}.zarr"
+
+
+def stats_url(url: str) -> str:
+    """Where the statistics dataset of the store at `url` lives (beside it)."""
+    return sibling_url(url, "stats")
 
 
 def filesystem(url: str, storage_options: dict | None):
