@@ -1,5 +1,7 @@
 """Compiled loops of the render: rays splatted onto two-level planes, pixels gathered.
 
+`bilinear_sum` samples the sea's periodic cascades at the rays (`workers.surface`).
+
 Each ray or pixel is located on a plane's fine grid from its in-water line
 (`workers.interface.Projected`: ``base + z·slope`` along the plane's axes), in float32 with
 the arithmetic of `workers.geometry.PlaneGrid.locate_cells`, and splatted or gathered in
@@ -15,7 +17,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-__all__ = ["Cells", "gather_levels", "sample", "span", "splat_levels"]
+__all__ = ["Cells", "bilinear_sum", "gather_levels", "sample", "span", "splat_levels"]
 
 _ONE = np.float32(1.0)
 _ZERO = np.float32(0.0)
@@ -294,3 +296,55 @@ def sample(lines, cells, fields, box, out):
             total += field[r + 1, c] * w2
             total += field[r + 1, c + 1] * w3
             out[k, i] = total
+
+
+@numba.njit(cache=True, nogil=True)
+def bilinear_sum(grids, sizes, inverses, x, y, out):
+    """Sum over periodic grids of their bilinear values at points, field by field.
+
+    Parameters
+    ----------
+    grids : tuple of ndarray
+        Per grid, its fields, shape (fields, (N + 1)²), float32: each an N × N periodic
+        field with its first row and column repeated after the last, flattened.
+    sizes : tuple of int
+        N of each grid.
+    inverses : tuple of float32
+        1 / spacing of each grid [1/m].
+    x, y : ndarray
+        World coordinates of the points [m] (taken to float32 first).
+    out : ndarray, shape (fields, points)
+        Out: the sums, float32.
+
+    Notes
+    -----
+    The arithmetic is that of `workers.surface.Cascade.sample`, in float32 and in the
+    same order, and the grids are added in turn as `workers.surface.Surface` adds its
+    cascades: the same bytes as the numpy formulation.
+    """
+    for i in range(x.size):
+        for g in range(len(grids)):
+            grid, n, inverse = grids[g], sizes[g], inverses[g]
+            tx = np.float32(x[i]) * inverse
+            ty = np.float32(y[i]) * inverse
+            column, row = np.floor(tx), np.floor(ty)
+            tx -= column
+            ty -= row
+            c, r = int(column), int(row)
+            if n & (n - 1) == 0:
+                c &= n - 1
+                r &= n - 1
+            else:
+                c %= n
+                r %= n
+            low = r * (n + 1) + c
+            high = low + n + 1
+            for k in range(grid.shape[0]):
+                field = grid[k]
+                lower = (field[low + 1] - field[low]) * tx + field[low]
+                upper = (field[high + 1] - field[high]) * tx + field[high]
+                value = (upper - lower) * ty + lower
+                if g == 0:
+                    out[k, i] = value
+                else:
+                    out[k, i] += value

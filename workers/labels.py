@@ -295,6 +295,11 @@ def sample_labels(scene: Scene) -> xr.Dataset:
         ``gate`` and ``frame`` (indices), ``gate_top``, ``gate_bottom`` (gate), ``time``
         and ``platform_x/y/z`` (frame).
     """
+    return xr.Dataset(*_label_variables(scene))
+
+
+def _label_variables(scene: Scene) -> tuple[dict, dict]:
+    """The data variables and coordinates of `sample_labels`, as (dims, data, attrs)."""
     setup = scene_setup(scene)
     gates = np.asarray(setup.gates)
     times = np.arange(scene.sequence.frames) * scene.sequence.interval
@@ -339,7 +344,7 @@ def sample_labels(scene: Scene) -> xr.Dataset:
         "platform_y": ("frame", position[:, 1], {"long_name": "platform north", "units": "m"}),
         "platform_z": ("frame", position[:, 2], {"long_name": "platform height", "units": "m"}),
     }
-    return xr.Dataset(data_vars, coords=coords)
+    return data_vars, coords
 
 
 def rendered_variables(scene: Scene) -> dict[str, tuple[tuple[str, ...], np.dtype, dict]]:
@@ -431,11 +436,12 @@ def labelled_dataset(scene, expected, image, masks, surface):
     """One sample as a dataset: labels, images, mask (and surface), per `rendered_variables`.
 
     A count above the image type's ``valid_max`` (beyond `COUNT_HEADROOM`) leaves the
-    image in float32, never wrapped, so that the store refuses the sample.
+    image in float32, never wrapped, so that the store refuses the sample. The dataset is
+    built in one constructor call (adding variables one by one costs an alignment each).
     """
     table = rendered_variables(scene)
     frames = scene.sequence.frames
-    ds = sample_labels(scene)
+    data_vars, coords = _label_variables(scene)
     target, background = signal_means(expected, masks.astype(bool))
     values = {
         "image": image,
@@ -448,7 +454,7 @@ def labelled_dataset(scene, expected, image, masks, surface):
         dims, dtype, attrs = table[name]
         if "valid_max" in attrs and data.max(initial=0) > attrs["valid_max"]:
             dtype = np.dtype(np.float32)
-        ds[name] = (dims, data.astype(dtype, copy=False), attrs)
+        data_vars[name] = (dims, data.astype(dtype, copy=False), attrs)
     if scene.save_surface:
         axis = surface_axis(scene)
         elevation = (
@@ -457,9 +463,10 @@ def labelled_dataset(scene, expected, image, masks, surface):
             else surface.centred_elevation
         )
         dims, dtype, attrs = table["surface_elevation"]
-        ds["surface_elevation"] = (dims, elevation.astype(dtype), attrs)
-        ds = ds.assign_coords(sx=("sx", axis, table["sx"][2]), sy=("sy", axis, table["sy"][2]))
-    return ds
+        data_vars["surface_elevation"] = (dims, elevation.astype(dtype), attrs)
+        coords["sx"] = ("sx", axis, table["sx"][2])
+        coords["sy"] = ("sy", axis, table["sy"][2])
+    return xr.Dataset(data_vars, coords=coords)
 
 
 def surface_axis(scene: Scene) -> np.ndarray:
