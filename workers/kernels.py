@@ -1,6 +1,7 @@
 """Compiled loops of the render: rays splatted onto two-level planes, pixels gathered.
 
-`bilinear_sum` samples the sea's periodic cascades at the rays (`workers.surface`).
+`bilinear_sum` samples the sea's periodic cascades at the rays, `cell_uniforms` hashes the
+rays' sub-grid cells to uniform numbers (`workers.surface`).
 
 Each ray or pixel is located on a plane's fine grid from its in-water line
 (`workers.interface.Projected`: ``base + z·slope`` along the plane's axes), in float32 with
@@ -17,10 +18,22 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-__all__ = ["Cells", "bilinear_sum", "gather_levels", "sample", "span", "splat_levels"]
+__all__ = [
+    "Cells",
+    "bilinear_sum",
+    "cell_uniforms",
+    "gather_levels",
+    "sample",
+    "span",
+    "splat_levels",
+]
 
 _ONE = np.float32(1.0)
 _ZERO = np.float32(0.0)
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_MIX_1 = np.uint64(0xBF58476D1CE4E5B9)
+_MIX_2 = np.uint64(0x94D049BB133111EB)
+_FRAME = np.uint64(0x632BE59BD9B4E019)
 
 
 class Cells(NamedTuple):
@@ -354,3 +367,51 @@ def _bilinear(field, n, inverse, x, y, out, first):
             out[i] = value
         else:
             out[i] += value
+
+
+@numba.njit(cache=True)
+def _mix(z):
+    """SplitMix64's finaliser (Steele, Lea & Flood 2014) on a uint64."""
+    z ^= z >> np.uint64(30)
+    z *= _MIX_1
+    z ^= z >> np.uint64(27)
+    z *= _MIX_2
+    z ^= z >> np.uint64(31)
+    return z
+
+
+@numba.njit(cache=True, nogil=True)
+def cell_uniforms(x, y, inverse, key, frame, first, second):
+    """Two uniform numbers in (0, 1) per point, a hash of its cell, the frame and a key.
+
+    Parameters
+    ----------
+    x, y : ndarray
+        World coordinates of the points [m].
+    inverse : float32
+        1 / cell size [1/m]; the cell of a point is (floor(y·inverse), floor(x·inverse)),
+        in float32.
+    key : uint64
+        The seed's key.
+    frame : uint64
+        Frame index.
+    first, second : ndarray
+        Out: the numbers, float32, (k + 0.5)·2⁻²⁴ for 24-bit k.
+
+    Notes
+    -----
+    The hash is SplitMix64's finaliser: w = mix(col·φ ⊕ mix(row + mix(key ⊕ frame·c))),
+    with 64-bit wrapping arithmetic (φ the golden-ratio constant, c another odd constant);
+    the first number takes w's top 24 bits, the second its low 24.
+    """
+    seed = _mix(key ^ (frame * _FRAME))
+    scale = np.float32(2.0**-24)
+    half = np.float32(0.5)
+    for i in range(x.size):
+        column = np.int64(np.floor(np.float32(x[i]) * inverse))
+        row = np.int64(np.floor(np.float32(y[i]) * inverse))
+        word = np.uint64(column) * _GOLDEN
+        word ^= _mix(np.uint64(row) + seed)
+        word = _mix(word)
+        first[i] = (np.float32(word >> np.uint64(40)) + half) * scale
+        second[i] = (np.float32(word & np.uint64(0xFFFFFF)) + half) * scale

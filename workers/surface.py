@@ -20,7 +20,7 @@ import numpy as np
 import scipy.fft
 
 from workers.cascades import Sea, subgrid_slope_covariance
-from workers.kernels import bilinear_sum
+from workers.kernels import bilinear_sum, cell_uniforms
 from workers.spectra import dispersion
 
 __all__ = ["Cascade", "Modes", "SubgridSlopes", "Surface", "centred_axis", "draw", "synthesize"]
@@ -153,21 +153,6 @@ def _sample(cascades, grids, x, y):
     return tuple(values.reshape(shape) for values in out)
 
 
-_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
-_MIX_1 = np.uint64(0xBF58476D1CE4E5B9)
-_MIX_2 = np.uint64(0x94D049BB133111EB)
-
-
-def _mix(z: np.ndarray) -> np.ndarray:
-    """SplitMix64's finaliser (Steele, Lea & Flood 2014) on uint64 arrays, in place."""
-    z ^= z >> np.uint64(30)
-    z *= _MIX_1
-    z ^= z >> np.uint64(27)
-    z *= _MIX_2
-    z ^= z >> np.uint64(31)
-    return z
-
-
 @dataclass(frozen=True, eq=False)
 class SubgridSlopes:
     r"""The slopes finer than the finest grid: a Gaussian blur of the facets' normals.
@@ -202,16 +187,10 @@ class SubgridSlopes:
         inverse = np.float32(1.0 / self.cell)
         x, y = np.broadcast_arrays(x, y)
         shape = x.shape
-        column = np.floor(np.multiply(x.ravel(), inverse, dtype=np.float32)).astype(np.int64)
-        row = np.floor(np.multiply(y.ravel(), inverse, dtype=np.float32)).astype(np.int64)
-        frame_key = (self.key ^ (int(frame) * 0x632BE59BD9B4E019)) & 0xFFFFFFFFFFFFFFFF
-        seed = _mix(np.array([frame_key], np.uint64))[0]
-        word = column.view(np.uint64) * _GOLDEN
-        word ^= _mix(row.view(np.uint64) + seed)
-        word = _mix(word)
-        scale = np.float32(2.0**-24)
-        first = ((word >> np.uint64(40)).astype(np.float32) + np.float32(0.5)) * scale
-        second = ((word & np.uint64(0xFFFFFF)).astype(np.float32) + np.float32(0.5)) * scale
+        first = np.empty(x.size, np.float32)
+        second = np.empty(x.size, np.float32)
+        frame = np.uint64(int(frame) & 0xFFFFFFFFFFFFFFFF)
+        cell_uniforms(x.ravel(), y.ravel(), inverse, np.uint64(self.key), frame, first, second)
         radius = np.sqrt(np.float32(-2.0) * np.log(first))
         angle = np.float32(2.0 * np.pi) * second
         normal_x, normal_y = radius * np.cos(angle), radius * np.sin(angle)
