@@ -148,11 +148,13 @@ def splat_levels(lines, power, cells, densities, fine, source, block):
     Notes
     -----
     Rays that miss the fine grid land on the coarse one; rays that miss both are dropped.
+    The block means are taken over the fine rows and columns that rays reached (the
+    other blocks hold nothing, and adding their zero changes no value).
     """
     base_u, slope_u, base_v, slope_v = lines
     fine_density, coarse_density = densities
     rows, cols = fine.shape
-    top, bottom = rows, 0
+    top, bottom, left, right = rows, 0, cols, 0
     coarse_top, coarse_bottom = source.shape[0], 0
     for i in range(power.size):
         row = _at(base_v, slope_v, i, cells.depth, cells.origin_v, cells.scale_v)
@@ -160,6 +162,8 @@ def splat_levels(lines, power, cells, densities, fine, source, block):
         if _deposit(fine, row, col, power[i] * fine_density):
             top = min(top, int(row))
             bottom = max(bottom, int(row) + 2)
+            left = min(left, int(col))
+            right = max(right, int(col) + 2)
             continue
         row = row / cells.factor + cells.shift_v
         col = col / cells.factor + cells.shift_u
@@ -171,7 +175,7 @@ def splat_levels(lines, power, cells, densities, fine, source, block):
     for br in range(top // factor, (bottom + factor - 1) // factor):
         coarse_top = min(coarse_top, block[0] + br)
         coarse_bottom = max(coarse_bottom, block[0] + br + 1)
-        for bc in range(cols // factor):
+        for bc in range(left // factor, (right + factor - 1) // factor):
             total = 0.0
             for r in range(br * factor, (br + 1) * factor):
                 for c in range(bc * factor, (bc + 1) * factor):
