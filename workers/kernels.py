@@ -1,7 +1,8 @@
 """Compiled loops of the render: rays splatted onto two-level planes, pixels gathered.
 
 `bilinear_sum` samples the sea's periodic cascades at the rays, `cell_uniforms` hashes the
-rays' sub-grid cells to uniform numbers (`workers.surface`).
+rays' sub-grid cells to uniform numbers (`workers.surface`); `column_convolution` is the
+coarse spread's direct column sums (`workers.spread`).
 
 Each ray or pixel is located on a plane's fine grid from its in-water line
 (`workers.interface.Projected`: ``base + z·slope`` along the plane's axes), in float32 with
@@ -22,6 +23,7 @@ __all__ = [
     "Cells",
     "bilinear_sum",
     "cell_uniforms",
+    "column_convolution",
     "gather_levels",
     "sample",
     "span",
@@ -419,3 +421,20 @@ def cell_uniforms(x, y, inverse, key, frame, first, second):
         word = _mix(word)
         first[i] = (np.float32(word >> np.uint64(40)) + half) * scale
         second[i] = (np.float32(word & np.uint64(0xFFFFFF)) + half) * scale
+
+
+@numba.njit(cache=True, nogil=True)
+def column_convolution(kernel, rows, first, start, out):
+    """Circular convolution along axis 0 of a few rows with a kernel, per column.
+
+    ``out[o, k] += Σ_j kernel[(start + o − first − j) mod N, k] · rows[j, k]``, N the
+    kernel's length along axis 0: the rows are rows ``first…`` of an N-row field that is
+    zero elsewhere, `out` holds its rows ``start…`` of the convolution. The sum over j
+    is taken in increasing order, in complex64.
+    """
+    n = kernel.shape[0]
+    for o in range(out.shape[0]):
+        for j in range(rows.shape[0]):
+            lag = (start + o - first - j) % n
+            for k in range(rows.shape[1]):
+                out[o, k] += kernel[lag, k] * rows[j, k]

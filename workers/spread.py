@@ -36,6 +36,7 @@ import scipy.fft
 from scipy import integrate, special
 
 from workers.geometry import PlaneGrid, fast_length
+from workers.kernels import column_convolution
 from workers.water import WaterOptics
 
 __all__ = [
@@ -302,10 +303,9 @@ def _direct(columns, field, rows_in, rows_out):
     """
     shape = field.shape
     half = scipy.fft.rfft(field[rows_in], axis=1)
-    first, last, _ = rows_in.indices(shape[0])
-    start, stop, _ = rows_out.indices(shape[0])
-    lag = (np.arange(start, stop)[:, None] - np.arange(first, last)[None, :]) % shape[0]
-    mixed = np.einsum("oik,ik->ok", columns[lag], half)
+    first, start = rows_in.indices(shape[0])[0], rows_out.indices(shape[0])[0]
+    mixed = np.zeros((len(range(*rows_out.indices(shape[0]))), half.shape[1]), np.complex64)
+    column_convolution(columns, half, first, start, mixed)
     return scipy.fft.irfft(mixed, n=shape[1], axis=1)
 
 
