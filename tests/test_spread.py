@@ -231,3 +231,12 @@ def test_direct_column_sums_equal_the_column_ffts(truncation):
     reference = np.fft.irfft2(spectrum, s=source.shape)
     assert np.all(far[: read.start] == 0) and np.all(far[read.stop :] == 0)
     assert_allclose(far[read], reference[read], rtol=0, atol=1e-6 * np.abs(reference).max())
+
+
+@pytest.mark.parametrize("rows", [slice(5, 23), slice(8, 16), slice(0, 48), slice(7, 7)])
+def test_downsample_on_the_lit_rows_is_the_whole_downsample(rows):
+    grid = north_up_grid(depth=5.0, spacing_u=0.05, spacing_v=0.05, shape=(48, 40))
+    levels = Levels.around(grid, factor=4, margin=2.0)
+    fine = np.zeros(grid.shape, np.float32)
+    fine[rows] = np.random.default_rng(4).random((48, 40), dtype=np.float32)[rows]
+    np.testing.assert_array_equal(levels.downsample(fine, rows), levels.downsample(fine))

@@ -156,7 +156,7 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
         for (weights, coarse), gates in zip(light.weights, light.gates, strict=True):
             fine[:] = 0.0
             np.multiply(near, weights[rows], out=fine[rows])
-            source = levels.downsample(fine)
+            source = levels.downsample(fine, rows)
             if coarse is not None:
                 source += beyond * coarse
             seen = np.zeros(pixels * pixels, dtype=np.float32)

@@ -234,12 +234,19 @@ class Levels:
         (r0, c0), (rows, cols) = self.offset, self.fine.shape
         return slice(r0, r0 + rows // self.factor), slice(c0, c0 + cols // self.factor)
 
-    def downsample(self, fine: np.ndarray) -> np.ndarray:
-        """A fine field as a coarse one: block means inside the fine region, 0 outside."""
+    def downsample(self, fine: np.ndarray, rows: slice = slice(None)) -> np.ndarray:
+        """A fine field as a coarse one: block means inside the fine region, 0 outside.
+
+        `fine` is zero outside its fine `rows` (default all): only the blocks holding them
+        are averaged (the others are 0).
+        """
         s = self.factor
-        rows, cols = fine.shape
+        first, last, _ = rows.indices(fine.shape[0])
+        blocks = slice(first // s, -(-last // s)) if last > first else slice(0, 0)
+        cols = fine.shape[1]
         out = np.zeros(self.coarse.shape, dtype=np.float32)
-        out[self.block] = fine.reshape(rows // s, s, cols // s, s).mean(axis=(1, 3))
+        inside = fine[blocks.start * s : blocks.stop * s].reshape(-1, s, cols // s, s)
+        out[self.block][blocks] = inside.mean(axis=(1, 3))
         return out
 
     def to_coarse(self, row, col):
