@@ -36,6 +36,39 @@ pixels ms before      ms after       scipy ratio  numpy ratio
 The spectra alone now take about 8.5 ms a 256² sample and 29 ms a 512² one, some 24
 scipy pairs at both sizes: the fine planes the linear spread needs (up to 486² cells for
 the deepest gates at 256²) set that floor.
+
+Issue #10, render near the floor, second pass: the sample's dataset in one xarray
+constructor, the sea sampled at the rays by one compiled pass per cascade and field, the
+sub-grid slopes' cell hash compiled, the gates' shared gain terms computed once, the target
+and ring means on the mask's box, the coarse level's few lit rows convolved by direct
+column sums in place of two column FFT passes (images within 3.2e-7 of an image's largest
+value; everything else the same bytes), block means only where light is. One run each,
+back to back, CPU time, sphere / no target, on the 2-core machine at load 1.6–1.9; the code
+before (f81312b) / after. The same code f81312b gives larger ratios today than the table
+above measured for it (111 against 79–83 at 256²): the pair and the render do not slow
+alike with the machine's state, so compare ratios only within one table.
+
+====== ======= ============ ============ ================= =================
+pixels target  ms before    ms after     scipy ratio       numpy ratio
+====== ======= ============ ============ ================= =================
+128    sphere  22.2         16.6         108.6 → 88.5      67.4 → 54.2
+128    none    18.8         13.1         88.9 → 70.6       57.5 → 42.4
+256    sphere  53.9         44.5         110.9 → 93.2      69.7 → 60.2
+256    none    42.4         34.5         91.7 → 74.8       53.0 → 46.1
+512    sphere  191.3        164.0        118.4 → 101.2     72.0 → 65.5
+512    none    162.6        131.9        99.3 → 80.4       63.7 → 54.4
+====== ======= ============ ============ ================= =================
+
+Where a 256² sphere sample's 44 ms go now (CPU, measured by wrapping the functions): the
+spreads' FFTs 10.9 ms (about 23 scipy pairs: fine planes of 324²–486² cells, the floor of
+the present plane sizes), gathers 7.5 ms (assembly and bilinear reads, with the window
+search), splats 4.6 ms, the rays through the sea 5.6 ms, the sea's synthesis 5.3 ms, shot
+noise 2.0 ms, the dataset and its means 2.0 ms, the rest (target maps, hiding, gains,
+Python) about 6 ms. The 30-pair target (14 ms) is below the FFTs plus one pass of the
+rays over seven planes; closing it needs smaller fine planes (the guard of four coarse
+cells on every side is sized for light anywhere on the plane, while the traced lattice
+lights and the pixels read little more than the image) and fewer passes over the rays
+(each ray is located once per plane, seven times), not faster loops.
 """
 
 import argparse

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
+from workers.labels import RING_FRACTION, signal_means
 from workers.optics import fresnel_reflectance
 from workers.render import render
 from workers.scene import Scene
@@ -526,3 +527,29 @@ def test_saved_surface_is_the_summed_sea_over_the_footprint():
         truth = surface.elevation_at(ds.sx.values[None, :], ds.sy.values[:, None], frame)
         assert_array_equal(ds.surface_elevation.values[frame], truth)
     assert ds.surface_elevation.std() > 0.01  # a real sea, m
+
+
+@pytest.mark.parametrize("where", ["centre", "corner", "none"])
+def test_signal_means_are_the_means_over_the_mask_and_its_ring(where):
+    # The means are taken on the box around the mask; brute force over the whole image:
+    # the ring is every pixel within the ring's width (Chebyshev) of the mask, outside it.
+    rng = np.random.default_rng(2)
+    values = rng.random((2, 3, 40, 40)).astype(np.float32)
+    mask = np.zeros((2, 40, 40), bool)
+    if where == "centre":
+        mask[0, 15:20, 18:25], mask[1, 22:24, 10:12] = True, True
+    elif where == "corner":
+        mask[:, 0:3, 36:40] = True
+    inside, ring = signal_means(values, mask)
+    width = max(2, round(RING_FRACTION * 40))
+    y, x = np.mgrid[:40, :40]
+    for s in range(2):
+        near = np.zeros((40, 40), bool)
+        for r, c in zip(*np.nonzero(mask[s]), strict=True):
+            near |= (abs(y - r) <= width) & (abs(x - c) <= width)
+        for region, got in ((mask[s], inside[s]), (near & ~mask[s], ring[s])):
+            if not region.any():
+                assert np.all(np.isnan(got))
+                continue
+            expected = values[s][:, region].astype(np.float64).mean(axis=1)
+            assert_allclose(got, expected, rtol=1e-12)

@@ -206,3 +206,37 @@ def test_the_two_levels_line_up(shape):
     fine = (2.0 * xf - 3.0 * yf).astype(np.float32)
     assert_allclose(levels.upsample(coarse), fine, atol=2e-4)
     assert_allclose(levels.downsample(fine)[levels.block], coarse[levels.block], atol=2e-4)
+
+
+@pytest.mark.parametrize("truncation", [None, 0.95], ids=["whole", "truncated"])
+def test_direct_column_sums_equal_the_column_ffts(truncation):
+    # Few coarse rows lit and few read: `filtered` sums the far kernel along the columns
+    # instead of the two column FFT passes; the same linear map within float32 rounding.
+    water = WaterOptics.from_preset("coastal")
+    grid = north_up_grid(depth=9.0, spacing_u=0.05, spacing_v=0.05, shape=(48, 48))
+    levels = Levels.around(grid, factor=4, margin=20.0)
+    spread = Spread.build(water=water, levels=levels, distance=9.0, truncation=truncation)
+    rng = np.random.default_rng(1)
+    fine = np.zeros(grid.shape, np.float32)
+    fine[10:30] = rng.random((20, 48), dtype=np.float32)
+    source = levels.downsample(fine)
+    rows = levels.block[0]
+    lit = slice(rows.start + 2, rows.start + 8)
+    read = slice(rows.start - 1, rows.stop + 1)
+    assert (lit.stop - lit.start) * (read.stop - read.start) < source.shape[0] * 7
+    _, far, _ = spread.filtered(
+        fine, source, rows_in=(slice(10, 30), lit), rows_out=(slice(None), read)
+    )
+    spectrum = np.fft.rfft2(source.astype(np.float64)) * spread.far
+    reference = np.fft.irfft2(spectrum, s=source.shape)
+    assert np.all(far[: read.start] == 0) and np.all(far[read.stop :] == 0)
+    assert_allclose(far[read], reference[read], rtol=0, atol=1e-6 * np.abs(reference).max())
+
+
+@pytest.mark.parametrize("rows", [slice(5, 23), slice(8, 16), slice(0, 48), slice(7, 7)])
+def test_downsample_on_the_lit_rows_is_the_whole_downsample(rows):
+    grid = north_up_grid(depth=5.0, spacing_u=0.05, spacing_v=0.05, shape=(48, 40))
+    levels = Levels.around(grid, factor=4, margin=2.0)
+    fine = np.zeros(grid.shape, np.float32)
+    fine[rows] = np.random.default_rng(4).random((48, 40), dtype=np.float32)[rows]
+    np.testing.assert_array_equal(levels.downsample(fine, rows), levels.downsample(fine))

@@ -20,7 +20,14 @@ import numpy as np
 
 from workers.water import slab_backscatter_reflectance
 
-__all__ = ["central_paths", "gate_gain", "hidden_fraction", "sight_lines", "slab_bounds"]
+__all__ = [
+    "central_paths",
+    "gate_gain",
+    "gate_gains",
+    "hidden_fraction",
+    "sight_lines",
+    "slab_bounds",
+]
 
 _NEWTON_STEPS = 8
 
@@ -181,10 +188,41 @@ def gate_gain(excess, *, diffuse_attenuation, refractive_index, secant, top, bot
     ndarray
         The gain [1], float32, in place of the ray's own extra-path attenuation.
     """
+    return gate_gains(
+        excess,
+        diffuse_attenuation=diffuse_attenuation,
+        refractive_index=refractive_index,
+        secant=secant,
+        slabs=((top, bottom, depth),),
+    )[0]
+
+
+def gate_gains(excess, *, diffuse_attenuation, refractive_index, secant, slabs):
+    """`gate_gain` for several gates at once: the terms they share are computed once.
+
+    Parameters
+    ----------
+    excess : ndarray
+        Air path less the central ray's [m].
+    diffuse_attenuation, refractive_index, secant : float
+        K [1/m], n [1], sec ϑ_c [1], as in `gate_gain`.
+    slabs : sequence of tuple
+        ``(top, bottom, depth)`` of each gate [m], as in `gate_gain`.
+
+    Returns
+    -------
+    list of ndarray
+        The gain of each gate [1], float32.
+    """
     k, n = diffuse_attenuation, refractive_index
     excess = np.asarray(excess, dtype=np.float32)
-    gain = np.exp(np.float32(k / n) * excess)
+    lift = np.exp(np.float32(k / n) * excess)
     rise = excess * np.float32(1.0 / (n * secant))
+    return [_gain(lift.copy(), rise, k, secant, *slab) for slab in slabs]
+
+
+def _gain(gain, rise, k, secant, top, bottom, depth):
+    """`gate_gain` from e^(Kτ/n) (`gain`, changed in place) and the slab's rise δ."""
     cut = np.flatnonzero(rise > top)
     if cut.size:
         shifted = rise[cut].astype(np.float64)

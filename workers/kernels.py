@@ -1,5 +1,9 @@
 """Compiled loops of the render: rays splatted onto two-level planes, pixels gathered.
 
+`bilinear_sum` samples the sea's periodic cascades at the rays, `cell_uniforms` hashes the
+rays' sub-grid cells to uniform numbers (`workers.surface`); `column_convolution` is the
+coarse spread's direct column sums (`workers.spread`).
+
 Each ray or pixel is located on a plane's fine grid from its in-water line
 (`workers.interface.Projected`: ``base + z·slope`` along the plane's axes), in float32 with
 the arithmetic of `workers.geometry.PlaneGrid.locate_cells`, and splatted or gathered in
@@ -15,10 +19,23 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-__all__ = ["Cells", "gather_levels", "sample", "span", "splat_levels"]
+__all__ = [
+    "Cells",
+    "bilinear_sum",
+    "cell_uniforms",
+    "column_convolution",
+    "gather_levels",
+    "sample",
+    "span",
+    "splat_levels",
+]
 
 _ONE = np.float32(1.0)
 _ZERO = np.float32(0.0)
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_MIX_1 = np.uint64(0xBF58476D1CE4E5B9)
+_MIX_2 = np.uint64(0x94D049BB133111EB)
+_FRAME = np.uint64(0x632BE59BD9B4E019)
 
 
 class Cells(NamedTuple):
@@ -133,11 +150,13 @@ def splat_levels(lines, power, cells, densities, fine, source, block):
     Notes
     -----
     Rays that miss the fine grid land on the coarse one; rays that miss both are dropped.
+    The block means are taken over the fine rows and columns that rays reached (the
+    other blocks hold nothing, and adding their zero changes no value).
     """
     base_u, slope_u, base_v, slope_v = lines
     fine_density, coarse_density = densities
     rows, cols = fine.shape
-    top, bottom = rows, 0
+    top, bottom, left, right = rows, 0, cols, 0
     coarse_top, coarse_bottom = source.shape[0], 0
     for i in range(power.size):
         row = _at(base_v, slope_v, i, cells.depth, cells.origin_v, cells.scale_v)
@@ -145,6 +164,8 @@ def splat_levels(lines, power, cells, densities, fine, source, block):
         if _deposit(fine, row, col, power[i] * fine_density):
             top = min(top, int(row))
             bottom = max(bottom, int(row) + 2)
+            left = min(left, int(col))
+            right = max(right, int(col) + 2)
             continue
         row = row / cells.factor + cells.shift_v
         col = col / cells.factor + cells.shift_u
@@ -156,7 +177,7 @@ def splat_levels(lines, power, cells, densities, fine, source, block):
     for br in range(top // factor, (bottom + factor - 1) // factor):
         coarse_top = min(coarse_top, block[0] + br)
         coarse_bottom = max(coarse_bottom, block[0] + br + 1)
-        for bc in range(cols // factor):
+        for bc in range(left // factor, (right + factor - 1) // factor):
             total = 0.0
             for r in range(br * factor, (br + 1) * factor):
                 for c in range(bc * factor, (bc + 1) * factor):
@@ -294,3 +315,126 @@ def sample(lines, cells, fields, box, out):
             total += field[r + 1, c] * w2
             total += field[r + 1, c + 1] * w3
             out[k, i] = total
+
+
+@numba.njit(cache=True, nogil=True)
+def bilinear_sum(grids, sizes, inverses, x, y, out):
+    """Sum over periodic grids of their bilinear values at points, field by field.
+
+    Parameters
+    ----------
+    grids : tuple of ndarray
+        Per grid, its fields, shape (fields, (N + 1)²), float32: each an N × N periodic
+        field with its first row and column repeated after the last, flattened.
+    sizes : tuple of int
+        N of each grid.
+    inverses : tuple of float32
+        1 / spacing of each grid [1/m].
+    x, y : ndarray
+        World coordinates of the points [m] (taken to float32 first).
+    out : ndarray, shape (fields, points)
+        Out: the sums, float32.
+
+    Notes
+    -----
+    The arithmetic is that of `workers.surface.Cascade.sample`, in float32 and in the
+    same order, and the grids are added in turn as `workers.surface.Surface` adds its
+    cascades: the same bytes as the numpy formulation. One pass over the points per
+    grid and field (a one-dimensional loop) is faster than one over the grids per point.
+    """
+    for g in range(len(grids)):
+        for k in range(out.shape[0]):
+            _bilinear(grids[g][k], sizes[g], inverses[g], x, y, out[k], g == 0)
+
+
+@numba.njit(cache=True, nogil=True)
+def _bilinear(field, n, inverse, x, y, out, first):
+    """`bilinear_sum` of one field of one grid: into `out` if `first`, else added to it."""
+    mask = n & (n - 1) == 0
+    for i in range(x.size):
+        tx = np.float32(x[i]) * inverse
+        ty = np.float32(y[i]) * inverse
+        column, row = np.floor(tx), np.floor(ty)
+        tx -= column
+        ty -= row
+        c, r = int(column), int(row)
+        if mask:
+            c &= n - 1
+            r &= n - 1
+        else:
+            c %= n
+            r %= n
+        low = r * (n + 1) + c
+        high = low + n + 1
+        lower = (field[low + 1] - field[low]) * tx + field[low]
+        upper = (field[high + 1] - field[high]) * tx + field[high]
+        value = (upper - lower) * ty + lower
+        if first:
+            out[i] = value
+        else:
+            out[i] += value
+
+
+@numba.njit(cache=True)
+def _mix(z):
+    """SplitMix64's finaliser (Steele, Lea & Flood 2014) on a uint64."""
+    z ^= z >> np.uint64(30)
+    z *= _MIX_1
+    z ^= z >> np.uint64(27)
+    z *= _MIX_2
+    z ^= z >> np.uint64(31)
+    return z
+
+
+@numba.njit(cache=True, nogil=True)
+def cell_uniforms(x, y, inverse, key, frame, first, second):
+    """Two uniform numbers in (0, 1) per point, a hash of its cell, the frame and a key.
+
+    Parameters
+    ----------
+    x, y : ndarray
+        World coordinates of the points [m].
+    inverse : float32
+        1 / cell size [1/m]; the cell of a point is (floor(y·inverse), floor(x·inverse)),
+        in float32.
+    key : uint64
+        The seed's key.
+    frame : uint64
+        Frame index.
+    first, second : ndarray
+        Out: the numbers, float32, (k + 0.5)·2⁻²⁴ for 24-bit k.
+
+    Notes
+    -----
+    The hash is SplitMix64's finaliser: w = mix(col·φ ⊕ mix(row + mix(key ⊕ frame·c))),
+    with 64-bit wrapping arithmetic (φ the golden-ratio constant, c another odd constant);
+    the first number takes w's top 24 bits, the second its low 24.
+    """
+    seed = _mix(key ^ (frame * _FRAME))
+    scale = np.float32(2.0**-24)
+    half = np.float32(0.5)
+    for i in range(x.size):
+        column = np.int64(np.floor(np.float32(x[i]) * inverse))
+        row = np.int64(np.floor(np.float32(y[i]) * inverse))
+        word = np.uint64(column) * _GOLDEN
+        word ^= _mix(np.uint64(row) + seed)
+        word = _mix(word)
+        first[i] = (np.float32(word >> np.uint64(40)) + half) * scale
+        second[i] = (np.float32(word & np.uint64(0xFFFFFF)) + half) * scale
+
+
+@numba.njit(cache=True, nogil=True)
+def column_convolution(kernel, rows, first, start, out):
+    """Circular convolution along axis 0 of a few rows with a kernel, per column.
+
+    ``out[o, k] += Σ_j kernel[(start + o − first − j) mod N, k] · rows[j, k]``, N the
+    kernel's length along axis 0: the rows are rows ``first…`` of an N-row field that is
+    zero elsewhere, `out` holds its rows ``start…`` of the convolution. The sum over j
+    is taken in increasing order, in complex64.
+    """
+    n = kernel.shape[0]
+    for o in range(out.shape[0]):
+        for j in range(rows.shape[0]):
+            lag = (start + o - first - j) % n
+            for k in range(rows.shape[1]):
+                out[o, k] += kernel[lag, k] * rows[j, k]

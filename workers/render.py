@@ -156,7 +156,7 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
         for (weights, coarse), gates in zip(light.weights, light.gates, strict=True):
             fine[:] = 0.0
             np.multiply(near, weights[rows], out=fine[rows])
-            source = levels.downsample(fine)
+            source = levels.downsample(fine, rows)
             if coarse is not None:
                 source += beyond * coarse
             seen = np.zeros(pixels * pixels, dtype=np.float32)
@@ -164,8 +164,10 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
             _gather(plane, up_axes, (fine, source, rows_in), up_transmittance * sight_extra, seen)
             for g in gates:
                 images[g] += seen
+    down_gains = setup.gate_gains(down_excess)
+    up_gains = None if monostatic else setup.gate_gains(up_excess)
     for g, plane in enumerate(geometry.gate_planes):
-        gain = setup.gate_gain(down_excess, g)
+        gain = down_gains[g]
         ray_power = power * gain
         if plane.bounds is not None and lit.size:
             # rays that meet the target lose the part of the slab behind it
@@ -178,7 +180,7 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
                 diffuse_attenuation=K * setup.secant,
             )
             ray_power[lit] *= np.sqrt(np.maximum(1.0 - hidden, 0.0))
-        up_gain = geometry.pixels(gain) if monostatic else setup.gate_gain(up_excess, g)
+        up_gain = geometry.pixels(gain) if monostatic else up_gains[g]
         weight = up_transmittance * up_gain
         sources = _splat(plane, down_axes, ray_power)
         _gather(

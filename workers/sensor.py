@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from workers.cascades import Sea
-from workers.gates import central_paths, gate_gain, sight_lines, slab_bounds
+from workers.gates import central_paths, gate_gains, sight_lines, slab_bounds
 from workers.geometry import LaserRays, PinholeCamera, PlaneGrid, flat_sea_point
 from workers.optics import fresnel_reflectance
 from workers.radiometry import photoelectrons_per_signal, pixel_solid_angle
@@ -59,15 +59,17 @@ class Setup:
 
     def gate_gain(self, excess, gate: int):
         """`workers.gates.gate_gain` of this scene's gate number `gate` [1]."""
-        top, bottom = self.gates[gate]
-        return gate_gain(
+        return self.gate_gains(excess, (gate,))[0]
+
+    def gate_gains(self, excess, gates=None):
+        """`workers.gates.gate_gain` of this scene's gates (default all), in a list [1]."""
+        gates = range(len(self.gates)) if gates is None else gates
+        return gate_gains(
             excess,
             diffuse_attenuation=self.water.diffuse_attenuation,
             refractive_index=self.water.refractive_index,
             secant=self.secant,
-            top=top,
-            bottom=bottom,
-            depth=self.reference_depths[gate],
+            slabs=[(*self.gates[g], self.reference_depths[g]) for g in gates],
         )
 
 

@@ -36,6 +36,7 @@ import scipy.fft
 from scipy import integrate, special
 
 from workers.geometry import PlaneGrid, fast_length
+from workers.kernels import column_convolution
 from workers.water import WaterOptics
 
 __all__ = [
@@ -233,12 +234,19 @@ class Levels:
         (r0, c0), (rows, cols) = self.offset, self.fine.shape
         return slice(r0, r0 + rows // self.factor), slice(c0, c0 + cols // self.factor)
 
-    def downsample(self, fine: np.ndarray) -> np.ndarray:
-        """A fine field as a coarse one: block means inside the fine region, 0 outside."""
+    def downsample(self, fine: np.ndarray, rows: slice = slice(None)) -> np.ndarray:
+        """A fine field as a coarse one: block means inside the fine region, 0 outside.
+
+        `fine` is zero outside its fine `rows` (default all): only the blocks holding them
+        are averaged (the others are 0).
+        """
         s = self.factor
-        rows, cols = fine.shape
+        first, last, _ = rows.indices(fine.shape[0])
+        blocks = slice(first // s, -(-last // s)) if last > first else slice(0, 0)
+        cols = fine.shape[1]
         out = np.zeros(self.coarse.shape, dtype=np.float32)
-        out[self.block] = fine.reshape(rows // s, s, cols // s, s).mean(axis=(1, 3))
+        inside = fine[blocks.start * s : blocks.stop * s].reshape(-1, s, cols // s, s)
+        out[self.block][blocks] = inside.mean(axis=(1, 3))
         return out
 
     def to_coarse(self, row, col):
@@ -295,6 +303,19 @@ def _forward(field, rows):
     return scipy.fft.fft(half, axis=0, overwrite_x=True)
 
 
+def _direct(columns, field, rows_in, rows_out):
+    """`field` filtered by the kernel `columns`, on `rows_out`, by direct column sums.
+
+    `field` is zero outside its rows `rows_in`; see `Spread.filtered`.
+    """
+    shape = field.shape
+    half = scipy.fft.rfft(field[rows_in], axis=1)
+    first, start = rows_in.indices(shape[0])[0], rows_out.indices(shape[0])[0]
+    mixed = np.zeros((len(range(*rows_out.indices(shape[0]))), half.shape[1]), np.complex64)
+    column_convolution(columns, half, first, start, mixed)
+    return scipy.fft.irfft(mixed, n=shape[1], axis=1)
+
+
 def _inverse(spectrum, shape, rows):
     """irfft2 of `spectrum` to `shape`, on the rows `rows` (a slice) only."""
     if rows == slice(None):
@@ -318,12 +339,16 @@ class Spread:
     whole : ndarray
         The whole MTF on the coarse grid's frequencies, for the light outside the fine
         grid [1].
+    columns : ndarray
+        The far filter's kernel along the coarse columns, per row frequency: the inverse
+        FFT of `far` along axis 0, complex64.
     """
 
     levels: Levels
     near: np.ndarray
     far: np.ndarray
     whole: np.ndarray
+    columns: np.ndarray
 
     @classmethod
     def build(
@@ -401,11 +426,13 @@ class Spread:
             kernel = scipy.fft.irfft2(scattered, s=coarse.shape)
             kernel[beyond] = 0.0
             scattered = scipy.fft.rfft2(kernel).real
+        far = (gain * far).astype(np.float32)
         return cls(
             levels=levels,
             near=(gain * near).astype(np.float32),
-            far=(gain * far).astype(np.float32),
+            far=far,
             whole=(gain * (unscattered + scattered)).astype(np.float32),
+            columns=np.fft.ifft(far.astype(np.float64), axis=0).astype(np.complex64),
         )
 
     def __call__(self, fine: np.ndarray, coarse: np.ndarray | None = None, *, far_out=True):
@@ -467,13 +494,27 @@ class Spread:
         -----
         A 2-D real FFT is a pass along rows and one along columns, so rows known to be
         zero skip the first pass and rows not needed skip the last: the same transform,
-        cheaper.
+        cheaper. On the coarse grid the light often fills a few rows and a few rows are
+        read: when (rows in) × (rows out) is below N log₂ N (N the coarse rows), the two
+        column passes are replaced by the circular convolution they make, summed directly
+        along each column of the row spectra with the far kernel `columns`. Both are the
+        same linear map; they differ by float32 rounding (relative 1e-7 of the field).
         """
         spectrum = _forward(fine, rows_in[0])
         spectrum *= self.near
         near = _inverse(spectrum, fine.shape, rows_out[0])
-        spectrum = _forward(source, rows_in[1])
-        far = _inverse(spectrum * self.far, source.shape, rows_out[1])
+        shape = source.shape
+        inside = len(range(*rows_in[1].indices(shape[0])))
+        read = len(range(*rows_out[1].indices(shape[0])))
+        if (
+            not far_out
+            and rows_out[1] != slice(None)
+            and inside * read < shape[0] * np.log2(shape[0])
+        ):
+            far = _direct(self.columns, source, rows_in[1], rows_out[1])
+        else:
+            spectrum = _forward(source, rows_in[1])
+            far = _inverse(spectrum * self.far, shape, rows_out[1])
         if rows_out[1] != slice(None):
             far, rows = np.zeros(source.shape, dtype=np.float32), far
             far[rows_out[1]] = rows

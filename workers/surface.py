@@ -20,17 +20,10 @@ import numpy as np
 import scipy.fft
 
 from workers.cascades import Sea, subgrid_slope_covariance
+from workers.kernels import bilinear_sum, cell_uniforms
 from workers.spectra import dispersion
 
 __all__ = ["Cascade", "Modes", "SubgridSlopes", "Surface", "centred_axis", "draw", "synthesize"]
-
-# Points per block in Cascade.sample. The temporaries of a block (256 KiB for an index
-# array) are reused from the heap when glibc's mmap threshold is raised
-# (service.tuning.tune_allocator, or glibc's own dynamic threshold after the first free);
-# page faults on fresh mappings were measured to make a 262144-point call four times
-# slower. Larger blocks pay less per-call overhead: 32768 was measured 1.5 times faster
-# than 8192 for 65536 points with the tuned allocator.
-_SAMPLE_BLOCK = 32768
 
 
 def _check_grid(grid_size, spacing) -> None:
@@ -84,7 +77,7 @@ class Cascade:
         object.__setattr__(self, "_wrapped", {})
 
     def _wrapped_fields(self, frame):
-        """Elevation and slopes of `frame`, each padded to (N + 1, N + 1) and flattened.
+        """Elevation and slopes of `frame`, each padded to (N + 1, N + 1): (3, (N + 1)²).
 
         Row N and column N repeat row 0 and column 0, so the four corners of a cell need
         no wrapping. Made on first use and kept (4(N + 1)² bytes per field and frame).
@@ -99,7 +92,7 @@ class Cascade:
                 field[:n, :n] = grid[frame]
                 field[n, :n] = grid[frame, 0]
                 field[:, n] = field[:, 0]
-            self._wrapped[frame] = tuple(field.ravel() for field in padded)
+            self._wrapped[frame] = padded.reshape(3, -1)
         return self._wrapped[frame]
 
     def sample(self, x, y, frame=0):
@@ -132,79 +125,32 @@ class Cascade:
         the derivative of the interpolated elevation. A power-of-two N wraps indices
         with a bit mask, any other N with a (slower) remainder; a copy of each frame
         with its first row and column repeated after the last (made on first use and
-        kept) gives the other three corners without wrapping. Points are processed in
-        blocks of 32768 to keep the temporaries small.
+        kept) gives the other three corners without wrapping. The loop is compiled
+        (`workers.kernels.bilinear_sum`).
         """
-        return self._sample(self._wrapped_fields(frame), x, y)
+        return _sample((self,), (self._wrapped_fields(frame),), x, y)
 
     def elevation_at(self, x, y, frame=0):
         """Bilinear, periodically wrapped elevation alone at world points, m (see `sample`)."""
-        return self._sample(self._wrapped_fields(frame)[:1], x, y)[0]
+        return _sample((self,), (self._wrapped_fields(frame)[:1],), x, y)[0]
 
     def slopes_at(self, x, y, frame=0):
         """Bilinear, periodically wrapped slopes ∂η/∂x, ∂η/∂y alone at world points [1].
 
         See `sample`; the values are those it returns.
         """
-        return self._sample(self._wrapped_fields(frame)[1:], x, y)
-
-    def _sample(self, grids, x, y):
-        x, y = np.broadcast_arrays(x, y)
-        shape = x.shape
-        x = x.ravel()
-        y = y.ravel()
-        out = np.empty((len(grids), x.size), np.float32)
-        for start in range(0, x.size, _SAMPLE_BLOCK):
-            block = slice(start, start + _SAMPLE_BLOCK)
-            self._interpolate(grids, x[block], y[block], out[:, block])
-        return tuple(values.reshape(shape) for values in out)
-
-    def _interpolate(self, grids, x, y, out):
-        """Bilinear interpolation of the wrapped, flattened ``grids`` at (x, y) into ``out``."""
-        n = self.grid_size
-        inverse = np.float32(1.0 / self.spacing)
-        tx = np.multiply(x, inverse, dtype=np.float32)
-        ty = np.multiply(y, inverse, dtype=np.float32)
-        column = np.floor(tx)
-        row = np.floor(ty)
-        tx -= column
-        ty -= row
-        column = column.astype(np.intp)
-        row = row.astype(np.intp)
-        for index in (column, row):
-            if n & (n - 1) == 0:
-                np.bitwise_and(index, n - 1, out=index)
-            else:
-                np.remainder(index, n, out=index)
-        row *= n + 1
-        row += column
-        corners = (row, row + 1, row + (n + 1), row + (n + 2))
-        for values, result in zip(grids, out, strict=True):
-            low, low_right, high, high_right = (values.take(corner) for corner in corners)
-            low_right -= low
-            low_right *= tx
-            low_right += low
-            high_right -= high
-            high_right *= tx
-            high_right += high
-            high_right -= low_right
-            high_right *= ty
-            np.add(high_right, low_right, out=result)
+        return _sample((self,), (self._wrapped_fields(frame)[1:],), x, y)
 
 
-_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
-_MIX_1 = np.uint64(0xBF58476D1CE4E5B9)
-_MIX_2 = np.uint64(0x94D049BB133111EB)
-
-
-def _mix(z: np.ndarray) -> np.ndarray:
-    """SplitMix64's finaliser (Steele, Lea & Flood 2014) on uint64 arrays, in place."""
-    z ^= z >> np.uint64(30)
-    z *= _MIX_1
-    z ^= z >> np.uint64(27)
-    z *= _MIX_2
-    z ^= z >> np.uint64(31)
-    return z
+def _sample(cascades, grids, x, y):
+    """The sum over `cascades` of their bilinear `grids` (`Cascade._wrapped_fields` rows)."""
+    x, y = np.broadcast_arrays(x, y)
+    shape = x.shape
+    out = np.empty((grids[0].shape[0], x.size), np.float32)
+    sizes = tuple(int(c.grid_size) for c in cascades)
+    inverses = tuple(np.float32(1.0 / c.spacing) for c in cascades)
+    bilinear_sum(grids, sizes, inverses, x.ravel(), y.ravel(), out)
+    return tuple(values.reshape(shape) for values in out)
 
 
 @dataclass(frozen=True, eq=False)
@@ -241,16 +187,10 @@ class SubgridSlopes:
         inverse = np.float32(1.0 / self.cell)
         x, y = np.broadcast_arrays(x, y)
         shape = x.shape
-        column = np.floor(np.multiply(x.ravel(), inverse, dtype=np.float32)).astype(np.int64)
-        row = np.floor(np.multiply(y.ravel(), inverse, dtype=np.float32)).astype(np.int64)
-        frame_key = (self.key ^ (int(frame) * 0x632BE59BD9B4E019)) & 0xFFFFFFFFFFFFFFFF
-        seed = _mix(np.array([frame_key], np.uint64))[0]
-        word = column.view(np.uint64) * _GOLDEN
-        word ^= _mix(row.view(np.uint64) + seed)
-        word = _mix(word)
-        scale = np.float32(2.0**-24)
-        first = ((word >> np.uint64(40)).astype(np.float32) + np.float32(0.5)) * scale
-        second = ((word & np.uint64(0xFFFFFF)).astype(np.float32) + np.float32(0.5)) * scale
+        first = np.empty(x.size, np.float32)
+        second = np.empty(x.size, np.float32)
+        frame = np.uint64(int(frame) & 0xFFFFFFFFFFFFFFFF)
+        cell_uniforms(x.ravel(), y.ravel(), inverse, np.uint64(self.key), frame, first, second)
         radius = np.sqrt(np.float32(-2.0) * np.log(first))
         angle = np.float32(2.0 * np.pi) * second
         normal_x, normal_y = radius * np.cos(angle), radius * np.sin(angle)
@@ -365,18 +305,13 @@ class Surface:
 
     def elevation_at(self, x, y, frame=0):
         """Elevation at world points, m: the sum of the cascades' bilinear values."""
-        total = self.cascades[0].elevation_at(x, y, frame)
-        for cascade in self.cascades[1:]:
-            total += cascade.elevation_at(x, y, frame)
-        return total
+        grids = tuple(c._wrapped_fields(frame)[:1] for c in self.cascades)
+        return _sample(self.cascades, grids, x, y)[0]
 
     def slopes_at(self, x, y, frame=0):
         """Slopes ∂η/∂x, ∂η/∂y at world points [1]: the cascades' plus the sub-grid ones."""
-        slope_x, slope_y = self.cascades[0].slopes_at(x, y, frame)
-        for cascade in self.cascades[1:]:
-            more_x, more_y = cascade.slopes_at(x, y, frame)
-            slope_x += more_x
-            slope_y += more_y
+        grids = tuple(c._wrapped_fields(frame)[1:] for c in self.cascades)
+        slope_x, slope_y = _sample(self.cascades, grids, x, y)
         if self.subgrid is not None:
             more_x, more_y = self.subgrid.at(x, y, frame)
             slope_x += more_x
