@@ -15,7 +15,7 @@ from scipy.ndimage import maximum_filter
 
 from workers.geometry import PlaneGrid, flat_sea_point
 from workers.optics import fresnel_reflectance
-from workers.radiometry import lidar_equation, pixel_solid_angle
+from workers.radiometry import lidar_equation
 from workers.scene import Scene
 from workers.sensor import (
     fine_grid,
@@ -23,6 +23,7 @@ from workers.sensor import (
     impostor_on,
     lines_of_sight,
     platform_position,
+    receiver_terms,
     scene_setup,
     sensor_at,
     target_centre,
@@ -181,15 +182,7 @@ def white_plane_count(scene: Scene) -> float:
     laser = np.radians(scene.laser.field_of_view_deg or scene.receiver.field_of_view_deg)
     return float(
         lidar_equation(
-            pulse_energy=r.pulse_energy,
-            wavelength=r.wavelength,
-            aperture_diameter=r.receiver_aperture,
-            optics_transmission=r.optics_transmission,
-            quantum_efficiency=r.quantum_efficiency,
-            solid_angle=pixel_solid_angle(
-                field_of_view=np.radians(scene.receiver.field_of_view_deg),
-                pixels=scene.receiver.pixels,
-            ),
+            **receiver_terms(scene),
             beam_divergence=np.tan(0.5 * laser),
             altitude=max(lowest, 1e-3),
             depth=0.0,

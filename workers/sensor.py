@@ -126,6 +126,27 @@ def scene_setup(scene: Scene) -> Setup:
     )
 
 
+def receiver_terms(scene: Scene) -> dict:
+    """The lidar equation's instrument terms of `scene`, by their keyword names.
+
+    Pulse energy [J], wavelength [m], receiver aperture diameter [m], optics transmission
+    and quantum efficiency [1], and one pixel's solid angle [sr], as
+    `workers.radiometry.lidar_equation` and `photoelectrons_per_signal` take them.
+    """
+    r = scene.radiometry
+    return {
+        "pulse_energy": r.pulse_energy,
+        "wavelength": r.wavelength,
+        "aperture_diameter": r.receiver_aperture,
+        "optics_transmission": r.optics_transmission,
+        "quantum_efficiency": r.quantum_efficiency,
+        "solid_angle": pixel_solid_angle(
+            field_of_view=np.radians(scene.receiver.field_of_view_deg),
+            pixels=scene.receiver.pixels,
+        ),
+    }
+
+
 def _signal_scale(scene: Scene) -> float:
     """The factor taking the raw signal to photoelectrons (or to white-plane units).
 
@@ -143,15 +164,7 @@ def _signal_scale(scene: Scene) -> float:
     reference_range = p.altitude / np.cos(np.radians(p.nadir_deg))
     laser_fov = np.radians(scene.laser.field_of_view_deg or scene.receiver.field_of_view_deg)
     return photoelectrons_per_signal(
-        pulse_energy=r.pulse_energy,
-        wavelength=r.wavelength,
-        aperture_diameter=r.receiver_aperture,
-        optics_transmission=r.optics_transmission,
-        quantum_efficiency=r.quantum_efficiency,
-        solid_angle=pixel_solid_angle(
-            field_of_view=np.radians(scene.receiver.field_of_view_deg),
-            pixels=scene.receiver.pixels,
-        ),
+        **receiver_terms(scene),
         beam_half_width=reference_range * np.tan(0.5 * laser_fov),
         refractive_index=n_w,
     )
