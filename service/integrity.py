@@ -187,29 +187,31 @@ def write_shard(group, samples: dict[int, xr.Dataset]) -> None:
     The shard's other samples already complete are read back and written again with the
     new ones (their bytes do not change); the rest stay at the fill value and incomplete.
     The caller owns the shard: no other task writes it meanwhile (`service.run`). Writes
-    go straight to the zarr arrays the template created, one call per variable: xarray's
-    region writes re-read the store's metadata on every call, which costs more than
-    rendering a small sample.
+    go straight to the zarr arrays the template created, one call per variable, each
+    array opened once: xarray's region writes, and every lookup of an array in the group,
+    read the store's metadata again, which costs more than compressing a small sample.
     """
-    size = shard_samples(group)
+    names = (*RENDERED_VARIABLES, "checksum", "completed")
+    arrays = {name: array for name in names if (array := group.get(name)) is not None}
+    completed, stored = arrays.pop("completed"), arrays.pop("checksum")
+    size = int(completed.chunks[0])
     first = min(samples) // size * size
-    region = slice(first, min(first + size, group["completed"].shape[0]))
-    done = group["completed"][region].astype(bool)
+    region = slice(first, min(first + size, completed.shape[0]))
+    done = completed[region].astype(bool)
     kept = [first + int(i) for i in np.flatnonzero(done) if first + int(i) not in samples]
     blocks = {}
-    for name in _stored(group):
-        array = group[name]
+    for name, array in arrays.items():
         block = np.full((region.stop - first, *array.shape[1:]), array.fill_value, array.dtype)
         if kept:
             block[[k - first for k in kept]] = read_samples(array, kept)
         for sample, rendered in samples.items():
             block[sample - first] = rendered[name].values
         blocks[name] = block
-    checksums = group["checksum"][region]
+    checksums = stored[region]
     for sample in samples:
         checksums[sample - first] = sample_checksum([b[sample - first] for b in blocks.values()])
     for name, block in blocks.items():
-        group[name][region] = block
-    group["checksum"][region] = checksums
+        arrays[name][region] = block
+    stored[region] = checksums
     done[[s - first for s in samples]] = True
-    group["completed"][region] = done.astype(np.uint8)
+    completed[region] = done.astype(np.uint8)
