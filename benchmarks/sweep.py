@@ -1,20 +1,59 @@
 """Sweep throughput: `oceanlidar run` on an embedded cluster against a plain render loop.
 
-Renders the same samples three ways in one run and prints samples/s: an in-process loop
-(`render` only, no dask, no zarr), the service with one worker process, and with two. The
-overhead of dask and zarr is 1 − (service rate) / (workers × loop rate). The workers are
-warmed by a first run; cluster start-up is excluded and the statistics pass printed apart.
-Usage: ``python benchmarks/sweep.py [--samples 48] [--pixels 128]``.
+Renders the same samples four ways and prints samples/s: an in-process loop (`render`
+only, no dask, no zarr), the service's task in-process (`service.run.render_shard`: render,
+check, checksum, compress, write; no dask), and the service with one worker process and
+with two. The overhead is 1 − (service rate) / (workers × loop rate). On a shared machine
+the wall clock drifts with other load, so the sweep is split into rounds (a different seed
+each) and every round runs all four ways in turn; the rates sum over rounds. The workers
+are warmed by a first run; cluster start-up is excluded and the statistics pass printed
+apart. CPU time a sample splits the overhead: the workers' (render and service path,
+dask's task handling), and that of this process (client and scheduler), which shares the
+cores with two workers on a two-core machine. The default 192 samples are 24 shards of 8,
+an even split between two workers (25 shards would leave one worker idle for the last).
+
+Usage: ``python benchmarks/sweep.py [--samples 192] [--rounds 3] [--pixels 128] [--batch 8]``
+(``--batch``: samples a shard and a task, as ``oceanlidar run --batch``).
+
+Figures (128 px, 256² surface, batch 8), one run on the otherwise idle 2-core machine
+(load 0.9–1.2), 2026-11-24, after the render of issue #10 got 14–25 % cheaper:
+
+====================== ========= ========= ======================================
+way                    samples/s overhead  CPU a sample
+====================== ========= ========= ======================================
+render loop            42.8      —         23.3 ms
+render_shard in-proc.  32.1      24.9 %    +8.6 ms (checks, checksums, zstd, writes)
+run, 1 worker          30.8      28.0 %    worker 33.4 ms (+10.1), client+sched. 2.8
+run, 2 workers         53.1      38.0 %    workers 32.9 ms (+9.6), client+sched. 1.9
+====================== ========= ========= ======================================
+
+Before (the first quiet run of this session, the benchmark's earlier form, 200 samples):
+loop 29.6/s, one worker 32.0 %, two 40.1 %. Opening each array once in `write_shard`
+(every lookup in the group parsed its metadata again) took its cost from 6.5 to 5.9 ms a
+sample. Where the rest goes (measured in-process): zstd (level 3) of the uint32 counts
+2.2–2.3 ms, inherent to the stored bytes; zarr's write machinery (each inner chunk an
+asyncio task on zarr's loop thread, a shard read back before it is replaced) about 3 ms;
+opening the group and its arrays per task 0.55 ms; reading the shard's completion flags
+and checksums 0.3 ms; `invalid_values` 0.4 ms; CRC-32 and copies 0.35 ms; dask's task
+handling 0.2–0.7 ms. Encoding a shard's files directly (the bytes zarr writes, checked file
+for file) halved `write_shard` (7.9–8.6 → 4.2–4.4 ms, one worker 25 → 17 % overhead in a
+trial), but re-implements zarr's sharded writer on its private ``zarr.core.sync``: left
+out. With two workers on two cores the client and scheduler (this process) take 1.6–2.8
+ms CPU a sample, about 5 points of the two-worker overhead. Per-task costs fall with
+larger shards (``--batch 32``: +2.6 ms in-process over the loop, at load 5).
 """
 
 import argparse
+import contextlib
+import multiprocessing
 import os
 import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor
 
 from service import store
 from service.cluster import dask_client
-from service.run import run_plan
+from service.run import render_shard, run_plan, task_batches
 from service.stats import write_statistics
 from service.sweep import parse_sweep
 from service.tuning import tune_allocator
@@ -23,7 +62,7 @@ from workers.seeds import SampleSeed
 
 SWEEP = """\
 name: bench
-seed: 1
+seed: {seed}
 realisations: {realisations}
 output: bench.zarr
 scene:
@@ -33,42 +72,107 @@ sweep:
   parameters:
     target.shape: {{values: [sphere, none]}}
 """
+WORKERS = (1, 2)
+
+
+def in_process(way: str, text: str, url: str, batch: int) -> tuple[float, float]:
+    """Render the sweep `text` in this process: a `render` loop or the service's tasks.
+
+    Runs in a process of its own (no scheduler threads beside it). Returns the wall and CPU
+    time taken [s].
+    """
+    tune_allocator()
+    plan = parse_sweep(text)
+    if way == "inline":
+        store.create_store(plan, url, samples_per_shard=batch)
+    start, cpu = time.perf_counter(), time.process_time()
+    if way == "loop":
+        for sample in range(plan.samples):
+            point, realisation = divmod(sample, plan.realisations)
+            seed = SampleSeed(root=plan.sweep.seed, point=point, realisation=realisation)
+            render(plan.scenes[point], seed=seed)
+    else:
+        for _, jobs in task_batches(plan, range(plan.samples), batch):
+            render_shard(url, jobs)
+    return time.perf_counter() - start, time.process_time() - cpu
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--samples", type=int, default=200)
+    parser.add_argument("--samples", type=int, default=192)
+    parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--pixels", type=int, default=128)
+    parser.add_argument("--batch", type=int, default=store.SHARD_SAMPLES, help="samples a shard")
     args = parser.parse_args()
     tune_allocator()
-    plan = parse_sweep(SWEEP.format(realisations=args.samples // 2, pixels=args.pixels))
-    render(plan.scenes[0], seed=0)
-    start = time.perf_counter()
-    for sample in range(plan.samples):
-        point, realisation = divmod(sample, plan.realisations)
-        render(plan.scenes[point], seed=SampleSeed(root=1, point=point, realisation=realisation))
-    loop = plan.samples / (time.perf_counter() - start)
-    print(f"{plan.samples} samples of {args.pixels}² pixels, six gates, 256² surface")
-    print(f"in-process render loop: {loop:6.2f} samples/s")
-    with tempfile.TemporaryDirectory() as folder, open(os.devnull, "w") as quiet:
-        for workers in (1, 2):
-            with dask_client(workers=workers, scheduler=None) as client:
-                # a first, small run warms the workers (imports, per-scene caches)
-                warm = os.path.join(folder, f"warm{workers}.zarr")
-                store.create_store(plan, warm)
-                client.run(tune_allocator)
-                run_plan(plan, warm, client=client, progress_stream=quiet)
-                url = os.path.join(folder, f"w{workers}.zarr")
-                store.create_store(plan, url)
-                result = run_plan(plan, url, client=client, progress_stream=quiet)
-                start = time.perf_counter()
-                write_statistics(url)
-                stats = time.perf_counter() - start
-            rate = result.written / result.seconds
-            print(
-                f"oceanlidar run, {workers} worker(s): {rate:6.2f} samples/s, overhead "
-                f"{100 * (1 - rate / (workers * loop)):5.1f} % (statistics pass {stats:.1f} s)"
-            )
+    per_round = args.samples // args.rounds // 2
+    plans = [
+        parse_sweep(SWEEP.format(seed=seed, realisations=per_round, pixels=args.pixels))
+        for seed in range(1, args.rounds + 1)
+    ]
+    ways = ["loop", "inline", *WORKERS]
+    wall = dict.fromkeys(ways, 0.0)
+    cpu = dict.fromkeys(ways, 0.0)  # this process
+    worker_cpu = dict.fromkeys(WORKERS, 0.0)
+    stats = dict.fromkeys(WORKERS, 0.0)
+    samples = sum(plan.samples for plan in plans)
+    loads = [os.getloadavg()[0]]
+    with contextlib.ExitStack() as stack, tempfile.TemporaryDirectory() as folder:
+        quiet = stack.enter_context(open(os.devnull, "w"))
+        alone = stack.enter_context(
+            ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+        )
+        warm = os.path.join(folder, "warm.zarr")  # imports, per-scene caches
+        alone.submit(in_process, "inline", plans[0].text, warm, args.batch).result()
+        clients = {n: stack.enter_context(dask_client(workers=n, scheduler=None)) for n in WORKERS}
+        for n, client in clients.items():
+            client.run(tune_allocator)
+            warm = os.path.join(folder, f"warm{n}.zarr")  # imports, per-scene caches
+            store.create_store(plans[0], warm, samples_per_shard=args.batch)
+            run_plan(plans[0], warm, client=client, progress_stream=quiet)
+        for i, plan in enumerate(plans):
+            for way in ways:
+                url = os.path.join(folder, f"{way}-{i}.zarr")
+                if way in WORKERS:
+                    store.create_store(plan, url, samples_per_shard=args.batch)
+                    before = clients[way].run(time.process_time)
+                    start, cpu0 = time.perf_counter(), time.process_time()
+                    result = run_plan(plan, url, client=clients[way], progress_stream=quiet)
+                    assert result.written == plan.samples
+                    seconds = time.perf_counter() - start, time.process_time() - cpu0
+                else:
+                    seconds = alone.submit(in_process, way, plan.text, url, args.batch).result()
+                wall[way] += seconds[0]
+                cpu[way] += seconds[1]
+                if way in WORKERS:
+                    after = clients[way].run(time.process_time)
+                    worker_cpu[way] += sum(after[w] - before[w] for w in before)
+                    start = time.perf_counter()
+                    write_statistics(url)
+                    stats[way] += time.perf_counter() - start
+            loads.append(os.getloadavg()[0])
+    rate = {way: samples / wall[way] for way in ways}
+    ms = {way: 1e3 * cpu[way] / samples for way in ways}
+    print(f"{samples} samples of {args.pixels}² px, six gates, 256² surface, {args.rounds} rounds")
+    print(f"load average (1 min) by round: {' '.join(f'{x:.2f}' for x in loads)}")
+    print(
+        f"in-process render loop:  {rate['loop']:6.2f} samples/s, {ms['loop']:.1f} ms CPU a sample"
+    )
+    print(
+        f"render_shard in-process: {rate['inline']:6.2f} samples/s, overhead "
+        f"{100 * (1 - rate['inline'] / rate['loop']):5.1f} %; CPU a sample "
+        f"{ms['inline'] - ms['loop']:+.1f} ms over the loop (checks, checksums, compression, "
+        "writes)"
+    )
+    for n in WORKERS:
+        work = 1e3 * worker_cpu[n] / samples
+        print(
+            f"oceanlidar run, {n} worker(s): {rate[n]:6.2f} samples/s, overhead "
+            f"{100 * (1 - rate[n] / (n * rate['loop'])):5.1f} %; CPU a sample: workers "
+            f"{work:.1f} ms ({work - ms['loop']:+.1f} over the loop), client and scheduler "
+            f"{ms[n]:.1f} ms "
+            f"(statistics passes {stats[n]:.1f} s)"
+        )
 
 
 if __name__ == "__main__":
