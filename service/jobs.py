@@ -13,6 +13,7 @@ jobs running take turns on the workers: none starves another.
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import sqlite3
@@ -63,15 +64,33 @@ class ForbiddenError(RuntimeError):
 
 
 class JobTable:
-    """Jobs in an SQLite file, safe to use from several threads.
+    """Jobs in an SQLite file, safe to use from several threads, owned by one service.
+
+    The service holds an exclusive lock on ``PATH.lock`` (``flock``) while the table is
+    open, released by the system when its process ends however it ends: a job found
+    ``running`` at start was left by a service that has died, whose store locks (they
+    name the job) may then be taken over (`service.lock.writer_lock`).
 
     Parameters
     ----------
     path : str
         The database file (created if absent).
+
+    Raises
+    ------
+    SweepError
+        If another service has the table open.
     """
 
     def __init__(self, path: str):
+        self._owner = open(f"{path}.lock", "a")  # held while the table lives
+        try:
+            fcntl.flock(self._owner, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            self._owner.close()
+            raise SweepError(
+                f"--db {path}: another oceanlidar serve uses this job table (one service a table)"
+            ) from None
         self._db = sqlite3.connect(path, check_same_thread=False, isolation_level=None)
         self._db.row_factory = sqlite3.Row
         self._lock = threading.Lock()
@@ -155,6 +174,8 @@ def confine_output(output: str, data_root: str) -> str:
         If `output` is a URL (chained ``::`` ones included) or an absolute path, or climbs
         out of `data_root`, as written or as the file system opens it (links followed).
     """
+    if any(ord(character) < 32 for character in output):
+        raise SweepError(f"output: control characters are not allowed, got {shown(output)}")
     protocol, _ = fsspec.core.split_protocol(output)
     normal = os.path.normpath(output)
     if (
@@ -177,6 +198,12 @@ def confine_output(output: str, data_root: str) -> str:
             if os.path.commonpath([root, os.path.realpath(path)]) != root:
                 raise SweepError(f"output: {shown(output)} leads out of the service's data root")
     return url
+
+
+def _parents(url: str) -> list[str]:
+    """The folders `url` lies in, innermost first (``a/b/c`` → ``a/b``, ``a``)."""
+    parts = url.rstrip("/").split("/")
+    return ["/".join(parts[:depth]) for depth in range(len(parts) - 1, 0, -1)]
 
 
 def public(job: dict) -> dict:
@@ -259,6 +286,14 @@ class Runner:
         plan.check_limits(remedy="split it into smaller sweeps (the service's limit)")
         store.check_uniform(plan)
         url = confine_output(plan.sweep.output, self.data_root)
+        parts = os.path.normpath(plan.sweep.output).split(os.sep)
+        for depth in range(1, len(parts)):
+            inside = "/".join(parts[:depth])
+            group = f"{self.data_root.rstrip('/')}/{inside}"
+            if storage.root_attributes(group, self.storage_options) is not None:
+                raise SweepError(
+                    f"output: {shown(plan.sweep.output)} lies inside the store {shown(inside)}"
+                )
         if mode == "new" and storage.occupied(url, self.storage_options):
             raise SweepError(
                 f"output: {shown(plan.sweep.output)} already exists; submit with mode "
@@ -289,8 +324,11 @@ class Runner:
             if self.table.active() >= self.queue_limit:
                 raise QueueFullError(f"{self.queue_limit} jobs are queued or running; try later")
             for job in self.table.list("queued") + self.table.list("running"):
-                if job["url"] == url:
-                    raise SweepError(f"output: job {job['id']} is writing {shown(url)} already")
+                if url in (job["url"], *_parents(job["url"])) or job["url"] in _parents(url):
+                    raise SweepError(
+                        f"output: job {job['id']} writes {shown(job['url'])}, the same store "
+                        "or one inside the other"
+                    )
             job_id = uuid.uuid4().hex[:12]
             self.table.add(
                 id=job_id,

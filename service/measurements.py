@@ -28,7 +28,7 @@ def inline_measurements(data: dict, folder: Path | str) -> None:
     name = conditioning.pop("file")
     if name is None:
         return
-    if not isinstance(name, str) or not name:
+    if not isinstance(name, str) or not name or any(ord(c) < 32 for c in name):
         raise SweepError(f"{place}.file: must be the path of a CSV file, got {shown(name)}")
     if "://" in str(folder):
         raise SweepError(

@@ -178,9 +178,7 @@ def run_plan(
     `task_timeout` seconds after its submission (a frozen worker) is given up and reported
     in ``stuck``; its shard is given to no other task. A storage failure that no retry
     cures (a full disk, a read-only or forbidden store) stops the run at once, with one
-    message in ``stopped``. Tasks of an earlier run of the same sweep into the same store
-    still executing (a service killed mid-job, on a cluster that outlived it) are waited
-    for first, at most `task_timeout` (`ClusterError` if they last longer).
+    message in ``stopped``.
 
     Setting `cancel` (a `threading.Event`) cancels the tasks in flight, waits for those
     already executing to end (at most `task_timeout`), and ends the run as interrupted,
@@ -198,8 +196,8 @@ def run_plan(
         result.points = np.unique(todo // plan.realisations)
     progress = Progress(plan.samples, result.skipped, progress_stream, on_progress)
     threads = sum(client.nthreads().values()) or 1
-    # task keys name the sweep and the store: concurrent runs never share a task
-    run_id = hashlib.sha256(f"{plan.digest} {url}".encode()).hexdigest()[:16]
+    # task keys name the store and the sweep: concurrent runs never share a task
+    run_id = f"{_store_key(url)}-{plan.digest[:16]}"
     started = time.monotonic()
     window = max(2, IN_FLIGHT_PER_THREAD * threads)
     failed: list = []
@@ -224,13 +222,6 @@ def run_plan(
             yield start, jobs
 
     try:
-        # an earlier run of this very run (a service killed mid-job, on a cluster that
-        # outlived it) may have tasks still executing: none may write beside this run's
-        if _wait_executing(client, f"oceanlidar-{run_id}", task_timeout):
-            raise ClusterError(
-                f"tasks of an earlier run into {url} are still executing on the cluster "
-                f"after {task_timeout:.0f} s; try again once they end"
-            )
         submit(task_batches(plan, todo, size), window, f"{run_id}-shard")
         singles = sorted(sample for samples, _ in failed for sample in samples)
         failed.clear()
@@ -249,10 +240,18 @@ def run_plan(
     return result
 
 
+def _store_key(url: str) -> str:
+    """The part of the task keys that names the store at `url`."""
+    return hashlib.sha256(url.encode()).hexdigest()[:16]
+
+
 def _wait_executing(client: Client, prefix: str, timeout: float) -> bool:
-    """Wait at most `timeout` s for the tasks named ``prefix...`` to end; whether some run."""
+    """Wait at most `timeout` s for the tasks named ``prefix...`` to end; whether some run.
+
+    A worker that leaves meanwhile runs none.
+    """
     deadline = time.monotonic() + timeout
-    while any(client.run(_executing, prefix).values()):
+    while any(client.run(_executing, prefix, on_error="ignore").values()):
         if time.monotonic() > deadline:
             return True
         time.sleep(TICK / 5)
@@ -423,7 +422,9 @@ def execute(
 
     Everything is checked before anything is deleted or written, once before taking the
     store's writer lock (so a refused run leaves no trace) and again holding it (another
-    run may have changed the output meanwhile).
+    run may have changed the output meanwhile). Then tasks of an earlier run into the
+    same store still executing (a service killed mid-job, on a cluster that outlived it)
+    are waited for, at most `task_timeout` (`ClusterError` if they last longer).
 
     `client` runs the samples on a cluster already connected (`workers`, `scheduler` and
     `security` are then unused); `cancel` and `on_progress` are passed to `run_plan`;
@@ -453,6 +454,13 @@ def execute(
                 raise ClusterError(
                     f"no worker answered within {PROBE_TIMEOUT} s (are any connected?)"
                 ) from None
+            # an earlier run into this store (a service killed mid-job, on a cluster that
+            # outlived it) may have tasks still executing: none may write past this point
+            if _wait_executing(client, f"oceanlidar-{_store_key(url)}", task_timeout):
+                raise ClusterError(
+                    f"tasks of an earlier run into {url} are still executing on the "
+                    f"cluster after {task_timeout:.0f} s; try again once they end"
+                )
             with storage.storage_errors(url):
                 storage.remove_files(storage.stats_url(url), storage_options, old_stats)
                 storage.remove_files(url, storage_options, old_files)

@@ -4,6 +4,7 @@ import contextlib
 import http.client
 import json
 import os
+import re
 import shutil
 import signal
 import sqlite3
@@ -504,3 +505,36 @@ def test_an_object_storage_data_root_reads_no_measurement_file():
     text = sweep("x.zarr").replace("surface: {", "surface: {conditioning: {file: points.csv}, ")
     with pytest.raises(SweepError, match=r"^scene\.surface\.conditioning\.file: .*local folder"):
         parse_sweep(text, folder="s3://bucket/oceanlidar")
+
+
+def test_one_service_a_table_and_no_store_inside_another(tmp_path):
+    from service.inputs import SweepError
+    from service.jobs import JobTable, Runner
+
+    table = JobTable(str(tmp_path / "jobs.sqlite"))
+    with pytest.raises(SweepError, match="another oceanlidar serve uses this job table"):
+        JobTable(str(tmp_path / "jobs.sqlite"))
+    (tmp_path / "data" / "done.zarr").mkdir(parents=True)
+    group = {"zarr_format": 3, "node_type": "group", "attributes": {}}
+    (tmp_path / "data" / "done.zarr" / "zarr.json").write_text(json.dumps(group))
+    runner = Runner(
+        table,
+        None,  # nothing runs: the queue is not worked
+        data_root=str(tmp_path / "data"),
+        max_running=1,
+        queue_limit=10,
+        batch_size=1,
+        storage_options=None,
+    )
+    runner.submit(sweep("runs/a.zarr"), owner="alice")
+    for output, reason in [
+        ("runs/a.zarr", "the same store or one inside the other"),
+        ("runs/a.zarr/image.zarr", "the same store or one inside the other"),
+        ("runs", "the same store or one inside the other"),
+        ("done.zarr/b/c.zarr", "lies inside the store 'done.zarr'"),
+        ('"a\\0b.zarr"', "control characters"),
+    ]:
+        with pytest.raises(SweepError, match=f"^output: .*{re.escape(reason)}"):
+            runner.submit(sweep(output), owner="bob")
+    assert len(table.list()) == 1
+    assert runner.submit(sweep("runs/b.zarr"), owner="bob")["state"] == "queued"
