@@ -172,7 +172,7 @@ def confine_output(output: str, data_root: str) -> str:
     ------
     SweepError
         If `output` is a URL (chained ``::`` ones included) or an absolute path, or climbs
-        out of `data_root`, as written or as the file system opens it (links followed).
+        out of `data_root`, as written or through links.
     """
     if any(ord(character) < 32 for character in output):
         raise SweepError(f"output: control characters are not allowed, got {shown(output)}")
@@ -193,10 +193,8 @@ def confine_output(output: str, data_root: str) -> str:
     url = f"{data_root.rstrip('/')}/{normal}"
     if fsspec.core.split_protocol(data_root)[0] in (None, "file", "local"):
         root = os.path.realpath(data_root)
-        opened = fsspec.core.url_to_fs(url)[1]  # the path the store is written at
-        for path in (url, opened):
-            if os.path.commonpath([root, os.path.realpath(path)]) != root:
-                raise SweepError(f"output: {shown(output)} leads out of the service's data root")
+        if os.path.commonpath([root, os.path.realpath(url)]) != root:
+            raise SweepError(f"output: {shown(output)} leads out of the service's data root")
     return url
 
 
@@ -286,11 +284,12 @@ class Runner:
         plan.check_limits(remedy="split it into smaller sweeps (the service's limit)")
         store.check_uniform(plan)
         url = confine_output(plan.sweep.output, self.data_root)
-        parts = os.path.normpath(plan.sweep.output).split(os.sep)
-        for depth in range(1, len(parts)):
-            inside = "/".join(parts[:depth])
-            group = f"{self.data_root.rstrip('/')}/{inside}"
+        root = self.data_root.rstrip("/")
+        for group in _parents(url):
+            if not group.startswith(f"{root}/"):
+                break
             if storage.root_attributes(group, self.storage_options) is not None:
+                inside = group[len(root) + 1 :]
                 raise SweepError(
                     f"output: {shown(plan.sweep.output)} lies inside the store {shown(inside)}"
                 )
