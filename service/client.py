@@ -19,7 +19,6 @@ import urllib.parse
 import urllib.request
 
 from service.inputs import SweepError, json_object, read_text
-from service.store import SHARD_SAMPLES
 
 __all__ = ["COMMANDS", "add_commands"]
 
@@ -55,8 +54,9 @@ def add_commands(commands) -> None:
     serve.add_argument(
         "--batch",
         type=int,
-        default=SHARD_SAMPLES,
-        help=f"samples per shard and task of a new store (default {SHARD_SAMPLES})",
+        default=None,
+        help="samples per shard and task of a new store (default: as many as fit in "
+        "16 MiB uncompressed, at least 8 shards)",
     )
     where = serve.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, default=None, help="embedded cluster's workers")

@@ -20,7 +20,7 @@ import google_crc32c
 import numpy as np
 import xarray as xr
 import zarr
-from numcodecs import Zstd
+from numcodecs import Blosc, Zstd
 
 from service.integrity import DamagedStoreError
 from service.storage import filesystem
@@ -67,8 +67,9 @@ class _Shards:
     """One sharded array of a store, read straight from its shard files.
 
     The layout is `service.store`'s: shards of consecutive samples along the first axis,
-    one sample per inner chunk, inner codecs bytes (little-endian), zstd and CRC32C, and
-    the shard's index at its end (two little-endian uint64 per chunk, then its CRC32C).
+    one sample per inner chunk, inner codecs bytes (little-endian), zstd or Blosc (whose
+    frames carry their own settings) and CRC32C, and the shard's index at its end (two
+    little-endian uint64 per chunk, then its CRC32C).
     """
 
     def __init__(self, fs, root: str, name: str) -> None:
@@ -76,7 +77,13 @@ class _Shards:
         sharding = meta["codecs"][0]
         config = sharding.get("configuration", {})
         codecs = [codec["name"] for codec in config.get("codecs", [])]
-        if sharding["name"] != "sharding_indexed" or codecs != ["bytes", "zstd", "crc32c"]:
+        decoders = {"zstd": Zstd, "blosc": Blosc}
+        if (
+            sharding["name"] != "sharding_indexed"
+            or len(codecs) != 3
+            or (codecs[0], codecs[2]) != ("bytes", "crc32c")
+            or codecs[1] not in decoders
+        ):
             raise ValueError(f"{root}: {name} is not stored in shards as service.store writes")
         self.fs, self.name = fs, name
         self.per_shard = int(meta["chunk_grid"]["configuration"]["chunk_shape"][0])
@@ -85,7 +92,7 @@ class _Shards:
         self.fill = np.asarray(meta["fill_value"]).astype(self.dtype)
         self.key = f"{root}/{name}/c.{{}}" + ".0" * (len(meta["shape"]) - 1)
         self.indexes: dict[int, np.ndarray | None] = {}
-        self.codec = Zstd()
+        self.codec = decoders[codecs[1]]()
 
     def _index(self, shard: int) -> np.ndarray | None:
         """The shard's (offset, length) per sample; None if it holds nothing."""

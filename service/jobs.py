@@ -237,8 +237,8 @@ class Runner:
         Jobs run at once; the others wait, in order.
     queue_limit : int
         Most unfinished (queued or running) jobs; more are refused (`QueueFullError`).
-    batch_size : int
-        Samples per task.
+    batch_size : int or None
+        Samples per shard and task of a new store; None: `service.store.shard_size`'s.
     storage_options : dict or None
         fsspec options of the data root (the service's, never a submitter's).
     """

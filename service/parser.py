@@ -10,7 +10,7 @@ import argparse
 
 from service.client import add_commands
 from service.inputs import json_object
-from service.store import SHARD_SAMPLES, package_version
+from service.store import package_version
 from service.sweep import DEFAULT_MAX_MEMORY
 
 __all__ = ["parser"]
@@ -63,8 +63,9 @@ def _run(commands) -> None:
     run.add_argument(
         "--batch",
         type=int,
-        default=SHARD_SAMPLES,
-        help=f"samples per shard and task of a new store (default {SHARD_SAMPLES})",
+        default=None,
+        help="samples per shard and task of a new store (default: as many as fit in "
+        "16 MiB uncompressed, at least 8 shards)",
     )
     run.add_argument(
         "--task-timeout",

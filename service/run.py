@@ -403,7 +403,7 @@ def execute(
     verify: bool = False,
     overwrite: bool = False,
     storage_options: dict | None = None,
-    batch_size: int = store.SHARD_SAMPLES,
+    batch_size: int | None = None,
     task_timeout: float = TASK_TIMEOUT,
     progress_stream=None,
     client: Client | None = None,
@@ -413,12 +413,12 @@ def execute(
 ) -> RunResult:
     """Create (or reopen) the store, run the missing samples and write the statistics.
 
-    `batch_size` is the samples per shard (and task) of a new store; a resumed store keeps
-    its own. With `resume` and `verify`, every completed sample is read back first
-    (`service.integrity.verify`) and the damaged ones are rendered again with the missing
-    ones. After a resumed run, only the statistics of the points it wrote are recomputed
-    (`service.stats.write_statistics`). `dashboard` and `verbose` go to
-    `service.cluster.dask_client`.
+    `batch_size` is the samples per shard (and task) of a new store (by default
+    `service.store.shard_size`'s choice); a resumed store keeps its own. With `resume` and
+    `verify`, every completed sample is read back first (`service.integrity.verify`) and the
+    damaged ones are rendered again with the missing ones. After a resumed run, only the
+    statistics of the points it wrote are recomputed (`service.stats.write_statistics`).
+    `dashboard` and `verbose` go to `service.cluster.dask_client`.
 
     Everything is checked before anything is deleted or written, once before taking the
     store's writer lock (so a refused run leaves no trace) and again holding it (another

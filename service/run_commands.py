@@ -49,8 +49,9 @@ def load(args) -> Plan:
     return plan
 
 
-def plan_lines(plan: Plan, batch: int = store.SHARD_SAMPLES, url: str | None = None) -> list[str]:
+def plan_lines(plan: Plan, batch: int | None = None, url: str | None = None) -> list[str]:
     """The plan for people: points, samples, tasks, storage, what is swept, where to."""
+    batch = store.shard_size(plan, batch)
     tasks = -(-plan.samples // batch)
     return [
         f"sweep {plan.sweep.name!r}: {len(plan.points)} parameter points x "
@@ -194,7 +195,7 @@ def report_samples(plan: Plan, what: str, problems: list) -> None:
 def _check_run_flags(args) -> None:
     if args.workers is not None and args.workers < 1:
         raise SweepError("--workers must be at least 1")
-    if args.batch < 1:
+    if args.batch is not None and args.batch < 1:
         raise SweepError("--batch must be at least 1")
     if not args.task_timeout > 0:
         raise SweepError("--task-timeout must be a positive number of seconds")

@@ -342,7 +342,7 @@ def serve(args, security) -> int:
             "127.0.0.1 only)"
         )
     for flag in ("max_running", "queue_limit", "batch"):
-        if getattr(args, flag) < 1:
+        if getattr(args, flag) is not None and getattr(args, flag) < 1:
             raise SweepError(f"--{flag.replace('_', '-')} must be at least 1")
     root = storage.normalise(args.data_root, args.storage_options)
     if "://" not in root:

@@ -17,7 +17,7 @@ from service.cluster import dask_client
 from service.run import render_shard, task_batches
 from service.run_commands import run_time
 from service.schema import sweep_json_schema
-from service.store import SHARD_SAMPLES, create_store, package_version
+from service.store import create_store, package_version, shard_size
 from service.sweep import load_sweep, parse_sweep
 from workers.scene import Scene
 
@@ -109,7 +109,7 @@ def stored(tmp_path_factory):
     plan = parse_sweep(text.replace("scene:\n", "scene:\n  sequence: {frames: 2}\n"))
     url = str(folder / "s.zarr")
     create_store(plan, url)
-    for _, jobs in task_batches(plan, range(plan.samples), SHARD_SAMPLES):
+    for _, jobs in task_batches(plan, range(plan.samples), shard_size(plan)):
         assert render_shard(url, jobs) == []
     return url
 

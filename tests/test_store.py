@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import xarray as xr
+import zarr
 from conftest import TINY_SCENE, run_cli
 
 from service import integrity, store
@@ -119,10 +120,39 @@ def test_expected_images_are_stored_only_when_asked(filled, tmp_path):
         if name != "checksum":
             assert ds[name].values.tobytes() == bare[name].values.tobytes(), name
     assert with_expected.sample_bytes() > plan.sample_bytes()
+    # the training reader decodes both codecs: zstd (floats) and Blosc (counts)
+    item = SampleDataset(other, arrays=("expected", "image"))[5]
+    assert item["expected"].tobytes() == alone["expected"].values.tobytes()
+    assert item["image"].tobytes() == alone["image"].values.tobytes()
     for value in ("maybe", "1"):
         bad = text.replace("expected: true", f"expected: {value}")
         with pytest.raises(Exception, match=r"store\.expected"):
             parse_sweep(bad)
+
+
+def test_shards_fill_their_bytes_and_counts_are_compressed_by_shuffled_lz4(tmp_path, monkeypatch):
+    plan = tiny_plan(realisations=50)  # 200 tiny samples: the shard count rule binds
+    assert store.shard_size(plan) == -(-plan.samples // store.MIN_SHARDS) == 25
+    assert store.shard_size(plan, 3) == 3
+    monkeypatch.setattr(store, "SHARD_BYTES", 5 * plan.sample_bytes() + 1)
+    assert store.shard_size(plan) == 5
+    url = str(tmp_path / "s.zarr")
+    store.create_store(plan, url)
+    group = zarr.open_group(url, mode="r")
+    assert store.shard_samples(group) == 5 and group["image"].shards[0] == 5
+    assert group["image"].dtype.kind == "u"
+    for name in ("image", "target_mask"):
+        blosc = group[name].compressors[0].to_dict()
+        assert blosc["name"] == "blosc", name
+        assert blosc["configuration"]["cname"] == "lz4", name
+        assert blosc["configuration"]["shuffle"] == "bitshuffle", name
+    assert group["target_signal"].compressors[0].to_dict()["name"] == "zstd"
+    with_expected = parse_sweep(plan.text.replace("sweep:\n", "store: {expected: true}\nsweep:\n"))
+    store.create_store(with_expected, str(tmp_path / "e.zarr"))
+    blosc = zarr.open_array(str(tmp_path / "e.zarr" / "expected")).compressors[0].to_dict()
+    assert blosc["configuration"]["cname"] == "zstd"
+    assert blosc["configuration"]["shuffle"] == "shuffle"
+    assert len(integrity.read_samples(group["image"], [4, 5])) == 2  # readable, unwritten
 
 
 def test_one_task_per_shard_and_a_failed_shard_rerun_one_sample_at_a_time(
