@@ -1,12 +1,12 @@
 """Read throughput of a store: the training reader against xarray, samples per second.
 
 Renders a sweep of 128-pixel six-gate samples with noise into a local store (shards as
-`service.store.shard_size` chooses by default: 40 samples), then reads every sample in a shuffled order, as a training epoch does, four
-ways: `service.dataset.SampleDataset` in batches (``__getitems__``, what a
-``torch.utils.data.DataLoader`` with a batch sampler calls) and one item at a time
-(``__getitem__``), and ``xr.open_zarr`` in batches and one sample at a time. Each read
-returns the noisy image and the target mask. Rendering is excluded; the store is read
-once before timing, so the figures are for a warm page cache.
+`service.store.shard_size` chooses by default: 40 samples), then reads every sample in a
+shuffled order, as a training epoch does, four ways: `service.dataset.SampleDataset` in
+batches (``__getitems__``, what a ``torch.utils.data.DataLoader`` with a batch sampler
+calls) and one item at a time (``__getitem__``), and ``xr.open_zarr`` in batches and one
+sample at a time. Each read returns the noisy image and the target mask. Rendering is
+excluded; the store is read once before timing, so the figures are for a warm page cache.
 Usage: ``python benchmarks/read.py [--samples 512] [--pixels 128] [--batch 32]``.
 
 Figures, one run each on the 2-core machine (load 0.9), 2026-11-24, counts compressed by

@@ -102,7 +102,9 @@ def main():
     parser.add_argument("--samples", type=int, default=192)
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--pixels", type=int, default=128)
-    parser.add_argument("--batch", type=int, default=store.SHARD_SAMPLES, help="samples a shard")
+    parser.add_argument(
+        "--batch", type=int, default=None, help="samples a shard (default: the store's choice)"
+    )
     args = parser.parse_args()
     tune_allocator()
     per_round = args.samples // args.rounds // 2
@@ -110,6 +112,7 @@ def main():
         parse_sweep(SWEEP.format(seed=seed, realisations=per_round, pixels=args.pixels))
         for seed in range(1, args.rounds + 1)
     ]
+    args.batch = store.shard_size(plans[0], args.batch)
     ways = ["loop", "inline", *WORKERS]
     wall = dict.fromkeys(ways, 0.0)
     cpu = dict.fromkeys(ways, 0.0)  # this process
@@ -153,7 +156,10 @@ def main():
             loads.append(os.getloadavg()[0])
     rate = {way: samples / wall[way] for way in ways}
     ms = {way: 1e3 * cpu[way] / samples for way in ways}
-    print(f"{samples} samples of {args.pixels}² px, six gates, 256² surface, {args.rounds} rounds")
+    print(
+        f"{samples} samples of {args.pixels}² px, six gates, 256² surface, {args.rounds} rounds, "
+        f"shards of {args.batch}"
+    )
     print(f"load average (1 min) by round: {' '.join(f'{x:.2f}' for x in loads)}")
     print(
         f"in-process render loop:  {rate['loop']:6.2f} samples/s, {ms['loop']:.1f} ms CPU a sample"
