@@ -73,13 +73,16 @@ sweep:
     target.shape: {{values: [sphere, none]}}
 """
 WORKERS = (1, 2)
+HALVES = ((0, 2), (1, 2))
+"""The samples of each of two render loops side by side (``part`` of `in_process`)."""
 
 
-def in_process(way: str, text: str, url: str, batch: int) -> tuple[float, float]:
+def in_process(way: str, text: str, url: str, batch: int, part=(0, 1)) -> tuple[float, float]:
     """Render the sweep `text` in this process: a `render` loop or the service's tasks.
 
-    Runs in a process of its own (no scheduler threads beside it). Returns the wall and CPU
-    time taken [s].
+    Runs in a process of its own (no scheduler threads beside it); the loop renders the
+    samples ``part[0]::part[1]`` (one of two processes side by side: ``part=(i, 2)``).
+    Returns the wall and CPU time taken [s].
     """
     tune_allocator()
     plan = parse_sweep(text)
@@ -87,7 +90,7 @@ def in_process(way: str, text: str, url: str, batch: int) -> tuple[float, float]
         store.create_store(plan, url, samples_per_shard=batch)
     start, cpu = time.perf_counter(), time.process_time()
     if way == "loop":
-        for sample in range(plan.samples):
+        for sample in range(part[0], plan.samples, part[1]):
             point, realisation = divmod(sample, plan.realisations)
             seed = SampleSeed(root=plan.sweep.seed, point=point, realisation=realisation)
             render(plan.scenes[point], seed=seed)
@@ -113,7 +116,7 @@ def main():
         for seed in range(1, args.rounds + 1)
     ]
     args.batch = store.shard_size(plans[0], args.batch)
-    ways = ["loop", "inline", *WORKERS]
+    ways = ["loop", "pair", "inline", *WORKERS]
     wall = dict.fromkeys(ways, 0.0)
     cpu = dict.fromkeys(ways, 0.0)  # this process
     worker_cpu = dict.fromkeys(WORKERS, 0.0)
@@ -125,8 +128,13 @@ def main():
         alone = stack.enter_context(
             ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
         )
+        pair = stack.enter_context(
+            ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn"))
+        )
         warm = os.path.join(folder, "warm.zarr")  # imports, per-scene caches
         alone.submit(in_process, "inline", plans[0].text, warm, args.batch).result()
+        for half in [pair.submit(in_process, "loop", plans[0].text, "", 0, h) for h in HALVES]:
+            half.result()
         clients = {n: stack.enter_context(dask_client(workers=n, scheduler=None)) for n in WORKERS}
         for n, client in clients.items():
             client.run(tune_allocator)
@@ -143,6 +151,13 @@ def main():
                     result = run_plan(plan, url, client=clients[way], progress_stream=quiet)
                     assert result.written == plan.samples
                     seconds = time.perf_counter() - start, time.process_time() - cpu0
+                elif way == "pair":  # two loops side by side: what two cores give
+                    halves = [
+                        pair.submit(in_process, "loop", plan.text, url, args.batch, h)
+                        for h in HALVES
+                    ]
+                    both = [half.result() for half in halves]
+                    seconds = max(s[0] for s in both), sum(s[1] for s in both)
                 else:
                     seconds = alone.submit(in_process, way, plan.text, url, args.batch).result()
                 wall[way] += seconds[0]
@@ -165,6 +180,10 @@ def main():
         f"in-process render loop:  {rate['loop']:6.2f} samples/s, {ms['loop']:.1f} ms CPU a sample"
     )
     print(
+        f"two render loops, side by side: {rate['pair']:6.2f} samples/s "
+        f"({rate['pair'] / rate['loop']:.2f} times one), {ms['pair']:.1f} ms CPU a sample"
+    )
+    print(
         f"render_shard in-process: {rate['inline']:6.2f} samples/s, overhead "
         f"{100 * (1 - rate['inline'] / rate['loop']):5.1f} %; CPU a sample "
         f"{ms['inline'] - ms['loop']:+.1f} ms over the loop (checks, checksums, compression, "
@@ -179,6 +198,10 @@ def main():
             f"{ms[n]:.1f} ms "
             f"(statistics passes {stats[n]:.1f} s)"
         )
+    print(
+        f"two workers against two loops side by side: overhead "
+        f"{100 * (1 - rate[2] / rate['pair']):5.1f} %"
+    )
 
 
 if __name__ == "__main__":
