@@ -53,7 +53,7 @@ def sample_checksum(arrays: list[np.ndarray]) -> int:
     """CRC-32 of a sample's rendered arrays, in `RENDERED_VARIABLES` order."""
     crc = 0
     for values in arrays:
-        crc = zlib.crc32(np.ascontiguousarray(values).tobytes(), crc)
+        crc = zlib.crc32(np.ascontiguousarray(values), crc)
     return crc
 
 
@@ -131,7 +131,7 @@ def invalid_values(sample: xr.Dataset) -> str | None:
             continue
         values = sample[name].values
         largest = sample[name].attrs.get("valid_max")
-        if largest is not None and (values > largest).any():
+        if largest is not None and values.size and values.max() > largest:
             return (
                 f"{name} holds {int(np.count_nonzero(values > largest))} count(s) over "
                 f"{largest}, the most its {np.dtype(type(largest)).name} holds (a scene "
@@ -140,7 +140,7 @@ def invalid_values(sample: xr.Dataset) -> str | None:
         if name in FINITE and values.dtype.kind == "f" and not np.isfinite(values).all():
             count = int(np.count_nonzero(~np.isfinite(values)))
             return f"{name} holds {count} non-finite value(s) (NaN or inf)"
-        if name in NON_NEGATIVE and (values < 0).any():
+        if name in NON_NEGATIVE and values.dtype.kind != "u" and (values < 0).any():
             return f"{name} holds {int(np.count_nonzero(values < 0))} negative value(s)"
         if name == "target_mask" and (values > 1).any():
             return "target_mask holds values other than 0 and 1"
