@@ -69,6 +69,24 @@ rays over seven planes; closing it needs smaller fine planes (the guard of four 
 cells on every side is sized for light anywhere on the plane, while the traced lattice
 lights and the pixels read little more than the image) and fewer passes over the rays
 (each ray is located once per plane, seven times), not faster loops.
+
+Shot noise at large means, still exact (`workers.noise.poisson_counts`: compiled sequential
+search for 1 < λ < 10, vectorised over blocks of values, and Hörmann's PTRS for λ >= 10, in
+place of ``rng.poisson``): the draws alone, CPU time, old and new interleaved, medians of 61
+rounds, take 5.4 → 3.1 ms on the 98304 expected counts of the 128-pixel sweep scene
+(`benchmarks/sweep.py`: 18k of them in (1, 10), 80k above) and 21.5 → 11.9 ms on those of
+this script's 256² absolute scene (130k in (1, 10), 260k above). This script with
+``--sizes 128 256 --mode absolute``, two runs each, alternating, the code before (36a2e5a)
+/ after, CPU time, on the 2-core machine at load 0.9–2.1:
+
+====== ======= ============ ============ ================= =================
+pixels target  ms before    ms after     scipy ratio       numpy ratio
+====== ======= ============ ============ ================= =================
+128    sphere  22.5, 21.6   19.7, 19.0   105–106 → 94–99   71–72 → 63–64
+128    none    18.7, 17.7   16.5, 15.6   87–91 → 70–82     56–60 → 50–52
+256    sphere  64.3, 62.3   54.1, 54.5   136–137 → 114–116 89–91 → 78
+256    none    55.5, 54.2   44.8, 46.0   116–117 → 95      73–77 → 59–62
+====== ======= ============ ============ ================= =================
 """
 
 import argparse

@@ -1,16 +1,27 @@
 """Shot noise (paper §4.7) and the ICCD gain stage."""
 
+import math
+
 import numpy as np
 import pytest
+from scipy import stats
 
-from workers.noise import shot_noise
+from workers import noise
+from workers.noise import poisson_counts, shot_noise
+
+MEANS = [1e-3, 0.2, 1.0, 1.5, 1.7, 5.0, 9.99, 10.0, 30.0, 1e3, 1e5, 1e7]
+"""Both sides of every branch limit: inversion (λ <= 1, exactly 1 included), sequential
+search (1 < λ < 10), PTRS (λ >= 10, exactly 10 included), up to large means."""
 
 
-@pytest.mark.parametrize("lam", [0.5, 13.0, 200.0], ids=lambda v: f"lambda{v:g}")
+@pytest.mark.parametrize(
+    "lam", [0.5, 1.5, 5.0, 9.99, 10.0, 13.0, 30.0, 200.0, 1e3, 1e5, 1e7], ids=lambda v: f"{v:g}"
+)
 def test_poisson_counts_have_mean_and_variance_lambda(lam):
     n = 200_000
     counts = shot_noise(np.full(n, lam), rng=np.random.default_rng(11))
     assert np.all(counts == np.round(counts))
+    counts = counts.astype(np.float64)  # float32 sums would round at λ = 1e7
     # Standard errors of the sample mean and variance of a Poisson(λ) sample of size n:
     # sd(mean) = sqrt(λ/n), sd(var) = sqrt((2λ² + λ)/n) (4th cumulant λ). Allow 5 sd.
     assert abs(counts.mean() - lam) < 5 * np.sqrt(lam / n)
@@ -30,38 +41,130 @@ def test_gain_and_excess_noise_factor():
 
 
 def test_same_seed_same_counts_and_zero_mean_gives_zero():
-    lam = np.linspace(0, 30, 1000)
+    lam = np.concatenate([np.linspace(0, 30, 1000), np.geomspace(30, noise.LARGEST_MEAN, 300)])
     a = shot_noise(lam, rng=np.random.default_rng(2))
     b = shot_noise(lam, rng=np.random.default_rng(2))
     assert a.tobytes() == b.tobytes()
     assert a[0] == 0
 
 
-@pytest.mark.parametrize("lam", [1e-3, 0.2, 1.0, 1.7], ids=lambda v: f"lambda{v:g}")
+@pytest.mark.parametrize("lam", MEANS, ids=lambda v: f"lambda{v:g}")
 def test_poisson_counts_follow_the_poisson_law(lam):
-    # Pearson's χ² over the classes with at least 20 expected counts, against its 1e-4
-    # quantile: both sides of INVERSION_LIMIT (inversion and numpy's sampler).
-    from scipy import stats
-
-    from workers.noise import poisson_counts
-
+    # Pearson's X² = Σ (O − E)²/E over classes of `width` consecutive counts (1 below
+    # λ = 1600, sd/20 above: some 200 classes at large λ) with E >= 20, the rest pooled into
+    # one class (kept if its E >= 20): asymptotically χ² with (classes − 1) degrees of
+    # freedom (every E >= 5 suffices, Cochran's rule); compared with its 1e-4 quantile.
     n = 1_000_000
     counts = poisson_counts(np.full(n, lam), rng=np.random.default_rng(3))
-    k = np.arange(counts.max() + 1)
-    observed = np.bincount(counts)
-    expected = stats.poisson.pmf(k, lam) * n
+    width = max(1, math.isqrt(int(lam)) // 20)
+    observed = np.bincount(counts // width)
+    first = np.arange(observed.size) * width  # each class's least count
+    expected = n * (stats.poisson.cdf(first + width - 1, lam) - stats.poisson.cdf(first - 1, lam))
     keep = expected >= 20
-    chi2 = ((observed[keep] - expected[keep]) ** 2 / expected[keep]).sum()
-    assert chi2 < stats.chi2.isf(1e-4, max(keep.sum() - 1, 1))
-    assert observed[~keep].sum() < 5 * max(expected[~keep].sum(), 1.0)
+    rest_observed = observed[~keep].sum()
+    rest_expected = n - expected[keep].sum()  # the tail beyond the largest count included
+    x2 = ((observed[keep] - expected[keep]) ** 2 / expected[keep]).sum()
+    classes = keep.sum()
+    if rest_expected >= 20:
+        x2 += (rest_observed - rest_expected) ** 2 / rest_expected
+        classes += 1
+    else:
+        assert rest_observed < 5 * max(rest_expected, 1.0)
+    assert x2 < stats.chi2.isf(1e-4, max(classes - 1, 1))
 
 
 def test_poisson_counts_mixed_means_keep_shape_and_order():
-    from workers.noise import poisson_counts
-
-    lam = np.array([[0.0, 1e-3, 0.5], [1.0, 5.0, 300.0]])
+    lam = np.array([[0.0, 1e-3, 0.5, 1.0], [1.5, 9.99, 10.0, 300.0], [5.0, 30.0, 1e5, 2.0]])
     draws = np.stack([poisson_counts(lam, rng=np.random.default_rng(s)) for s in range(4000)])
-    assert draws.shape == (4000, 2, 3) and draws.dtype == np.int64
+    assert draws.shape == (4000, *lam.shape) and draws.dtype == np.int64
     assert np.all(draws[:, 0, 0] == 0)
-    sd = np.sqrt(lam / 4000)
+    sd = np.sqrt(lam / 4000)  # of the mean of 4000 Poisson(λ) counts
     assert np.all(np.abs(draws.mean(axis=0) - lam) <= 5 * sd + 1e-12)
+
+
+def test_small_means_draw_as_before_and_branch_limits():
+    # λ <= 1 keeps its stream: these counts are those of the code before search and PTRS
+    # (commit 36a2e5a, rng.poisson for λ > 1), whatever the larger means beside them.
+    lam = np.tile([0.9, 1.0, 2.5, 0.4, 50.0, 0.999], 8)
+    counts = poisson_counts(lam, rng=np.random.default_rng(7))
+    assert counts[lam <= 1].tolist() == [
+        0, 0, 1, 0, 4, 0, 0, 1, 1, 1, 0, 0, 0, 0, 1, 3,
+        3, 1, 0, 1, 1, 2, 1, 2, 1, 4, 1, 0, 1, 0, 0, 1,
+    ]  # fmt: skip
+
+    # λ = 1 is inverted and λ just below 10 searched, on the one uniform W each; λ = 10
+    # goes to PTRS, which draws uniforms of its own after the W.
+    def next_uniform(mean):
+        rng = np.random.default_rng(0)
+        poisson_counts(np.array([mean]), rng=rng)
+        return rng.random()
+
+    reference = np.random.default_rng(0)
+    reference.random(1)
+    after_w = reference.random()
+    assert next_uniform(1.0) == after_w
+    assert next_uniform(np.nextafter(1.0, 2.0)) == after_w
+    assert next_uniform(np.nextafter(10.0, 0.0)) == after_w
+    assert next_uniform(10.0) != after_w
+
+
+def test_a_pool_running_out_gives_the_same_counts(monkeypatch):
+    # PTRS draws its uniforms in pools of at most POOL_LIMIT; a block whose pool runs out
+    # is drawn again from its first uniform in the next pool.
+    lam = np.concatenate([np.linspace(0, 40, 500), np.geomspace(10, 1e6, 300)])
+    lam = np.random.default_rng(4).permutation(lam)
+    large = poisson_counts(lam, rng=np.random.default_rng(9))
+    calls = []
+    draw = noise._draw_large
+
+    def counted(*args):
+        calls.append(args[3])
+        return draw(*args)
+
+    monkeypatch.setattr(noise, "_draw_large", counted)
+    for limit in (1000, 100, 7, 3, 2, 1):  # the large first: a lost uniform may hang a small one
+        monkeypatch.setattr(noise, "POOL_LIMIT", limit)
+        calls.clear()
+        small = poisson_counts(lam, rng=np.random.default_rng(9))
+        assert small.tobytes() == large.tobytes()
+        # each call after the first brings at most `limit` uniforms, one or more a mean
+        assert len(calls) - 1 >= np.count_nonzero(lam >= noise.REJECTION_LIMIT) / limit
+
+
+def test_largest_means_and_refused_ones():
+    n, lam = 20_000, noise.LARGEST_MEAN
+    counts = poisson_counts(np.full(n, lam), rng=np.random.default_rng(6))
+    assert counts.max() < 2**32
+    # sd(mean) = sqrt(λ/n), sd(var) = sqrt((2λ² + λ)/n); 5 sd.
+    assert abs(counts.mean() - lam) < 5 * np.sqrt(lam / n)
+    assert abs(counts.var() - lam) < 5 * np.sqrt((2 * lam**2 + lam) / n)
+    assert poisson_counts(np.array([np.nan, 20.0]), rng=np.random.default_rng(0))[0] == 0
+    for bad in (np.nextafter(lam, np.inf), np.inf):
+        with pytest.raises(ValueError, match="mean counts above"):
+            poisson_counts(np.array([5.0, bad]), rng=np.random.default_rng(0))
+
+
+def test_log_pmf_of_the_rejection_test_is_accurate():
+    log_pmf = noise._log_pmf
+    # Against scipy's k ln λ − λ − ln k!, accurate to ~1e-11 at these λ (both sides of the
+    # table's end, k = 2048).
+    for lam in (10.0, 30.0, 1e3, 2500.0):
+        k = np.arange(int(lam + 30 * math.sqrt(lam)))
+        mine = np.array([log_pmf(float(x), lam) for x in k])
+        assert np.abs(mine - stats.poisson.logpmf(k, lam)).max() < 1e-9
+    # At large λ that formula loses λ ln λ · 2⁻⁵³ (8e-6 at 4e9): check the ratios
+    # P(k + 1)/P(k) = λ/(k + 1), to twice the error of ln P: 1e-12 + 2⁻⁵¹|k − λ| (the
+    # roundings of log1p's argument, of log1p and of its product with k, each <= 2⁻⁵²|k − λ|
+    # or half that), and the sum of P over ±40 sd (by the trapezoid rule with steps of
+    # sd/40, exact to far below 1e-12 for a pmf this smooth).
+    for lam in (1e7, 1e9, noise.LARGEST_MEAN):
+        sd = math.sqrt(lam)
+        for z in np.linspace(-10, 10, 41):
+            k = float(round(lam + z * sd))
+            ratio = math.log1p((lam - k - 1) / (k + 1))
+            error = 2 * (1e-12 + 2**-51 * abs(k - lam))
+            assert abs(log_pmf(k + 1, lam) - log_pmf(k, lam) - ratio) < error
+        step = round(sd / 40)
+        ks = np.arange(round(lam - 40 * sd), round(lam + 40 * sd), step, dtype=np.float64)
+        total = step * sum(math.exp(log_pmf(k, lam)) for k in ks)
+        assert abs(total - 1) < 1e-9
