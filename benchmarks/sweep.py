@@ -12,8 +12,38 @@ dask's task handling), and that of this process (client and scheduler), which sh
 cores with two workers on a two-core machine. The default 192 samples are 24 shards of 8,
 an even split between two workers (25 shards would leave one worker idle for the last).
 
-Usage: ``python benchmarks/sweep.py [--samples 192] [--rounds 3] [--pixels 128] [--batch 8]``
-(``--batch``: samples a shard and a task, as ``oceanlidar run --batch``).
+Two render loops side by side (two processes, each half the samples) measure what two
+cores give without the service: on the shared 2-core machine 1.57–1.71 times one loop, so
+the overhead against workers × loop cannot fall below 15–20 % there whatever the service
+does; the overhead against the two loops is printed too.
+
+Usage: ``python benchmarks/sweep.py [--samples 192] [--rounds 3] [--pixels 128] [--batch N]``
+(``--batch``: samples a shard and a task, as ``oceanlidar run --batch``; by default the
+store's choice, `service.store.shard_size`: 8 for the default 64-sample rounds, 40 with
+``--samples 960``).
+
+Figures after Blosc-compressed counts, shards sized by bytes and the compiled Poisson
+draws (2026-11-24, ``--samples 960``: 320-sample rounds, shards of 40; two runs back to
+back on the shared machine, load 1.0–1.8, the second noisier):
+
+====================== ============= ============== ==================================
+way                    samples/s     overhead       CPU a sample (workers over loop)
+====================== ============= ============== ==================================
+render loop            45.9 / 49.0   —              21.8 / 20.4 ms
+two loops side by side 74.5 / 77.0   (1.62 / 1.57×) 23.3 / 22.0 ms
+run, 1 worker          39.2 / 39.8   14.6 / 18.7 %  +4.1 / +5.0 ms; client+sched. 2.3 / 1.9
+run, 2 workers         70.7 / 63.3   22.9 / 35.4 %  +3.1 / +7.4 ms; client+sched. 1.2 / 1.2
+2 workers vs two loops —             5.0 / 17.9 %   —
+====================== ============= ============== ==================================
+
+The benchmark's own ``render_shard`` line read +5.1–5.3 ms in these two runs (beside its
+two idle clusters and pools); measured in one process with nothing beside it
+(``render_shard`` on shards of 40 against the loop, 80 samples): +2.1–2.3 ms a sample,
+10–12 %: LZ4 of the counts 0.2 ms, zarr's per-chunk write machinery about 1.3 ms (two
+sharded arrays a sample), `invalid_values` 0.23 ms, checksums 0.11 ms. Before this
+session's changes (zstd, shards of 8, in the same process): +5.9 ms.
+
+Earlier figures:
 
 Figures (128 px, 256² surface, batch 8), one run on the otherwise idle 2-core machine
 (load 0.9–1.2), 2026-11-24, after the render of issue #10 got 14–25 % cheaper:
