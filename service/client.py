@@ -56,7 +56,7 @@ def add_commands(commands) -> None:
         type=int,
         default=None,
         help="samples per shard and task of a new store (default: as many as fit in "
-        "16 MiB uncompressed, at least 8 shards)",
+        "16 MiB uncompressed, at most 256, leaving at least 8 shards)",
     )
     where = serve.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, default=None, help="embedded cluster's workers")

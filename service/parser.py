@@ -65,7 +65,7 @@ def _run(commands) -> None:
         type=int,
         default=None,
         help="samples per shard and task of a new store (default: as many as fit in "
-        "16 MiB uncompressed, at least 8 shards)",
+        "16 MiB uncompressed, at most 256, leaving at least 8 shards)",
     )
     run.add_argument(
         "--task-timeout",

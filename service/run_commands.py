@@ -49,14 +49,20 @@ def load(args) -> Plan:
     return plan
 
 
-def plan_lines(plan: Plan, batch: int | None = None, url: str | None = None) -> list[str]:
-    """The plan for people: points, samples, tasks, storage, what is swept, where to."""
+def plan_lines(
+    plan: Plan, batch: int | None = None, url: str | None = None, *, resume: bool = False
+) -> list[str]:
+    """The plan for people: points, samples, tasks, storage, what is swept, where to.
+
+    With `resume`, the tasks are those of a new store: a resumed store keeps its shards.
+    """
     batch = store.shard_size(plan, batch)
     tasks = -(-plan.samples // batch)
+    kept = " for a new store; a resumed one keeps its own" if resume else ""
     return [
         f"sweep {plan.sweep.name!r}: {len(plan.points)} parameter points x "
         f"{plan.realisations} realisations = {plan.samples} samples",
-        f"  tasks: {tasks} (shards of {batch} samples)",
+        f"  tasks: {tasks} (shards of {batch} samples{kept})",
         f"  storage: about {format_bytes(plan.total_bytes())} uncompressed "
         f"({format_bytes(plan.sample_bytes())} per sample)",
         f"  swept: {', '.join(plan.swept) or '(nothing)'}",
@@ -211,7 +217,7 @@ def cmd_run(args) -> int:
     _check_run_flags(args)
     plan = load(args)
     url = args.output or plan.sweep.output
-    for line in plan_lines(plan, args.batch, url):
+    for line in plan_lines(plan, args.batch, url, resume=args.resume):
         log.info(line)
     try:
         with open(os.devnull, "w") as devnull:

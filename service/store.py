@@ -36,6 +36,7 @@ __all__ = [
     "CODECS",
     "COUNT_CODECS",
     "FLOAT_CODECS",
+    "MAX_SHARD_SAMPLES",
     "MIN_SHARDS",
     "RENDERED_VARIABLES",
     "SHARD_BYTES",
@@ -66,13 +67,16 @@ SHARDED = frozenset({"image", "expected", "target_mask", "surface_elevation"})
 """Rendered variables stored one sample per chunk inside shards; the others (small) and the
 completion records take one chunk per shard."""
 SHARD_BYTES = 16 * 2**20
-"""Uncompressed bytes a shard (and a task) holds at most, unless ``--batch`` says otherwise
-(`shard_size`): large enough that a task's fixed costs (opening the store, zarr's calls,
-dask's handling, some 20 ms) are a small share of its rendering, small enough that a
-task's samples sit in a worker's memory at once."""
+"""Uncompressed bytes a shard (and a task) aims at, unless ``--batch`` says otherwise
+(`shard_size`; a sample larger than this is a shard of its own): large enough that a task's
+fixed costs (opening the store, zarr's calls, dask's handling, some 20 ms) are a small share
+of its rendering, small enough that a task's samples sit in a worker's memory at once."""
 MIN_SHARDS = 8
-"""Shards a sweep is split into at least (`shard_size`), so that small sweeps still spread
-over the workers."""
+"""Shards a sweep of at least that many samples is split into, at least (`shard_size`), so
+that small sweeps still spread over the workers."""
+MAX_SHARD_SAMPLES = 256
+"""Most samples a shard holds by default (`shard_size`): tiny samples would otherwise make
+a few huge tasks, few in flight at once, and a failed one reruns its samples one by one."""
 
 FLAT_CHUNK_KEYS = {"name": "default", "separator": "."}
 """Chunk files named c.4.0.0.0.0 in the array's folder: one file per chunk, no folders to
@@ -155,14 +159,15 @@ def shard_size(plan: Plan, batch: int | None = None) -> int:
     """Samples per shard (and per task) of a new store of `plan`.
 
     `batch` if given (``--batch``); otherwise as many samples as fit in `SHARD_BYTES`
-    uncompressed, but no more than leave `MIN_SHARDS` shards, and at least one. The choice
-    depends on the sweep alone, never on the cluster: the store's layout is the same on
-    any number of workers. 128-pixel six-gate samples: 40 a shard; 512-pixel: 2.
+    uncompressed, at most `MAX_SHARD_SAMPLES`, but few enough to leave `MIN_SHARDS` shards,
+    and at least one. The choice depends on the sweep alone, never on the cluster: the
+    store's layout is the same on any number of workers. 128-pixel six-gate samples: 40 a
+    shard; 512-pixel: 2.
     """
     if batch is not None:
         return batch
-    by_bytes = SHARD_BYTES // plan.sample_bytes()
-    return max(1, min(by_bytes, -(-plan.samples // MIN_SHARDS)))
+    by_bytes = min(SHARD_BYTES // plan.sample_bytes(), MAX_SHARD_SAMPLES)
+    return max(1, min(by_bytes, plan.samples // MIN_SHARDS))
 
 
 def shard_samples(group) -> int:

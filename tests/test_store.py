@@ -120,7 +120,7 @@ def test_expected_images_are_stored_only_when_asked(filled, tmp_path):
         if name != "checksum":
             assert ds[name].values.tobytes() == bare[name].values.tobytes(), name
     assert with_expected.sample_bytes() > plan.sample_bytes()
-    # the training reader decodes both codecs: zstd (floats) and Blosc (counts)
+    # the training reader decodes the Blosc codecs of counts and of floats
     item = SampleDataset(other, arrays=("expected", "image"))[5]
     assert item["expected"].tobytes() == alone["expected"].values.tobytes()
     assert item["image"].tobytes() == alone["image"].values.tobytes()
@@ -132,8 +132,12 @@ def test_expected_images_are_stored_only_when_asked(filled, tmp_path):
 
 def test_shards_fill_their_bytes_and_counts_are_compressed_by_shuffled_lz4(tmp_path, monkeypatch):
     plan = tiny_plan(realisations=50)  # 200 tiny samples: the shard count rule binds
-    assert store.shard_size(plan) == -(-plan.samples // store.MIN_SHARDS) == 25
+    assert store.shard_size(plan) == plan.samples // store.MIN_SHARDS == 25
     assert store.shard_size(plan, 3) == 3
+    for realisations, size in ((5, 2), (1, 1), (1000, store.MAX_SHARD_SAMPLES)):
+        small = tiny_plan(realisations=realisations)  # 20: 10 shards; 4: 4; 4000: 16
+        assert store.shard_size(small) == size
+        assert -(-small.samples // size) >= min(store.MIN_SHARDS, small.samples)
     monkeypatch.setattr(store, "SHARD_BYTES", 5 * plan.sample_bytes() + 1)
     assert store.shard_size(plan) == 5
     url = str(tmp_path / "s.zarr")
@@ -308,6 +312,20 @@ def test_the_training_reader_returns_the_stores_samples(filled, tmp_path):
     assert damaged[1]["image"].tobytes() == ds["image"].values[3].tobytes()
     with pytest.raises(integrity.DamagedStoreError, match="sample 2: its chunk of target_mask"):
         damaged[0]
+
+
+def test_the_training_reader_reads_stores_of_zstd_shards(tmp_path, monkeypatch):
+    # stores written before Blosc (November 2026) hold zstd shards
+    monkeypatch.setattr(store, "COUNT_CODECS", store.CODECS)
+    monkeypatch.setattr(store, "FLOAT_CODECS", store.CODECS)
+    plan = tiny_plan(realisations=1)
+    url = str(tmp_path / "z.zarr")
+    fill(plan, url)
+    assert zarr.open_array(f"{url}/image").compressors[0].to_dict()["name"] == "zstd"
+    ds = xr.open_zarr(url)
+    item = SampleDataset(url)[3]
+    for name in ("image", "target_mask"):
+        assert item[name].tobytes() == ds[name].values[3].tobytes(), name
 
 
 def test_statistics_after_resume_recompute_only_the_points_written(tmp_path):

@@ -16,7 +16,8 @@ REJECTION_LIMIT = 10.0
 """Smallest mean count λ drawn by transformed rejection (PTRS); smaller ones by search."""
 
 LARGEST_MEAN = 4e9
-"""Largest mean count λ accepted: its counts (λ + 20√λ < 2³²) fit in uint32."""
+"""Largest mean count λ drawn by the compiled search and PTRS (counts λ + 20√λ < 2³², the
+table of ln k! and Stirling's series checked to there); larger means by ``rng.poisson``."""
 
 POOL_LIMIT = 1 << 20
 """Most uniforms drawn at once for transformed rejection; the counts do not depend on it."""
@@ -43,7 +44,7 @@ def poisson_counts(expected, *, rng, dtype=np.int64):
     Parameters
     ----------
     expected : array_like
-        Mean counts 0 <= λ <= `LARGEST_MEAN` [photoelectrons], any shape.
+        Mean counts λ >= 0 [photoelectrons], finite, any shape.
     rng : numpy.random.Generator
         Source of randomness.
     dtype : numpy dtype, optional
@@ -57,7 +58,7 @@ def poisson_counts(expected, *, rng, dtype=np.int64):
     Raises
     ------
     ValueError
-        If a mean exceeds `LARGEST_MEAN`.
+        From ``rng.poisson``, for an infinite mean or one beyond about 9.2e18.
 
     Notes
     -----
@@ -84,7 +85,9 @@ def poisson_counts(expected, *, rng, dtype=np.int64):
       table of ln k! below k = 2048 and above from Stirling's series and ``log1p`` (errors
       against 50-digit arithmetic below 2e-12 up to λ = 1e3, 7e-12 at 1e7, 1.5e-10 at 4e9,
       twelve standard deviations out, where k ln λ − λ − ln k! loses about λ ln λ · 2⁻⁵³:
-      8e-6 at 4e9).
+      8e-6 at 4e9);
+    - values with λ > `LARGEST_MEAN` (an ICCD image of a very bright scene: its counts are
+      not bounded by a store type) by ``rng.poisson``, in C order after the pools.
 
     A block whose pool runs out is drawn again from its first uniform, carried on into the
     next pool: the counts do not depend on the pool size, only the generator's state
@@ -126,17 +129,23 @@ def poisson_counts(expected, *, rng, dtype=np.int64):
 
 
 def _large_counts(lam, w, counts, rng):
-    """Draw the `counts` of means λ > `INVERSION_LIMIT`, by search on `w` or by PTRS."""
-    if (lam > LARGEST_MEAN).any():
-        raise ValueError(f"mean counts above {LARGEST_MEAN:g} are not drawn, got {np.nanmax(lam)}")
+    """Draw the `counts` of means λ > `INVERSION_LIMIT` (on `w` and pools, then numpy's).
+
+    By search on `w` or by PTRS up to `LARGEST_MEAN`, then the larger ones by
+    ``rng.poisson`` (in C order).
+    """
+    huge = lam > LARGEST_MEAN
+    drawn = np.where(huge, 0.0, lam) if huge.any() else lam  # 0: skipped by the kernel
     pool, start = np.empty(0), 0
     while True:
-        start, used = _draw_large(lam, w, counts, start, pool)
-        if start == lam.size:
-            return
-        size = math.ceil(_UNIFORMS_PER_MEAN * np.count_nonzero(lam[start:] >= REJECTION_LIMIT))
+        start, used = _draw_large(drawn, w, counts, start, pool)
+        if start == drawn.size:
+            break
+        size = math.ceil(_UNIFORMS_PER_MEAN * np.count_nonzero(drawn[start:] >= REJECTION_LIMIT))
         fresh = rng.random(min(size, POOL_LIMIT))
         pool = np.concatenate((pool[used:], fresh)) if used < pool.size else fresh
+    if huge.any():
+        counts[huge] = rng.poisson(lam[huge])
 
 
 @numba.njit(cache=True)
@@ -206,9 +215,13 @@ def _hat(mean):
     return b, -0.059 + 0.02483 * b
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _candidate(mean, b, a, uniform):
-    """The candidate k (a float, maybe negative) of a PTRS try and its u_s = 0.5 − |U|."""
+    """The candidate k (a float, maybe negative) of a PTRS try and its u_s = 0.5 − |U|.
+
+    A uniform of exactly 0 gives u_s = 0 and k = −inf, a try `_accepted` rejects (as
+    numpy's PTRS does), not a division error.
+    """
     u = uniform - 0.5
     u_s = 0.5 - abs(u)
     return np.floor((2.0 * a / u_s + b) * u + mean + 0.43), u_s
