@@ -63,6 +63,11 @@ def open_dataset(url: str, *, storage_options: dict | None = None) -> xr.Dataset
     return ds
 
 
+DECODERS = {"zstd": Zstd, "blosc": Blosc}
+"""numcodecs decoders of the inner compressors `service.store` has written (Blosc frames
+carry their own settings; zstd before November 2026)."""
+
+
 class _Shards:
     """One sharded array of a store, read straight from its shard files.
 
@@ -77,12 +82,11 @@ class _Shards:
         sharding = meta["codecs"][0]
         config = sharding.get("configuration", {})
         codecs = [codec["name"] for codec in config.get("codecs", [])]
-        decoders = {"zstd": Zstd, "blosc": Blosc}
         if (
             sharding["name"] != "sharding_indexed"
             or len(codecs) != 3
             or (codecs[0], codecs[2]) != ("bytes", "crc32c")
-            or codecs[1] not in decoders
+            or codecs[1] not in DECODERS
         ):
             raise ValueError(f"{root}: {name} is not stored in shards as service.store writes")
         self.fs, self.name = fs, name
@@ -92,7 +96,7 @@ class _Shards:
         self.fill = np.asarray(meta["fill_value"]).astype(self.dtype)
         self.key = f"{root}/{name}/c.{{}}" + ".0" * (len(meta["shape"]) - 1)
         self.indexes: dict[int, np.ndarray | None] = {}
-        self.codec = decoders[codecs[1]]()
+        self.codec = DECODERS[codecs[1]]()
 
     def _index(self, shard: int) -> np.ndarray | None:
         """The shard's (offset, length) per sample; None if it holds nothing."""
