@@ -7,6 +7,7 @@ import importlib.util
 import logging
 import os
 
+import dask
 from distributed import Client, LocalCluster
 from distributed.diagnostics.plugin import WorkerPlugin
 
@@ -16,6 +17,18 @@ __all__ = ["ClusterError", "dask_client"]
 
 CLOSE_TIMEOUT = 60.0
 """Longest wait for the embedded cluster's workers to exit, s."""
+
+QUIET = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.system-monitor.interval": "5s",
+    "distributed.admin.tick.interval": "1s",
+}
+"""dask settings of the embedded cluster without a dashboard: no statistical profiler in the
+workers (it samples their stacks every 10 ms for the dashboard's profile page), the
+resource monitor every 5 s (0.5 s) and the event loops' responsiveness tick every 1 s
+(20 ms; a loop blocked beyond ``distributed.admin.tick.limit``, 3 s, is still reported).
+Idle, a worker then burns 6 ms of CPU a second instead of 24, the scheduler and client
+8 instead of 27 (``benchmarks/sweep.py``)."""
 
 log = logging.getLogger("oceanlidar")
 
@@ -59,7 +72,9 @@ def dask_client(
     files and ``require-encryption`` can be set (``DASK_DISTRIBUTED__COMM__...``). With
     `dashboard`, the embedded scheduler serves dask's dashboard on a free loopback port
     (bokeh needed) and its link is logged; either way its HTTP server takes a free port,
-    never a busy default. `verbose` lets the embedded workers' logs and warnings through.
+    never a busy default. Without `dashboard`, the embedded cluster runs with `QUIET`
+    (its workers inherit the settings). `verbose` lets the embedded workers' logs and
+    warnings through.
     """
     if dashboard and importlib.util.find_spec("bokeh") is None:
         raise SweepError("--dashboard needs bokeh: pip install 'oceanlidar[dashboard]'")
@@ -75,15 +90,16 @@ def dask_client(
                 log.info("dashboard: %s", client.dashboard_link)
             yield client
         return
-    cluster = LocalCluster(
-        n_workers=workers or os.cpu_count() or 1,
-        threads_per_worker=1,
-        processes=True,
-        host="127.0.0.1",
-        dashboard_address="127.0.0.1:0",
-        scheduler_kwargs={"dashboard": dashboard},
-        silence_logs=logging.WARNING if verbose else logging.CRITICAL,
-    )
+    with dask.config.set({} if dashboard else QUIET):
+        cluster = LocalCluster(
+            n_workers=workers or os.cpu_count() or 1,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address="127.0.0.1:0",
+            scheduler_kwargs={"dashboard": dashboard},
+            silence_logs=logging.WARNING if verbose else logging.CRITICAL,
+        )
     try:
         with Client(cluster) as client:
             client.register_plugin(WarningsToLogging(verbose))

@@ -5,6 +5,7 @@ import socket
 import warnings
 from pathlib import Path
 
+import dask
 import jsonschema
 import pytest
 import xarray as xr
@@ -13,7 +14,7 @@ from conftest import ROOT, TINY_SWEEP, run_cli
 
 from service import plots
 from service.cli import main
-from service.cluster import dask_client
+from service.cluster import QUIET, dask_client
 from service.run import render_shard, task_batches
 from service.run_commands import run_time
 from service.schema import sweep_json_schema
@@ -86,6 +87,19 @@ def test_worker_warnings_stay_off_the_console_unless_verbose(capfd, verbose):
     with dask_client(workers=1, scheduler=None, verbose=verbose) as client:
         client.submit(warnings.warn, "a worker's warning", UserWarning, pure=False).result()
     assert ("a worker's warning" in capfd.readouterr().err) == verbose
+
+
+def test_the_embedded_cluster_runs_without_the_dashboards_monitors():
+    # the statistical profiler and fast monitors feed only the dashboard: off without it,
+    # in the worker processes (which inherit the settings) and in the scheduler
+    with dask_client(workers=1, scheduler=None) as client:
+        settings = client.run(lambda: {key: dask.config.get(key) for key in QUIET})
+        ticks = client.run_on_scheduler(
+            lambda dask_scheduler: dask_scheduler.periodic_callbacks["tick"].callback_time
+        )
+    assert list(settings.values()) == [QUIET]
+    assert ticks == 1000.0  # ms
+    assert dask.config.get("distributed.worker.profile.enabled")  # this process unchanged
 
 
 def test_the_dashboard_link_is_printed_and_a_busy_port_is_not_reported(tmp_path):
