@@ -553,3 +553,25 @@ def test_signal_means_are_the_means_over_the_mask_and_its_ring(where):
                 continue
             expected = values[s][:, region].astype(np.float64).mean(axis=1)
             assert_allclose(got, expected, rtol=1e-12)
+
+
+@pytest.mark.parametrize("nadir", [0.0, 20.0])
+def test_the_pixels_window_found_while_splatting_is_the_one_their_lines_reach(nadir):
+    # a monostatic scene's pixels are a block of the laser lattice: the splat finds their
+    # window on each gate plane in its pass, as `span` finds it from their lines alone
+    from workers.interface import through_surface
+    from workers.kernels import Cells, span
+    from workers.planes import frame_geometry
+    from workers.render import _splat
+
+    s = scene(platform={"nadir_deg": nadir})
+    setup = scene_setup(s)
+    geometry = frame_geometry(s, 0)
+    surface = setup.surface(SampleSeed(root=3), np.zeros(1))
+    down = through_surface(geometry.laser_rays, surface, 0, setup.water.refractive_index)
+    for plane in geometry.gate_planes:
+        rays = down.on_axes(plane.grid, setup.water.diffuse_attenuation)
+        _, window = _splat(plane, rays, geometry.laser_power, geometry.pixel_block)
+        lines = rays.select(geometry.pixels).lines
+        assert window == span(lines, Cells.of(plane.levels), plane.grid.shape)
+        assert window[1] > window[0] and window[3] > window[2]

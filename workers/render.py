@@ -142,7 +142,7 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
         light = geometry.target_light
         rows = light.rows
         wide = any(coarse is not None for _, coarse in light.weights)
-        fine, source, rows_in = _splat(plane, down_axes, power * extra)
+        (fine, source, rows_in), _ = _splat(plane, down_axes, power * extra)
         near, far, beyond = plane.spread.filtered(
             fine, source, rows_in=rows_in, rows_out=(rows, levels.coarse_rows(rows)), far_out=wide
         )
@@ -153,6 +153,7 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
                 beyond += plane.tail[2]
         near += levels.upsample(far, rows=rows)
         inside = (rows, levels.coarse_rows(rows))
+        window = span(up_axes.lines, cells, levels.fine.shape)
         for (weights, coarse), gates in zip(light.weights, light.gates, strict=True):
             fine[:] = 0.0
             np.multiply(near, weights[rows], out=fine[rows])
@@ -161,7 +162,8 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
                 source += beyond * coarse
             seen = np.zeros(pixels * pixels, dtype=np.float32)
             rows_in = inside if coarse is None else (rows, slice(None))
-            _gather(plane, up_axes, (fine, source, rows_in), up_transmittance * sight_extra, seen)
+            sources = (fine, source, rows_in)
+            _gather(plane, up_axes, sources, up_transmittance * sight_extra, seen, window=window)
             for g in gates:
                 images[g] += seen
     down_gains = setup.gate_gains(down_excess)
@@ -182,9 +184,16 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
             ray_power[lit] *= np.sqrt(np.maximum(1.0 - hidden, 0.0))
         up_gain = geometry.pixels(gain) if monostatic else up_gains[g]
         weight = up_transmittance * up_gain
-        sources = _splat(plane, down_axes, ray_power)
+        sources, window = _splat(plane, down_axes, ray_power, geometry.pixel_block)
         _gather(
-            plane, up_axes, sources, weight, images[g], tail=plane.tail, occlusion=plane.occlusion
+            plane,
+            up_axes,
+            sources,
+            weight,
+            images[g],
+            window=window,
+            tail=plane.tail,
+            occlusion=plane.occlusion,
         )
     # the near and far parts of a spread each ring a little below zero where almost no
     # light lands; their sum is light, never negative
@@ -193,32 +202,50 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
     return images.reshape(len(setup.gates), pixels, pixels), mask.reshape(pixels, pixels)
 
 
-def _splat(plane: Plane, rays: Projected, power: np.ndarray):
-    """Rays onto a plane: its fine field, the coarse source of its far spread, their rows."""
+def _splat(plane: Plane, rays: Projected, power: np.ndarray, pixels=None):
+    """Rays onto a plane: its fine field, the coarse source of its far spread, their rows.
+
+    With `pixels` (`FrameGeometry.pixel_block`: the pixels' lines of sight are a block of
+    the rays), also the pixels' window on the fine grid (`workers.kernels.span`), found in
+    the same pass; else None.
+    """
     levels = plane.levels
     fine = np.zeros(levels.fine.shape, dtype=np.float32)
     source = np.zeros(levels.coarse.shape, dtype=np.float32)
     grids = (levels.fine, levels.coarse)
     densities = tuple(np.float32(1.0 / (g.spacing_u * g.spacing_v)) for g in grids)
     block = tuple(b.start for b in levels.block)
-    spans = splat_levels(rays.lines, power, Cells.of(levels), densities, fine, source, block)
-    return fine, source, (slice(*spans[:2]), slice(*spans[2:]))
+    side, lines = pixels if pixels is not None else (0, slice(0, 0))
+    spans = splat_levels(
+        rays.lines,
+        power,
+        Cells.of(levels),
+        densities,
+        fine,
+        source,
+        block,
+        (side, lines.start, lines.stop),
+    )
+    window = spans[4:] if pixels is not None else None
+    return (fine, source, (slice(*spans[:2]), slice(*spans[2:4]))), window
 
 
 _NONE = np.zeros((0, 0), dtype=np.float32)
 
 
-def _gather(plane, sight, sources, weight, out, *, tail=None, occlusion=None):
+def _gather(plane, sight, sources, weight, out, *, window=None, tail=None, occlusion=None):
     """Spread light on a plane and add it, times `weight`, at the pixels' sights to `out`.
 
     `sources` is ``(fine, source, rows)`` as from `_splat`; the light of the beam's `tail`
-    (`Plane.tail`) is added to the spread. Only the rows that the sights reach are
-    brought back from the spectra.
+    (`Plane.tail`) is added to the spread. Only the rows that the sights reach (their
+    `window`, `workers.kernels.span`: found here when None) are brought back from the
+    spectra.
     """
     levels = plane.levels
     cells, shape = Cells.of(levels), plane.grid.shape
     fine, source, rows_in = sources
-    window = span(sight.lines, cells, shape)
+    if window is None:
+        window = span(sight.lines, cells, shape)
     rows = slice(*window[:2])
     near, far, _ = plane.spread.filtered(
         fine, source, rows_in=rows_in, rows_out=(rows, levels.coarse_rows(rows))
