@@ -10,7 +10,9 @@ same grid (``surface.coarse_patches: []``), in the same rounds; its target is at
 times the single patch. The reference pair is numpy.fft on float32 (scipy.fft's, faster, is
 printed too; the renderer uses scipy.fft). Usage, from the repository root (so that its
 ``workers`` are imported): ``python -m benchmarks.render [--sizes 128 256 512] [--mode
-absolute]``.
+absolute]``. A sample is timed as a store's task renders it (`workers.render.render_arrays`);
+until 2026-11-24 the tables below timed `workers.render.render`, which also builds the
+sample's dataset (about 1 ms at 128 pixels, 1.3 ms at 256).
 
 The price of linear spreading (issue #9: two-level planes wide enough that no light
 wraps around, a round-trip filter per gate, the beam's tail): on the 2-core machine,
@@ -98,7 +100,7 @@ import scipy.fft
 
 import workers
 from service.tuning import tune_allocator
-from workers.render import render
+from workers.render import render_arrays as render
 from workers.scene import Scene
 
 

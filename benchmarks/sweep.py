@@ -1,8 +1,10 @@
 """Sweep throughput: `oceanlidar run` on an embedded cluster against a plain render loop.
 
-Renders the same samples four ways and prints samples/s: an in-process loop (`render`
-only, no dask, no zarr), the service's task in-process (`service.run.render_shard`: render,
-check, checksum, compress, write; no dask), and the service with one worker process and
+Renders the same samples four ways and prints samples/s: an in-process loop
+(`workers.render.render_arrays`, what a task renders; no dask, no zarr; until 2026-11-24 the
+loop called `render`, which builds a dataset too, about 1 ms a 128-pixel sample), the
+service's task in-process (`service.run.render_shard`: render, check, checksum, compress,
+write; no dask), and the service with one worker process and
 with two. The overhead is 1 − (service rate) / (workers × loop rate). On a shared machine
 the wall clock drifts with other load, so the sweep is split into rounds (a different seed
 each) and every round runs all four ways in turn; the rates sum over rounds. The workers
@@ -87,7 +89,7 @@ from service.run import render_shard, run_plan, task_batches
 from service.stats import write_statistics
 from service.sweep import parse_sweep
 from service.tuning import tune_allocator
-from workers.render import render
+from workers.render import render_arrays
 from workers.seeds import SampleSeed
 
 SWEEP = """\
@@ -108,7 +110,7 @@ HALVES = ((0, 2), (1, 2))
 
 
 def in_process(way: str, text: str, url: str, batch: int, part=(0, 1)) -> tuple[float, float]:
-    """Render the sweep `text` in this process: a `render` loop or the service's tasks.
+    """Render the sweep `text` in this process: a `render_arrays` loop or the service's tasks.
 
     Runs in a process of its own (no scheduler threads beside it); the loop renders the
     samples ``part[0]::part[1]`` (one of two processes side by side: ``part=(i, 2)``).
@@ -123,7 +125,7 @@ def in_process(way: str, text: str, url: str, batch: int, part=(0, 1)) -> tuple[
         for sample in range(part[0], plan.samples, part[1]):
             point, realisation = divmod(sample, plan.realisations)
             seed = SampleSeed(root=plan.sweep.seed, point=point, realisation=realisation)
-            render(plan.scenes[point], seed=seed)
+            render_arrays(plan.scenes[point], seed=seed)
     else:
         for _, jobs in task_batches(plan, range(plan.samples), batch):
             render_shard(url, jobs)

@@ -11,7 +11,6 @@ from __future__ import annotations
 import zlib
 
 import numpy as np
-import xarray as xr
 import zarr
 
 from service.storage import filesystem, list_files
@@ -118,19 +117,26 @@ FINITE = ("image", "expected", "surface_elevation")
 """Rendered variables that must be finite (the signal means are NaN without a target)."""
 
 
-def invalid_values(sample: xr.Dataset) -> str | None:
+def invalid_values(sample: dict[str, np.ndarray], table: dict) -> str | None:
     """Why a rendered sample may not be stored, or None if every value is valid.
 
     Images and surfaces must be finite, counts and intensities non-negative and within
     their ``valid_max`` (the largest count the store's unsigned type holds), and the
     target mask 0 or 1: a sample that breaks any of these is never written nor marked
     complete.
+
+    Parameters
+    ----------
+    sample : dict
+        The sample's arrays by name (`workers.render.render_arrays`).
+    table : dict
+        Its scene's `workers.labels.rendered_variables` (the attributes: ``valid_max``).
     """
     for name in RENDERED_VARIABLES:
         if name not in sample:
             continue
-        values = sample[name].values
-        largest = sample[name].attrs.get("valid_max")
+        values = sample[name]
+        largest = table[name][2].get("valid_max")
         if largest is not None and values.size and values.max() > largest:
             return (
                 f"{name} holds {int(np.count_nonzero(values > largest))} count(s) over "
@@ -181,11 +187,12 @@ def read_samples(array, samples: list[int]) -> np.ndarray:
         raise
 
 
-def write_shard(group, samples: dict[int, xr.Dataset]) -> None:
-    """Write the whole shard that holds `samples` (rendered), then mark them complete.
+def write_shard(group, samples: dict[int, dict[str, np.ndarray]]) -> None:
+    """Write the whole shard that holds `samples`, then mark them complete.
 
-    The shard's other samples already complete are read back and written again with the
-    new ones (their bytes do not change); the rest stay at the fill value and incomplete.
+    `samples` maps each sample to its rendered arrays by name. The shard's other samples
+    already complete are read back and written again with the new ones (their bytes do not
+    change); the rest stay at the fill value and incomplete.
     The caller owns the shard: no other task writes it meanwhile (`service.run`). Writes
     go straight to the zarr arrays the template created, one call per variable, each
     array opened once: xarray's region writes, and every lookup of an array in the group,
@@ -205,7 +212,7 @@ def write_shard(group, samples: dict[int, xr.Dataset]) -> None:
         if kept:
             block[[k - first for k in kept]] = read_samples(array, kept)
         for sample, rendered in samples.items():
-            block[sample - first] = rendered[name].values
+            block[sample - first] = rendered[name]
         blocks[name] = block
     checksums = stored[region]
     for sample in samples:

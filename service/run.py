@@ -36,7 +36,8 @@ from service.progress import Progress
 from service.stats import check_owner, write_statistics
 from service.sweep import Plan
 from service.tuning import tune_allocator
-from workers.render import render
+from workers.labels import rendered_variables
+from workers.render import render_arrays
 from workers.section import SceneError
 
 __all__ = [
@@ -88,11 +89,11 @@ def render_shard(url, jobs, storage_options=None):
     rejected, valid = [], {}
     for sample, scene, seed in jobs:
         try:
-            rendered = render(scene, seed=seed)
+            rendered = render_arrays(scene, seed=seed)
         except SceneError as error:
             rejected.append((sample, str(error), True))
             continue
-        reason = integrity.invalid_values(rendered)
+        reason = integrity.invalid_values(rendered, rendered_variables(scene))
         if reason is None:
             valid[sample] = rendered
         else:

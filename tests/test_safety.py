@@ -16,7 +16,7 @@ from conftest import TINY_SCENE, TINY_SWEEP, run_cli, start_cli
 
 from service import integrity, lock, storage, store
 from service.cli import main
-from workers.render import render
+from workers.render import render_arrays
 
 
 def sweep_file(folder, name="one", output="one.zarr", seed=3):
@@ -273,12 +273,12 @@ def test_a_sample_with_non_finite_values_is_reported_and_never_marked_complete(
     tmp_path, monkeypatch, capsys, threads
 ):
     def poisoned(scene, *, seed):
-        sample = render(scene, seed=seed)
+        sample = render_arrays(scene, seed=seed)
         if (seed.point, seed.realisation) == (1, 1):
-            sample["expected"].values[0, 0, 0, 0] = np.nan
+            sample["expected"][0, 0, 0, 0] = np.nan
         return sample
 
-    monkeypatch.setattr(threads, "render", poisoned)
+    monkeypatch.setattr(threads, "render_arrays", poisoned)
     sweep = tmp_path / "nan.yaml"
     sweep.write_text(TINY_SWEEP.format(name="nan", seed=1, realisations=3, output="n.zarr"))
     output = tmp_path / "n.zarr"
@@ -354,9 +354,9 @@ def test_a_frozen_task_is_given_up_and_named(tmp_path, monkeypatch, capsys, thre
     def frozen(scene, *, seed):
         if (seed.point, seed.realisation) == (0, 2):
             release.wait(timeout=3)  # frozen well past the task timeout
-        return render(scene, seed=seed)
+        return render_arrays(scene, seed=seed)
 
-    monkeypatch.setattr(threads, "render", frozen)
+    monkeypatch.setattr(threads, "render_arrays", frozen)
     command = ["run", str(tiny_sweep(tmp_path)), "--output", str(tmp_path / "t.zarr")]
     options = ["--batch", "1", "--workers", "2", "--task-timeout", "1"]
     started = time.monotonic()

@@ -21,8 +21,8 @@ from service.run import execute, render_shard, task_batches
 from service.stats import write_statistics
 from service.storage import stats_url
 from service.sweep import parse_sweep
-from workers.labels import count_dtype, labelled_dataset
-from workers.render import render
+from workers.labels import count_dtype, rendered_arrays, rendered_variables
+from workers.render import render, render_arrays
 from workers.seeds import SampleSeed
 
 SWEEP = (
@@ -86,9 +86,9 @@ def test_a_count_beyond_its_type_is_never_wrapped_and_never_stored():
     expected = np.full((1, 1, 8, 8), 0.5, np.float32)
     image = np.zeros((1, 1, 8, 8), np.float32)
     image[0, 0, 2, 3] = 300.0  # over uint8's 255
-    ds = labelled_dataset(scene, expected, image, np.zeros((1, 8, 8), np.uint8), None)
-    assert ds["image"].dtype == np.float32 and float(ds["image"].max()) == 300.0
-    reason = integrity.invalid_values(ds)
+    arrays = rendered_arrays(scene, expected, image, np.zeros((1, 8, 8), np.uint8), None)
+    assert arrays["image"].dtype == np.float32 and float(arrays["image"].max()) == 300.0
+    reason = integrity.invalid_values(arrays, rendered_variables(scene))
     assert reason is not None and "image holds 1 count(s) over 255" in reason
 
 
@@ -177,10 +177,10 @@ def test_one_task_per_shard_and_a_failed_shard_rerun_one_sample_at_a_time(
     def poisoned(scene, *, seed):
         if (seed.point, seed.realisation) == (1, 1):
             raise RuntimeError("poison")
-        return render(scene, seed=seed)
+        return render_arrays(scene, seed=seed)
 
     monkeypatch.setattr(integrity, "write_shard", timed)
-    monkeypatch.setattr(threads, "render", poisoned)
+    monkeypatch.setattr(threads, "render_arrays", poisoned)
     plan = tiny_plan(realisations=3)
     url = str(tmp_path / "p.zarr")
     result = execute(plan, url, workers=2, batch_size=3, progress_stream=open(os.devnull, "w"))
@@ -214,9 +214,9 @@ def test_a_shard_whose_task_is_given_up_goes_to_no_other_task(tmp_path, monkeypa
             release.wait(timeout=8)  # frozen in its own task, after the shard's task failed
         if sample == 4:
             raise RuntimeError("poison")
-        return render(scene, seed=seed)
+        return render_arrays(scene, seed=seed)
 
-    monkeypatch.setattr(threads, "render", frozen_then_poisoned)
+    monkeypatch.setattr(threads, "render_arrays", frozen_then_poisoned)
     plan = tiny_plan(realisations=3)
     url = str(tmp_path / "s.zarr")
     result = execute(

@@ -2,7 +2,8 @@
 
 `sample_labels` holds what a scene fixes whatever the seed (target presence and visibility
 per gate, gate depths, platform track); `target_mask` marks the pixels a target covers;
-`labelled_dataset` assembles one sample's variables. The rules are in ``docs/model.md`` §8.
+`rendered_arrays` types one sample's rendered variables and `labelled_dataset` labels
+them. The rules are in ``docs/model.md`` §8.
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ __all__ = [
     "VISIBILITY",
     "count_dtype",
     "labelled_dataset",
+    "rendered_arrays",
     "rendered_variables",
     "sample_labels",
     "signal_means",
@@ -450,16 +452,31 @@ def rendered_variables(scene: Scene) -> dict[str, tuple[tuple[str, ...], np.dtyp
     return table
 
 
-def labelled_dataset(scene, expected, image, masks, surface):
-    """One sample as a dataset: labels, images, mask (and surface), per `rendered_variables`.
+def rendered_arrays(scene, expected, image, masks, surface) -> dict[str, np.ndarray]:
+    """One sample's rendered variables as arrays of the types `rendered_variables` gives.
 
     A count above the image type's ``valid_max`` (beyond `COUNT_HEADROOM`) leaves the
-    image in float32, never wrapped, so that the store refuses the sample. The dataset is
-    built in one constructor call (adding variables one by one costs an alignment each).
+    image in float32, never wrapped, so that the store refuses the sample. The store
+    writes these arrays (`workers.render.render_arrays`); `labelled_dataset` labels them.
+
+    Parameters
+    ----------
+    scene : Scene
+        The sample's parameters.
+    expected, image : ndarray
+        The noise-free and noisy images, (frame, gate, y, x).
+    masks : ndarray
+        The target mask, (frame, y, x).
+    surface : Surface or None
+        The sea, for ``surface_elevation`` when the scene saves it.
+
+    Returns
+    -------
+    dict
+        ``name -> array`` for ``image``, ``expected``, ``target_mask``,
+        ``target_signal``, ``background_signal`` (and ``surface_elevation``).
     """
     table = rendered_variables(scene)
-    frames = scene.sequence.frames
-    data_vars, coords = _label_variables(scene)
     target, background = signal_means(expected, masks.astype(bool))
     values = {
         "image": image,
@@ -468,20 +485,36 @@ def labelled_dataset(scene, expected, image, masks, surface):
         "target_signal": target,
         "background_signal": background,
     }
+    arrays = {}
     for name, data in values.items():
-        dims, dtype, attrs = table[name]
+        _, dtype, attrs = table[name]
         if "valid_max" in attrs and data.max(initial=0) > attrs["valid_max"]:
             dtype = np.dtype(np.float32)
-        data_vars[name] = (dims, data.astype(dtype, copy=False), attrs)
+        arrays[name] = data.astype(dtype, copy=False)
     if scene.save_surface:
-        axis = surface_axis(scene)
+        frames, size = scene.sequence.frames, surface_axis(scene).size
         elevation = (
-            np.zeros((frames, axis.size, axis.size), np.float32)
+            np.zeros((frames, size, size), np.float32)
             if surface is None
             else surface.centred_elevation
         )
-        dims, dtype, attrs = table["surface_elevation"]
-        data_vars["surface_elevation"] = (dims, elevation.astype(dtype), attrs)
+        arrays["surface_elevation"] = elevation.astype(table["surface_elevation"][1])
+    return arrays
+
+
+def labelled_dataset(scene: Scene, arrays: dict[str, np.ndarray]) -> xr.Dataset:
+    """One sample as a dataset: its labels and its `rendered_arrays`, per `rendered_variables`.
+
+    The dataset is built in one constructor call (adding variables one by one costs an
+    alignment each).
+    """
+    table = rendered_variables(scene)
+    data_vars, coords = _label_variables(scene)
+    for name, data in arrays.items():
+        dims, _, attrs = table[name]
+        data_vars[name] = (dims, data, attrs)
+    if scene.save_surface:
+        axis = surface_axis(scene)
         coords["sx"] = ("sx", axis, table["sx"][2])
         coords["sy"] = ("sy", axis, table["sy"][2])
     return xr.Dataset(data_vars, coords=coords)

@@ -48,14 +48,14 @@ import xarray as xr
 from workers.gates import hidden_fraction
 from workers.interface import Projected, through_surface
 from workers.kernels import Cells, gather_levels, sample, span, splat_levels
-from workers.labels import labelled_dataset, sample_labels, target_mask
+from workers.labels import labelled_dataset, rendered_arrays, sample_labels, target_mask
 from workers.noise import shot_noise
 from workers.planes import FrameGeometry, Plane, frame_geometry
 from workers.scene import Scene
 from workers.seeds import SampleSeed
 from workers.sensor import Setup, scene_setup
 
-__all__ = ["render", "sample_labels"]
+__all__ = ["render", "render_arrays", "sample_labels"]
 
 
 def render(scene: Scene, *, seed: int | SampleSeed) -> xr.Dataset:
@@ -78,6 +78,28 @@ def render(scene: Scene, *, seed: int | SampleSeed) -> xr.Dataset:
         ``gate_bottom`` (gate), ``time`` and the platform position (frame), and
         ``surface_elevation`` (frame, sy, sx) when ``scene.save_surface`` is set.
     """
+    return labelled_dataset(scene, render_arrays(scene, seed=seed))
+
+
+def render_arrays(scene: Scene, *, seed: int | SampleSeed) -> dict[str, np.ndarray]:
+    """The rendered variables of `render`, as arrays, without the labels the scene fixes.
+
+    What a store's task writes (`service.run.render_shard`): the same values as
+    `render`'s, without building a dataset (about 1 ms a sample).
+
+    Parameters
+    ----------
+    scene : Scene
+        All parameters of the sample.
+    seed : int or SampleSeed
+        As for `render`.
+
+    Returns
+    -------
+    dict
+        `workers.labels.rendered_arrays`: ``image``, ``expected``, ``target_mask``,
+        ``target_signal``, ``background_signal`` (and ``surface_elevation``).
+    """
     if not isinstance(seed, SampleSeed):
         seed = SampleSeed(root=int(seed))
     setup = scene_setup(scene)
@@ -99,7 +121,7 @@ def render(scene: Scene, *, seed: int | SampleSeed) -> xr.Dataset:
         )
     else:
         image = expected.copy()
-    return labelled_dataset(scene, expected, image, np.stack(masks), surface)
+    return rendered_arrays(scene, expected, image, np.stack(masks), surface)
 
 
 def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
