@@ -67,7 +67,10 @@ def verify(url: str, storage_options: dict | None = None) -> list[tuple[int, str
     Every chunk of every completed sample is read back, a shard at a time (the CRC32C
     codec finds a damaged chunk, and then the shard is read sample by sample to name
     it), and each sample's arrays are compared with the checksum its task recorded (which
-    finds a chunk deleted, or swapped with another sample's).
+    finds a chunk deleted, or swapped with another sample's). A shard file that is absent
+    reads as the fill value: zarr writes no shard whose values all equal it (the masks and
+    NaN signal means of a shard of samples without a target), so only a checksum that
+    does not match says a sample is damaged or lost; a shard absent then is named.
 
     Returns
     -------
@@ -86,9 +89,11 @@ def verify(url: str, storage_options: dict | None = None) -> list[tuple[int, str
     for shard in np.unique(done // size):
         samples = [int(s) for s in done[done // size == shard]]
         missing = [name for name, stored in shards.items() if shard not in stored]
-        if missing:
-            problems += [(s, f"no {' or '.join(missing)} shard") for s in samples]
-            continue
+        mismatch = (
+            f"no {' or '.join(missing)} shard"
+            if missing
+            else "its chunks do not match its checksum"
+        )
         try:
             arrays = [group[name].get_orthogonal_selection((samples,)) for name in names]
         except Exception:
@@ -101,7 +106,7 @@ def verify(url: str, storage_options: dict | None = None) -> list[tuple[int, str
                 problems.append((sample, f"a chunk cannot be read ({type(error).__name__})"))
                 continue
             if sample_checksum(values) != int(recorded[i]):
-                problems.append((sample, "its chunks do not match its checksum"))
+                problems.append((sample, mismatch))
     return problems
 
 

@@ -218,6 +218,27 @@ def test_verify_finds_damaged_missing_and_swapped_samples_and_resume_redoes_them
     assert main(["info", "one.zarr", "--verify"]) == 0
 
 
+def test_shards_of_samples_without_a_target_verify_intact(tmp_path):
+    # zarr stores no shard whose values all equal the fill value: the masks (0) and signal
+    # means (NaN) of a shard of samples without a target are files that do not exist
+    from service.run import render_shard, task_batches
+    from service.sweep import parse_sweep
+
+    plan = parse_sweep(TINY_SWEEP.format(name="e", seed=3, realisations=2, output="e.zarr"))
+    url = str(tmp_path / "e.zarr")
+    store.create_store(plan, url, samples_per_shard=2)
+    for _, jobs in task_batches(plan, range(plan.samples), 2):
+        assert render_shard(url, jobs) == []
+    for name in ("target_mask", "target_signal", "background_signal"):
+        assert [p.name.split(".")[1] for p in (tmp_path / "e.zarr" / name).glob("c.*")] == ["0"]
+    assert integrity.verify(url) == []
+    # a shard lost whose values were not all fill is still found, and named
+    next((tmp_path / "e.zarr" / "image").glob("c.1.*")).unlink()
+    problems = integrity.verify(url)
+    assert [sample for sample, _ in problems] == [2, 3]
+    assert all(reason.startswith("no image or target_mask") for _, reason in problems)
+
+
 def test_damaged_statistics_are_named_and_written_again(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     sweep = tiny_sweep(tmp_path, realisations=1)
