@@ -239,13 +239,21 @@ def widest_image(plan: Plan) -> tuple:
 
     Counts take the narrowest unsigned type their scene needs (`workers.labels.count_dtype`),
     which differs between points (a brighter target, a lower platform); the store holds
-    the widest, and the values of every point unchanged.
+    the widest, and the values of every point unchanged. Points whose images are floats
+    (an ICCD gain, no noise) beside points of counts make the store's image a float type
+    that holds every count exactly (float32 up to 16-bit counts, else float64); its
+    ``long_name`` then names what each kind of point holds.
     """
     entries = {}
     for scene in plan.scenes:
         entry = rendered_variables(scene)["image"]
         entries.setdefault(entry[1], entry)
-    return entries[np.result_type(*entries)]
+    widest = np.result_type(*entries)
+    if len({dtype.kind for dtype in entries}) == 1:
+        return entries[widest]
+    dims, _, attrs = next(entry for dtype, entry in entries.items() if dtype.kind == "f")
+    names = sorted({entry[2]["long_name"] for entry in entries.values()})
+    return dims, widest, {**attrs, "long_name": f"by point: {'; or '.join(names)}"}
 
 
 def _coordinate_array(values: list) -> np.ndarray:

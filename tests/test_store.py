@@ -105,6 +105,35 @@ def test_the_store_holds_the_widest_counts_any_point_needs(tmp_path):
     assert np.array_equal(ds["image"].values[0], alone["image"].values)
 
 
+@pytest.mark.parametrize(
+    ("photons", "counts", "stored"),
+    [(100, np.uint8, np.float32), (100_000, np.uint32, np.float64)],
+    ids=["8-bit", "32-bit"],
+)
+def test_a_sweep_of_counts_and_float_images_stores_both_exactly(tmp_path, photons, counts, stored):
+    # an ICCD gain makes a point's image float32 beside the counts of a gain of 1; float32
+    # holds counts exactly up to 2^24 only
+    plan = tiny_plan(
+        realisations=1,
+        **{
+            "target.shape: {values: [sphere, none]}": "noise.gain: {values: [1.0, 10.0]}",
+            "white_plane_photons: 100": f"white_plane_photons: {photons}",
+        },
+    )
+    kinds = [rendered_variables(scene)["image"][1] for scene in plan.scenes]
+    # depths 3 and 6 m, gains 1 and 10: the shallow target's counts are the widest
+    assert kinds[0] == counts and kinds[1] == kinds[3] == np.float32
+    url = str(tmp_path / "g.zarr")
+    fill(plan, url)
+    ds = xr.open_zarr(url)
+    assert ds["image"].dtype == stored and "valid_max" not in ds["image"].attrs
+    assert ds["image"].attrs["long_name"].startswith("by point: ICCD output count")
+    assert "; or photoelectron count" in ds["image"].attrs["long_name"]
+    for point, scene in enumerate(plan.scenes):
+        alone = render(scene, seed=SampleSeed(root=4, point=point, realisation=0))
+        assert np.array_equal(ds["image"].values[point], alone["image"].values)
+
+
 def test_expected_images_are_stored_only_when_asked(filled, tmp_path):
     plan, url = filled
     assert "expected" not in xr.open_zarr(url)
