@@ -296,7 +296,8 @@ class Runner:
         if mode == "new" and storage.occupied(url, self.storage_options):
             raise SweepError(
                 f"output: {shown(plan.sweep.output)} already exists; submit with mode "
-                "resume to complete it or overwrite to replace it"
+                "resume (oceanlidar submit --resume) to complete it or overwrite "
+                "(--overwrite) to replace it"
             )
         return plan, url
 
