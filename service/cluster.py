@@ -72,9 +72,11 @@ def dask_client(
     files and ``require-encryption`` can be set (``DASK_DISTRIBUTED__COMM__...``). With
     `dashboard`, the embedded scheduler serves dask's dashboard on a free loopback port
     (bokeh needed) and its link is logged; either way its HTTP server takes a free port,
-    never a busy default. Without `dashboard`, the embedded cluster runs with `QUIET`
-    (its workers inherit the settings). `verbose` lets the embedded workers' logs and
-    warnings through.
+    never a busy default. Without `dashboard`, the embedded cluster runs with `QUIET`: the
+    scheduler reads it when it starts, the nannies keep it for every worker process they
+    start, restarts included (a nanny's copy of the ambient configuration shares its
+    nested dicts, which leaving ``dask.config.set`` restores). `verbose` lets the embedded
+    workers' logs and warnings through.
     """
     if dashboard and importlib.util.find_spec("bokeh") is None:
         raise SweepError("--dashboard needs bokeh: pip install 'oceanlidar[dashboard]'")
@@ -90,7 +92,8 @@ def dask_client(
                 log.info("dashboard: %s", client.dashboard_link)
             yield client
         return
-    with dask.config.set({} if dashboard else QUIET):
+    quiet = {} if dashboard else QUIET
+    with dask.config.set(quiet):
         cluster = LocalCluster(
             n_workers=workers or os.cpu_count() or 1,
             threads_per_worker=1,
@@ -99,6 +102,7 @@ def dask_client(
             dashboard_address="127.0.0.1:0",
             scheduler_kwargs={"dashboard": dashboard},
             silence_logs=logging.WARNING if verbose else logging.CRITICAL,
+            config=quiet,
         )
     try:
         with Client(cluster) as client:

@@ -157,7 +157,8 @@ def threads(monkeypatch):
     import service.cluster
     import service.run
 
-    def threaded(**options):
+    def threaded(*, config=None, **options):
+        # threads read this process's configuration: a nanny's `config` has no worker here
         return LocalCluster(**{**options, "processes": False, "protocol": "tcp://"})
 
     monkeypatch.setattr(service.cluster, "LocalCluster", threaded)

@@ -91,13 +91,17 @@ def test_worker_warnings_stay_off_the_console_unless_verbose(capfd, verbose):
 
 def test_the_embedded_cluster_runs_without_the_dashboards_monitors():
     # the statistical profiler and fast monitors feed only the dashboard: off without it,
-    # in the worker processes (which inherit the settings) and in the scheduler
+    # in the worker processes (which keep them when their nanny restarts them: a worker
+    # killed for its memory, or crashed) and in the scheduler
     with dask_client(workers=1, scheduler=None) as client:
         settings = client.run(lambda: {key: dask.config.get(key) for key in QUIET})
+        client.restart()
+        restarted = client.run(lambda: {key: dask.config.get(key) for key in QUIET})
         ticks = client.run_on_scheduler(
             lambda dask_scheduler: dask_scheduler.periodic_callbacks["tick"].callback_time
         )
     assert list(settings.values()) == [QUIET]
+    assert list(restarted.values()) == [QUIET]
     assert ticks == 1000.0  # ms
     assert dask.config.get("distributed.worker.profile.enabled")  # this process unchanged
 

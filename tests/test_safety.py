@@ -530,7 +530,7 @@ def test_a_cluster_slow_to_shut_down_does_not_fail_a_finished_run(monkeypatch, c
             super().close(*args, **kwargs)
             raise TimeoutError
 
-    def threaded(**options):
+    def threaded(*, config=None, **options):  # threads: no nanny to take `config`
         return SlowToClose(**{**options, "processes": False, "protocol": "tcp://"})
 
     monkeypatch.setattr(service.cluster, "LocalCluster", threaded)
