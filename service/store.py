@@ -248,7 +248,7 @@ def widest_image(plan: Plan) -> tuple:
     for scene in plan.scenes:
         entry = rendered_variables(scene)["image"]
         entries.setdefault(entry[1], entry)
-    widest = np.result_type(*entries)
+    widest = plan.image_dtype()
     if len({dtype.kind for dtype in entries}) == 1:
         return entries[widest]
     dims, _, attrs = next(entry for dtype, entry in entries.items() if dtype.kind == "f")

@@ -139,16 +139,25 @@ class Plan:
             values=self.points[point],
         )
 
+    def image_dtype(self) -> np.dtype:
+        """The store's image type: the widest any point needs (`service.store.widest_image`).
+
+        Each point's counts take `count_dtype`, other images float32; counts beside floats
+        make a float type that holds every count exactly.
+        """
+        kinds = {count_dtype(scene) or np.dtype(np.float32) for scene in self.scenes}
+        return np.result_type(*kinds)
+
     def sample_bytes(self) -> int:
         """Estimated stored bytes of the largest sample (uncompressed)."""
-        expected = self.sweep.store.expected
-        return max(_sample_bytes(scene, expected=expected) for scene in self.scenes)
+        image, expected = self.image_dtype().itemsize, self.sweep.store.expected
+        return max(_sample_bytes(s, image=image, expected=expected) for s in self.scenes)
 
     def total_bytes(self) -> int:
         """Estimated stored bytes of the whole sweep (uncompressed)."""
         r = self.sweep.realisations
-        expected = self.sweep.store.expected
-        return sum(_sample_bytes(scene, expected=expected) * r for scene in self.scenes)
+        image, expected = self.image_dtype().itemsize, self.sweep.store.expected
+        return sum(_sample_bytes(s, image=image, expected=expected) * r for s in self.scenes)
 
     def check_limits(
         self,
@@ -170,11 +179,11 @@ class Plan:
             )
 
 
-def _sample_bytes(scene: Scene, *, expected: bool) -> int:
+def _sample_bytes(scene: Scene, *, image: int, expected: bool) -> int:
+    """A sample's stored bytes, its images `image` bytes a value (the store's type)."""
     pixels = scene.receiver.pixels**2
     frames = scene.sequence.frames
     gates = len(scene.receiver.gate_depths)
-    image = (count_dtype(scene) or np.dtype(np.float32)).itemsize
     size = frames * (gates * pixels * (image + 4 * expected) + pixels + 8 * gates)
     if scene.save_surface:
         size += frames * scene.surface.grid_size**2 * 4

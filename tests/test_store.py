@@ -132,6 +132,10 @@ def test_a_sweep_of_counts_and_float_images_stores_both_exactly(tmp_path, photon
     for point, scene in enumerate(plan.scenes):
         alone = render(scene, seed=SampleSeed(root=4, point=point, realisation=0))
         assert np.array_equal(ds["image"].values[point], alone["image"].values)
+    # the plan's size (limits, shard size) counts every point's image in the store's type
+    stored_bytes = sum(ds[name].nbytes for name in store.RENDERED_VARIABLES if name in ds)
+    assert plan.total_bytes() == stored_bytes
+    assert plan.sample_bytes() == stored_bytes // plan.samples
 
 
 def test_expected_images_are_stored_only_when_asked(filled, tmp_path):
