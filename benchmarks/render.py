@@ -89,6 +89,12 @@ pixels target  ms before    ms after     scipy ratio       numpy ratio
 256    sphere  64.3, 62.3   54.1, 54.5   136–137 → 114–116 89–91 → 78
 256    none    55.5, 54.2   44.8, 46.0   116–117 → 95      73–77 → 59–62
 ====== ======= ============ ============ ================= =================
+
+Second session of 2026-11-24 (`render_arrays`, no dataset; a monostatic scene's pixel
+window found in the splat's pass): CPU time, sphere / no target, two runs at load 1.3–1.6,
+scipy ratio 88 / 68 at 128 px (88.5 / 70.6 before), 89–91 / 72–73 at 256 (93.2 / 74.8),
+99.7 / 80.7 at 512 (101.2 / 80.4). The 30-pair target at 256² is not in reach of such
+steps: see the FFT floor above.
 """
 
 import argparse

@@ -24,6 +24,29 @@ Usage: ``python benchmarks/sweep.py [--samples 192] [--rounds 3] [--pixels 128] 
 store's choice, `service.store.shard_size`: 8 for the default 64-sample rounds, 40 with
 ``--samples 960``).
 
+Figures after the embedded cluster dropped the dashboard's monitors (`service.cluster.QUIET`:
+no worker profiler, slow resource monitor and tick) and tasks stopped building a dataset a
+sample (`render_arrays`, which the loop now times too), 2026-11-24, ``--samples 960``,
+shards of 40, one run at load 0.1–1.2 (two runs beside a helper's tests, load 3–3.9, gave
+1 worker 4.9 and 12.0 % and no usable 2-worker figure: two loops side by side only 0.99–1.11
+times one):
+
+====================== ============= ============== ==================================
+way                    samples/s     overhead       CPU a sample (workers over loop)
+====================== ============= ============== ==================================
+render loop            54.1          —              18.5 ms
+two loops side by side 97.0          (1.79×)        18.8 ms
+run, 1 worker          47.6          12.0 %         +2.5 ms; client+sched. 0.6
+run, 2 workers         81.3          24.8 %         +2.9 ms; client+sched. 0.4
+2 workers vs two loops —             16.2 %         —
+====================== ============= ============== ==================================
+
+Against the table below: the service's samples/s rose 39–40 → 47.6 (1 worker) and
+63–71 → 81.3 (2 workers); the client and scheduler's CPU fell from 1.2–2.3 to 0.4–0.6 ms a
+sample; the loop itself got 2–3 ms cheaper (no dataset), so the same service costs read as
+a larger share of it. The in-process write path is still +2.2 ms (10.5 %), most of it
+zarr's per-inner-chunk machinery.
+
 Figures after Blosc-compressed counts, shards sized by bytes and the compiled Poisson
 draws (2026-11-24, ``--samples 960``: 320-sample rounds, shards of 40; two runs back to
 back on the shared machine, load 1.0–1.8, the second noisier):
