@@ -68,25 +68,38 @@ DECODERS = {"zstd": Zstd, "blosc": Blosc}
 carry their own settings; zstd before November 2026)."""
 
 
+def _endian(codec: dict) -> str:
+    """The byte order of a ``bytes`` codec entry of zarr.json (absent: single bytes)."""
+    return codec.get("configuration", {}).get("endian", "little")
+
+
 class _Shards:
     """One sharded array of a store, read straight from its shard files.
 
     The layout is `service.store`'s: shards of consecutive samples along the first axis,
     one sample per inner chunk, inner codecs bytes (little-endian), zstd or Blosc (whose
     frames carry their own settings) and CRC32C, and the shard's index at its end (two
-    little-endian uint64 per chunk, then its CRC32C).
+    little-endian uint64 per chunk, then its CRC32C), chunk files named ``c.4.0.0.0.0``.
+    Any other layout, which zarr would read but this reader would misread, is refused.
     """
 
     def __init__(self, fs, root: str, name: str) -> None:
         meta = json.loads(fs.cat_file(f"{root}/{name}/zarr.json"))
         sharding = meta["codecs"][0]
         config = sharding.get("configuration", {})
-        codecs = [codec["name"] for codec in config.get("codecs", [])]
+        codecs = config.get("codecs", [])
+        index = config.get("index_codecs", [])
+        names = [codec["name"] for codec in (*codecs, *index)]
+        keys = meta["chunk_key_encoding"]
         if (
             sharding["name"] != "sharding_indexed"
             or len(codecs) != 3
-            or (codecs[0], codecs[2]) != ("bytes", "crc32c")
-            or codecs[1] not in DECODERS
+            or names[1] not in DECODERS
+            or names[:1] + names[2:] != ["bytes", "crc32c", "bytes", "crc32c"]
+            or _endian(codecs[0]) != "little"
+            or _endian(index[0]) != "little"
+            or config.get("index_location", "end") != "end"
+            or (keys["name"], keys.get("configuration", {}).get("separator")) != ("default", ".")
         ):
             raise ValueError(f"{root}: {name} is not stored in shards as service.store writes")
         self.fs, self.name = fs, name
@@ -96,7 +109,7 @@ class _Shards:
         self.fill = np.asarray(meta["fill_value"]).astype(self.dtype)
         self.key = f"{root}/{name}/c.{{}}" + ".0" * (len(meta["shape"]) - 1)
         self.indexes: dict[int, np.ndarray | None] = {}
-        self.codec = DECODERS[codecs[1]]()
+        self.codec = DECODERS[names[1]]()
 
     def _index(self, shard: int) -> np.ndarray | None:
         """The shard's (offset, length) per sample; None if it holds nothing."""

@@ -2,8 +2,10 @@
 xarray ergonomics, CF conventions, statistics of a resumed run."""
 
 import itertools
+import json
 import os
 import pickle
+import shutil
 import threading
 import time
 from pathlib import Path
@@ -359,6 +361,33 @@ def test_the_training_reader_reads_stores_of_zstd_shards(tmp_path, monkeypatch):
     item = SampleDataset(url)[3]
     for name in ("image", "target_mask"):
         assert item[name].tobytes() == ds[name].values[3].tobytes(), name
+
+
+def test_the_training_reader_refuses_shards_it_would_misread(filled, tmp_path):
+    # zarr reads these layouts; the reader, which decodes the shard files itself, does not
+    _, url = filled
+    changes = {
+        "index at the start": ("index_location", "start"),
+        "big-endian index": (
+            "index_codecs",
+            [{"name": "bytes", "configuration": {"endian": "big"}}, {"name": "crc32c"}],
+        ),
+        "chunk files in folders": (
+            "chunk_key_encoding",
+            {"name": "default", "configuration": {"separator": "/"}},
+        ),
+    }
+    for what, (key, value) in changes.items():
+        copy = tmp_path / what.replace(" ", "-")
+        shutil.copytree(url, copy)
+        path = copy / "image" / "zarr.json"
+        meta = json.loads(path.read_text())
+        place = meta if key == "chunk_key_encoding" else meta["codecs"][0]["configuration"]
+        place[key] = value
+        path.write_text(json.dumps(meta))
+        reader = SampleDataset(str(copy))
+        with pytest.raises(ValueError, match=r"image is not stored in shards as service\.store"):
+            reader[0]
 
 
 def test_statistics_after_resume_recompute_only_the_points_written(tmp_path):
