@@ -164,7 +164,9 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
         light = geometry.target_light
         rows = light.rows
         wide = any(coarse is not None for _, coarse in light.weights)
-        (fine, source, rows_in), _ = _splat(plane, down_axes, power * extra)
+        (fine, source, rows_in), window = _splat(
+            plane, down_axes, power * extra, geometry.pixel_block
+        )
         near, far, beyond = plane.spread.filtered(
             fine, source, rows_in=rows_in, rows_out=(rows, levels.coarse_rows(rows)), far_out=wide
         )
@@ -175,7 +177,6 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
                 beyond += plane.tail[2]
         near += levels.upsample(far, rows=rows)
         inside = (rows, levels.coarse_rows(rows))
-        window = span(up_axes.lines, cells, levels.fine.shape)
         for (weights, coarse), gates in zip(light.weights, light.gates, strict=True):
             fine[:] = 0.0
             np.multiply(near, weights[rows], out=fine[rows])
