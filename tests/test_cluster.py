@@ -114,7 +114,7 @@ def test_a_worker_killed_mid_sweep_changes_no_byte(cluster, tmp_path):
 
 def test_a_killed_client_resumes_to_the_same_bytes(cluster, tmp_path):
     sweep = tmp_path / "s.yaml"
-    sweep.write_text(sweep_text(realisations=8))
+    sweep.write_text(sweep_text(realisations=30))  # 60 tasks: most still to run at the kill
     target = tmp_path / "client.zarr"
     command = ["run", sweep, "--output", target, "--scheduler", cluster, "--batch", 1]
     process = start_cli(
@@ -130,7 +130,7 @@ def test_a_killed_client_resumes_to_the_same_bytes(cluster, tmp_path):
         time.sleep(0.02)
     process.send_signal(signal.SIGKILL)
     process.wait(timeout=30)
-    assert 0 < xr.open_zarr(target)["completed"].values.sum() < 16
+    assert 0 < xr.open_zarr(target)["completed"].values.sum() < 60
     again = run_cli(*command, "--resume", cwd=tmp_path)
     assert again.returncode == 0, again.stderr
     reference = str(tmp_path / "reference.zarr")

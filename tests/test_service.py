@@ -140,9 +140,13 @@ def test_bounded_submission_and_batches(tmp_path):
     assert result.written == 12 and result.max_in_flight <= 2
 
 
-def test_interrupted_run_resumes_to_the_same_store(two_worker_store, tmp_path):
-    plan, url = two_worker_store
-    sweep = write(tmp_path / "sweep.yaml")
+def test_interrupted_run_resumes_to_the_same_store(tmp_path):
+    # 48 samples, one a task: interrupted after 2, dozens of tasks are still to run (with
+    # the 12 of the other tests a loaded machine could finish them before the signal)
+    sweep = write(tmp_path / "sweep.yaml", SWEEP.replace("realisations: 3", "realisations: 12"))
+    plan = load_sweep(sweep)
+    url = str(tmp_path / "reference.zarr")
+    execute(plan, url, workers=1, batch_size=4, progress_stream=open(os.devnull, "w"))
     target = tmp_path / "interrupted.zarr"
     process = start_cli(
         "run",
