@@ -202,9 +202,16 @@ def write_shard(group, samples: dict[int, dict[str, np.ndarray]]) -> None:
     go straight to the zarr arrays the template created, one call per variable, each
     array opened once: xarray's region writes, and every lookup of an array in the group,
     read the store's metadata again, which costs more than compressing a small sample.
+    Chunks holding only the fill value are written too (zarr's default compares every
+    chunk, and the whole shard, with the fill value first: about 0.3 ms a 128-pixel
+    sample); the values read back are the same either way.
     """
     names = (*RENDERED_VARIABLES, "checksum", "completed")
-    arrays = {name: array for name in names if (array := group.get(name)) is not None}
+    arrays = {
+        name: array.with_config({"write_empty_chunks": True})
+        for name in names
+        if (array := group.get(name)) is not None
+    }
     completed, stored = arrays.pop("completed"), arrays.pop("checksum")
     size = int(completed.chunks[0])
     first = min(samples) // size * size
