@@ -95,6 +95,18 @@ window found in the splat's pass): CPU time, sphere / no target, two runs at loa
 scipy ratio 88 / 68 at 128 px (88.5 / 70.6 before), 89–91 / 72–73 at 256 (93.2 / 74.8),
 99.7 / 80.7 at 512 (101.2 / 80.4). The 30-pair target at 256² is not in reach of such
 steps: see the FFT floor above.
+
+Third session of 2026-11-24, the quiet machine (load 0.4–0.7): scipy ratio 88.6 / 68.3 at
+128 px, 88.7 / 71.9 at 256, 100.1 / 81.5 at 512 (sphere / none), unchanged. Where a sample
+goes, in scipy pairs of its size (CPU time by wrapping the functions, 15 samples, sphere;
+256² / 512²): the spreads' FFT passes 22.3 / 22.5, the sea's synthesis (the multi-scale
+cascades of issue #14) 11.0 / 11.4, the rays through the sea 11.4 / 11.5, splats 13.6 /
+15.1, the gathers' reads and assembly 12.0 / 13.7, shot noise 4.0 / 4.6, the arrays 1.6 /
+1.5, the rest (target maps, hiding, gains) about 12. The FFTs of the linear spread's
+planes and the sea's synthesis alone come to 33–34 pairs at both sizes, above the issue's
+30 (256²) and near its 35 (512²): the target needs another spreading scheme (smaller fine
+planes: a third level, or a near kernel narrower than four coarse cells) and a cheaper sea,
+both image-changing, not faster loops.
 """
 
 import argparse

@@ -24,6 +24,17 @@ Usage: ``python benchmarks/sweep.py [--samples 192] [--rounds 3] [--pixels 128] 
 store's choice, `service.store.shard_size`: 8 for the default 64-sample rounds, 40 with
 ``--samples 960``).
 
+Third session of 2026-11-24, the quiet machine (load 0.5–1.4), ``--samples 960``, shards
+of 40, two runs (the second after `service.integrity.write_shard` stopped comparing chunks
+with the fill value: 0.25–0.3 ms less a sample in `write_shard` alone, within this script's
+noise): loop 57.0 / 57.2 samples/s (17.5 ms CPU), two loops side by side 1.90 times one;
+``render_shard`` in-process 9.5 / 8.6 %; **1 worker 12.1 / 9.8 %**; 2 workers 17.4 /
+18.7 % against 2 × loop, **12.9 / 14.5 % against the two loops**; client and scheduler
+0.3–0.5 ms a sample. What is left is the write path (+1.8–1.9 ms a sample: zarr's
+per-chunk machinery on the two sharded arrays ≈ 0.85 ms, the shard's other arrays and
+flags ≈ 0.25, checks 0.2, checksums 0.12) and, with two workers, the cores' contention
+(+2.4–2.7 ms a sample on the workers against +1.9–2.5 with one).
+
 Figures after the embedded cluster dropped the dashboard's monitors (`service.cluster.QUIET`:
 no worker profiler, slow resource monitor and tick) and tasks stopped building a dataset a
 sample (`render_arrays`, which the loop now times too), 2026-11-24, ``--samples 960``,
