@@ -12,7 +12,8 @@ are recomputed, in place. Variables:
 - ``target_signal``, ``background_signal`` (point, gate): mean expected (noise-free)
   signal inside the target mask and in a ring of local background around it;
 - ``target_contrast`` (point, gate): (target − background) / background of the expected
-  images: what the physics leaves of the target, before noise;
+  images: what the physics leaves of the target, before noise, plus the beam's fall-off
+  between the mask and its ring (not 0 without a target in the gate: README);
 - ``cnr`` (point, gate): contrast-to-noise ratio of the noisy images, (target − background)
   over the standard deviation of the background ring (shot noise and clutter);
 - ``visible_fraction`` (point, gate): fraction of samples and frames in which the target is
