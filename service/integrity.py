@@ -14,7 +14,7 @@ import numpy as np
 import zarr
 
 from service.storage import filesystem, list_files
-from service.store import RENDERED_VARIABLES, open_group, shard_samples
+from service.store import RENDERED_VARIABLES, open_group, shard_samples, template
 
 __all__ = [
     "DamagedStoreError",
@@ -24,7 +24,9 @@ __all__ = [
     "read_samples",
     "sample_checksum",
     "verify",
+    "write_labels",
     "write_shard",
+    "wrong_labels",
 ]
 
 
@@ -108,6 +110,61 @@ def verify(url: str, storage_options: dict | None = None) -> list[tuple[int, str
             if sample_checksum(values) != int(recorded[i]):
                 problems.append((sample, mismatch))
     return problems
+
+
+def wrong_labels(url: str, plan, storage_options: dict | None = None) -> list[str]:
+    """The variables that follow from the sweep alone that a store holds wrongly.
+
+    The labels, the platform track and the coordinates (`service.store.template`) are
+    written once, with the store, and no sample's checksum covers them: a chunk of one
+    lost (read back as the fill value: every ``target_present`` 0) or damaged (its CRC32C
+    fails) is found here, by comparing every value with the plan's own.
+
+    Parameters
+    ----------
+    url : str
+        The store.
+    plan : service.sweep.Plan
+        Its sweep.
+
+    Returns
+    -------
+    list of str
+        The variables' names, in the template's order (empty: all intact).
+    """
+    group = zarr.open_group(
+        store=url, mode="r", zarr_format=3, use_consolidated=True, storage_options=storage_options
+    )
+    expected, _ = template(plan, shard_samples(group))
+    wrong = []
+    for name, variable in expected.variables.items():
+        if name in (*RENDERED_VARIABLES, "completed", "checksum"):
+            continue
+        try:
+            stored = group[name][...]
+        except Exception:  # absent, or a chunk that cannot be read
+            wrong.append(str(name))
+            continue
+        if not _same(stored, variable.values):
+            wrong.append(str(name))
+    return wrong
+
+
+def write_labels(url: str, plan, names: list[str], storage_options=None) -> None:
+    """Write the variables `names` of the store again, from the plan (see `wrong_labels`)."""
+    group = open_group(url, storage_options)
+    expected, _ = template(plan, shard_samples(group))
+    for name in names:
+        group[name][...] = expected[name].values
+
+
+def _same(stored: np.ndarray, values: np.ndarray) -> bool:
+    """Whether stored values equal the template's (text as text, NaN equal to NaN)."""
+    if stored.shape != values.shape:
+        return False
+    if {"O", "U", "T"} & {stored.dtype.kind, values.dtype.kind}:
+        return [str(v) for v in stored.ravel()] == [str(v) for v in values.ravel()]
+    return bool(np.array_equal(stored, values, equal_nan=values.dtype.kind == "f"))
 
 
 def mark_incomplete(url: str, samples: list[int], storage_options: dict | None = None) -> None:

@@ -137,6 +137,7 @@ class RunResult:
     ``(sample, reason)`` for samples rendered with invalid values
     (`service.integrity.invalid_values`); neither are written nor marked complete; ``damaged``
     holds ``(sample, reason)`` for samples that ``verify`` found damaged and recomputed;
+    ``relabelled`` names the labels and coordinates it found wrong and wrote again;
     ``stuck`` holds ``(start, count)`` for tasks given up after the task timeout;
     ``stopped`` says why a run stopped early (a storage failure no retry cures);
     ``points`` holds the parameter points whose samples a resumed run (re)wrote (None: all).
@@ -149,6 +150,7 @@ class RunResult:
     refused: list = field(default_factory=list)
     rejected: list = field(default_factory=list)
     damaged: list = field(default_factory=list)
+    relabelled: list = field(default_factory=list)
     stuck: list = field(default_factory=list)
     stopped: str | None = None
     seconds: float = 0.0
@@ -469,8 +471,11 @@ def execute(
                     store.create_store(
                         plan, url, storage_options=storage_options, samples_per_shard=batch_size
                     )
-            damaged = integrity.verify(url, storage_options) if resuming and verify else []
+            checked = resuming and verify
+            damaged = integrity.verify(url, storage_options) if checked else []
             integrity.mark_incomplete(url, [sample for sample, _ in damaged], storage_options)
+            relabelled = integrity.wrong_labels(url, plan, storage_options) if checked else []
+            integrity.write_labels(url, plan, relabelled, storage_options)
             result = run_plan(
                 plan,
                 url,
@@ -482,7 +487,9 @@ def execute(
                 cancel=cancel,
                 on_progress=on_progress,
             )
-            result.damaged = damaged
+            result.damaged, result.relabelled = damaged, relabelled
+            if relabelled:  # statistics computed with wrong labels: all again
+                result.points = None
             if not (
                 result.interrupted
                 or result.failed

@@ -241,6 +241,10 @@ def cmd_run(args) -> int:
         log.error("oceanlidar run: error: %s", error)
         return EXIT_FAILURE
     report_samples(plan, "damaged or missing, recomputed", result.damaged)
+    if result.relabelled:
+        log.error(
+            "damaged or missing, written again from the sweep: %s", ", ".join(result.relabelled)
+        )
     rate = result.written / result.seconds if result.seconds > 0 else 0.0
     log.info(
         "%s: wrote %d samples in %s (%.2f samples/s)%s",

@@ -284,6 +284,26 @@ def create_store(
         Consecutive samples per shard, the unit a task renders and writes; by default
         `shard_size`'s choice.
     """
+    ds, encoding = template(plan, samples_per_shard)
+    with consolidated_v3():
+        ds.to_zarr(
+            url,
+            mode="a",  # the folder holds the writer's lock
+            compute=False,
+            consolidated=True,
+            zarr_format=3,
+            encoding=encoding,
+            storage_options=storage_options,
+        )
+
+
+def template(plan: Plan, samples_per_shard: int | None = None) -> tuple[xr.Dataset, dict]:
+    """The store's template (`create_store`): the dataset, rendered arrays lazy, and encoding.
+
+    Everything but the rendered arrays and the completion flags and checksums (the labels,
+    the platform track, the coordinates) follows from the plan alone: the values
+    `service.integrity.wrong_labels` compares a store's with.
+    """
     check_uniform(plan)
     first = plan.scenes[0]
     # names, dimensions, dtypes and attributes from the renderer's table; nothing rendered
@@ -392,16 +412,7 @@ def create_store(
         realisations=realisations,
         points=len(plan.points),
     )
-    with consolidated_v3():
-        ds.to_zarr(
-            url,
-            mode="a",  # the folder holds the writer's lock
-            compute=False,
-            consolidated=True,
-            zarr_format=3,
-            encoding=encoding,
-            storage_options=storage_options,
-        )
+    return ds, encoding
 
 
 def open_store(

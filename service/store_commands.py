@@ -12,7 +12,7 @@ import os
 
 from service import integrity, lock, storage, store
 from service.inputs import SweepError, shown
-from service.sweep import load_sweep
+from service.sweep import load_sweep, parse_sweep
 
 __all__ = ["cmd_detect", "cmd_info", "cmd_plot", "cmd_preview", "cmd_stats"]
 
@@ -78,7 +78,15 @@ def cmd_info(args) -> int:
     problems = integrity.verify(url, args.storage_options)
     print(f"  verified: {done - len(problems)} of {done} complete samples read back intact")
     _print_problems("damaged or missing", problems)
-    if problems:
+    try:
+        labels = integrity.wrong_labels(url, parse_sweep(ds.attrs["sweep"]), args.storage_options)
+    except SweepError as error:  # e.g. a measurement file the sweep names is not here
+        print(f"  labels and coordinates: not checked (its sweep does not load here: {error})")
+        labels = []
+    else:
+        found = ", ".join(labels) if labels else "none"
+        print(f"  labels and coordinates not as the sweep gives them: {found}")
+    if problems or labels:
         print("  run the sweep again with --resume --verify to recompute them")
         return EXIT_FAILURE
     return EXIT_OK

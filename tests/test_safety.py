@@ -218,6 +218,36 @@ def test_verify_finds_damaged_missing_and_swapped_samples_and_resume_redoes_them
     assert main(["info", "one.zarr", "--verify"]) == 0
 
 
+def test_lost_or_damaged_labels_are_found_and_written_again(work, capsys):
+    # no sample's checksum covers the labels and coordinates the store was created with: a
+    # lost chunk reads back as the fill value (every target_present 0), a damaged one fails
+    original = snapshot(work / "one.zarr")
+    for name in ("target_present", "realisation"):
+        for chunk in [p for p in (work / "one.zarr" / name / "c").rglob("*") if p.is_file()]:
+            chunk.unlink()
+    chunk = next(p for p in (work / "one.zarr" / "platform_z" / "c").rglob("*") if p.is_file())
+    data = bytearray(chunk.read_bytes())
+    data[len(data) // 2] ^= 0x01
+    chunk.write_bytes(bytes(data))
+    assert main(["info", "one.zarr", "--verify"]) == 1
+    out = capsys.readouterr().out
+    assert "verified: 5 of 5 complete samples read back intact" in out
+    line = next(line for line in out.splitlines() if "not as the sweep gives them" in line)
+    assert sorted(line.split(": ")[1].split(", ")) == [
+        "platform_z",
+        "realisation",
+        "target_present",
+    ]
+    result = run_cli("run", "one.yaml", "--resume", "--verify", "--workers", 1, cwd=work)
+    assert result.returncode == 0, result.stderr
+    assert (
+        "written again from the sweep: " in result.stderr and "5 already complete" in result.stderr
+    )
+    assert snapshot(work / "one.zarr") == original
+    assert main(["info", "one.zarr", "--verify"]) == 0
+    assert "not as the sweep gives them: none" in capsys.readouterr().out
+
+
 def test_shards_of_samples_without_a_target_verify_intact(tmp_path):
     # the masks (0) and signal means (NaN) of a shard of samples without a target hold only
     # the fill value: written since 2026-11-24, absent from stores of older versions (zarr's
