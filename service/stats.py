@@ -146,7 +146,7 @@ def _template(ds: xr.Dataset, url: str) -> xr.Dataset:
         title=ds.attrs.get("title", "") + " statistics",
         Conventions=store.CONVENTIONS,
         sweep_sha256=ds.attrs.get("sweep_sha256", ""),
-        samples_store=_store_name(url),
+        samples_store=storage.store_name(url),
         oceanlidar_version=store.package_version(),
         **{storage.KIND: "statistics"},
     )
@@ -262,21 +262,20 @@ def check_owner(url: str, storage_options: dict | None = None) -> None:
     """
     target = storage.stats_url(url)
     attributes = storage.root_attributes(target, storage_options) or {}
-    owner, name = attributes.get("samples_store"), _store_name(url)
+    owner, name = attributes.get("samples_store"), storage.store_name(url)
     if attributes.get(storage.KIND) != "statistics" or owner in (None, name):
         return
     other = url.rstrip("/")[: -len(name)] + str(owner)
     if (storage.root_attributes(other, storage_options) or {}).get(storage.KIND) == "samples":
+        remedy = (
+            "write this sweep to another output"
+            if storage.stats_url(other) == target  # "one" and "one.zarr" share statistics
+            else f"delete {target}, a copy: {other}'s are {storage.stats_url(other)}"
+        )
         raise SweepError(
             f"{target} holds the statistics of another store, {other}, which the statistics "
-            f"of {url} would replace; write this sweep to another output (or move or delete "
-            f"{other} and its statistics)"
+            f"of {url} would replace; {remedy}"
         )
-
-
-def _store_name(url: str) -> str:
-    """A store's name in its folder: the last component of its URL."""
-    return url.rstrip("/").rsplit("/", 1)[-1]
 
 
 def _recorded(ds: xr.Dataset, url: str, storage_options: dict | None):
@@ -290,7 +289,7 @@ def _recorded(ds: xr.Dataset, url: str, storage_options: dict | None):
     attributes = storage.root_attributes(target, storage_options) or {}
     if (
         attributes.get(storage.KIND) != "statistics"
-        or attributes.get("samples_store") != _store_name(url)
+        or attributes.get("samples_store") != storage.store_name(url)
         or attributes.get("sweep_sha256") != ds.attrs.get("sweep_sha256")
         or attributes.get("oceanlidar_version") != store.package_version()
     ):

@@ -32,6 +32,7 @@ __all__ = [
     "stats_url",
     "storage_errors",
     "store_exists",
+    "store_name",
 ]
 
 KIND = "oceanlidar_dataset"
@@ -46,6 +47,11 @@ def sibling_url(url: str, kind: str) -> str:
     if stem.endswith(".zarr"):
         stem = stem[: -len(".zarr")]
     return f"{stem}.{kind}.zarr"
+
+
+def store_name(url: str) -> str:
+    """A store's name in its folder: the last component of its URL."""
+    return url.rstrip("/").rsplit("/", 1)[-1]
 
 
 def stats_url(url: str) -> str:

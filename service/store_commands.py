@@ -51,10 +51,13 @@ def _open(url: str, storage_options: dict | None):
 
 
 def _statistics(url: str, storage_options: dict | None) -> str | None:
-    """The statistics store beside `url`, if one is there."""
+    """The statistics store beside `url`, if one of this store is there."""
     stats = storage.stats_url(url)
     attributes = storage.root_attributes(stats, storage_options) or {}
-    return stats if attributes.get(storage.KIND) == "statistics" else None
+    ours = attributes.get("samples_store") in (None, storage.store_name(url))
+    if attributes.get(storage.KIND) != "statistics" or not ours:
+        return None  # none, or another store's (copied here, or of "one" beside "one.zarr")
+    return stats
 
 
 def cmd_info(args) -> int:

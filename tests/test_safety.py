@@ -103,6 +103,25 @@ def test_two_outputs_never_share_their_statistics(work, capsys):
     assert storage.root_attributes(work / "one.stats.zarr")["samples_store"] == "one"
 
 
+def test_copied_statistics_are_named_as_a_copy_and_the_original_kept(work, capsys):
+    # a store copied with its statistics: those still name the original as theirs
+    original = snapshot(work / "one.stats.zarr")
+    shutil.copytree(work / "one.zarr", work / "copy.zarr")
+    shutil.copytree(work / "one.stats.zarr", work / "copy.stats.zarr")
+    before = snapshot(work)
+    assert main(["stats", "copy.zarr"]) == 2
+    err = capsys.readouterr().err
+    assert f"delete {work / 'copy.stats.zarr'}, a copy: {work / 'one.zarr'}'s are" in err
+    assert "write this sweep to another output" not in err
+    assert main(["info", "copy.zarr"]) == 0
+    assert "statistics: (none)" in capsys.readouterr().out
+    assert snapshot(work) == before
+    shutil.rmtree(work / "copy.stats.zarr")  # as the message says: the original's are kept
+    assert main(["stats", "copy.zarr"]) == 0
+    assert snapshot(work / "one.stats.zarr") == original
+    assert storage.root_attributes(work / "copy.stats.zarr")["samples_store"] == "copy.zarr"
+
+
 @pytest.mark.parametrize(
     "stranger",
     ["notes.txt", "image/mine.npy", "old/zarr.json"],
