@@ -499,4 +499,7 @@ def execute(
                 or result.stopped
             ):
                 write_statistics(url, storage_options=storage_options, points=result.points)
+        if result.interrupted:  # tasks in flight at the interrupt may have written since
+            done = integrity.completed_samples(url, storage_options=storage_options)
+            result.written = max(result.written, int(done.sum()) - result.skipped)
     return result
