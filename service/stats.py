@@ -11,11 +11,13 @@ are recomputed, in place. Variables:
 - ``image_mean``, ``image_std`` (point, gate, y, x): mean and standard deviation images;
 - ``target_signal``, ``background_signal`` (point, gate): mean expected (noise-free)
   signal inside the target mask and in a ring of local background around it;
-- ``target_contrast`` (point, gate): (target − background) / background of the expected
-  images: what the physics leaves of the target, before noise, plus the beam's fall-off
+- ``target_contrast`` (point, gate): the mean over samples and frames of each one's
+  (target − background) / background of the expected images (not the ratio of the means
+  above): what the physics leaves of the target, before noise, plus the beam's fall-off
   between the mask and its ring (not 0 without a target in the gate: README);
-- ``cnr`` (point, gate): contrast-to-noise ratio of the noisy images, (target − background)
-  over the standard deviation of the background ring (shot noise and clutter);
+- ``cnr`` (point, gate): contrast-to-noise ratio of the noisy images, the mean of each
+  sample's and frame's (target − background) over the standard deviation of its background
+  ring (shot noise and clutter);
 - ``visible_fraction`` (point, gate): fraction of samples and frames in which the target is
   in the gate and at least one pixel's ray meets it;
 - ``samples`` (point): realisations written.
@@ -43,8 +45,8 @@ POINTS_PER_TASK = 8
 _PER_GATE = {
     "target_signal": "mean expected signal inside the target mask",
     "background_signal": "mean expected signal in the background ring around the mask",
-    "target_contrast": "target contrast (T - B) / B of the expected images",
-    "cnr": "contrast-to-noise ratio (T - B) / sd(B) of the noisy images",
+    "target_contrast": "mean over samples and frames of (T - B) / B of the expected images",
+    "cnr": "mean over samples and frames of (T - B) / sd(B) of the noisy images",
     "visible_fraction": "fraction of samples with the target in the gate and in view",
 }
 

@@ -124,6 +124,12 @@ def test_store_metadata_and_statistics(two_worker_store):
     assert np.isnan(contrast[1]).all()  # no target, no contrast
     assert contrast[0, 0] > 0 and (contrast[2] > 0).all()  # the mine in a gate is bright
     assert contrast[0, 1] < 0  # and darkens the gate below it
+    # the contrast is the mean of each sample's, as its long_name says
+    target, ring = (
+        ds[name].values.astype(np.float64) for name in ("target_signal", "background_signal")
+    )
+    assert np.allclose(contrast[0], np.nanmean((target - ring)[0:3] / ring[0:3], axis=(0, 1)))
+    assert stats["target_contrast"].attrs["long_name"].startswith("mean over samples and frames")
 
 
 def test_bounded_submission_and_batches(tmp_path):
