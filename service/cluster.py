@@ -6,6 +6,8 @@ import contextlib
 import importlib.util
 import logging
 import os
+import signal
+import threading
 
 import dask
 from distributed import Client, LocalCluster
@@ -13,7 +15,7 @@ from distributed.diagnostics.plugin import WorkerPlugin
 
 from service.inputs import SweepError
 
-__all__ = ["ClusterError", "dask_client"]
+__all__ = ["ClusterError", "dask_client", "dask_setup"]
 
 CLOSE_TIMEOUT = 60.0
 """Longest wait for the embedded cluster's workers to exit, s."""
@@ -30,7 +32,22 @@ resource monitor every 5 s (0.5 s) and the event loops' responsiveness tick ever
 Idle, a worker then burns 6 ms of CPU a second instead of 24, the scheduler and client
 8 instead of 27 (``benchmarks/sweep.py``)."""
 
+OWN_WORKERS = {"distributed.worker.preload": ["service.cluster"]}
+"""dask settings of the embedded cluster's workers: each runs `dask_setup` as it starts."""
+
 log = logging.getLogger("oceanlidar")
+
+
+def dask_setup(worker) -> None:
+    """Start an embedded cluster's worker process (a dask preload, `OWN_WORKERS`).
+
+    A Ctrl-C at the terminal reaches every process of the run: the run's own process
+    stops the sweep and closes the cluster, so the workers ignore it (each would print
+    a traceback of its event loop's KeyboardInterrupt). A worker that is a thread of
+    another process (not its main thread) leaves that process's handling alone.
+    """
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 class ClusterError(RuntimeError):
@@ -93,7 +110,7 @@ def dask_client(
             yield client
         return
     quiet = {} if dashboard else QUIET
-    with dask.config.set(quiet):
+    with dask.config.set({**quiet, **OWN_WORKERS}):
         cluster = LocalCluster(
             n_workers=workers or os.cpu_count() or 1,
             threads_per_worker=1,
@@ -102,7 +119,7 @@ def dask_client(
             dashboard_address="127.0.0.1:0",
             scheduler_kwargs={"dashboard": dashboard},
             silence_logs=logging.WARNING if verbose else logging.CRITICAL,
-            config=quiet,
+            config={**quiet, **OWN_WORKERS},
         )
     try:
         with Client(cluster) as client:
