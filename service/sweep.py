@@ -416,6 +416,16 @@ def _expand(sweep: Sweep) -> list[dict[str, Any]]:
             {path: (v * length if len(v) == 1 else v)[i] for path, v in lists.items()}
             for i in range(length)
         ]
+    for path, values in lists.items():
+        seen: set[str] = set()
+        for value in values:  # 3 and 3.0 are one value
+            key = json.dumps(json.loads(json.dumps(value, default=str), parse_int=float))
+            if key in seen:
+                raise SweepError(
+                    f"sweep.parameters.{path}.values: {shown(value)} is listed twice, so the "
+                    "grid would repeat its points (raise realisations for more samples of one)"
+                )
+            seen.add(key)
     size = math.prod(len(v) for v in lists.values())
     if size > MAX_POINTS:
         raise SweepError(

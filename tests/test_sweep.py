@@ -140,6 +140,10 @@ def test_size_limits_name_the_number_and_the_way_out():
             r"parameter point 1 \(target\.depth=0\.1\):\nscene\.target",
         ),
         (
+            BASE + "sweep:\n  parameters:\n    target.depth: {values: [5, 6.0, 5.0]}\n",
+            r"^sweep\.parameters\.target\.depth\.values: 5\.0 is listed twice",
+        ),
+        (
             BASE + "sweep:\n  method: random\n  parameters:\n    target.depth: {values: [1.0]}\n",
             r"method random needs a count",
         ),
@@ -185,6 +189,7 @@ def test_size_limits_name_the_number_and_the_way_out():
         "path-to-a-section",
         "empty-values",
         "invalid-expanded-point",
+        "repeated-grid-value",
         "random-without-count",
         "distribution-on-grid",
         "python-tag",
