@@ -8,10 +8,13 @@ result goes to stdout.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
+import signal
 import sys
+import threading
 import time
 
 import dask
@@ -209,6 +212,28 @@ def _check_run_flags(args) -> None:
         raise SweepError("--verify goes with --resume (a new store has nothing to verify)")
 
 
+@contextlib.contextmanager
+def _terminate_as_interrupt():
+    """SIGTERM (``docker stop``, ``kill``, a batch system's time limit) acts as a Ctrl-C.
+
+    The run then stops as interrupted: the writer's lock released, the cluster closed,
+    the summary and ``--resume`` hint printed (the default SIGTERM ends the process on the
+    spot, lock left behind). Only from the main thread, where signals are handled.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def cmd_run(args) -> int:
     """Run a sweep into its store; report what failed, by sample and parameters."""
     from service.cluster import ClusterError
@@ -220,7 +245,7 @@ def cmd_run(args) -> int:
     for line in plan_lines(plan, args.batch, url, resume=args.resume):
         log.info(line)
     try:
-        with open(os.devnull, "w") as devnull:
+        with open(os.devnull, "w") as devnull, _terminate_as_interrupt():
             result = execute(
                 plan,
                 url,

@@ -1,5 +1,6 @@
 """The sweep service end to end on a dask LocalCluster: bytes, resume, CLI, README."""
 
+import contextlib
 import os
 import re
 import signal
@@ -195,6 +196,26 @@ def test_interrupted_run_resumes_to_the_same_store(tmp_path):
     assert again.returncode == 0, again.stderr
     assert "already complete" in again.stderr
     assert_same_store(url, str(target))
+
+
+def test_a_terminated_run_stops_as_interrupted_and_releases_its_lock(tmp_path):
+    # SIGTERM (docker stop, kill, a batch system's time limit) as a Ctrl-C: by default the
+    # process ended on the spot, silent, its writer's lock left in the store
+    sweep = write(tmp_path / "sweep.yaml", SWEEP.replace("realisations: 3", "realisations: 12"))
+    target = tmp_path / "terminated.zarr"
+    command = ("run", sweep, "--output", target, "--workers", 1, "--batch", 1)
+    process = start_cli(*command, cwd=tmp_path, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and process.poll() is None:
+        with contextlib.suppress(Exception):  # the store is being created
+            if integrity.completed_samples(str(target)).sum() >= 1:
+                break
+        time.sleep(0.05)
+    process.send_signal(signal.SIGTERM)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 1 and "interrupted: run again with --resume" in err, err
+    assert not (target / storage.LOCK_NAME).exists()
+    assert 0 < integrity.completed_samples(str(target)).sum() < 48
 
 
 def test_existing_output_is_refused_and_left_unchanged(two_worker_store, tmp_path, capsys):
