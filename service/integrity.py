@@ -13,7 +13,8 @@ import zlib
 import numpy as np
 import zarr
 
-from service.storage import filesystem, list_files
+from service.inputs import SweepError
+from service.storage import filesystem, list_files, removable_files, remove_files, stats_url
 from service.store import RENDERED_VARIABLES, open_group, shard_samples, template
 
 __all__ = [
@@ -22,9 +23,9 @@ __all__ = [
     "invalid_values",
     "mark_incomplete",
     "read_samples",
+    "repair_labels",
     "sample_checksum",
     "verify",
-    "write_labels",
     "write_shard",
     "wrong_labels",
 ]
@@ -112,13 +113,14 @@ def verify(url: str, storage_options: dict | None = None) -> list[tuple[int, str
     return problems
 
 
-def wrong_labels(url: str, plan, storage_options: dict | None = None) -> list[str]:
+def wrong_labels(url: str, plan, storage_options: dict | None = None) -> dict[str, str]:
     """The variables that follow from the sweep alone that a store holds wrongly.
 
     The labels, the platform track and the coordinates (`service.store.template`) are
     written once, with the store, and no sample's checksum covers them: a chunk of one
     lost (read back as the fill value: every ``target_present`` 0) or damaged (its CRC32C
-    fails) is found here, by comparing every value with the plan's own.
+    fails) is found here, by comparing every value with the plan's own (floats within
+    1e-12 relative, so that the last bit of another machine's arithmetic is no damage).
 
     Parameters
     ----------
@@ -129,42 +131,86 @@ def wrong_labels(url: str, plan, storage_options: dict | None = None) -> list[st
 
     Returns
     -------
-    list of str
-        The variables' names, in the template's order (empty: all intact).
+    dict
+        Name: ``"lost"`` (unreadable, absent, or every differing value the fill value: what
+        `repair_labels` restores) or ``"differs"`` (readable values this installation
+        computes otherwise: another numpy or scipy version drawing a design's points, or
+        another layout; never overwritten), in the template's order. Empty: all intact.
     """
     group = zarr.open_group(
         store=url, mode="r", zarr_format=3, use_consolidated=True, storage_options=storage_options
     )
     expected, _ = template(plan, shard_samples(group))
-    wrong = []
+    wrong = {}
     for name, variable in expected.variables.items():
         if name in (*RENDERED_VARIABLES, "completed", "checksum"):
             continue
         try:
-            stored = group[name][...]
+            array = group[name]
+            stored = array[...]
         except Exception:  # absent, or a chunk that cannot be read
-            wrong.append(str(name))
+            wrong[str(name)] = "lost"
             continue
-        if not _same(stored, variable.values):
-            wrong.append(str(name))
+        if (kind := _compare(stored, variable.values, array.fill_value)) is not None:
+            wrong[str(name)] = kind
     return wrong
 
 
-def write_labels(url: str, plan, names: list[str], storage_options=None) -> None:
-    """Write the variables `names` of the store again, from the plan (see `wrong_labels`)."""
-    group = open_group(url, storage_options)
-    expected, _ = template(plan, shard_samples(group))
-    for name in names:
-        group[name][...] = expected[name].values
+def repair_labels(url: str, plan, storage_options: dict | None = None) -> list[str]:
+    """Write the labels and coordinates `wrong_labels` finds lost again, from the plan.
+
+    The statistics beside the store (computed with those labels; the caller has checked
+    they are this store's, `service.stats.check_owner`) are deleted first, so that any
+    later run computes them all again, even if this one is interrupted.
+
+    Returns
+    -------
+    list of str
+        The variables written again.
+
+    Raises
+    ------
+    SweepError
+        If some differ readably from what this installation computes (nothing changed).
+    """
+    wrong = wrong_labels(url, plan, storage_options)
+    if differing := [name for name, kind in wrong.items() if kind == "differs"]:
+        raise SweepError(
+            f"{url}: {', '.join(differing)} differ from what this installation computes for "
+            "the sweep (another numpy or scipy version?): resuming would mix the two; "
+            "nothing was changed"
+        )
+    if wrong:
+        stats = stats_url(url)
+        remove_files(
+            stats, storage_options, removable_files(stats, storage_options, kind="statistics")
+        )
+        group = open_group(url, storage_options)
+        expected, _ = template(plan, shard_samples(group))
+        for name in wrong:
+            group[name][...] = expected[name].values
+    return list(wrong)
 
 
-def _same(stored: np.ndarray, values: np.ndarray) -> bool:
-    """Whether stored values equal the template's (text as text, NaN equal to NaN)."""
+def _compare(stored: np.ndarray, values: np.ndarray, fill) -> str | None:
+    """None if stored values equal the template's, else ``"lost"`` or ``"differs"``."""
     if stored.shape != values.shape:
-        return False
+        return "differs"
     if {"O", "U", "T"} & {stored.dtype.kind, values.dtype.kind}:
-        return [str(v) for v in stored.ravel()] == [str(v) for v in values.ravel()]
-    return bool(np.array_equal(stored, values, equal_nan=values.dtype.kind == "f"))
+        stored, values = (
+            np.array([str(v) for v in a.ravel()], dtype=object) for a in (stored, values)
+        )
+        wrong = stored != values
+        filled = stored == str(fill if fill is not None else "")
+    elif values.dtype.kind in "fc":
+        wrong = ~np.isclose(stored, values, rtol=1e-12, atol=0.0, equal_nan=True)
+        filled = (stored == fill) | (np.isnan(stored) & np.isnan(np.float64(fill)))
+    else:
+        wrong = stored != values
+        filled = stored == fill
+    if not wrong.any():
+        return None
+    return "lost" if filled[wrong].all() else "differs"
 
 
 def mark_incomplete(url: str, samples: list[int], storage_options: dict | None = None) -> None:

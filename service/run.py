@@ -472,10 +472,9 @@ def execute(
                         plan, url, storage_options=storage_options, samples_per_shard=batch_size
                     )
             checked = resuming and verify
+            relabelled = integrity.repair_labels(url, plan, storage_options) if checked else []
             damaged = integrity.verify(url, storage_options) if checked else []
             integrity.mark_incomplete(url, [sample for sample, _ in damaged], storage_options)
-            relabelled = integrity.wrong_labels(url, plan, storage_options) if checked else []
-            integrity.write_labels(url, plan, relabelled, storage_options)
             result = run_plan(
                 plan,
                 url,
@@ -500,6 +499,7 @@ def execute(
             ):
                 write_statistics(url, storage_options=storage_options, points=result.points)
         if result.interrupted:  # tasks in flight at the interrupt may have written since
-            done = integrity.completed_samples(url, storage_options=storage_options)
+            with storage.storage_errors(url):
+                done = integrity.completed_samples(url, storage_options=storage_options)
             result.written = max(result.written, int(done.sum()) - result.skipped)
     return result

@@ -81,18 +81,31 @@ def cmd_info(args) -> int:
     problems = integrity.verify(url, args.storage_options)
     print(f"  verified: {done - len(problems)} of {done} complete samples read back intact")
     _print_problems("damaged or missing", problems)
+    labels = _label_problems(url, ds, args.storage_options)
+    if problems or "lost" in labels.values():
+        print("  run the sweep again with --resume --verify to recompute them")
+    return EXIT_FAILURE if problems or labels else EXIT_OK
+
+
+def _label_problems(url: str, ds, storage_options: dict | None) -> dict:
+    """Print and return `service.integrity.wrong_labels` of the store, if its sweep loads."""
     try:
-        labels = integrity.wrong_labels(url, parse_sweep(ds.attrs["sweep"]), args.storage_options)
+        plan = parse_sweep(ds.attrs["sweep"], max_memory=None)
     except SweepError as error:  # e.g. a measurement file the sweep names is not here
         print(f"  labels and coordinates: not checked (its sweep does not load here: {error})")
-        labels = []
-    else:
-        found = ", ".join(labels) if labels else "none"
-        print(f"  labels and coordinates not as the sweep gives them: {found}")
-    if problems or labels:
-        print("  run the sweep again with --resume --verify to recompute them")
-        return EXIT_FAILURE
-    return EXIT_OK
+        return {}
+    if plan.digest != ds.attrs.get("sweep_sha256"):  # a measurement file changed since
+        print("  labels and coordinates: not checked (its sweep reads other files here)")
+        return {}
+    labels = integrity.wrong_labels(url, plan, storage_options)
+    lost = ", ".join(name for name, kind in labels.items() if kind == "lost") or "none"
+    print(f"  labels and coordinates lost or unreadable: {lost}")
+    if differing := [name for name, kind in labels.items() if kind == "differs"]:
+        print(
+            f"  labels and coordinates not as this installation computes them: "
+            f"{', '.join(differing)} (another numpy or scipy version?)"
+        )
+    return labels
 
 
 def cmd_stats(args) -> int:

@@ -2,6 +2,7 @@
 
 import errno
 import json
+import os
 import shutil
 import socket
 import subprocess
@@ -240,7 +241,11 @@ def test_verify_finds_damaged_missing_and_swapped_samples_and_resume_redoes_them
 def test_lost_or_damaged_labels_are_found_and_written_again(work, capsys):
     # no sample's checksum covers the labels and coordinates the store was created with: a
     # lost chunk reads back as the fill value (every target_present 0), a damaged one fails
+    from service.run import execute
+    from service.sweep import load_sweep
+
     original = snapshot(work / "one.zarr")
+    statistics = xr.open_zarr(work / "one.stats.zarr").load()
     for name in ("target_present", "realisation"):
         for chunk in [p for p in (work / "one.zarr" / name / "c").rglob("*") if p.is_file()]:
             chunk.unlink()
@@ -251,20 +256,58 @@ def test_lost_or_damaged_labels_are_found_and_written_again(work, capsys):
     assert main(["info", "one.zarr", "--verify"]) == 1
     out = capsys.readouterr().out
     assert "verified: 5 of 5 complete samples read back intact" in out
-    line = next(line for line in out.splitlines() if "not as the sweep gives them" in line)
-    assert sorted(line.split(": ")[1].split(", ")) == [
-        "platform_z",
-        "realisation",
-        "target_present",
-    ]
+    assert "lost or unreadable: target_present, platform_z, realisation" in out
+    assert "not as this installation computes" not in out
+    # a repair interrupted before its statistics: they go with the wrong labels, so that
+    # any later run computes them all again
+    cancelled = threading.Event()
+    cancelled.set()
+    integrity.mark_incomplete("one.zarr", [4])  # work left, for the cancel to stop
+    plan = load_sweep(work / "one.yaml")
+    quiet = open(os.devnull, "w")
+    result = execute(
+        plan,
+        "one.zarr",
+        workers=1,
+        resume=True,
+        verify=True,
+        cancel=cancelled,
+        progress_stream=quiet,
+    )
+    assert result.relabelled == ["target_present", "platform_z", "realisation"]
+    assert result.interrupted and not snapshot(work / "one.stats.zarr")  # its files deleted
+    result = run_cli("run", "one.yaml", "--resume", "--workers", 1, cwd=work)
+    assert result.returncode == 0, result.stderr
+    assert snapshot(work / "one.zarr") == original
+    xr.testing.assert_identical(xr.open_zarr(work / "one.stats.zarr").load(), statistics)
+    assert main(["info", "one.zarr", "--verify"]) == 0
+    assert "lost or unreadable: none" in capsys.readouterr().out
+    # the CLI's repair says what it wrote again
+    for chunk in [
+        p for p in (work / "one.zarr" / "target_present" / "c").rglob("*") if p.is_file()
+    ]:
+        chunk.unlink()
     result = run_cli("run", "one.yaml", "--resume", "--verify", "--workers", 1, cwd=work)
     assert result.returncode == 0, result.stderr
-    assert (
-        "written again from the sweep: " in result.stderr and "5 already complete" in result.stderr
-    )
+    assert "written again from the sweep: target_present" in result.stderr
     assert snapshot(work / "one.zarr") == original
-    assert main(["info", "one.zarr", "--verify"]) == 0
-    assert "not as the sweep gives them: none" in capsys.readouterr().out
+
+
+def test_labels_computed_otherwise_here_are_refused_not_overwritten(work, capsys):
+    # readable labels that differ from this installation's (another scipy drawing a
+    # design's points): resuming would mix them, so nothing is rewritten
+    zarr_array = __import__("zarr").open_array(work / "one.zarr" / "platform_z", mode="r+")
+    zarr_array[0] = zarr_array[0] + 1.0
+    before = snapshot(work / "one.zarr")
+    assert main(["info", "one.zarr", "--verify"]) == 1
+    out = capsys.readouterr().out
+    assert "not as this installation computes them: platform_z" in out
+    assert "--resume --verify" not in out
+    result = run_cli("run", "one.yaml", "--resume", "--verify", "--workers", 1, cwd=work)
+    assert (
+        result.returncode == 2 and "platform_z differ from what this installation" in result.stderr
+    )
+    assert snapshot(work / "one.zarr") == before
 
 
 def test_shards_of_samples_without_a_target_verify_intact(tmp_path):
