@@ -140,7 +140,11 @@ def wrong_labels(url: str, plan, storage_options: dict | None = None) -> dict[st
     group = zarr.open_group(
         store=url, mode="r", zarr_format=3, use_consolidated=True, storage_options=storage_options
     )
-    expected, _ = template(plan, shard_samples(group))
+    return _wrong(group, template(plan, shard_samples(group))[0])
+
+
+def _wrong(group, expected) -> dict[str, str]:
+    """`wrong_labels` of the store `group` against its `template` dataset `expected`."""
     wrong = {}
     for name, variable in expected.variables.items():
         if name in (*RENDERED_VARIABLES, "completed", "checksum"):
@@ -173,7 +177,9 @@ def repair_labels(url: str, plan, storage_options: dict | None = None) -> list[s
     SweepError
         If some differ readably from what this installation computes (nothing changed).
     """
-    wrong = wrong_labels(url, plan, storage_options)
+    group = open_group(url, storage_options)
+    expected, _ = template(plan, shard_samples(group))
+    wrong = _wrong(group, expected)
     if differing := [name for name, kind in wrong.items() if kind == "differs"]:
         raise SweepError(
             f"{url}: {', '.join(differing)} differ from what this installation computes for "
@@ -185,8 +191,6 @@ def repair_labels(url: str, plan, storage_options: dict | None = None) -> list[s
         remove_files(
             stats, storage_options, removable_files(stats, storage_options, kind="statistics")
         )
-        group = open_group(url, storage_options)
-        expected, _ = template(plan, shard_samples(group))
         for name in wrong:
             group[name][...] = expected[name].values
     return list(wrong)

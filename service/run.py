@@ -487,8 +487,6 @@ def execute(
                 on_progress=on_progress,
             )
             result.damaged, result.relabelled = damaged, relabelled
-            if relabelled:  # statistics computed with wrong labels: all again
-                result.points = None
             if not (
                 result.interrupted
                 or result.failed
