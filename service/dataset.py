@@ -157,7 +157,8 @@ class SampleDataset:
         The store: a path or fsspec URL.
     arrays : sequence of str, optional
         Per-sample arrays read from the shards at each access (``image``,
-        ``target_mask``, ``expected`` if stored, ``surface_elevation`` if saved).
+        ``target_mask``, ``expected`` if stored, ``expected_stderr`` of a Monte Carlo
+        sweep, ``surface_elevation`` if saved).
     labels : sequence of str, optional
         Per-sample variables held in memory from the start (read once): labels,
         signal means, swept parameters by their variable names (``target_depth``).

@@ -223,19 +223,19 @@ def mark_incomplete(url: str, samples: list[int], storage_options: dict | None =
         open_group(url, storage_options)["completed"].set_orthogonal_selection((samples,), 0)
 
 
-NON_NEGATIVE = ("image", "expected")
-"""Rendered variables that are counts or intensities: never below zero."""
-FINITE = ("image", "expected", "surface_elevation")
+NON_NEGATIVE = ("image", "expected", "expected_stderr")
+"""Rendered variables that are counts, intensities or their errors: never below zero."""
+FINITE = ("image", "expected", "expected_stderr", "surface_elevation")
 """Rendered variables that must be finite (the signal means are NaN without a target)."""
 
 
 def invalid_values(sample: dict[str, np.ndarray], table: dict) -> str | None:
     """Why a rendered sample may not be stored, or None if every value is valid.
 
-    Images and surfaces must be finite, counts and intensities non-negative and within
-    their ``valid_max`` (the largest count the store's unsigned type holds), and the
-    target mask 0 or 1: a sample that breaks any of these is never written nor marked
-    complete.
+    Images, their Monte Carlo standard errors and surfaces must be finite, counts,
+    intensities and errors non-negative, counts within their ``valid_max`` (the largest
+    count the store's unsigned type holds), and the target mask 0 or 1: a sample that
+    breaks any of these is never written nor marked complete.
 
     Parameters
     ----------
@@ -263,6 +263,12 @@ def invalid_values(sample: dict[str, np.ndarray], table: dict) -> str | None:
         if name == "target_mask" and (values > 1).any():
             return "target_mask holds values other than 0 and 1"
     return None
+
+
+ZERO_WHEN_ABSENT = frozenset({"expected_stderr"})
+"""Rendered variables a store may hold that a sample's renderer does not give: written as 0.
+A sweep that varies ``transport.method`` stores ``expected_stderr`` for every sample
+(`service.store.variable_table`); the small-angle renderer is deterministic, its error 0."""
 
 
 class DamagedStoreError(RuntimeError):
@@ -302,9 +308,10 @@ def read_samples(array, samples: list[int]) -> np.ndarray:
 def write_shard(group, samples: dict[int, dict[str, np.ndarray]]) -> None:
     """Write the whole shard that holds `samples`, then mark them complete.
 
-    `samples` maps each sample to its rendered arrays by name. The shard's other samples
-    already complete are read back and written again with the new ones (their bytes do not
-    change); the rest stay at the fill value and incomplete.
+    `samples` maps each sample to its rendered arrays by name (one of `ZERO_WHEN_ABSENT`
+    that a sample lacks, a small-angle sample's ``expected_stderr``, is written as 0). The
+    shard's other samples already complete are read back and written again with the new
+    ones (their bytes do not change); the rest stay at the fill value and incomplete.
     The caller owns the shard: no other task writes it meanwhile (`service.run`). Writes
     go straight to the zarr arrays the template created, one call per variable, each
     array opened once: xarray's region writes, and every lookup of an array in the group,
@@ -331,7 +338,8 @@ def write_shard(group, samples: dict[int, dict[str, np.ndarray]]) -> None:
         if kept:
             block[[k - first for k in kept]] = read_samples(array, kept)
         for sample, rendered in samples.items():
-            block[sample - first] = rendered[name]
+            zero = name in ZERO_WHEN_ABSENT
+            block[sample - first] = rendered.get(name, 0) if zero else rendered[name]
         blocks[name] = block
     checksums = stored[region]
     for sample in samples:

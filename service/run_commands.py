@@ -90,13 +90,14 @@ def run_time(*, samples: int, scenes: int, setup: float, per_sample: float, work
     return (scenes * setup + samples * per_sample) / max(workers, 1)
 
 
-def _timed_render(plan: Plan) -> tuple[float, float]:
-    """Seconds of a scene's setup and of one sample, from renders of sample 0's first frame.
+def _timed_render(plan: Plan, point: int = 0) -> tuple[float, float]:
+    """Seconds of a scene's setup and of one sample, from renders of `point`'s first frame.
 
-    The first frame is rendered twice (the second time set up) and both times are scaled
-    by the number of frames: each frame has its own geometry and its own light.
+    The first frame of the point's first sample is rendered twice (the second time set up)
+    and both times are scaled by the number of frames: each frame has its own geometry and
+    its own light.
     """
-    sample = plan.sample(0)
+    sample = plan.sample(point * plan.realisations)
     sequence = sample.scene.sequence
     first_frame = sample.scene.model_copy(
         update={"sequence": sequence.model_copy(update={"frames": 1})}
@@ -138,7 +139,15 @@ def cmd_validate(args) -> int:
         print(yaml.safe_dump(plan.scenes[0].model_dump(mode="json"), sort_keys=False), end="")
     if args.no_estimate:
         return EXIT_OK
-    setup, per_sample = _timed_render(plan)
+    # one render per renderer (transport.method): Monte Carlo takes far longer a sample
+    points: dict[str, list[int]] = {}
+    for point, scene in enumerate(plan.scenes):
+        points.setdefault(scene.transport.method, []).append(point)
+    timed = {method: _timed_render(plan, where[0]) for method, where in points.items()}
+    setup, per_sample = (
+        sum(timed[method][i] * len(where) for method, where in points.items()) / len(plan.scenes)
+        for i in (0, 1)
+    )
     workers = args.workers or os.cpu_count() or 1
     seconds = run_time(
         samples=plan.samples,
@@ -147,9 +156,13 @@ def cmd_validate(args) -> int:
         per_sample=per_sample,
         workers=workers,
     )
+    renders = " and ".join(
+        f"{format_time(sample)}{f' with {method}' if len(timed) > 1 else ''}"
+        for method, (_, sample) in timed.items()
+    )
     print(
         f"  run time: about {format_time(seconds)} on {workers} worker(s) (a sample renders "
-        f"in {format_time(per_sample)}, a scene's setup takes {format_time(setup)})"
+        f"in {renders}, a scene's setup takes {format_time(setup)})"
     )
     return EXIT_OK
 

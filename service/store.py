@@ -51,21 +51,30 @@ __all__ = [
     "shard_samples",
     "shard_size",
     "swept_parameters",
+    "variable_table",
     "widest_image",
 ]
 
 RENDERED_VARIABLES = (
     "image",
     "expected",
+    "expected_stderr",
     "target_mask",
     "surface_elevation",
     "target_signal",
     "background_signal",
 )
 """Per-sample variables that tasks write; the rest of a sample is written with the template."""
-SHARDED = frozenset({"image", "expected", "target_mask", "surface_elevation"})
+SHARDED = frozenset({"image", "expected", "expected_stderr", "target_mask", "surface_elevation"})
 """Rendered variables stored one sample per chunk inside shards; the others (small) and the
 completion records take one chunk per shard."""
+STDERR_COMMENT = (
+    "standard deviation of the images of the Monte Carlo renderer's independent photon "
+    "batches (transport.batches) over the square root of their number; 0 for samples "
+    "rendered by the small-angle renderer (transport.method small_angle: deterministic, "
+    "no Monte Carlo error)"
+)
+"""The ``comment`` of a store's ``expected_stderr`` (`variable_table`)."""
 SHARD_BYTES = 16 * 2**20
 """Uncompressed bytes a shard (and a task) aims at, unless ``--batch`` says otherwise
 (`shard_size`; a sample larger than this is a shard of its own): large enough that a task's
@@ -234,7 +243,7 @@ def sample_dataset(plan: Plan, sample: int) -> xr.Dataset:
     return render(address.scene, seed=address.seed)
 
 
-def widest_image(plan: Plan) -> tuple:
+def widest_image(plan: Plan, tables: list[dict] | None = None) -> tuple:
     """The ``image`` entry of `rendered_variables` whose type holds every point's counts.
 
     Counts take the narrowest unsigned type their scene needs (`workers.labels.count_dtype`),
@@ -242,11 +251,12 @@ def widest_image(plan: Plan) -> tuple:
     the widest, and the values of every point unchanged. Points whose images are floats
     (an ICCD gain, no noise) beside points of counts make the store's image a float type
     that holds every count exactly (float32 up to 16-bit counts, else float64); its
-    ``long_name`` then names what each kind of point holds.
+    ``long_name`` then names what each kind of point holds. `tables`: every point's
+    `rendered_variables`, if already made.
     """
     entries = {}
-    for scene in plan.scenes:
-        entry = rendered_variables(scene)["image"]
+    for table in map(rendered_variables, plan.scenes) if tables is None else tables:
+        entry = table["image"]
         entries.setdefault(entry[1], entry)
     widest = plan.image_dtype()
     if len({dtype.kind for dtype in entries}) == 1:
@@ -254,6 +264,27 @@ def widest_image(plan: Plan) -> tuple:
     dims, _, attrs = next(entry for dtype, entry in entries.items() if dtype.kind == "f")
     names = sorted({entry[2]["long_name"] for entry in entries.values()})
     return dims, widest, {**attrs, "long_name": f"by point: {'; or '.join(names)}"}
+
+
+def variable_table(plan: Plan) -> dict:
+    """The store's rendered variables: the union of every point's `rendered_variables`.
+
+    Each name's dimensions, type and attributes are those of the first point that renders
+    it; the image's type is the widest (`widest_image`). A variable only some points render
+    is stored for every sample: ``expected_stderr``, of the points that ``transport.method``
+    renders by Monte Carlo, is 0 for the small-angle points (deterministic, no Monte Carlo
+    error: `service.integrity.write_shard` writes the zeros), as its ``comment`` says.
+    """
+    tables = [rendered_variables(scene) for scene in plan.scenes]
+    union: dict = {}
+    for table in tables:
+        for name, entry in table.items():
+            union.setdefault(name, entry)
+    union["image"] = widest_image(plan, tables)
+    if "expected_stderr" in union:
+        dims, dtype, attrs = union["expected_stderr"]
+        union["expected_stderr"] = (dims, dtype, {**attrs, "comment": STDERR_COMMENT})
+    return union
 
 
 def _coordinate_array(values: list) -> np.ndarray:
@@ -306,9 +337,8 @@ def template(plan: Plan, samples_per_shard: int | None = None) -> tuple[xr.Datas
     """
     check_uniform(plan)
     first = plan.scenes[0]
-    # names, dimensions, dtypes and attributes from the renderer's table; nothing rendered
-    table = rendered_variables(first)
-    table["image"] = widest_image(plan)
+    # names, dimensions, dtypes and attributes from the renderer's tables; nothing rendered
+    table = variable_table(plan)
     sizes = {
         "frame": first.sequence.frames,
         "gate": len(first.receiver.gate_depths),

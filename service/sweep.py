@@ -148,16 +148,25 @@ class Plan:
         kinds = {count_dtype(scene) or np.dtype(np.float32) for scene in self.scenes}
         return np.result_type(*kinds)
 
+    def float_images(self) -> int:
+        """Float32 arrays of an image's shape every sample stores beside ``image``.
+
+        ``expected`` with ``store: {expected: true}``; ``expected_stderr`` when any point is
+        rendered by Monte Carlo (``transport.method``; `service.store.variable_table`).
+        """
+        monte_carlo = any(s.transport.method == "monte_carlo" for s in self.scenes)
+        return int(self.sweep.store.expected) + int(monte_carlo)
+
     def sample_bytes(self) -> int:
         """Estimated stored bytes of the largest sample (uncompressed)."""
-        image, expected = self.image_dtype().itemsize, self.sweep.store.expected
-        return max(_sample_bytes(s, image=image, expected=expected) for s in self.scenes)
+        image, floats = self.image_dtype().itemsize, self.float_images()
+        return max(_sample_bytes(s, image=image, floats=floats) for s in self.scenes)
 
     def total_bytes(self) -> int:
         """Estimated stored bytes of the whole sweep (uncompressed)."""
         r = self.sweep.realisations
-        image, expected = self.image_dtype().itemsize, self.sweep.store.expected
-        return sum(_sample_bytes(s, image=image, expected=expected) * r for s in self.scenes)
+        image, floats = self.image_dtype().itemsize, self.float_images()
+        return sum(_sample_bytes(s, image=image, floats=floats) * r for s in self.scenes)
 
     def check_limits(
         self,
@@ -179,12 +188,12 @@ class Plan:
             )
 
 
-def _sample_bytes(scene: Scene, *, image: int, expected: bool) -> int:
-    """A sample's stored bytes, its images `image` bytes a value (the store's type)."""
+def _sample_bytes(scene: Scene, *, image: int, floats: int) -> int:
+    """A sample's stored bytes: its image `image` bytes a value, `floats` float32 images."""
     pixels = scene.receiver.pixels**2
     frames = scene.sequence.frames
     gates = len(scene.receiver.gate_depths)
-    size = frames * (gates * pixels * (image + 4 * expected) + pixels + 8 * gates)
+    size = frames * (gates * pixels * (image + 4 * floats) + pixels + 8 * gates)
     if scene.save_surface:
         size += frames * scene.surface.grid_size**2 * 4
     return size

@@ -205,6 +205,9 @@ def count_dtype(scene: Scene) -> np.dtype | None:
     plane just under a flat sea (`white_plane_count`), is the brightest gate's water (its
     effective reflectance) or the target's top, its reflectance attenuated by e^(-2Kd).
 
+    A Monte Carlo render (`workers.montecarlo`) holds uint32 counts: one rare large
+    local estimate can make a pixel's expected count many times the brightest thing's.
+
     Returns
     -------
     numpy.dtype or None
@@ -219,6 +222,8 @@ def count_dtype(scene: Scene) -> np.dtype | None:
     noise = scene.noise
     if not scene.radiometry.photoelectrons or noise.gain != 1.0 or noise.excess_noise != 1.0:
         return None
+    if scene.transport.method == "monte_carlo":
+        return np.dtype(np.uint32)
     setup = scene_setup(scene)
     brightest = max(setup.reflectances)
     target = scene.target
@@ -433,6 +438,9 @@ def rendered_variables(scene: Scene) -> dict[str, tuple[tuple[str, ...], np.dtyp
             },
         ),
     }
+    if scene.transport.method == "monte_carlo":
+        error = {"long_name": f"Monte Carlo standard error of the {signal} (noise-free)"}
+        table["expected_stderr"] = (("frame", "gate", "y", "x"), f32, {**error, "units": "1"})
     if scene.save_surface:
         table["surface_elevation"] = (
             ("frame", "sy", "sx"),
@@ -452,7 +460,9 @@ def rendered_variables(scene: Scene) -> dict[str, tuple[tuple[str, ...], np.dtyp
     return table
 
 
-def rendered_arrays(scene, expected, image, masks, surface) -> dict[str, np.ndarray]:
+def rendered_arrays(
+    scene, expected, image, masks, surface, *, stderr=None
+) -> dict[str, np.ndarray]:
     """One sample's rendered variables as arrays of the types `rendered_variables` gives.
 
     A count above the image type's ``valid_max`` (beyond `COUNT_HEADROOM`) leaves the
@@ -469,6 +479,9 @@ def rendered_arrays(scene, expected, image, masks, surface) -> dict[str, np.ndar
         The target mask, (frame, y, x).
     surface : Surface or None
         The sea, for ``surface_elevation`` when the scene saves it.
+    stderr : ndarray, optional
+        The Monte Carlo renderer's standard error of `expected`, (frame, gate, y, x):
+        ``expected_stderr`` (`workers.montecarlo`).
 
     Returns
     -------
@@ -485,6 +498,8 @@ def rendered_arrays(scene, expected, image, masks, surface) -> dict[str, np.ndar
         "target_signal": target,
         "background_signal": background,
     }
+    if "expected_stderr" in table:
+        values["expected_stderr"] = stderr
     arrays = {}
     for name, data in values.items():
         _, dtype, attrs = table[name]

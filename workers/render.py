@@ -45,6 +45,7 @@ from __future__ import annotations
 import numpy as np
 import xarray as xr
 
+from workers import montecarlo
 from workers.gates import hidden_fraction
 from workers.interface import Projected, through_surface
 from workers.kernels import Cells, gather_levels, sample, span, splat_levels
@@ -108,12 +109,19 @@ def render_arrays(scene: Scene, *, seed: int | SampleSeed) -> dict[str, np.ndarr
     surface = setup.surface(seed, times)
     expected = []
     masks = []
+    errors = []
     for frame in range(frames):
-        geometry = frame_geometry(scene, frame)
-        signal, mask = _render_frame(setup, geometry, surface, frame)
+        if scene.transport.method == "monte_carlo":
+            transported = montecarlo.render_frame(setup, surface, frame, seed)
+            signal, mask = transported.expected, transported.mask
+            errors.append(transported.stderr)
+        else:
+            geometry = frame_geometry(scene, frame)
+            signal, mask = _render_frame(setup, geometry, surface, frame)
         expected.append(signal)
         masks.append(mask)
     expected = np.stack(expected)
+    stderr = np.stack(errors) if errors else None
     noise = scene.noise
     if scene.radiometry.photoelectrons:
         image = shot_noise(
@@ -121,7 +129,7 @@ def render_arrays(scene: Scene, *, seed: int | SampleSeed) -> dict[str, np.ndarr
         )
     else:
         image = expected.copy()
-    return rendered_arrays(scene, expected, image, np.stack(masks), surface)
+    return rendered_arrays(scene, expected, image, np.stack(masks), surface, stderr=stderr)
 
 
 def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):

@@ -20,6 +20,7 @@ from workers.conditioning import check_points
 from workers.instrument import Laser, Noise, Platform, Radiometry, Receiver, Sequence
 from workers.sea import SurfaceSpec, Target, Water
 from workers.section import Section, units
+from workers.transport import Transport
 
 __all__ = ["Scene", "footprint_span"]
 
@@ -104,6 +105,7 @@ class Scene(Section):
     radiometry: Radiometry = Radiometry()
     noise: Noise = Noise()
     sequence: Sequence = Sequence()
+    transport: Transport = Transport()
     save_surface: bool = Field(
         False,
         description="Store the surface elevation of every frame with the sample.",

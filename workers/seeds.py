@@ -8,7 +8,7 @@ import numpy as np
 
 __all__ = ["SampleSeed"]
 
-_SURFACE, _NOISE = 0, 1
+_SURFACE, _NOISE, _PHOTONS = 0, 1, 2
 
 
 @dataclass(frozen=True)
@@ -59,3 +59,17 @@ class SampleSeed:
             self.root, spawn_key=(_NOISE, self.point, self.realisation)
         )
         return np.random.Generator(np.random.PCG64(sequence))
+
+    def photon_rng(self, frame: int = 0):
+        """Generator for the Monte Carlo renderer's photon launches in `frame`."""
+        sequence = np.random.SeedSequence(
+            self.root, spawn_key=(_PHOTONS, self.point, self.realisation, int(frame))
+        )
+        return np.random.Generator(np.random.PCG64(sequence))
+
+    def photon_key(self, frame: int = 0) -> int:
+        """64-bit key of the photons' streams in `frame` (`workers.scattering.photon_state`)."""
+        sequence = np.random.SeedSequence(
+            self.root, spawn_key=(_PHOTONS, self.point, self.realisation, int(frame), 1)
+        )
+        return int(sequence.generate_state(1, np.uint64)[0])

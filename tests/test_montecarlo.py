@@ -1,0 +1,354 @@
+"""The Monte Carlo renderer against closed forms, invariants and its own accounting.
+
+Tolerances follow from the photon count: each check compares a block of pixels with its
+closed form within four of the renderer's own standard errors (batch spread), and asks
+that standard error to be small enough for the check to mean something.
+"""
+
+import numpy as np
+import pytest
+from scipy.integrate import quad
+from scipy.special import erf
+from test_render_reference import Swell
+
+from workers import montecarlo
+from workers.interface import through_surface
+from workers.photons import TALLIES
+from workers.render import render_arrays
+from workers.scene import Scene
+from workers.seeds import SampleSeed
+from workers.sensor import scene_setup, sensor_at
+from workers.transport import (
+    fit_fournier_forand,
+    fournier_forand,
+    fournier_forand_cumulative,
+    phase_table,
+)
+from workers.water import BETA_PI_PER_BACKSCATTER
+
+ALTITUDE, N_WATER, FOV_DEG, PIXELS = 34.0, 1.34, 6.7, 16
+BLOCK = slice(6, 10)  # the central 4 x 4 pixels
+
+
+def scene(**sections):
+    """A flat-sea, nadir, 16 px Monte Carlo scene in units of the white plane."""
+    transport = {"method": "monte_carlo", **sections.pop("transport", {})}
+    base = {
+        "surface": {"spectrum": "flat"},
+        "receiver": {"pixels": PIXELS},
+        "radiometry": {"mode": "normalised", "white_plane_photons": 0.0},
+        "transport": transport,
+    }
+    return Scene.model_validate({**base, **sections})
+
+
+def beam_profile():
+    """The Gaussian beam e^(-(u²+v²)/h²) averaged over each pixel's tangent square [1]."""
+    half = np.tan(np.radians(FOV_DEG) / 2)
+    edges = (np.arange(PIXELS + 1) - PIXELS / 2) * (2 * half / PIXELS)
+    mean = (erf(edges[1:] / half) - erf(edges[:-1] / half)) * np.sqrt(np.pi) * half / 2
+    mean /= np.diff(edges)
+    return np.outer(mean, mean)
+
+
+def block_ratio(image, stderr, closed):
+    """Ratio of the central block's mean to the closed form, and its standard error."""
+    expected = closed[BLOCK, BLOCK].mean()
+    error = np.sqrt((stderr[BLOCK, BLOCK] ** 2).sum()) / stderr[BLOCK, BLOCK].size
+    return image[BLOCK, BLOCK].mean() / expected, error / expected
+
+
+# --- phase functions -----------------------------------------------------------------
+
+
+@pytest.mark.parametrize("fraction", [0.013, 0.0183, 0.044], ids=lambda b: f"B{b}")
+def test_fournier_forand_fit_has_the_waters_backscatter(fraction):
+    # Petzold's waters (Mobley 1994, table 3.10): coastal B = 0.013, average particle
+    # 0.0183, clear ocean 0.044; beta(pi)/b_b = 0.174 as the fast renderer assumes.
+    n, mu = fit_fournier_forand(fraction)
+    assert 1.0 < n < 1.3 and 3.0 < mu < 5.0
+    back = 1.0 - fournier_forand_cumulative(np.pi / 2, n=n, mu=mu)
+    np.testing.assert_allclose(back, fraction, rtol=1e-9)
+    np.testing.assert_allclose(
+        fournier_forand(np.pi, n=n, mu=mu), BETA_PI_PER_BACKSCATTER * fraction, rtol=1e-9
+    )
+    # the closed-form cumulative is the integral of the phase function over the sphere
+    theta = np.geomspace(1e-9, np.pi, 400_001)
+    integrand = 2 * np.pi * fournier_forand(theta, n=n, mu=mu) * np.sin(theta)
+    np.testing.assert_allclose(np.trapezoid(integrand, theta), 1.0, atol=2e-5)
+    table = phase_table("fournier_forand", backscatter_fraction=fraction)
+    np.testing.assert_allclose(table.backscatter_fraction, fraction, rtol=1e-3)
+
+
+def test_phase_table_samples_its_own_distribution():
+    # angles drawn through the quantile table follow the cumulative: a Kolmogorov bound
+    table = phase_table("fournier_forand", backscatter_fraction=0.013)
+    n, mu = fit_fournier_forand(0.013)
+    u = (np.arange(20_000) + 0.5) / 20_000
+    theta = np.interp(u, np.linspace(0, 1, table.quantiles.size), table.quantiles)
+    np.testing.assert_allclose(fournier_forand_cumulative(theta, n=n, mu=mu), u, atol=2e-4)
+
+
+# --- closed forms ----------------------------------------------------------------------
+
+
+def test_unscattered_lambertian_plane_matches_the_lidar_equation():
+    # Issue #23 item 4: rho e^(-2cz) (H / (H + z/n))^2 in units of the white plane (the
+    # normalised mode divides out the two-way Fresnel t0^2), with the beam's profile.
+    c, depth = 0.15, 5.0
+    s = scene(
+        water={"preset": None, "absorption": c, "scattering": 0.0, "backscatter": 0.0},
+        target={"shape": "disk", "radius": 100.0, "depth": depth, "reflectance": 1.0},
+        receiver={"pixels": PIXELS, "gates": [[0.0, 10.0]]},
+        transport={"photons": 1_000_000},
+    )
+    out = render_arrays(s, seed=3)
+    closed = np.exp(-2 * c * depth) * (ALTITUDE / (ALTITUDE + depth / N_WATER)) ** 2
+    ratio, error = block_ratio(
+        out["expected"][0, 0], out["expected_stderr"][0, 0], closed * beam_profile()
+    )
+    assert error < 0.005
+    assert abs(ratio - 1) < 4 * error, (ratio, error)
+
+
+@pytest.mark.parametrize("kind", ["fournier_forand", "paper"])
+def test_single_scattering_gated_return_matches_its_integral(kind):
+    # Issue #23 item 4: pi beta(pi) ∫ e^(-2cz) (H / (H + z/n))^2 dz over each gate.
+    a, b, bb = 0.1, 0.3, 0.006
+    gates = [[3.0, 6.0], [1.0, 2.0], [6.0, 9.0]]
+    s = scene(
+        water={"preset": None, "absorption": a, "scattering": b, "backscatter": bb},
+        target={"shape": "none"},
+        receiver={"pixels": PIXELS, "gates": gates},
+        transport={"photons": 1_000_000, "max_scattering": 1, "phase_function": kind},
+    )
+    out = render_arrays(s, seed=3)
+    beta_pi = b * montecarlo.scene_phase_table(s).backscatter_pi
+    if kind == "fournier_forand":
+        np.testing.assert_allclose(beta_pi, BETA_PI_PER_BACKSCATTER * bb, rtol=1e-6)
+    for g, (top, bottom) in enumerate(gates):
+        integral = quad(
+            lambda z: np.exp(-2 * (a + b) * z) * (ALTITUDE / (ALTITUDE + z / N_WATER)) ** 2,
+            top,
+            bottom,
+        )[0]
+        closed = np.pi * beta_pi * integral * beam_profile()
+        ratio, error = block_ratio(out["expected"][0, g], out["expected_stderr"][0, g], closed)
+        assert error < 0.015, (g, error)
+        assert abs(ratio - 1) < 4 * error, (g, ratio, error)
+
+
+# --- invariants ----------------------------------------------------------------------
+
+
+def wavy(**sections):
+    return scene(
+        surface={"spectrum": "elfouhaily", "wind_speed": 5.0, "grid_size": 64, "spacing": 0.05},
+        **sections,
+    )
+
+
+@pytest.mark.parametrize("shape", ["sphere", "disk"])
+def test_energy_is_conserved_to_round_off(shape):
+    # transmitted = absorbed + escaped + target + cut (roulette and weighting included)
+    s = wavy(
+        water={"preset": "coastal"},
+        target={"shape": shape, "radius": 0.5, "depth": 4.0, "reflectance": 0.3},
+        transport={"photons": 20_000},
+    )
+    setup = scene_setup(s)
+    seed = SampleSeed(root=5)
+    frame = montecarlo.render_frame(setup, setup.surface(seed, [0.0]), 0, seed)
+    t = frame.tallies
+    assert list(t) == list(TALLIES)
+    assert min(t["absorbed"], t["escaped"], t["target"]) > 0
+    np.testing.assert_allclose(
+        t["transmitted"], t["absorbed"] + t["escaped"] + t["target"] + t["cut"], rtol=1e-12
+    )
+    # what enters is the beam's power (pi a^2) less the Fresnel reflection (2-3 %)
+    half = np.tan(np.radians(FOV_DEG) / 2)
+    beam = np.pi * (ALTITUDE * half) ** 2
+    assert 0.95 * beam < t["transmitted"] < 0.99 * beam
+
+
+def test_angular_biasing_keeps_the_expectation():
+    # the biased mixture is weighted back: the gates' means agree with and without it
+    s = scene(
+        water={"preset": "coastal"},
+        target={"shape": "sphere", "radius": 0.3, "depth": 5.0},
+        transport={"photons": 200_000},
+    )
+    setup = scene_setup(s)
+    frames = [
+        montecarlo.render_frame(setup, None, 0, SampleSeed(root=r), bias=bias)
+        for r, bias in ((1, 0.0), (2, montecarlo.ANGULAR_BIAS))
+    ]
+    means = [f.expected.mean(axis=(1, 2)) for f in frames]
+    errors = [np.sqrt((f.stderr**2).sum(axis=(1, 2))) / PIXELS**2 for f in frames]
+    z = (means[0] - means[1]) / np.hypot(*errors)
+    assert np.all(np.abs(z) < 4), z
+    # and the biasing pays: the deeper gates' errors are smaller with it
+    assert np.all(errors[1][2:] < errors[0][2:])
+
+
+def test_same_seed_same_bytes_and_seeds_differ():
+    s = wavy(water={"preset": "coastal"}, transport={"photons": 5_000, "batches": 4})
+    first = render_arrays(s, seed=SampleSeed(root=1, point=2, realisation=3))
+    again = render_arrays(s, seed=SampleSeed(root=1, point=2, realisation=3))
+    other = render_arrays(s, seed=SampleSeed(root=1, point=3, realisation=3))
+    for name in first:
+        assert first[name].tobytes() == again[name].tobytes()
+    assert first["expected"].tobytes() != other["expected"].tobytes()
+
+
+def test_the_target_mask_is_where_central_lines_meet_the_sphere():
+    # the same mask as the fast renderer's on a flat sea (the silhouette)
+    base = {
+        "water": {"preset": "coastal"},
+        "target": {"shape": "sphere", "radius": 0.8, "depth": 5.0, "x": 0.3, "y": -0.2},
+        "transport": {"photons": 1_000},
+    }
+    mc = render_arrays(scene(**base), seed=1)["target_mask"]
+    fast = scene(**base).model_copy(
+        update={"transport": scene(**base).transport.model_copy(update={"method": "small_angle"})}
+    )
+    sa = render_arrays(fast, seed=1)["target_mask"]
+    assert mc.sum() > 10
+    assert (mc != sa).sum() <= 0.1 * mc.sum()
+
+
+# --- through a rough sea ----------------------------------------------------------------
+
+
+class FocusingSwell(Swell):
+    """The reference render's analytic swell (focal lengths 8-14 m), as the kernels read it."""
+
+    subgrid = None
+    axis = np.linspace(-4.0, 4.0, 161)
+
+    @property
+    def centred_elevation(self):
+        x, y = np.meshgrid(self.axis, self.axis)
+        return self.elevation_at(x, y)[np.newaxis]
+
+
+def test_rough_sea_estimate_matches_an_independent_ray_trace():
+    # A white plane 3 m under a swell that focuses the light (4 x 4-pixel blocks from 0.4 to
+    # 2.3 of their mean, double passage included), no scattering. Independently of the
+    # kernels' triangles: the irradiance on the plane from the photons' hits (histogram,
+    # 3 cm cells), read by 8 x 8 lines of sight a pixel traced through the same swell.
+    depth, absorption = 3.0, 0.1
+    s = scene(
+        water={"preset": None, "absorption": absorption, "scattering": 0.0, "backscatter": 0.0},
+        target={"shape": "disk", "radius": 100.0, "depth": depth, "reflectance": 1.0},
+        receiver={"pixels": PIXELS, "gates": [[0.0, 20.0]]},
+        surface={"grid_size": 64, "spacing": 0.1},
+        transport={"photons": 1_000_000},
+    )
+    setup, sea = scene_setup(s), FocusingSwell()
+    frame = montecarlo.render_frame(setup, sea, 0, SampleSeed(root=4))
+    sensor = sensor_at(setup, 0)
+    cell, half, photons = 0.03, 3.0, 3_000_000
+    bins = int(2 * half / cell)
+    irradiance = np.zeros((bins, bins))
+    beam = np.pi * (sensor.reference_range * np.tan(0.5 * sensor.laser_fov)) ** 2
+    rng = np.random.default_rng(9)
+    for _ in range(3):
+        hits = montecarlo._launch(
+            sensor, "divergent", sea, 0, N_WATER, rng, photons // 3, beam / photons
+        )
+        t = (-depth - hits[2]) / hits[5]
+        weights = hits[6] * np.exp(-absorption * t)
+        y, x = hits[1] + t * hits[4], hits[0] + t * hits[3]
+        irradiance += np.histogram2d(y, x, bins, [[-half, half], [-half, half]], weights=weights)[
+            0
+        ]
+    irradiance /= cell**2
+    sub = 8
+    pitch = 2 * np.tan(np.radians(FOV_DEG) / 2) / (PIXELS * sub)
+    directions = montecarlo._directions(
+        sensor, (np.arange(PIXELS * sub) + 0.5 - PIXELS * sub / 2) * pitch
+    )
+    rays = (*sensor.position, *np.ascontiguousarray(directions.T))
+    sight = montecarlo._lines(through_surface(rays, sea, 0, N_WATER))
+    t = (-depth - sight[2]) / sight[5]
+    rows = ((sight[1] + t * sight[4] + half) / cell).astype(int)
+    cols = ((sight[0] + t * sight[3] + half) / cell).astype(int)
+    seen = irradiance[rows, cols] * sight[7] * np.exp(-absorption * t) * setup.scale
+    independent = seen.reshape(PIXELS, sub, PIXELS, sub).mean(axis=(1, 3))
+
+    def blocks(image):
+        return image.reshape(4, 4, 4, 4).mean(axis=(1, 3))
+
+    reference = blocks(independent)
+    assert reference.max() > 2 * reference.min()  # the swell focuses the light
+    np.testing.assert_allclose(blocks(frame.expected[0]), reference, rtol=0.03)
+
+
+@pytest.mark.parametrize(
+    "sections",
+    [
+        {"radiometry": {"mode": "absolute"}},
+        {"platform": {"nadir_deg": 20.0, "azimuth_deg": 30.0}},
+        {"laser": {"beam": "parallel"}},
+        {"sequence": {"frames": 2, "velocity": [10.0, 0.0, 5.0]}},
+    ],
+    ids=["absolute", "oblique", "parallel-beam", "climbing"],
+)
+def test_both_renderers_agree_in_clear_water(sections):
+    # Issue #23 item 4: in clear water the small-angle renderer holds (every gate's
+    # background within 5 %): here also in photoelectrons, at 20 degrees off nadir (slant
+    # gates), with a parallel beam and from a climbing platform (the gates follow it).
+    base = {"water": {"preset": "clear_ocean"}, "target": {"shape": "none"}, **sections}
+    mc = render_arrays(scene(**base, transport={"photons": 300_000}), seed=1)
+    fast = scene(**base)
+    fast = fast.model_copy(
+        update={"transport": fast.transport.model_copy(update={"method": "small_angle"})}
+    )
+    small = render_arrays(fast, seed=1)["expected"].mean(axis=(-2, -1))
+    mean = mc["expected"].mean(axis=(-2, -1))
+    error = np.sqrt((mc["expected_stderr"] ** 2).sum(axis=(-2, -1))) / PIXELS**2
+    assert np.all(error < 0.02 * mean)
+    assert np.all(np.abs(small / mean - 1) < 0.05 + 3 * error / mean), small / mean
+
+
+@pytest.mark.parametrize("angle", [0.0, 30.0, 47.0, 49.0, 70.0], ids=lambda a: f"{a:g}deg")
+def test_a_photon_meets_the_surface_from_below_as_fresnel_says(angle):
+    # one photon rising through clear, non-absorbing water at `angle` from the vertical:
+    # the flat surface lets 1 - R out (Fresnel, water to air) and reflects R down for ever;
+    # beyond the critical angle (48.3 degrees) nothing leaves.
+    from workers.optics import fresnel_reflectance
+    from workers.photons import transport
+    from workers.sightlines import build_lookup
+
+    theta = np.radians(angle)
+    launch = np.array(
+        [[0.0], [0.0], [-1.0], [np.sin(theta)], [0.0], [np.cos(theta)], [1.0], [0.0]]
+    )
+    lines = np.zeros((8, 4))
+    lines[:2] = [[-1.0, 1.0, -1.0, 1.0], [-1.0, -1.0, 1.0, 1.0]]
+    lines[5], lines[7] = -1.0, 1.0
+    lookup = (np.array([0.0, 1.0, 1.0, 1.0]), *build_lookup(lines, 1, 0.0, 1.0, 1))
+    tallies = np.zeros(len(TALLIES))
+    transport(
+        launch,
+        np.uint64(1),
+        0,
+        np.array([N_WATER, 0, 0, 0, 0, 0, 0, 0, 0.0]),
+        np.zeros(4),
+        np.linspace(0, np.pi, 5),
+        np.array([1e9, 34.0, 0.0, 0.0, 10, 0.2]),
+        np.array([0.0, 0.0, 34.0]),
+        np.zeros((1, 1)),
+        np.zeros(4),
+        lines,
+        lookup,
+        np.zeros(6),
+        np.zeros((1, 2)),
+        np.zeros((1, 1, 1)),
+        tallies,
+    )
+    reflected = float(fresnel_reflectance(np.cos(theta), n1=N_WATER, n2=1.0))
+    t = dict(zip(TALLIES, tallies, strict=True))
+    np.testing.assert_allclose(t["escaped"], 1.0 - reflected, atol=1e-12)
+    np.testing.assert_allclose(t["cut"], reflected, atol=1e-12)

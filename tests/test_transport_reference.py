@@ -1,0 +1,156 @@
+"""The fast renderer held to photon transport: the stored Monte Carlo reference images.
+
+`tests/data/transport_reference.npz` holds Monte Carlo images (`workers.montecarlo`) of
+the scenes of `benchmarks.transport_reference` (32 px, 34 m, ML(DC) gates, a 0.3 m sphere
+at 5 m in clear, coastal and turbid water; the paper's Example 4; coastal water under a
+5 m/s sea), each with its standard error and its no-target twin. Rewrite them with
+``python -m benchmarks.transport_reference`` after a change of the transport physics.
+
+Where the fast (small-angle) renderer is not yet true to transport, the check is marked
+``xfail(strict=True)`` with the issue that must make it pass (#24): the gap is measured,
+not hidden, and a fix turns the mark into a failure until it is removed.
+"""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from workers.render import render_arrays
+from workers.scene import Scene
+
+REFERENCE = Path(__file__).parent / "data" / "transport_reference.npz"
+
+
+@pytest.fixture(scope="module")
+def reference():
+    with np.load(REFERENCE) as data:
+        return dict(data)
+
+
+def stored(reference, name):
+    """(expected, stderr, mask, scene) of reference `name`, one frame."""
+    scene = Scene.model_validate(json.loads(str(reference[f"{name}/scene"])))
+    return (
+        reference[f"{name}/expected"],
+        reference[f"{name}/stderr"],
+        reference[f"{name}/mask"].astype(bool),
+        scene,
+    )
+
+
+def small_angle(scene):
+    """The same scene by the fast renderer: its noise-free images, one frame."""
+    fast = scene.model_copy(
+        update={"transport": scene.transport.model_copy(update={"method": "small_angle"})}
+    )
+    return render_arrays(fast, seed=2026)["expected"][0]
+
+
+def gate_means(image, stderr):
+    """Each gate's image mean and its standard error."""
+    return image.mean(axis=(1, 2)), np.sqrt((stderr**2).sum(axis=(1, 2))) / image[0].size
+
+
+def contrast(reference, name):
+    """Per gate, (target − twin)/twin over the target's mask, and a bound on its error."""
+    image, error, mask, _ = stored(reference, name)
+    twin, twin_error, _, _ = stored(reference, f"{name}-none")
+    t, b = image[:, mask].mean(axis=1), twin[:, mask].mean(axis=1)
+    dt = np.sqrt((error[:, mask] ** 2).sum(axis=1)) / mask.sum()
+    db = np.sqrt((twin_error[:, mask] ** 2).sum(axis=1)) / mask.sum()
+    return t / b - 1, (dt + db * t / b) / b
+
+
+def fast_contrast(reference, name):
+    _, _, mask, scene = stored(reference, name)
+    _, _, _, twin = stored(reference, f"{name}-none")
+    image, other = small_angle(scene), small_angle(twin)
+    return image[:, mask].mean(axis=1) / other[:, mask].mean(axis=1) - 1
+
+
+def test_monte_carlo_reproduces_its_reference(reference):
+    # the Monte Carlo renderer today gives the stored images (other photons, same law)
+    image, error, _, scene = stored(reference, "clear-none")
+    again = scene.model_copy(
+        update={"transport": scene.transport.model_copy(update={"photons": 1_000_000})}
+    )
+    out = render_arrays(again, seed=7)
+    mean, se = gate_means(image, error)
+    new, new_se = gate_means(out["expected"][0], out["expected_stderr"][0])
+    z = (new - mean) / np.hypot(se, new_se)
+    assert np.all(np.abs(z) < 4), z
+
+
+def test_fast_renderer_holds_to_transport_in_clear_water(reference):
+    # Issue #23 item 4: every gate's water background within 5 % in clear water at nadir
+    image, error, _, scene = stored(reference, "clear-none")
+    mean, se = gate_means(image, error)
+    assert np.all(se < 0.01 * mean)
+    fast = small_angle(scene).mean(axis=(1, 2))
+    assert np.all(np.abs(fast / mean - 1) < 0.05 + 3 * se / mean), fast / mean
+
+
+def test_monte_carlo_shadow_agrees_with_the_independent_transport_of_issue_23(reference):
+    # Issue #23: an independent photon Monte Carlo gives the paper's Example 4 (its water,
+    # sphere at 3 m, gate 4-9 m) a shadow contrast of -0.75 +- 0.02. Its mask is not
+    # stated: here the whole mask reads -0.71 and its interior (one pixel in) -0.79, so
+    # both are held to it within its error, three of ours and 0.03 for the mask's rim.
+    value, error = contrast(reference, "example4")
+    assert abs(value[0] - -0.75) < 0.02 + 3 * error[0] + 0.03, (value, error)
+    image, _, mask, _ = stored(reference, "example4")
+    twin = stored(reference, "example4-none")[0]
+    inner = mask & np.roll(mask, 1, 0) & np.roll(mask, -1, 0) & np.roll(mask, 1, 1)
+    inner &= np.roll(mask, -1, 1)
+    interior = image[0][inner].mean() / twin[0][inner].mean() - 1
+    assert abs(interior - -0.75) < 0.02 + 0.03, interior
+
+
+def test_fast_renderer_holds_to_transport_on_the_sphere_in_clear_water(reference):
+    # the sphere inside gate 1 (3.7-9.8 m) in clear water: both renderers give the same
+    # contrast over its mask (two independent computations of the target's light)
+    value, error = contrast(reference, "clear")
+    fast = fast_contrast(reference, "clear")
+    assert error[0] < 0.02 * value[0]
+    assert abs(fast[0] / value[0] - 1) < 0.05 + 3 * error[0] / value[0], (fast[0], value[0])
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="issue #24 item 2: the fast renderer's gated background is 0.56-0.86 of "
+    "transport in coastal water and 0.1-0.4 in turbid water (no path stretching)",
+)
+@pytest.mark.parametrize("water", ["coastal", "turbid"])
+def test_fast_renderer_gate_backgrounds_within_issue_24_targets(reference, water):
+    image, error, _, scene = stored(reference, f"{water}-none")
+    mean, se = gate_means(image, error)
+    fast = small_angle(scene).mean(axis=(1, 2))
+    tolerance = 0.05 if water == "coastal" else 0.10
+    gates = slice(None) if water == "coastal" else slice(0, 3)  # turbid 4-6: < 1e-5 of 1
+    ratio = (fast / mean)[gates]
+    assert np.all(np.abs(ratio - 1) < tolerance + 3 * (se / mean)[gates]), ratio
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="issue #24 item 3: the small-angle halo fills the shadow below the sphere",
+)
+@pytest.mark.parametrize(("name", "gate"), [("example4", 0), ("coastal", 4)])
+def test_fast_renderer_shadows_within_issue_24_targets(reference, name, gate):
+    value, error = contrast(reference, name)
+    fast = fast_contrast(reference, name)
+    assert abs(fast[gate] - value[gate]) < error[gate] + 0.05, (fast[gate], value[gate])
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="issue #24 item 4: a gate edge through the sphere (clear water, gate 2 from "
+    "4.88 m, sphere 4.7-5.3 m): the fast renderer gives 1.7 times transport's contrast",
+)
+def test_fast_renderer_gate_edge_within_issue_24_target(reference):
+    # clear water: coastal's reference holds this contrast only to +-0.5 (its forward-
+    # scattered target light is the estimator's hardest case)
+    value, error = contrast(reference, "clear")
+    fast = fast_contrast(reference, "clear")
+    assert abs(fast[1] / value[1] - 1) < 0.10 + 3 * error[1] / abs(value[1]), (fast, value)
