@@ -42,6 +42,23 @@ def scene(**sections):
     return Scene.model_validate({**base, **sections})
 
 
+def white_plane(*, depth, absorption, bottom, **sections):
+    """A white Lambertian plane (a 100 m disk) at `depth` in non-scattering water."""
+    return scene(
+        water={"preset": None, "absorption": absorption, "scattering": 0.0, "backscatter": 0.0},
+        target={"shape": "disk", "radius": 100.0, "depth": depth, "reflectance": 1.0},
+        receiver={"pixels": PIXELS, "gates": [[0.0, bottom]]},
+        **sections,
+    )
+
+
+def fast_twin(s):
+    """The same scene for the small-angle renderer."""
+    return s.model_copy(
+        update={"transport": s.transport.model_copy(update={"method": "small_angle"})}
+    )
+
+
 def beam_profile():
     """The Gaussian beam e^(-(u²+v²)/h²) averaged over each pixel's tangent square [1]."""
     half = np.tan(np.radians(FOV_DEG) / 2)
@@ -96,12 +113,7 @@ def test_unscattered_lambertian_plane_matches_the_lidar_equation():
     # Issue #23 item 4: rho e^(-2cz) (H / (H + z/n))^2 in units of the white plane (the
     # normalised mode divides out the two-way Fresnel t0^2), with the beam's profile.
     c, depth = 0.15, 5.0
-    s = scene(
-        water={"preset": None, "absorption": c, "scattering": 0.0, "backscatter": 0.0},
-        target={"shape": "disk", "radius": 100.0, "depth": depth, "reflectance": 1.0},
-        receiver={"pixels": PIXELS, "gates": [[0.0, 10.0]]},
-        transport={"photons": 1_000_000},
-    )
+    s = white_plane(depth=depth, absorption=c, bottom=10.0, transport={"photons": 1_000_000})
     out = render_arrays(s, seed=3)
     closed = np.exp(-2 * c * depth) * (ALTITUDE / (ALTITUDE + depth / N_WATER)) ** 2
     ratio, error = block_ratio(
@@ -209,10 +221,7 @@ def test_the_target_mask_is_where_central_lines_meet_the_sphere():
         "transport": {"photons": 1_000},
     }
     mc = render_arrays(scene(**base), seed=1)["target_mask"]
-    fast = scene(**base).model_copy(
-        update={"transport": scene(**base).transport.model_copy(update={"method": "small_angle"})}
-    )
-    sa = render_arrays(fast, seed=1)["target_mask"]
+    sa = render_arrays(fast_twin(scene(**base)), seed=1)["target_mask"]
     assert mc.sum() > 10
     assert (mc != sa).sum() <= 0.1 * mc.sum()
 
@@ -238,10 +247,10 @@ def test_rough_sea_estimate_matches_an_independent_ray_trace():
     # kernels' triangles: the irradiance on the plane from the photons' hits (histogram,
     # 3 cm cells), read by 8 x 8 lines of sight a pixel traced through the same swell.
     depth, absorption = 3.0, 0.1
-    s = scene(
-        water={"preset": None, "absorption": absorption, "scattering": 0.0, "backscatter": 0.0},
-        target={"shape": "disk", "radius": 100.0, "depth": depth, "reflectance": 1.0},
-        receiver={"pixels": PIXELS, "gates": [[0.0, 20.0]]},
+    s = white_plane(
+        depth=depth,
+        absorption=absorption,
+        bottom=20.0,
         surface={"grid_size": 64, "spacing": 0.1},
         transport={"photons": 1_000_000},
     )
@@ -301,11 +310,7 @@ def test_both_renderers_agree_in_clear_water(sections):
     # gates), with a parallel beam and from a climbing platform (the gates follow it).
     base = {"water": {"preset": "clear_ocean"}, "target": {"shape": "none"}, **sections}
     mc = render_arrays(scene(**base, transport={"photons": 300_000}), seed=1)
-    fast = scene(**base)
-    fast = fast.model_copy(
-        update={"transport": fast.transport.model_copy(update={"method": "small_angle"})}
-    )
-    small = render_arrays(fast, seed=1)["expected"].mean(axis=(-2, -1))
+    small = render_arrays(fast_twin(scene(**base)), seed=1)["expected"].mean(axis=(-2, -1))
     mean = mc["expected"].mean(axis=(-2, -1))
     error = np.sqrt((mc["expected_stderr"] ** 2).sum(axis=(-2, -1))) / PIXELS**2
     assert np.all(error < 0.02 * mean)
