@@ -61,15 +61,20 @@ class SampleSeed:
         return np.random.Generator(np.random.PCG64(sequence))
 
     def photon_rng(self, frame: int = 0):
-        """Generator for the Monte Carlo renderer's photon launches in `frame`."""
+        """Generator for the Monte Carlo renderer's photon launches in `frame`.
+
+        Like the surface, keyed by (`root`, `realisation`) and not by the point: a sample and
+        its no-target twin follow the same photons, which differ only where they meet the
+        target (common random numbers: `detect`'s pairs differ by the target alone).
+        """
         sequence = np.random.SeedSequence(
-            self.root, spawn_key=(_PHOTONS, self.point, self.realisation, int(frame))
+            self.root, spawn_key=(_PHOTONS, self.realisation, int(frame))
         )
         return np.random.Generator(np.random.PCG64(sequence))
 
     def photon_key(self, frame: int = 0) -> int:
         """64-bit key of the photons' streams in `frame` (`workers.scattering.photon_state`)."""
         sequence = np.random.SeedSequence(
-            self.root, spawn_key=(_PHOTONS, self.point, self.realisation, int(frame), 1)
+            self.root, spawn_key=(_PHOTONS, self.realisation, int(frame), 1)
         )
         return int(sequence.generate_state(1, np.uint64)[0])
