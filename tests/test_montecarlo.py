@@ -383,3 +383,20 @@ def test_a_photon_meets_the_surface_from_below_as_fresnel_says(angle):
     t = dict(zip(TALLIES, tallies, strict=True))
     np.testing.assert_allclose(t["escaped"], 1.0 - reflected, atol=1e-12)
     np.testing.assert_allclose(t["cut"], reflected, atol=1e-12)
+
+
+@pytest.mark.parametrize("backscatter", [0.0, 0.05, 0.5], ids=["none", "b_b/b=0.1", "all"])
+def test_a_water_the_phase_function_cannot_fit_is_refused_naming_the_field(backscatter):
+    # found by a user trial: validate and preview ended in a traceback, run wrote a store
+    with pytest.raises(ValueError, match=r"water\.backscatter: b_b/b = .* transport\.phase"):
+        scene(
+            water={
+                "preset": None,
+                "absorption": 0.1,
+                "scattering": 0.5,
+                "backscatter": backscatter,
+            }
+        )
+    paper = {"phase_function": "paper", "photons": 1_000}
+    water = {"preset": None, "absorption": 0.1, "scattering": 0.5, "backscatter": backscatter}
+    assert scene(water=water, transport=paper).transport.phase_function == "paper"

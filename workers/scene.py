@@ -20,7 +20,7 @@ from workers.conditioning import check_points
 from workers.instrument import Laser, Noise, Platform, Radiometry, Receiver, Sequence
 from workers.sea import SurfaceSpec, Target, Water
 from workers.section import Section, units
-from workers.transport import Transport
+from workers.transport import FF_FRACTIONS, Transport
 
 __all__ = ["Scene", "footprint_span"]
 
@@ -201,6 +201,23 @@ class Scene(Section):
                 "repeat inside the image. Set surface.allow_repeat: true to render it anyway, "
                 "or leave surface.coarse_patches null, narrow the field or lower the platform"
             )
+        return self
+
+    @model_validator(mode="after")
+    def _phase_function_for_the_water(self) -> Scene:
+        t, water = self.transport, self.water.coefficients
+        if t.method != "monte_carlo" or t.phase_function != "fournier_forand":
+            return self
+        if water["scattering"] > 0:
+            low, high = FF_FRACTIONS
+            fraction = water["backscatter"] / water["scattering"]
+            if not low <= fraction <= high:
+                raise ValueError(
+                    f"water.backscatter: b_b/b = {fraction:.4g} is outside [{low}, {high}], "
+                    "where transport.phase_function fournier_forand is fitted to the "
+                    "water's backscatter; change water.backscatter or use "
+                    "transport.phase_function: paper"
+                )
         return self
 
     @model_validator(mode="after")

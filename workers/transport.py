@@ -25,6 +25,7 @@ from workers.section import Section, units
 from workers.water import BETA_PI_PER_BACKSCATTER, paper_phase_function
 
 __all__ = [
+    "FF_FRACTIONS",
     "PhaseTable",
     "Transport",
     "fit_fournier_forand",
@@ -33,6 +34,10 @@ __all__ = [
     "paper_phase_function_3d",
     "phase_table",
 ]
+
+FF_FRACTIONS = (0.002, 0.095)
+"""Backscatter fractions b_b/b for which `fit_fournier_forand` has a solution (about 0.098
+at most: above, no Fournier-Forand function has β̃(π) = 0.174 b_b/b with 3 < μ < 5)."""
 
 _TABLE_ANGLES = 4096  # angles of the tabulated phase function, log-spaced in θ
 _TABLE_QUANTILES = 8192  # equal-probability cells of the sampling table
@@ -172,7 +177,7 @@ def fit_fournier_forand(backscatter_fraction: float) -> tuple[float, float]:
     Parameters
     ----------
     backscatter_fraction : float
-        B = b_b/b, in [0.002, 0.3] [1].
+        B = b_b/b, in [0.002, 0.095] (`FF_FRACTIONS`) [1].
 
     Returns
     -------
@@ -187,10 +192,12 @@ def fit_fournier_forand(backscatter_fraction: float) -> tuple[float, float]:
     Solved by Newton's method (`scipy.optimize.fsolve`) from Mobley et al.'s (2002) fit to
     Petzold's average particle phase function, n = 1.10, μ = 3.5835 (B = 0.0183).
     """
-    if not 0.002 <= backscatter_fraction <= 0.3:
+    low, high = FF_FRACTIONS
+    if not low <= backscatter_fraction <= high:
         raise ValueError(
-            f"backscatter fraction b_b/b = {backscatter_fraction:.4g} is outside [0.002, 0.3], "
-            "where the Fournier-Forand phase function is fitted"
+            f"backscatter fraction b_b/b = {backscatter_fraction:.4g} is outside "
+            f"[{low}, {high}], where a Fournier-Forand phase function has beta(pi) = "
+            f"{BETA_PI_PER_BACKSCATTER} b_b"
         )
     target = np.log([backscatter_fraction, BETA_PI_PER_BACKSCATTER * backscatter_fraction])
 
