@@ -30,6 +30,7 @@ from service.measurements import inline_measurements
 from service.schema import Distribution, Sweep, Value, Values, scene_field
 from workers.cascades import MAX_CASCADES
 from workers.labels import count_dtype
+from workers.montecarlo import LAUNCH_CHUNK, LOOKUP_ENTRIES
 from workers.scene import Scene
 from workers.seeds import SampleSeed
 from workers.spread import MAX_COARSE
@@ -219,7 +220,8 @@ def memory_estimate(scene: dict) -> int:
     floor of 384 bytes per cell of a `workers.spread.MAX_COARSE`-sided coarse plane (the
     planes' least size) and 128 bytes per surface grid point and cascade
     (``surface.coarse_patches`` plus one, or at most `workers.cascades.MAX_CASCADES` by
-    default); then per frame 512 bytes per pixel (or laser ray, if the laser's lattice is
+    default), and the Monte Carlo renderer's arrays (`_transport_memory`); then per frame
+    512 bytes per pixel (or laser ray, if the laser's lattice is
     the larger) and gate (the frame's geometry, which stays cached, its plane grids and MTF
     filters, the images) and 32 per grid point and cascade (the evolved sea). The kriging
     system of measurements at G distinct times holds about 8 + G(G + 1)/8 complex grids
@@ -253,7 +255,28 @@ def memory_estimate(scene: dict) -> int:
     once = 384 * MAX_COARSE**2 + 128 * grid**2 * cascades
     render = once + frames * (512 * side**2 * (gates + 1) + 32 * grid**2 * cascades)
     kriging = 16 * grid**2 * cascades * (8 + times * (times + 1) / 8) if points else 0
-    return int(render + kriging)
+    return int(render + kriging + _transport_memory(scene, pixels=pixels, gates=gates))
+
+
+def _transport_memory(scene: dict, *, pixels: int, gates: int) -> int:
+    """Memory [bytes] the Monte Carlo renderer adds to a sample (0 for the small-angle one).
+
+    Its batches' images (float64, three copies at most while their mean and spread are
+    taken), a chunk of launched photons (`workers.montecarlo.LAUNCH_CHUNK`, 64 bytes each),
+    the lines of sight (taken as S = 4 a pixel side, 64 bytes each) and their lookup (about
+    12 bytes per slab and cell, 100 slabs, at most `LOOKUP_ENTRIES` slab-cells).
+    """
+    try:
+        if _raw(scene, "transport.method") != "monte_carlo":
+            return 0
+        batches = int(_raw(scene, "transport.batches"))
+        photons = int(_raw(scene, "transport.photons"))
+    except (TypeError, ValueError):
+        return 0
+    images = 3 * 8 * batches * gates * pixels**2
+    launch = 64 * min(LAUNCH_CHUNK, -(-photons // batches))
+    cells = (4 * pixels) ** 2
+    return images + launch + 64 * cells + 12 * min(LOOKUP_ENTRIES, 100 * cells)
 
 
 def _check_memory(scene: dict, max_memory: float | None) -> None:

@@ -413,8 +413,22 @@ def _empty_worker_caches():
             "surface": {"allow_repeat": True},
         },
         {"receiver": {"pixels": 16}, "laser": {"rays": 512}},
+        {
+            "receiver": {"pixels": 64},
+            "surface": {"spectrum": "flat"},
+            "transport": {"method": "monte_carlo", "photons": 20_000, "batches": 256},
+        },
     ],
-    ids=["one-gate", "mldc", "frames", "climbing", "conditioned", "oblique-high", "laser-rays"],
+    ids=[
+        "one-gate",
+        "mldc",
+        "frames",
+        "climbing",
+        "conditioned",
+        "oblique-high",
+        "laser-rays",
+        "monte-carlo-batches",
+    ],
 )
 def test_the_memory_estimate_bounds_the_render_from_above(sections):
     # peak allocations of a first sample (every cache empty), traced: the estimate must
