@@ -58,7 +58,8 @@ class Transport(Section):
         1_000_000,
         ge=1_000,
         le=1_000_000_000,
-        description="Monte Carlo only: photons launched per frame (split into `batches`).",
+        description="Monte Carlo only: photons launched per frame, split into `batches` "
+        "(rounded up to a multiple of them).",
         json_schema_extra=units("1"),
     )
     batches: int = Field(
