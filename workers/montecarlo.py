@@ -148,7 +148,6 @@ def render_frame(
     n_w = setup.water.refractive_index
     pixels = scene.receiver.pixels
     sub = sight_subdivision(scene)
-    centres = _sight_lines(sensor, surface, frame, n_w, pixels, MASK_LINES, centres=True)
     # the corners follow the resolved sea; its sub-grid slopes blur the way up
     subgrid = getattr(surface, "subgrid", None)
     resolved = surface if subgrid is None else dataclasses.replace(surface, subgrid=None)
@@ -218,7 +217,11 @@ def render_frame(
         )
     mean = images.mean(axis=0) * setup.scale
     error = images.std(axis=0, ddof=1) / math.sqrt(batches) * setup.scale
-    mask = _mask(centres, target, pixels)
+    if target[0] == 0.0:
+        mask = np.zeros((pixels, pixels), dtype=np.uint8)
+    else:  # the mask's 16 lines a pixel only where there is a target to mask
+        centres = _sight_lines(sensor, surface, frame, n_w, pixels, MASK_LINES, centres=True)
+        mask = _mask(centres, target, pixels)
     totals = dict(zip(TALLIES, (tallies.sum(axis=0) / batches).tolist(), strict=True))
     return FrameTransport(mean.astype(np.float32), error.astype(np.float32), mask, totals)
 
@@ -365,8 +368,6 @@ def _mask(centres: np.ndarray, target: np.ndarray, pixels: int) -> np.ndarray:
     meets but that the lines pass within one line spacing of marks the pixel of the nearest
     line, so a target smaller than a pixel keeps its mask, as the fast renderer's does.
     """
-    if target[0] == 0.0:
-        return np.zeros((pixels, pixels), dtype=np.uint8)
     x, y, z, dx, dy, dz = centres[:6]
     if target[0] == 1.0:
         ox, oy, oz = x - target[1], y - target[2], z - target[3]
