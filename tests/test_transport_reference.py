@@ -6,9 +6,9 @@ at 5 m in clear, coastal and turbid water; the paper's Example 4; coastal water 
 5 m/s sea), each with its standard error and its no-target twin. Rewrite them with
 ``python -m benchmarks.transport_reference`` after a change of the transport physics.
 
-Where the fast (small-angle) renderer is not yet true to transport, the check is marked
-``xfail(strict=True)`` with the issue that must make it pass (#24): the gap is measured,
-not hidden, and a fix turns the mark into a failure until it is removed.
+Where the fast (small-angle) renderer is not yet true to transport (turbid water's
+backgrounds), the check is marked ``xfail(strict=True)``: the gap is measured, not hidden,
+and a fix turns the mark into a failure until it is removed.
 """
 
 import json
@@ -116,41 +116,49 @@ def test_fast_renderer_holds_to_transport_on_the_sphere_in_clear_water(reference
     assert abs(fast[0] / value[0] - 1) < 0.05 + 3 * error[0] / value[0], (fast[0], value[0])
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="issue #24 item 2: the fast renderer's gated background is 0.56-0.86 of "
-    "transport in coastal water and 0.1-0.4 in turbid water (no path stretching)",
-)
-@pytest.mark.parametrize("water", ["coastal", "turbid"])
+@pytest.mark.parametrize("water", ["clear", "coastal", "coastal-waves"])
 def test_fast_renderer_gate_backgrounds_within_issue_24_targets(reference, water):
+    # Issue #24 item 2: every ML(DC) gate's water background within 5 % of transport in
+    # coastal water (with the paper's phase function in the fast renderer: 0.51-0.82; the
+    # Monte Carlo's Fournier-Forand, fitted to the same b_b/b, is now both renderers').
+    # Over the 5 m/s sea, 5 % plus the rough sea's own sampling by one line a pixel
+    # (issue #24 item 1: 3-6 % above transport today).
     image, error, _, scene = stored(reference, f"{water}-none")
     mean, se = gate_means(image, error)
     fast = small_angle(scene).mean(axis=(1, 2))
-    tolerance = 0.05 if water == "coastal" else 0.10
-    gates = slice(None) if water == "coastal" else slice(0, 3)  # turbid 4-6: < 1e-5 of 1
-    ratio = (fast / mean)[gates]
-    assert np.all(np.abs(ratio - 1) < tolerance + 3 * (se / mean)[gates]), ratio
+    tolerance = 0.05 + (0.03 if water == "coastal-waves" else 0.0)
+    assert np.all(np.abs(fast / mean - 1) < tolerance + 3 * se / mean), fast / mean
 
 
 @pytest.mark.xfail(
     strict=True,
-    reason="issue #24 item 3: the small-angle halo fills the shadow below the sphere",
+    reason="issue #24 item 2, not met: in turbid harbour water the fast renderer's gated "
+    "background is 0.80, 0.78, 0.71 of transport in gates 1-3 (the small-angle spread "
+    "at b z = 7-20)",
 )
-@pytest.mark.parametrize(("name", "gate"), [("example4", 0), ("coastal", 4)])
+def test_fast_renderer_turbid_backgrounds_within_issue_24_target(reference):
+    image, error, _, scene = stored(reference, "turbid-none")
+    mean, se = gate_means(image, error)
+    fast = small_angle(scene).mean(axis=(1, 2))
+    ratio = (fast / mean)[:3]  # gates 4-6: < 1e-5 of a white plane, 9-16 % errors
+    assert np.all(np.abs(ratio - 1) < 0.10 + 3 * (se / mean)[:3]), ratio
+
+
+@pytest.mark.parametrize(("name", "gate"), [("example4", 0), ("coastal", 2), ("coastal", 4)])
 def test_fast_renderer_shadows_within_issue_24_targets(reference, name, gate):
+    # Issue #24 item 3: shadow contrast within the reference's error + 0.05 (Example 4,
+    # its water, sphere at 3 m: -0.71 by transport, -0.36 by the old fast renderer;
+    # coastal gate 5, 10.7-13.7 m: -0.77 against -0.38; gate 3: -0.75 against -0.58)
     value, error = contrast(reference, name)
     fast = fast_contrast(reference, name)
     assert abs(fast[gate] - value[gate]) < error[gate] + 0.05, (fast[gate], value[gate])
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="issue #24 item 4: a gate edge through the sphere (clear water, gate 2 from "
-    "4.88 m, sphere 4.7-5.3 m): the fast renderer gives 1.7 times transport's contrast",
-)
 def test_fast_renderer_gate_edge_within_issue_24_target(reference):
-    # clear water: coastal's reference holds this contrast only to +-0.5 (its forward-
-    # scattered target light is the estimator's hardest case)
+    # Issue #24 item 4: clear water, gate 2 from 4.88 m cuts the sphere (4.7-5.3 m): its
+    # contrast within 10 % of transport's (the old fast renderer, each cell in a gate or
+    # not by its centre's depth: 1.7 times). Coastal's reference holds this contrast
+    # only to +-0.5 (its forward-scattered target light is the estimator's hardest case).
     value, error = contrast(reference, "clear")
     fast = fast_contrast(reference, "clear")
     assert abs(fast[1] / value[1] - 1) < 0.10 + 3 * error[1] / abs(value[1]), (fast, value)

@@ -8,10 +8,12 @@ import pytest
 from numpy.testing import assert_allclose
 from scipy import integrate, special
 
+from workers.phase import fit_fournier_forand, fournier_forand
 from workers.water import (
     BETA_PI_PER_BACKSCATTER,
     PRESETS,
     WaterOptics,
+    fournier_forand_mtf_exponent,
     hankel_mtf_exponent,
     paper_mtf_exponent,
     paper_phase_function,
@@ -123,7 +125,7 @@ def test_mtf_float32_grid_and_zero_distance(phase_function):
 
 def test_mtf_depends_on_frequency_times_distance():
     # MTF(f; z) = exp(-c z + b_f z D(f z)), Wells (1973).
-    water = WaterOptics.from_preset("coastal")
+    water = WaterOptics.from_preset("coastal", phase_function="paper")
     frequency = frequency_grid()
     expected = np.exp(
         -water.attenuation * 4.0
@@ -312,3 +314,44 @@ def test_slab_centroid_tends_to_midpoint():
     assert_allclose(centroid, 6.0, atol=2e-3)
     assert centroid[0] == 6.0
     assert np.all(np.diff(centroid) < 0)  # moves up as K grows
+
+
+@pytest.mark.parametrize("fraction", [0.013, 0.044])
+def test_fournier_forand_exponent_is_the_transform_of_its_forward_half(fraction):
+    # Wells' D of the forward half (θ ≤ π/2) of the Fournier-Forand function the Monte
+    # Carlo renderer samples, its 3-D measure sin θ dθ written in the small-angle θ dθ:
+    # the cached table against the direct transform, D(0) = 1, decreasing.
+    n, mu = fit_fournier_forand(fraction)
+
+    def forward(theta):
+        return fournier_forand(theta, n=n, mu=mu) * np.sin(theta) / theta
+
+    psi = np.geomspace(3.3e-3, 7.7e5, 61)
+    direct = hankel_mtf_exponent(forward, psi, theta_max=np.pi / 2)
+    table = fournier_forand_mtf_exponent(psi, backscatter_fraction=fraction)
+    assert_allclose(table, direct, atol=5e-5)
+    grid = np.concatenate([[0.0], np.geomspace(1e-6, 1e8, 2000)])
+    exponent = fournier_forand_mtf_exponent(grid, backscatter_fraction=fraction)
+    assert exponent[0] == 1.0 and np.all(np.diff(exponent) <= 0) and np.all(exponent > 0)
+    # beyond the table, D ∝ ψ^-(μ-3) (the θ^-(5-μ) core), continuous at the table's end
+    assert_allclose(
+        fournier_forand_mtf_exponent(1e7, backscatter_fraction=fraction)
+        / fournier_forand_mtf_exponent(1e6, backscatter_fraction=fraction),
+        10.0 ** -(mu - 3.0),
+        rtol=1e-12,
+    )
+
+
+def test_default_water_spreads_as_the_monte_carlo_phase_function():
+    # The fast renderer's default D is the fitted Fournier-Forand one, not the paper's
+    water = WaterOptics.from_preset("coastal")
+    assert water.phase_function == "fournier_forand"
+    psi = np.geomspace(1.0, 30.0, 4)
+    fraction = water.backscatter / water.scattering
+    assert_allclose(
+        water.mtf_exponent(psi),
+        fournier_forand_mtf_exponent(psi, backscatter_fraction=fraction),
+        rtol=1e-12,
+    )
+    # narrower: coastal water's forward peak holds its light nearer the beam
+    assert np.all(water.mtf_exponent(psi) > paper_mtf_exponent(psi, theta0=0.12) + 0.05)

@@ -6,12 +6,12 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from workers.caches import lru_bytes
-from workers.gates import hidden_fraction
+from workers.delays import return_delays
 from workers.geometry import LaserRays, Located, PlaneGrid, flat_sea_point
 from workers.interface import ray_components
 from workers.optics import fresnel_reflectance
@@ -21,11 +21,13 @@ from workers.sensor import (
     Setup,
     fine_grid,
     gate_bounds,
+    gated_share_on,
     impostor_on,
     lines_of_sight,
     scene_setup,
     sensor_at,
 )
+from workers.shadows import gate_shadow
 from workers.spread import (
     NEAR_SUPPORT,
     SPREAD_FRACTION,
@@ -57,17 +59,18 @@ class Plane:
     `tail` is the light of the beam's tail (which crosses the mean sea, the same in every
     sample) already spread: ``(near, far, outside)`` as from `Spread.filtered`, with
     `outside` only on the target's plane. For a gate, `spread` is the round trip (the
-    slab's reflectance times MTF²); where the target hides part of the gate's water,
-    `bounds` holds the gate's slab bounds on the target plane's grid (for the rays that
-    meet the target) and `occlusion` the square root of the fraction not hidden, seen back
-    through the upwelling point-spread function.
+    slab's reflectance times MTF²); where the target hides part of the gate's water
+    (`workers.shadows.gate_shadow`), `occlusion` is the share of the laser's light the
+    gate's water keeps, per cell of this fine grid, and `seen` the share of a pixel's view
+    the target stops, per cell of the target plane's fine grid: a pixel keeps
+    (1 − seen)·occlusion, each read where its line of sight crosses the plane.
     """
 
     levels: Levels
     spread: Spread
     tail: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None
-    bounds: tuple[np.ndarray, np.ndarray] | None = None
     occlusion: np.ndarray | None = None
+    seen: np.ndarray | None = None
 
     @property
     def grid(self) -> PlaneGrid:
@@ -241,18 +244,22 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
             source = levels.downsample(fine) + coarse
             light = spread.filtered(fine, source, far_out=gate is None)
         planes.append(Plane(levels=levels, spread=spread, tail=light))
-    target_plane = impostor = target_light = target_sight = None
+    target_plane = impostor = target_light = None
     if t.shape != "none":
         target_plane, planes = planes[0], planes[1:]
         impostor = impostor_on(setup, target_plane.grid)
         target_light = _target_light(setup, sensor, target_plane.levels)
-        target_sight = lines_of_sight(sensor, target_plane.grid, water.refractive_index)
     gate_planes = []
     for g, plane in enumerate(planes):
         if impostor is not None:
-            plane = _with_hiding(
-                setup, sensor, plane, sensor.paths[g], target_plane.grid, target_sight, impostor
+            seen, lit = gate_shadow(
+                setup,
+                sensor,
+                gate_grid=plane.grid,
+                target_grid=target_plane.grid,
+                paths=sensor.paths[g],
             )
+            plane = replace(plane, occlusion=None if lit is None else 1.0 - lit, seen=seen)
         gate_planes.append(plane)
     pixel_directions = camera.pixel_directions().reshape(-1, 3)
     return FrameGeometry(
@@ -269,40 +276,71 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
     )
 
 
+def _gated(setup, grid, impostor, top, bottom, *, delays, shares) -> np.ndarray:
+    """Share of each cell's return a gate [top, bottom] holds, on time and late."""
+    on = impostor.occupancy > 0
+    held = gated_share_on(setup, grid, top, bottom, on=on, delays=delays, shares=shares)
+    if held is None:
+        depth = np.asarray(impostor.surface_depth, dtype=np.float64)
+        held = sum(
+            share * ((depth + delay >= top) & (depth + delay <= bottom) & on)
+            for delay, share in zip(delays, shares, strict=True)
+        )
+    return held
+
+
 def _target_light(setup, sensor, levels: Levels) -> TargetLight:
     r"""Reflectance of the part of the target each gate holds, from its true depth.
 
     The target plane's light carries the attenuation of the plane through the target's
     centre; a cell whose line meets the target's surface at depth z_s (above the centre
     plane, on the lit cap) is reached by a path shorter by (z_c − z_s) sec ϑ each way, so
-    its weight is multiplied by :math:`e^{2K\sec\vartheta\,(z_c - z_s)}`.
+    its weight is multiplied by :math:`e^{K\sec\vartheta\,(z_c - z_s)}` for the way up,
+    and for the way down by the beam's irradiance at z_s over its irradiance at z_c
+    (`_beam_depth_ratio`, log-linear in depth between the sphere's top and centre). A
+    gate holds the part of each cell's return whose path it holds: the sphere's annulus between the
+    gate's depths on the cell's line (`workers.target.gated_share`), its unscattered share
+    on time and the rest late by the path stretch of its scatterings
+    (`workers.delays.return_delays`).
     """
     water = setup.water
 
     def lit(grid, impostor):
-        depth = np.asarray(impostor.surface_depth, dtype=np.float64)
-        lift = np.exp(2 * water.diffuse_attenuation * setup.secant * (grid.depth - depth))
-        return depth, impostor.weight * lift
+        rise = grid.depth - np.asarray(impostor.surface_depth, dtype=np.float64)
+        lift = np.exp(water.diffuse_attenuation * setup.secant * rise)  # the way up
+        radius = setup.scene.target.radius
+        if setup.scene.target.shape == "sphere":
+            ratio = _beam_depth_ratio(setup, sensor, grid, rise=min(radius, grid.depth))
+            lift *= ratio ** np.clip(rise / radius, 0.0, 1.0)  # the way down
+        return impostor.weight * lift
 
     fine_impostor = impostor_on(setup, levels.fine)
     coarse_impostor = impostor_on(setup, levels.coarse)
     outside = coarse_impostor.occupancy.copy()
     outside[levels.block] = 0.0
-    levels_lit = [(levels.fine, fine_impostor, *lit(levels.fine, fine_impostor))]
+    levels_lit = [(levels.fine, fine_impostor, lit(levels.fine, fine_impostor))]
     if outside.any():
-        levels_lit.append((levels.coarse, coarse_impostor, *lit(levels.coarse, coarse_impostor)))
+        levels_lit.append((levels.coarse, coarse_impostor, lit(levels.coarse, coarse_impostor)))
     n_w = water.refractive_index
     sights = [lines_of_sight(sensor, grid, n_w) for grid, *_ in levels_lit]
+    unscattered, delays = return_delays(
+        water,
+        path=levels.fine.depth * setup.secant,
+        beam_radius=sensor.reference_range * np.tan(0.5 * sensor.laser_fov),
+        target_radius=setup.scene.target.radius,
+    )
+    parts = (0.0, *delays)
+    weights = (unscattered, *((1.0 - unscattered) / len(delays),) * len(delays))
     maps, members = {}, {}
     for g, paths in enumerate(sensor.paths):
         pair, signature = [], b""
-        for (grid, impostor, depth, weight), sight in zip(levels_lit, sights, strict=True):
+        for (grid, impostor, weight), sight in zip(levels_lit, sights, strict=True):
             top, bottom = gate_bounds(sight, paths, n_w)
-            inside = (depth >= top) & (depth <= bottom) & (impostor.occupancy > 0)
+            share = _gated(setup, grid, impostor, top, bottom, delays=parts, shares=weights)
             if grid is levels.coarse:
-                inside[levels.block] = False
-            pair.append(np.where(inside, weight, 0.0).astype(np.float32))
-            signature += inside.tobytes()
+                share[levels.block] = 0.0
+            pair.append((weight * share).astype(np.float32))
+            signature += share.tobytes()
         if not any(m.any() for m in pair):
             continue
         if signature not in maps:
@@ -317,43 +355,40 @@ def _target_light(setup, sensor, levels: Levels) -> TargetLight:
     )
 
 
-def _with_hiding(setup, sensor, plane, paths, target_grid, target_sight, impostor) -> Plane:
-    """`plane` with the target's hiding of the gate's water, if it hides any."""
+def _beam_depth_ratio(setup, sensor, grid: PlaneGrid, *, rise: float) -> np.ndarray:
+    r"""The flat sea's beam irradiance `rise` above `grid`'s plane over that on it, per cell.
+
+    The Gaussian beam (1/e radius a at the sea, growing as the rays diverge from the
+    platform: a (1 + z sec ϑ / (n R₀)) at depth z, R₀ the slant range; constant for a
+    parallel beam), each depth's profile blurred by its normalised one-way point-spread
+    function (`workers.water.WaterOptics.mtf`, zero-padded FFT) and attenuated by
+    e^(−Kz sec ϑ): what the target's cells above its centre plane receive, relative to
+    the plane's light, the same in every sample (the waves move the light, not its
+    spread with depth). Cells are placed by their offset from the central ray.
+    """
     water = setup.water
-    k = water.diffuse_attenuation * setup.secant
-    top_t, bottom_t = gate_bounds(target_sight, paths, water.refractive_index)
-    grid = plane.grid
-    # The line of sight through a gate-plane cell crossed the target plane nearer the
-    # platform, by the depth difference times the tangent of the in-water angle.
+    n_w = water.refractive_index
+    scene = setup.scene
+    origins, directions = sensor.lattice
+    centre = flat_sea_point(
+        origin=origins[:1], direction=directions[:1], depth=grid.depth, refractive_index=n_w
+    )[0, :2]
     x, y = grid.cell_centres()
-    back = (grid.depth - target_grid.depth) * np.tan(setup.refracted_nadir)
-    located = target_grid.locate(x + back * grid.axis_v[0], y + back * grid.axis_v[1])
-    top, bottom = gate_bounds(
-        lines_of_sight(sensor, grid, water.refractive_index), paths, water.refractive_index
-    )
-    hidden = hidden_fraction(
-        target_grid.gather(impostor.surface_depth, located),
-        target_grid.gather(impostor.occupancy, located),
-        top=top,
-        bottom=bottom,
-        diffuse_attenuation=k,
-    )
-    if not hidden.any():
-        return plane
-    deficit = (1.0 - np.sqrt(np.maximum(1.0 - hidden, 0.0))).astype(np.float32)
-    # seen back through the one-way (upwelling) spread, normalised to keep its level
-    upwelling = Spread.build(
-        water=water,
-        levels=plane.levels,
-        distance=grid.depth,
-        truncation=setup.scene.water.psf_truncation,
-    )
-    seen, _ = upwelling(deficit, far_out=False)
-    occlusion = 1.0 - seen / np.float32(np.exp(-water.diffuse_attenuation * grid.depth))
-    return Plane(
-        levels=plane.levels,
-        spread=plane.spread,
-        tail=plane.tail,
-        bounds=(top_t.astype(np.float32), bottom_t.astype(np.float32)),
-        occlusion=occlusion.astype(np.float32),
-    )
+    squared = (x - centre[0]) ** 2 + (y - centre[1]) ** 2
+    radius = sensor.reference_range * np.tan(0.5 * sensor.laser_fov)
+    rows, cols = grid.shape
+    shape = (2 * rows, 2 * cols)
+    fv = np.fft.fftfreq(shape[0], d=grid.spacing_v)[:, None]
+    fu = np.fft.rfftfreq(shape[1], d=grid.spacing_u)[None, :]
+    frequency = np.hypot(fv, fu)
+    light = []
+    for depth in (grid.depth - rise, grid.depth):
+        path = depth * setup.secant
+        growth = 1.0 + path / (n_w * sensor.reference_range)
+        width = radius * (growth if scene.laser.beam == "divergent" else 1.0)
+        profile = np.exp(-squared / width**2) * (radius / width) ** 2
+        mtf = water.mtf(frequency, distance=path).astype(np.float64)
+        blurred = np.fft.irfft2(np.fft.rfft2(profile, s=shape) * mtf, s=shape)
+        light.append(blurred[:rows, :cols])
+    top, plane = light
+    return np.divide(top, plane, out=np.ones(grid.shape), where=plane > 1e-300)

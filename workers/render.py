@@ -20,13 +20,14 @@ The image-formation model, per frame:
    the exit transmittance. The slant-range timing enters as one gain per laser ray and per
    pixel, from its air path (`gate_gain`): a ray longer in the air gates a shallower slab.
 3. The target is an impostor on the plane through its centre: downwelling irradiance
-   there times its reflectance map, attenuated from each cell's true depth on the target
-   (not from the centre plane), restricted to the part of the target inside the gate,
-   spread up and gathered.
-4. Where a ray or a pixel's line of sight meets the target, the water behind the target is
-   neither lit nor seen: the slab's backscatter is reduced by the fraction lying behind the
-   target's surface, half on the way down and half on the way up (square roots), which is
-   exact without scattering and gives a full shadow when the target is above the gate.
+   there times its reflectance map, lit and attenuated at each cell's true depth on the
+   target (not at the centre plane), restricted to each cell's share of the return inside
+   the gate (on time and delayed by scattering), spread up and gathered.
+4. Where a pixel's line of sight meets the target, the water behind the target is
+   neither lit nor seen: the slab's backscatter loses the fraction lying behind the
+   target's surface, half on the way down and half on the way up (square roots), each
+   blurred by small-angle scattering around the target (`workers.shadows`): exact
+   without scattering, a full shadow when the target is above the gate.
 5. Images are scaled to photoelectrons (`radiometry.mode`): ``absolute`` by the lidar
    equation's photon budget (`workers.radiometry.photoelectrons_per_signal`), so counts
    fall with altitude as 1/(nH + d)²; ``normalised`` so that a ρ = 1 Lambertian plane just
@@ -46,7 +47,6 @@ import numpy as np
 import xarray as xr
 
 from workers import montecarlo
-from workers.gates import hidden_fraction
 from workers.interface import Projected, through_surface
 from workers.kernels import Cells, gather_levels, sample, span, splat_levels
 from workers.labels import labelled_dataset, rendered_arrays, sample_labels, target_mask
@@ -154,18 +154,11 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
     images = np.zeros((len(setup.gates), pixels * pixels), dtype=np.float32)
     mask = np.zeros(pixels * pixels, dtype=np.uint8)
     impostor = geometry.impostor
-    lit = np.empty(0, dtype=np.intp)
     if impostor is not None:
         plane = geometry.target_plane
         levels = plane.levels
         cells = Cells.of(levels)
         box = _support(impostor.occupancy)
-        occupancy = _sample(down_axes, cells, (impostor.occupancy,), box)[0]
-        lit = np.flatnonzero(occupancy)
-        # the rays meeting the target, for its hiding of the gates' water
-        on_target = down_axes.select(lambda values: values[lit])
-        whole = (0, *levels.fine.shape[:1], 0, levels.fine.shape[1])
-        surface_depth = _sample(on_target, cells, (impostor.surface_depth,), whole)[0]
         mask = target_mask(_sample(up_axes, cells, (impostor.occupancy,), box)[0])
         extra = down_axes.extra(levels.fine.depth)
         sight_extra = up_axes.extra(levels.fine.depth)
@@ -202,19 +195,12 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
     for g, plane in enumerate(geometry.gate_planes):
         gain = down_gains[g]
         ray_power = power * gain
-        if plane.bounds is not None and lit.size:
-            # rays that meet the target lose the part of the slab behind it
-            top, bottom = _sample(on_target, cells, plane.bounds, whole)
-            hidden = hidden_fraction(
-                surface_depth,
-                occupancy[lit],
-                top=top,
-                bottom=bottom,
-                diffuse_attenuation=K * setup.secant,
-            )
-            ray_power[lit] *= np.sqrt(np.maximum(1.0 - hidden, 0.0))
         up_gain = geometry.pixels(gain) if monostatic else up_gains[g]
         weight = up_transmittance * up_gain
+        if plane.seen is not None:
+            # the pixels whose lines of sight the target stops, where they cross it
+            whole = (0, *plane.seen.shape[:1], 0, plane.seen.shape[1])
+            weight = weight * (1.0 - _sample(up_axes, cells, (plane.seen,), whole)[0])
         sources, window = _splat(plane, down_axes, ray_power, geometry.pixel_block)
         _gather(
             plane,

@@ -18,9 +18,10 @@ from pydantic import Field, model_validator
 from workers.cascades import Sea
 from workers.conditioning import check_points
 from workers.instrument import Laser, Noise, Platform, Radiometry, Receiver, Sequence
+from workers.phase import FF_FRACTIONS
 from workers.sea import SurfaceSpec, Target, Water
 from workers.section import Section, units
-from workers.transport import FF_FRACTIONS, Transport
+from workers.transport import Transport
 
 __all__ = ["Scene", "footprint_span"]
 
@@ -206,18 +207,27 @@ class Scene(Section):
     @model_validator(mode="after")
     def _phase_function_for_the_water(self) -> Scene:
         t, water = self.transport, self.water.coefficients
-        if t.method != "monte_carlo" or t.phase_function != "fournier_forand":
+        users = []
+        forward = water["scattering"] > water["backscatter"]
+        if (
+            self.water.phase_function == "fournier_forand"
+            and t.method == "small_angle"
+            and forward
+        ):
+            users.append(("water.phase_function", "water.phase_function: paper"))
+        if t.phase_function == "fournier_forand" and t.method == "monte_carlo":
+            users.append(("transport.phase_function", "transport.phase_function: paper"))
+        if not users or water["scattering"] == 0:
             return self
-        if water["scattering"] > 0:
-            low, high = FF_FRACTIONS
-            fraction = water["backscatter"] / water["scattering"]
-            if not low <= fraction <= high:
-                raise ValueError(
-                    f"water.backscatter: b_b/b = {fraction:.4g} is outside [{low}, {high}], "
-                    "where transport.phase_function fournier_forand is fitted to the "
-                    "water's backscatter; change water.backscatter or use "
-                    "transport.phase_function: paper"
-                )
+        low, high = FF_FRACTIONS
+        fraction = water["backscatter"] / water["scattering"]
+        if not low <= fraction <= high:
+            field, remedy = users[0]
+            raise ValueError(
+                f"water.backscatter: b_b/b = {fraction:.4g} is outside [{low}, {high}], "
+                f"where {field} fournier_forand is fitted to the water's backscatter; "
+                f"change water.backscatter or use {remedy}"
+            )
         return self
 
     @model_validator(mode="after")

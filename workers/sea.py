@@ -286,10 +286,12 @@ class Water(Section):
         description="Backscattering coefficient b_b.",
         json_schema_extra=units("1/m"),
     )
-    phase_function: Literal["paper", "wells"] = Field(
-        "paper",
-        description="Small-angle phase function: `paper` (s ∝ θ^-3/2 (θ0²+θ²)^-1/2) or "
-        "`wells` (closed-form MTF exponent).",
+    phase_function: Literal["fournier_forand", "paper", "wells"] = Field(
+        "fournier_forand",
+        description="The fast renderer's small-angle phase function: `fournier_forand` (the "
+        "forward half of the Fournier-Forand function fitted to b_b/b, the one the Monte "
+        "Carlo renderer samples by default; needs 0.002 <= b_b/b <= 0.095), `paper` "
+        "(s ∝ θ^-3/2 (θ0²+θ²)^-1/2, θ0 = theta0) or `wells` (closed-form MTF exponent).",
         json_schema_extra=units("1"),
     )
     theta0: float = Field(

@@ -20,7 +20,7 @@ from workers.radiometry import photoelectrons_per_signal, pixel_solid_angle
 from workers.scene import Scene
 from workers.seeds import SampleSeed
 from workers.surface import Surface, draw
-from workers.target import Impostor
+from workers.target import Impostor, gated_share
 from workers.water import (
     WaterOptics,
     slab_backscatter_centroid,
@@ -278,6 +278,28 @@ def target_centre(setup: Setup, camera: PinholeCamera) -> tuple[float, float]:
         refractive_index=setup.water.refractive_index,
     )
     return float(centre[0]), float(centre[1])
+
+
+def gated_share_on(setup: Setup, grid: PlaneGrid, top, bottom, *, on, delays, shares):
+    """`workers.target.gated_share` of the scene's sphere on `grid`, or None.
+
+    None if the target is not a Lambertian sphere (a disk, or the paper's shading): a
+    cell is then in a gate or not, by its line of sight's depth.
+    """
+    t = setup.scene.target
+    if t.shape != "sphere" or t.shading != "lambert":
+        return None
+    return gated_share(
+        grid=grid,
+        centre=target_centre(setup, sensor_at(setup, 0).camera),
+        radius=t.radius,
+        refracted_nadir=setup.refracted_nadir,
+        top=top,
+        bottom=bottom,
+        on=on,
+        delays=delays,
+        shares=shares,
+    )
 
 
 def impostor_on(setup: Setup, grid: PlaneGrid) -> Impostor:

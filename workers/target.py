@@ -64,7 +64,7 @@ def sphere_area_weights(*, u, w, cell_u, cell_w, radius):
     return 0.5 * cell_u * column @ _GAUSS_WEIGHTS
 
 
-def disc_cover(*, u, w, cell_u, cell_w, radius):
+def disc_cover(*, u, w, cell_u, cell_w, radius, within=None):
     r"""Share of each rectangular cell inside a disc, and the mean of cos i over the cell.
 
     Parameters
@@ -75,6 +75,9 @@ def disc_cover(*, u, w, cell_u, cell_w, radius):
         Cell sizes along u and w [m].
     radius : float
         Disc radius r [m].
+    within : ndarray, optional
+        Per cell, a radius R ≤ r [m]: both integrals are then taken over the part of
+        the cell within R of the centre only (the cosine still the sphere's of radius r).
 
     Returns
     -------
@@ -95,16 +98,18 @@ def disc_cover(*, u, w, cell_u, cell_w, radius):
     vanishes nor turns dark.
     """
     u, w = np.broadcast_arrays(np.asarray(u, dtype=np.float64), np.asarray(w, dtype=np.float64))
+    limit = np.broadcast_to(radius if within is None else np.asarray(within), u.shape)
     cover, cosine = np.zeros(u.shape), np.zeros(u.shape)
     near = (np.abs(u) < radius + cell_u) & (np.abs(w) < radius + cell_w)
-    uc, wc = u[near], w[near]
-    start = np.maximum(uc - 0.5 * cell_u, -radius)
-    stop = np.minimum(uc + 0.5 * cell_u, radius)
+    uc, wc, rc = u[near], w[near], np.clip(limit[near], 0.0, radius)
+    start = np.maximum(uc - 0.5 * cell_u, -rc)
+    stop = np.minimum(uc + 0.5 * cell_u, rc)
     span = np.clip(stop - start, 0.0, None)
     nodes = 0.5 * (start + stop)[:, np.newaxis] + 0.5 * span[:, np.newaxis] * _GAUSS_NODES
     half = np.sqrt(np.clip(radius**2 - nodes**2, 0.0, None))
-    lower = np.clip(wc[:, np.newaxis] - 0.5 * cell_w, -half, half)
-    upper = np.clip(wc[:, np.newaxis] + 0.5 * cell_w, -half, half)
+    reach = np.sqrt(np.clip(rc[:, np.newaxis] ** 2 - nodes**2, 0.0, None))
+    lower = np.clip(wc[:, np.newaxis] - 0.5 * cell_w, -reach, reach)
+    upper = np.clip(wc[:, np.newaxis] + 0.5 * cell_w, -reach, reach)
     safe = np.where(half > 0, half, 1.0)
 
     def primitive(x):
@@ -175,10 +180,7 @@ class Impostor:
         limb (`paper`). Both treat the laser and the receiver as sharing the mean in-water
         direction, which holds for a common boresight up to the wave slopes.
         """
-        x, y = grid.cell_centres()
-        du = (x - centre[0]) * grid.axis_u[0] + (y - centre[1]) * grid.axis_u[1]
-        # distance along the line of sight, positive away from the platform
-        along = -((x - centre[0]) * grid.axis_v[0] + (y - centre[1]) * grid.axis_v[1])
+        du, along = _offsets(grid, centre)
         if shape == "disk":
             occupancy, _ = disc_cover(
                 u=du, w=along, cell_u=grid.spacing_u, cell_w=grid.spacing_v, radius=radius
@@ -220,3 +222,79 @@ class Impostor:
             top=grid.depth - radius,
             bottom=grid.depth + radius,
         )
+
+
+def _offsets(grid, centre):
+    """Each cell's offset from the target's centre, across and along its lines [m].
+
+    Along the lines of sight is positive away from the platform.
+    """
+    x, y = grid.cell_centres()
+    du = (x - centre[0]) * grid.axis_u[0] + (y - centre[1]) * grid.axis_u[1]
+    along = -((x - centre[0]) * grid.axis_v[0] + (y - centre[1]) * grid.axis_v[1])
+    return du, along
+
+
+def gated_share(*, grid, centre, radius, refracted_nadir, top, bottom, on, delays, shares):
+    r"""Share of each cell's Lambertian return from a sphere whose surface a gate holds.
+
+    Parameters
+    ----------
+    grid : PlaneGrid
+        Plane through the sphere's centre.
+    centre : tuple of float
+        World (x, y) of the sphere's centre [m].
+    radius : float
+        Sphere radius r [m].
+    refracted_nadir : float
+        Angle from the vertical of the lines of sight in the water [rad].
+    top, bottom : ndarray
+        Per cell, the depths its line of sight gates [m].
+    on : ndarray of bool
+        The cells to compute (the others are 0): those the sphere covers.
+    delays, shares : sequence of float
+        The return arrives in parts, share s_k as if from δ_k deeper
+        (`workers.delays.return_delays`; (0,), (1,) for the return on time) [m], [1].
+
+    Returns
+    -------
+    ndarray
+        Per cell, in [0, 1]: the cell's return from the part of the sphere whose surface
+        depth plus δ_k lies in [top, bottom], summed over the parts with their shares,
+        over the cell's whole return (0 off the sphere).
+
+    Notes
+    -----
+    A line at distance ρ from the centre meets the sphere after the chord half-length
+    :math:`q = \sqrt{r^2-\rho^2}`, at depth :math:`z_s = z_c - (a\sin\vartheta + q)
+    \cos\vartheta` (a the cell's offset along the lines, ϑ the refracted nadir): the gate
+    holds an annulus :math:`\rho \in [\sqrt{r^2-q_{hi}^2}, \sqrt{r^2-q_{lo}^2}]`, whose
+    return (the cosine of incidence integrated over the cell, `disc_cover`) is taken
+    exactly, not the cell centre's all or nothing: a gate edge through the sphere cuts
+    its cells where the edge runs.
+    """
+    du, along = (values[on] for values in _offsets(grid, centre))
+    cos_t, sin_t = np.cos(refracted_nadir), np.sin(refracted_nadir)
+    base = grid.depth - along * sin_t * cos_t
+    cells = {
+        "u": du,
+        "w": along * cos_t,
+        "cell_u": grid.spacing_u,
+        "cell_w": grid.spacing_v * cos_t,
+        "radius": radius,
+    }
+
+    def within(depth):
+        chord = np.clip((base - depth) / cos_t, 0.0, radius)
+        return np.sqrt(radius**2 - chord**2)
+
+    _, whole = disc_cover(**cells)
+    top, bottom = (np.asarray(v, dtype=np.float64)[on] for v in (top, bottom))
+    held = np.zeros(whole.shape)
+    for delay, share in zip(delays, shares, strict=True):
+        _, outer = disc_cover(**cells, within=within(bottom - delay))
+        _, inner = disc_cover(**cells, within=within(top - delay))
+        held += share * (outer - inner)
+    out = np.zeros(grid.shape)
+    out[on] = np.clip(np.divide(held, whole, out=np.zeros(whole.shape), where=whole > 0), 0, 1)
+    return out

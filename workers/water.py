@@ -16,10 +16,13 @@ from types import MappingProxyType
 import numpy as np
 from scipy import special
 
+from workers.phase import BETA_PI_PER_BACKSCATTER, fit_fournier_forand, fournier_forand
+
 __all__ = [
     "BETA_PI_PER_BACKSCATTER",
     "PRESETS",
     "WaterOptics",
+    "fournier_forand_mtf_exponent",
     "hankel_mtf_exponent",
     "paper_mtf_exponent",
     "paper_phase_function",
@@ -48,14 +51,6 @@ PRESETS = MappingProxyType(
 ``backscatter`` is b_b = B·b with the backscatter fraction B of the same table
 (clear ocean 0.044, coastal 0.013, turbid harbour 0.019). Source: Petzold (1972), as
 tabulated in Mobley (1994), *Light and Water*, Table 3.10.
-"""
-
-BETA_PI_PER_BACKSCATTER = 0.174
-"""Ratio β(π)/b_b [1/sr] of Petzold's average particle phase function.
-
-Mobley (1994), Table 3.10, tabulates that phase function with β̃(180°) = 3.18e-3 sr⁻¹
-and backscatter fraction b̃_b = 0.0183, so β(π) = 0.174 b_b. This is 1.09 times the value
-1/(2π) = 0.159 sr⁻¹ that a phase function flat over the backward hemisphere would give.
 """
 
 _THETA_MIN = 1e-12  # lower end of the quadrature grid [rad]
@@ -280,19 +275,85 @@ def wells_mtf_exponent(psi, *, theta0):
     return special.exprel(-2 * np.pi * theta0 * psi)[()]
 
 
-@functools.lru_cache(maxsize=16)
-def _paper_exponent_table(theta0):
-    """(ln ψ, D(ψ)) of the paper phase function on a log grid; read-only arrays."""
+def _exponent_table(phase_function, theta_max):
+    """(ln ψ, D(ψ)) of a small-angle phase function on a log grid; read-only arrays."""
     low, high = _TABLE_PSI
     count = round(np.log10(high / low) * _TABLE_PER_DECADE) + 1
     psi = np.geomspace(low, high, count)
-    exponent = hankel_mtf_exponent(
-        functools.partial(paper_phase_function, theta0=theta0), psi, theta_max=np.pi
-    )
+    exponent = hankel_mtf_exponent(phase_function, psi, theta_max=theta_max)
     log_psi = np.log(psi)
     log_psi.flags.writeable = False
     exponent.flags.writeable = False
     return log_psi, exponent
+
+
+def _tabled_exponent(table, psi, *, tail):
+    """D(ψ) interpolated in ln ψ from `table`, 1 below it, ψ^-`tail` beyond it."""
+    log_table, d_table = table
+    psi = np.abs(np.asarray(psi, dtype=np.float64))
+    tiny = np.finfo(np.float64).tiny
+    exponent = np.interp(np.log(np.maximum(psi, tiny)), log_table, d_table, left=1.0)
+    psi_max = _TABLE_PSI[1]
+    beyond = psi > psi_max
+    if np.any(beyond):
+        continued = d_table[-1] * (psi_max / np.maximum(psi, psi_max)) ** tail
+        exponent = np.where(beyond, continued, exponent)
+    return exponent[()]
+
+
+@functools.lru_cache(maxsize=16)
+def _paper_exponent_table(theta0):
+    return _exponent_table(functools.partial(paper_phase_function, theta0=theta0), np.pi)
+
+
+def _forward_fournier_forand(backscatter_fraction):
+    """The fitted Fournier–Forand function in the small-angle measure θ dθ, and its μ."""
+    n, mu = fit_fournier_forand(backscatter_fraction)
+
+    def forward(theta):
+        return fournier_forand(theta, n=n, mu=mu) * np.sin(theta) / theta
+
+    return forward, mu
+
+
+@functools.lru_cache(maxsize=64)
+def _fournier_forand_exponent_table(backscatter_fraction):
+    forward, mu = _forward_fournier_forand(backscatter_fraction)
+    return _exponent_table(forward, 0.5 * np.pi), mu
+
+
+def fournier_forand_mtf_exponent(psi, *, backscatter_fraction):
+    r"""MTF exponent D(ψ) of the forward half of the fitted Fournier–Forand function.
+
+    Parameters
+    ----------
+    psi : float or array_like
+        Angular frequency ψ [cycles/rad]; the sign is ignored.
+    backscatter_fraction : float
+        b_b/b of the water, in `workers.phase.FF_FRACTIONS` [1].
+
+    Returns
+    -------
+    float or ndarray
+        D(ψ) in (0, 1], decreasing, D(0) = 1 [1], same shape as `psi`.
+
+    Notes
+    -----
+    The phase function is `workers.phase.fit_fournier_forand`'s, the one the Monte Carlo
+    renderer samples by default (same b_b/b, β(π) = 0.174 b_b), on 0 < θ ≤ π/2: its
+    forward part, scattered at the rate b_f = b − b_b; its β̃ sin θ / θ is transformed
+    (`hankel_mtf_exponent`), so that Wells' small-angle measure θ dθ integrates the 3-D
+    function's sin θ dθ. Tabulated once per b_b/b as `paper_mtf_exponent`; beyond the
+    table D follows this function's large-ψ law :math:`D \propto \psi^{-(\mu-3)}` (from
+    its :math:`\tilde\beta \propto \theta^{-(5-\mu)}` core), μ its Junge slope.
+
+    References
+    ----------
+    Fournier, G. R. & Jonasz, M. (1999). Computer-based underwater imaging analysis.
+    Proc. SPIE 3761, 62–70.
+    """
+    table, mu = _fournier_forand_exponent_table(float(backscatter_fraction))
+    return _tabled_exponent(table, psi, tail=mu - 3.0)
 
 
 def paper_mtf_exponent(psi, *, theta0):
@@ -325,16 +386,7 @@ def paper_mtf_exponent(psi, *, theta0):
     Carmona, R., Cérou, F. & Blasco, B. (2000). Lidar imaging through the ocean surface,
     §4.4 "Scattering Computations".
     """
-    log_table, d_table = _paper_exponent_table(float(theta0))
-    psi = np.abs(np.asarray(psi, dtype=np.float64))
-    tiny = np.finfo(np.float64).tiny
-    exponent = np.interp(np.log(np.maximum(psi, tiny)), log_table, d_table, left=1.0)
-    psi_max = _TABLE_PSI[1]
-    beyond = psi > psi_max
-    if np.any(beyond):
-        tail = d_table[-1] * np.sqrt(psi_max / np.maximum(psi, psi_max))
-        exponent = np.where(beyond, tail, exponent)
-    return exponent[()]
+    return _tabled_exponent(_paper_exponent_table(float(theta0)), psi, tail=0.5)
 
 
 def _slab(top, bottom, diffuse_attenuation):
@@ -453,9 +505,10 @@ class WaterOptics:
         Scattering coefficient b ≥ 0 [1/m].
     backscatter : float
         Backscattering coefficient b_b, 0 ≤ b_b ≤ b [1/m].
-    phase_function : {"paper", "wells"}
-        Small-angle phase function for the MTF exponent: the paper's (§4.4, D tabulated by
-        Hankel transform) or Wells' (closed-form D).
+    phase_function : {"fournier_forand", "paper", "wells"}
+        Small-angle phase function for the MTF exponent: the forward half of the
+        Fournier–Forand function fitted to b_b/b that the Monte Carlo renderer samples
+        (`fournier_forand_mtf_exponent`), the paper's (§4.4) or Wells' (closed-form D).
     theta0 : float
         Angular scale θ0 of the phase function [rad] (paper: 0.12).
     refractive_index : float
@@ -482,7 +535,7 @@ class WaterOptics:
     absorption: float
     scattering: float
     backscatter: float
-    phase_function: str = "paper"
+    phase_function: str = "fournier_forand"
     theta0: float = 0.12
     refractive_index: float = 1.34
 
@@ -491,9 +544,10 @@ class WaterOptics:
             raise ValueError("absorption and scattering must be >= 0")
         if not 0 <= self.backscatter <= self.scattering:
             raise ValueError("backscatter must lie in [0, scattering]")
-        if self.phase_function not in ("paper", "wells"):
+        if self.phase_function not in ("fournier_forand", "paper", "wells"):
             raise ValueError(
-                f"phase_function must be 'paper' or 'wells', not {self.phase_function!r}"
+                "phase_function must be 'fournier_forand', 'paper' or 'wells', not "
+                f"{self.phase_function!r}"
             )
         if not self.theta0 > 0:
             raise ValueError("theta0 must be > 0")
@@ -539,6 +593,25 @@ class WaterOptics:
         """Volume scattering function at 180°, β(π) = 0.174 sr⁻¹ · b_b [1/(m·sr)]."""
         return BETA_PI_PER_BACKSCATTER * self.backscatter
 
+    def small_angle_phase_function(self):
+        """The small-angle phase function of this water, and the end of its support.
+
+        Returns
+        -------
+        function : callable
+            s(θ) for an ndarray of θ [rad] [1/sr], in the small-angle measure θ dθ (any
+            normalisation): what `mtf_exponent` transforms.
+        theta_max : float
+            Upper end of its support [rad] (π/2: the Fournier–Forand function's forward
+            half; π: the paper's; ∞: Wells').
+        """
+        if self.phase_function == "wells":
+            return functools.partial(wells_phase_function, theta0=self.theta0), np.inf
+        if self.phase_function == "paper":
+            return functools.partial(paper_phase_function, theta0=self.theta0), np.pi
+        forward, _ = _forward_fournier_forand(self.backscatter / self.scattering)
+        return forward, 0.5 * np.pi
+
     def mtf_exponent(self, psi):
         """Wells' MTF exponent D(ψ) of this water's phase function [1].
 
@@ -550,11 +623,18 @@ class WaterOptics:
         Returns
         -------
         float or ndarray
-            D(ψ), see `paper_mtf_exponent` and `wells_mtf_exponent`.
+            D(ψ), see `fournier_forand_mtf_exponent`, `paper_mtf_exponent` and
+            `wells_mtf_exponent`.
         """
         if self.phase_function == "wells":
             return wells_mtf_exponent(psi, theta0=self.theta0)
-        return paper_mtf_exponent(psi, theta0=self.theta0)
+        if self.phase_function == "paper":
+            return paper_mtf_exponent(psi, theta0=self.theta0)
+        if self.forward_scattering == 0:  # D is then multiplied by b_f = 0
+            return np.ones_like(np.asarray(psi, dtype=np.float64))[()]
+        return fournier_forand_mtf_exponent(
+            psi, backscatter_fraction=self.backscatter / self.scattering
+        )
 
     def mtf(self, frequency, *, distance):
         r"""Small-angle MTF of a water path, sampled at spatial frequencies on a plane.
