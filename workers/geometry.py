@@ -490,7 +490,9 @@ class PlaneGrid:
             ``(origins, directions)``, each (3, 3): three neighbouring laser rays, the
             central one, the next to its right and the next below. Cells are sized so
             that, under a flat sea, the laser lattice lands one ray per cell at the
-            image centre: bilinear splatting then makes no moiré.
+            image centre: bilinear splatting then makes no moiré there (at oblique views
+            the pitch drifts across the image, 0.87-1.18 cells at 45°, and a flat sea's
+            images ring by a few per cent on some rows: docs/model.md §3).
         depth : float
             Depth of the plane [m].
         refractive_index : float
