@@ -107,6 +107,17 @@ planes and the sea's synthesis alone come to 33–34 pairs at both sizes, above 
 30 (256²) and near its 35 (512²): the target needs another spreading scheme (smaller fine
 planes: a third level, or a near kernel narrower than four coarse cells) and a cheaper sea,
 both image-changing, not faster loops.
+
+Issue #24 item 1 (the laser lattice offset from the pixels' lines of sight, which are now
+traced through the sea on their own; a Gaussian in each plane's spread for the read scale):
+this script with ``--sizes 128 256 --rounds 15``, the code before (051395d) and after run
+alternately, twice each, CPU time, on the shared 2-core machine (load about 2). Milliseconds
+a sample, before → after: 12.4, 12.5 → 13.9, 15.5 (128, sphere); 9.9, 10.4 → 11.3, 11.9
+(128, none); 34.2, 33.5 → 39.3, 41.1 (256, sphere); 27.9, 30.3 → 33.2, 34.5 (256, none):
+1.12–1.24 times. Scipy ratios 85.6, 82.9 → 89.5, 86.3; 67.8, 66.1 → 78.4, 74.7; 82.5, 87.9 →
+93.2, 89.9; 67.6, 74.3 → 80.2, 79.9 (1.04–1.19 times). Two lines of sight a pixel and side
+(the texture's remedy, docs/model.md §3) took about 1.9 times in a prototype (128 pixels, no
+target, one run).
 """
 
 import argparse

@@ -211,6 +211,42 @@ def test_the_traced_lattice_and_the_beam_tail_carry_the_whole_beam(rays):
     assert_allclose(total, np.pi * a**2, rtol=2e-3)
 
 
+@pytest.mark.parametrize("offset", [0.0, 0.25, 0.5])
+@pytest.mark.parametrize("rays", [32, 33], ids=["even", "odd"])
+def test_an_offset_lattice_and_its_tail_tile_the_beam(rays, offset):
+    # shifted by `offset` steps (workers.sensor.lattice_offset), the traced square's cells
+    # end where the tail's begin, on every side
+    cam = camera(pixels=rays)
+    common = dict(
+        position=cam.position,
+        rotation=cam.rotation,
+        beam="divergent",
+        field_of_view=cam.field_of_view,
+        reference_range=cam.position[2],
+    )
+    step = 2 * np.tan(0.5 * cam.field_of_view) / rays
+    tail_step = (2 if rays % 2 == 0 else 1) * step
+    traced = LaserRays.from_platform(**common, rays=rays, margin=8, offset=offset)
+    tail = LaserRays.beam_tail(
+        **common,
+        inner=(0.5 * rays + 8) * step,
+        step=tail_step,
+        extent=3.0,
+        centre=offset * step,
+    )
+
+    def tangents(lattice):
+        local = lattice.directions @ cam.rotation.T
+        return local[:, :2] / local[:, 2:] - offset * step
+
+    inner = (0.5 * rays + 8) * step
+    assert_allclose(np.abs(tangents(traced)).max(axis=0) + 0.5 * step, inner, rtol=1e-9)
+    assert_allclose(np.abs(tangents(tail)).max(axis=1).min() - 0.5 * tail_step, inner, rtol=1e-9)
+    for axis in (0, 1):
+        shifted = tangents(traced)[:, axis]
+        assert_allclose(shifted.max(), -shifted.min(), rtol=1e-9)
+
+
 @pytest.mark.parametrize("beam", ["divergent", "parallel"])
 @pytest.mark.parametrize("rays", [16, 17], ids=["even", "odd"])
 def test_the_central_rays_are_those_of_the_lattice(beam, rays):

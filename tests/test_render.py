@@ -459,7 +459,11 @@ def test_a_gate_opening_above_the_surface_holds_only_the_water():
     # row (monostatic, flat sea, no forward scattering), against a deep gate for the rest:
     #   S(row) ∝ e^(-2K (P_a - L)₊/n) - e^(-2K (P_b - L)₊/n), L the row's air path.
     # The default, monostatic beam (its range spreading, the same for both gates to 1-2 %,
-    # is left in the tolerance; holding the full slab instead is 1.8 times too bright).
+    # is left in the tolerance; holding the full slab instead is 1.8 times too bright). At
+    # 45° the laser lattice lands at a pitch 0.87-1.18 of the plane's cells, and its
+    # bilinear splat rings by up to 3-5 % on a few rows of each gate's image (as it did
+    # when the lines of sight were the rays); read between the rays, the two gates' rows
+    # no longer ring alike, so the tolerance is 5 %.
     n, H, pixels = N_WATER, 34.0, 32
     image = render(
         gated_water([(0.5, 3.0), (10.0, 12.5)], nadir=45.0, laser={"beam": "divergent"}), seed=1
@@ -478,7 +482,7 @@ def test_a_gate_opening_above_the_surface_holds_only_the_water():
 
     expected = slab(0.5, 3.0) / slab(10.0, 12.5)
     assert (air - H / np.cos(theta_c) > n * 0.5 * sec_c).sum() >= 4  # the far rows are cut
-    assert_allclose(ratio / ratio[16], expected / expected[16], rtol=0.03)
+    assert_allclose(ratio / ratio[16], expected / expected[16], rtol=0.05)
 
 
 @pytest.mark.parametrize("height", [-0.3, 0.3], ids=["trough", "crest"])
@@ -553,25 +557,3 @@ def test_signal_means_are_the_means_over_the_mask_and_its_ring(where):
                 continue
             expected = values[s][:, region].astype(np.float64).mean(axis=1)
             assert_allclose(got, expected, rtol=1e-12)
-
-
-@pytest.mark.parametrize("nadir", [0.0, 20.0])
-def test_the_pixels_window_found_while_splatting_is_the_one_their_lines_reach(nadir):
-    # a monostatic scene's pixels are a block of the laser lattice: the splat finds their
-    # window on each gate plane in its pass, as `span` finds it from their lines alone
-    from workers.interface import through_surface
-    from workers.kernels import Cells, span
-    from workers.planes import frame_geometry
-    from workers.render import _splat
-
-    s = scene(platform={"nadir_deg": nadir})
-    setup = scene_setup(s)
-    geometry = frame_geometry(s, 0)
-    surface = setup.surface(SampleSeed(root=3), np.zeros(1))
-    down = through_surface(geometry.laser_rays, surface, 0, setup.water.refractive_index)
-    for plane in geometry.gate_planes:
-        rays = down.on_axes(plane.grid, setup.water.diffuse_attenuation)
-        _, window = _splat(plane, rays, geometry.laser_power, geometry.pixel_block)
-        lines = rays.select(geometry.pixels).lines
-        assert window == span(lines, Cells.of(plane.levels), plane.grid.shape)
-        assert window[1] > window[0] and window[3] > window[2]

@@ -218,14 +218,16 @@ class LaserRays:
     rays: int
 
     @classmethod
-    def central(cls, *, position, rotation, beam, field_of_view, rays, reference_range):
+    def central(
+        cls, *, position, rotation, beam, field_of_view, rays, reference_range, offset=0.0
+    ):
         """``(origins, directions)`` of the central ray and its right and lower neighbours.
 
         Of the lattice `from_platform` builds with the same arguments (without making it).
         """
         half = np.tan(0.5 * field_of_view)
         step = 2.0 * half / rays
-        middle = (rays // 2 + 0.5 - 0.5 * rays) * step
+        middle = (rays // 2 + 0.5 + offset - 0.5 * rays) * step
         u = np.array([middle, middle + step, middle])
         v = np.array([middle, middle, middle + step])
         probe = cls._from_offsets(
@@ -243,7 +245,16 @@ class LaserRays:
 
     @classmethod
     def from_platform(
-        cls, *, position, rotation, beam, field_of_view, rays, reference_range, margin=0
+        cls,
+        *,
+        position,
+        rotation,
+        beam,
+        field_of_view,
+        rays,
+        reference_range,
+        margin=0,
+        offset=0.0,
     ):
         r"""Build the lattice for a laser on the platform.
 
@@ -266,6 +277,11 @@ class LaserRays:
         margin : int, optional
             Rays added on every side at the same pitch, beyond the field (default 0): the
             Gaussian beam goes on outside it.
+        offset : float, optional
+            Shift of the whole lattice along both of the boresight's tangent axes, in
+            steps [1] (default 0: the rays at the centres of the field's `rays` × `rays`
+            cells), so that the pixels' lines of sight need not be rays
+            (`workers.sensor.lattice_offset`).
 
         Notes
         -----
@@ -279,7 +295,7 @@ class LaserRays:
         """
         half = np.tan(0.5 * field_of_view)
         step = 2.0 * half / rays
-        offsets = (np.arange(rays + 2 * margin) + 0.5 - 0.5 * rays - margin) * step
+        offsets = (np.arange(rays + 2 * margin) + 0.5 + offset - 0.5 * rays - margin) * step
         u, v = np.meshgrid(offsets, offsets)
         return cls._from_offsets(
             u.ravel(),
@@ -295,7 +311,17 @@ class LaserRays:
 
     @classmethod
     def beam_tail(
-        cls, *, position, rotation, beam, field_of_view, reference_range, inner, step, extent
+        cls,
+        *,
+        position,
+        rotation,
+        beam,
+        field_of_view,
+        reference_range,
+        inner,
+        step,
+        extent,
+        centre=0.0,
     ):
         """The beam outside a square of the tangent plane, on a lattice of its own.
 
@@ -310,6 +336,9 @@ class LaserRays:
             Lattice pitch in tangent units [1].
         extent : float
             Half-width of the lattice in units of the beam's 1/e radius [1].
+        centre : float, optional
+            Tangent offset of the left-out square's centre along both axes [1] (default
+            0): the traced lattice's, when `from_platform` shifts it.
 
         Returns
         -------
@@ -326,8 +355,8 @@ class LaserRays:
             offsets = np.arange(-count, count + 1) * step
         else:
             raise ValueError("inner must be a whole or half-whole number of steps")
-        u, v = np.meshgrid(offsets, offsets)
-        keep = (np.maximum(np.abs(u), np.abs(v)) > inner).ravel()
+        u, v = np.meshgrid(offsets + centre, offsets + centre)
+        keep = (np.maximum(np.abs(u - centre), np.abs(v - centre)) > inner).ravel()
         return cls._from_offsets(
             u.ravel()[keep],
             v.ravel()[keep],
@@ -461,7 +490,9 @@ class PlaneGrid:
             ``(origins, directions)``, each (3, 3): three neighbouring laser rays, the
             central one, the next to its right and the next below. Cells are sized so
             that, under a flat sea, the laser lattice lands one ray per cell at the
-            image centre: bilinear splatting then makes no moiré.
+            image centre: bilinear splatting then makes no moiré there (at oblique views
+            the pitch drifts across the image, 0.87-1.18 cells at 45°, and a flat sea's
+            images ring by a few per cent on some rows: docs/model.md §3).
         depth : float
             Depth of the plane [m].
         refractive_index : float

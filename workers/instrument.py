@@ -79,9 +79,9 @@ class Laser(Section):
         ge=8,
         le=4096,
         description="Rays per side of the laser's square ray lattice; null: one per "
-        "receiver pixel spacing (each pixel's line of sight is then its own ray). Over a "
-        "rough sea another count changes the mean brightness (double passage, "
-        "docs/model.md §3): compare images rendered with the same count.",
+        "receiver pixel spacing, offset half a step from the pixels' lines of sight. More "
+        "rays leave the gates' rough-sea means within 2 % and lower the pixel texture "
+        "(docs/model.md §3).",
         json_schema_extra=units("1"),
     )
 

@@ -120,7 +120,7 @@ def _deposit(field, row, col, value):
 
 
 @numba.njit(cache=True, nogil=True)
-def splat_levels(lines, power, cells, densities, fine, source, block, pixels):
+def splat_levels(lines, power, cells, densities, fine, source, block):
     """Splat rays onto a two-level plane: the fine field and the coarse spread source.
 
     Parameters
@@ -140,16 +140,12 @@ def splat_levels(lines, power, cells, densities, fine, source, block, pixels):
         fine region, the light of the rays that miss it outside, float32.
     block : tuple of int
         Coarse (row, col) of the fine grid's first block.
-    pixels : tuple of int
-        ``(side, first, stop)``: the rays are a side × side lattice whose rows and columns
-        ``first:stop`` are the pixels' lines of sight (side 0: none are).
 
     Returns
     -------
     tuple of int
         The fine rows and the coarse rows outside which `fine` and `source` are zero
-        (first, last + 1 of each), then the pixels' window on the fine grid, as `span`
-        gives it for their lines.
+        (first, last + 1 of each).
 
     Notes
     -----
@@ -161,14 +157,8 @@ def splat_levels(lines, power, cells, densities, fine, source, block, pixels):
     fine_density, coarse_density = densities
     rows, cols = fine.shape
     top, bottom, left, right = rows, 0, cols, 0
-    seen_top, seen_bottom, seen_left, seen_right = rows, 0, cols, 0
-    side, first, stop = pixels
     coarse_top, coarse_bottom = source.shape[0], 0
-    a, b = 0, -1  # the ray's row and column in the lattice
     for i in range(power.size):
-        b += 1
-        if b == side:
-            a, b = a + 1, 0
         row = _at(base_v, slope_v, i, cells.depth, cells.origin_v, cells.scale_v)
         col = _at(base_u, slope_u, i, cells.depth, cells.origin_u, cells.scale_u)
         if _deposit(fine, row, col, power[i] * fine_density):
@@ -177,11 +167,6 @@ def splat_levels(lines, power, cells, densities, fine, source, block, pixels):
             bottom = max(bottom, r + 2)
             left = min(left, c)
             right = max(right, c + 2)
-            if first <= a < stop and first <= b < stop:
-                seen_top = min(seen_top, r)
-                seen_bottom = max(seen_bottom, r + 2)
-                seen_left = min(seen_left, c)
-                seen_right = max(seen_right, c + 2)
             continue
         row = row / cells.factor + cells.shift_v
         col = col / cells.factor + cells.shift_u
@@ -199,11 +184,9 @@ def splat_levels(lines, power, cells, densities, fine, source, block, pixels):
                 for c in range(bc * factor, (bc + 1) * factor):
                     total += fine[r, c]
             source[block[0] + br, block[1] + bc] += np.float32(total * share)
-    if seen_top >= seen_bottom:
-        seen_top, seen_bottom, seen_left, seen_right = 0, 0, 0, 0
     fine_rows = min(top, bottom), bottom
     coarse_rows = min(coarse_top, coarse_bottom), coarse_bottom
-    return (*fine_rows, *coarse_rows, seen_top, seen_bottom, seen_left, seen_right)
+    return (*fine_rows, *coarse_rows)
 
 
 @numba.njit(cache=True, nogil=True)

@@ -101,20 +101,55 @@ class FrameGeometry:
     pixel_rays: tuple
     laser_rays: tuple
     laser_power: np.ndarray
-    pixel_block: tuple[int, slice] | None
     gate_planes: tuple[Plane, ...]
     target_plane: Plane | None
     impostor: Impostor | None
     target_light: TargetLight | None
 
-    def pixels(self, rays: np.ndarray) -> np.ndarray:
-        """The pixels' values of a laser-ray array, when `pixel_block` says they are rays.
 
-        ``(side, span)``: the laser lattice is side × side rays, the pixels its rows and
-        columns `span`.
-        """
-        side, span = self.pixel_block
-        return rays.reshape(side, side)[span, span].ravel()
+def read_blur(scene: Scene, sensor: Sensor, grid: PlaneGrid, *, uses: int) -> tuple[float, float]:
+    r"""The Gaussian a plane's spread adds so that light is read at one scale [m] (u, v).
+
+    Parameters
+    ----------
+    scene : Scene
+        The scene (its receiver's aperture, water index, altitude).
+    sensor : Sensor
+        The frame's sensor (pixel and ray pitches).
+    grid : PlaneGrid
+        The plane's fine grid, one ray a cell under a flat sea.
+    uses : int
+        How many times a ray's light passes the plane's filter between splat and gather
+        (1 for a gate's round trip, 2 for the target's plane, spread down and up).
+
+    Returns
+    -------
+    tuple of float
+        Standard deviation along u and v of the Gaussian each use adds [m].
+
+    Notes
+    -----
+    A pixel reads the light splatted bilinearly from the rays and gathered bilinearly at
+    its line of sight: a kernel of variance :math:`h^2/3` per axis, h the ray pitch on
+    the plane. Over a rough sea, what a pixel reads of the light that came down through
+    the part of the sea it looks through (the double passage) depends on that scale. It
+    is held at :math:`\max(p^2/3, D^2/16)`, p the pixel pitch on the plane (the default
+    lattice's h) and D the receiver's aperture projected to the plane's depth z,
+    :math:`D_r (z/n)/(H + z/n)` (a disc's variance), whatever the ray count: finer
+    lattices add the difference as a Gaussian, so that their images converge to the
+    same light (docs/model.md §3). The aperture's scale, the physical one, is resolved
+    only by lattices finer than it (2–4 times the default rays at 34 m).
+    """
+    ratio = (np.tan(0.5 * sensor.camera.field_of_view) / sensor.camera.pixels) / (
+        np.tan(0.5 * sensor.laser_fov) / sensor.laser_rays
+    )
+    depth = grid.depth / scene.water.refractive_index
+    aperture = scene.radiometry.receiver_aperture * depth / (sensor.position[2] + depth)
+    blur = []
+    for h in (grid.spacing_u, grid.spacing_v):
+        scale = max((ratio * h) ** 2 / 3.0, aperture**2 / 16.0)
+        blur.append(float(np.sqrt(max(scale - h**2 / 3.0, 0.0) / uses)))
+    return blur[0], blur[1]
 
 
 def _plane_levels(setup: Setup, sensor: Sensor, depth: float, passes: int) -> tuple[Levels, int]:
@@ -183,7 +218,7 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
     setup = scene_setup(scene)
     water = setup.water
     sensor = sensor_at(setup, frame)
-    camera, r = sensor.camera, scene.receiver
+    camera = sensor.camera
     t = scene.target
     depths = ([t.depth] if t.shape != "none" else []) + list(setup.reference_depths)
     passes = ([1] if t.shape != "none" else []) + [2] * len(setup.gates)
@@ -192,7 +227,8 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
         for depth, count in zip(depths, passes, strict=True)
     ]
     # the traced lattice reaches LATTICE_MARGIN rays beyond the field; the beam's tail
-    # beyond it crosses the mean sea (within the beam's extent)
+    # beyond it crosses the mean sea (within the beam's extent). The lattice is offset
+    # from the pixels' lines of sight (`workers.sensor.lattice_offset`).
     rays = sensor.laser_rays
     margin = min(LATTICE_MARGIN, int(np.ceil(0.5 * (BEAM_EXTENT - 1.0) * rays)))
     laser = LaserRays.from_platform(
@@ -203,6 +239,7 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
         rays=rays,
         reference_range=sensor.reference_range,
         margin=margin,
+        offset=sensor.offset,
     )
     step = 2.0 * np.tan(0.5 * sensor.laser_fov) / rays
     tail = LaserRays.beam_tail(
@@ -214,15 +251,8 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
         inner=(0.5 * rays + margin) * step,
         step=(TAIL_STEP if rays % 2 == 0 else 1) * step,
         extent=BEAM_EXTENT,
+        centre=sensor.offset * step,
     )
-    # The default laser (divergent, the receiver's field, one ray per pixel) shares the
-    # pixels' lattice of directions: the pixels' lines of sight are its central block.
-    monostatic = bool(
-        scene.laser.beam == "divergent"
-        and rays == r.pixels
-        and sensor.laser_fov == camera.field_of_view
-    )
-    pixel_block = (rays + 2 * margin, slice(margin, margin + rays)) if monostatic else None
 
     gains = ([1.0] if t.shape != "none" else []) + list(setup.reflectances)
     gate_index = ([None] if t.shape != "none" else []) + list(range(len(setup.gates)))
@@ -237,6 +267,8 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
             truncation=scene.water.psf_truncation,
             passes=count,
             gain=gain,
+            # a gate's round trip is one filter; the target's plane spreads down and up
+            blur=read_blur(scene, sensor, levels.fine, uses=1 if gate is not None else 2),
         )
         light = _beam_tail(setup, sensor, levels, tail, gate)
         if light is not None:
@@ -268,7 +300,6 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
         pixel_rays=ray_components(sensor.position, pixel_directions),
         laser_rays=ray_components(laser.origins, laser.directions),
         laser_power=laser.power.astype(np.float32),
-        pixel_block=pixel_block,
         gate_planes=tuple(gate_planes),
         target_plane=target_plane,
         impostor=impostor,

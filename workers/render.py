@@ -139,15 +139,10 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
     axes_grid = (geometry.target_plane or geometry.gate_planes[0]).grid
     down_axes = down.on_axes(axes_grid, K)
     down_excess = down.air - np.float32(geometry.central_air)
-    monostatic = geometry.pixel_block is not None
-    if monostatic:
-        # the pixels' lines of sight are laser rays: take them and their gains
-        up_axes = down_axes.select(geometry.pixels)
-        up_transmittance = geometry.pixels(down.transmittance)
-    else:
-        up = through_surface(geometry.pixel_rays, surface, frame, n_w)
-        up_axes, up_transmittance = up.on_axes(axes_grid, K), up.transmittance
-        up_excess = up.air - np.float32(geometry.central_air)
+    # the pixels' lines of sight are never laser rays (`workers.sensor.lattice_offset`)
+    up = through_surface(geometry.pixel_rays, surface, frame, n_w)
+    up_axes, up_transmittance = up.on_axes(axes_grid, K), up.transmittance
+    up_excess = up.air - np.float32(geometry.central_air)
     power = geometry.laser_power * down.transmittance
 
     pixels = setup.scene.receiver.pixels
@@ -165,9 +160,8 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
         light = geometry.target_light
         rows = light.rows
         wide = any(coarse is not None for _, coarse in light.weights)
-        (fine, source, rows_in), window = _splat(
-            plane, down_axes, power * extra, geometry.pixel_block
-        )
+        fine, source, rows_in = _splat(plane, down_axes, power * extra)
+        window = span(up_axes.lines, cells, levels.fine.shape)
         near, far, beyond = plane.spread.filtered(
             fine, source, rows_in=rows_in, rows_out=(rows, levels.coarse_rows(rows)), far_out=wide
         )
@@ -191,26 +185,18 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
             for g in gates:
                 images[g] += seen
     down_gains = setup.gate_gains(down_excess)
-    up_gains = None if monostatic else setup.gate_gains(up_excess)
+    up_gains = setup.gate_gains(up_excess)
     for g, plane in enumerate(geometry.gate_planes):
         gain = down_gains[g]
         ray_power = power * gain
-        up_gain = geometry.pixels(gain) if monostatic else up_gains[g]
-        weight = up_transmittance * up_gain
+        weight = up_transmittance * up_gains[g]
         if plane.seen is not None:
             # the pixels whose lines of sight the target stops, where they cross it
             whole = (0, *plane.seen.shape[:1], 0, plane.seen.shape[1])
             weight = weight * (1.0 - _sample(up_axes, cells, (plane.seen,), whole)[0])
-        sources, window = _splat(plane, down_axes, ray_power, geometry.pixel_block)
+        sources = _splat(plane, down_axes, ray_power)
         _gather(
-            plane,
-            up_axes,
-            sources,
-            weight,
-            images[g],
-            window=window,
-            tail=plane.tail,
-            occlusion=plane.occlusion,
+            plane, up_axes, sources, weight, images[g], tail=plane.tail, occlusion=plane.occlusion
         )
     # the near and far parts of a spread each ring a little below zero where almost no
     # light lands; their sum is light, never negative
@@ -219,32 +205,16 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
     return images.reshape(len(setup.gates), pixels, pixels), mask.reshape(pixels, pixels)
 
 
-def _splat(plane: Plane, rays: Projected, power: np.ndarray, pixels=None):
-    """Rays onto a plane: its fine field, the coarse source of its far spread, their rows.
-
-    With `pixels` (`FrameGeometry.pixel_block`: the pixels' lines of sight are a block of
-    the rays), also the pixels' window on the fine grid (`workers.kernels.span`), found in
-    the same pass; else None.
-    """
+def _splat(plane: Plane, rays: Projected, power: np.ndarray):
+    """Rays onto a plane: its fine field, the coarse source of its far spread, their rows."""
     levels = plane.levels
     fine = np.zeros(levels.fine.shape, dtype=np.float32)
     source = np.zeros(levels.coarse.shape, dtype=np.float32)
     grids = (levels.fine, levels.coarse)
     densities = tuple(np.float32(1.0 / (g.spacing_u * g.spacing_v)) for g in grids)
     block = tuple(b.start for b in levels.block)
-    side, lines = pixels if pixels is not None else (0, slice(0, 0))
-    spans = splat_levels(
-        rays.lines,
-        power,
-        Cells.of(levels),
-        densities,
-        fine,
-        source,
-        block,
-        (side, lines.start, lines.stop),
-    )
-    window = spans[4:] if pixels is not None else None
-    return (fine, source, (slice(*spans[:2]), slice(*spans[2:4]))), window
+    spans = splat_levels(rays.lines, power, Cells.of(levels), densities, fine, source, block)
+    return fine, source, (slice(*spans[:2]), slice(*spans[2:]))
 
 
 _NONE = np.zeros((0, 0), dtype=np.float32)

@@ -181,6 +181,7 @@ class Sensor:
     reference_range: float
     lattice: tuple
     paths: np.ndarray
+    offset: float
 
     @property
     def central_air(self) -> float:
@@ -202,6 +203,12 @@ def sensor_at(setup: Setup, frame: int) -> Sensor:
     )
     laser_fov = float(np.radians(scene.laser.field_of_view_deg or r.field_of_view_deg))
     reference_range = p.altitude / np.cos(np.radians(p.nadir_deg))
+    offset = lattice_offset(
+        pixels=r.pixels,
+        field_of_view=camera.field_of_view,
+        rays=scene.laser_rays,
+        laser_field_of_view=laser_fov,
+    )
     lattice = LaserRays.central(
         position=position,
         rotation=camera.rotation,
@@ -209,6 +216,7 @@ def sensor_at(setup: Setup, frame: int) -> Sensor:
         field_of_view=laser_fov,
         rays=scene.laser_rays,
         reference_range=reference_range,
+        offset=offset,
     )
     paths = central_paths(
         altitude=float(position[2]),
@@ -224,7 +232,47 @@ def sensor_at(setup: Setup, frame: int) -> Sensor:
         reference_range=reference_range,
         lattice=lattice,
         paths=paths,
+        offset=offset,
     )
+
+
+def lattice_offset(*, pixels, field_of_view, rays, laser_field_of_view) -> float:
+    """Shift of the laser lattice that keeps it farthest from the pixels' lines [steps].
+
+    Parameters
+    ----------
+    pixels : int
+        Pixels per side of the image.
+    field_of_view : float
+        The receiver's full field [rad].
+    rays : int
+        Rays per side of the laser lattice across `laser_field_of_view`.
+    laser_field_of_view : float
+        The laser's full field [rad].
+
+    Returns
+    -------
+    float
+        The shift in [0, 1) of a ray step along both tangent axes
+        (`workers.geometry.LaserRays.from_platform`'s `offset`).
+
+    Notes
+    -----
+    A pixel's line of sight that is a laser ray reads its own ray's light wherever the
+    sea sends it, whose share of the pixel's bilinear read does not shrink with the ray
+    count: the double passage is overestimated by a fixed bias (docs/model.md §3). The
+    lines' positions in the lattice, modulo a step, are sorted and the lattice is moved
+    to the middle of their largest gap: midway between the lines when the rays share
+    their pitch (the default) or an odd multiple of it, and at the lines' midpoints for
+    an even multiple.
+    """
+    pixel_step = 2.0 * np.tan(0.5 * field_of_view) / pixels
+    ray_step = 2.0 * np.tan(0.5 * laser_field_of_view) / rays
+    lines = (np.arange(pixels) + 0.5 - 0.5 * pixels) * pixel_step / ray_step + 0.5 * rays - 0.5
+    phases = np.unique(np.round(np.mod(lines, 1.0), 9))
+    gaps = np.diff(np.append(phases, phases[0] + 1.0))
+    widest = int(np.argmax(gaps))
+    return float(np.mod(phases[widest] + 0.5 * gaps[widest], 1.0))
 
 
 def lines_of_sight(sensor: Sensor, grid: PlaneGrid, refractive_index: float, cells=None):

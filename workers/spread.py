@@ -360,6 +360,7 @@ class Spread:
         truncation: float | None,
         passes: int = 1,
         gain: float = 1.0,
+        blur: tuple[float, float] = (0.0, 0.0),
     ) -> Spread:
         r"""The filters of the water path `distance` for the plane `levels`.
 
@@ -379,6 +380,11 @@ class Spread:
             1: one way (MTF); 2: down and up the same path in one product (MTF²).
         gain : float, optional
             A factor on the whole filter, e.g. a uniform reflectance between the passes.
+        blur : tuple of float, optional
+            Standard deviations (along the grid's u and v axes) of a Gaussian added to
+            the fine level's kernel [m] (default none): what brings the splat and gather
+            of the rays to the scale the light is read at (`workers.planes.read_blur`).
+            The coarse level, far wider, is left as it is.
 
         Returns
         -------
@@ -401,6 +407,10 @@ class Spread:
         f_fine = fine.frequency()
         low = np.exp(-((f_fine / cutoff) ** 2))
         mtf = water.mtf(f_fine, distance=distance).astype(np.float64) ** passes
+        if any(blur):
+            fv = np.fft.fftfreq(fine.shape[0], d=fine.spacing_v)[:, None]
+            fu = np.fft.rfftfreq(fine.shape[1], d=fine.spacing_u)[None, :]
+            mtf = mtf * np.exp(-2.0 * np.pi**2 * ((blur[0] * fu) ** 2 + (blur[1] * fv) ** 2))
         near = mtf - scattered_mtf(water, f_fine, distance=distance, passes=passes) * low
         rows, cols = coarse.shape
         fv = np.fft.fftfreq(rows, d=coarse.spacing_v)[:, None]
