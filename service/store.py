@@ -3,13 +3,13 @@
 Layout (README, "The dataset"): dimensions ``sample, frame, gate, y, x``. Samples are grouped
 in shards of consecutive samples (zarr v3 sharding), one file per shard and array; inside a
 shard, one sample per chunk, so that reading one sample stays one small read. The small
-per-sample arrays (``completed``, ``checksum``, the signal means) have one chunk per shard.
-A shard belongs to one task (`service.run`), which writes all of it. The template
-(metadata and the coordinates that do not depend on rendering) is written once with
-``compute=False``; tasks then write whole shards, and only after that set their samples'
-``completed`` flags, so an interrupted run never marks a sample complete that is not
-written (`service.integrity`). Where stores live and what may be deleted:
-`service.storage`; the writer's lock: `service.lock`.
+per-sample arrays (``completed``, ``checksum``, the signal means, the target's effect and
+visibility) have one chunk per shard. A shard belongs to one task (`service.run`), which
+writes all of it. The template (metadata and the coordinates that do not depend on
+rendering) is written once with ``compute=False``; tasks then write whole shards, and only
+after that set their samples' ``completed`` flags, so an interrupted run never marks a
+sample complete that is not written (`service.integrity`). Where stores live and what may
+be deleted: `service.storage`; the writer's lock: `service.lock`.
 """
 
 from __future__ import annotations
@@ -63,6 +63,9 @@ RENDERED_VARIABLES = (
     "surface_elevation",
     "target_signal",
     "background_signal",
+    "target_effect",
+    "target_effect_relative",
+    "target_visibility",
 )
 """Per-sample variables that tasks write; the rest of a sample is written with the template."""
 SHARDED = frozenset({"image", "expected", "expected_stderr", "target_mask", "surface_elevation"})
@@ -389,7 +392,7 @@ def template(plan: Plan, samples_per_shard: int | None = None) -> tuple[xr.Datas
         dim="sample",
         data_vars="all",
     )
-    for name in ("target_present", "target_visibility", *track):
+    for name in ("target_present", *track):
         variable = labels[name]
         data_vars[name] = (
             variable.dims,

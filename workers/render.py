@@ -75,9 +75,10 @@ def render(scene: Scene, *, seed: int | SampleSeed) -> xr.Dataset:
     -------
     xarray.Dataset
         ``image`` and ``expected`` (frame, gate, y, x), ``target_mask`` (frame, y, x),
-        ``target_present`` (), ``target_visibility`` (gate), coordinates ``gate_top``,
-        ``gate_bottom`` (gate), ``time`` and the platform position (frame), and
-        ``surface_elevation`` (frame, sy, sx) when ``scene.save_surface`` is set.
+        the signal means, the target's effect and ``target_visibility`` (frame, gate),
+        ``target_present`` (), coordinates ``gate_top``, ``gate_bottom`` (gate), ``time``
+        and the platform position (frame), and ``surface_elevation`` (frame, sy, sx)
+        when ``scene.save_surface`` is set.
     """
     return labelled_dataset(scene, render_arrays(scene, seed=seed))
 
@@ -87,6 +88,13 @@ def render_arrays(scene: Scene, *, seed: int | SampleSeed) -> dict[str, np.ndarr
 
     What a store's task writes (`service.run.render_shard`): the same values as
     `render`'s, without building a dataset (about 1 ms a sample).
+
+    A scene with a target is rendered twice: as it is, and as its target-free twin
+    (`workers.scene.Scene.without_target`) on the same sea (the surface is drawn once)
+    and, by Monte Carlo, the same photons, for the target's effect and its visibility
+    labels (`workers.labels.target_effect`). The twin costs a second render's light
+    (about 0.9 of a sample's time with the fast renderer, as much again by Monte Carlo:
+    ``docs/model.md`` §8); only its expected images are kept.
 
     Parameters
     ----------
@@ -99,29 +107,18 @@ def render_arrays(scene: Scene, *, seed: int | SampleSeed) -> dict[str, np.ndarr
     -------
     dict
         `workers.labels.rendered_arrays`: ``image``, ``expected``, ``target_mask``,
-        ``target_signal``, ``background_signal`` (and ``surface_elevation``).
+        the signal means, the target's effect, ``target_visibility`` (and
+        ``surface_elevation``).
     """
     if not isinstance(seed, SampleSeed):
         seed = SampleSeed(root=int(seed))
     setup = scene_setup(scene)
-    frames = scene.sequence.frames
-    times = np.arange(frames) * scene.sequence.interval
+    times = np.arange(scene.sequence.frames) * scene.sequence.interval
     surface = setup.surface(seed, times)
-    expected = []
-    masks = []
-    errors = []
-    for frame in range(frames):
-        if scene.transport.method == "monte_carlo":
-            transported = montecarlo.render_frame(setup, surface, frame, seed)
-            signal, mask = transported.expected, transported.mask
-            errors.append(transported.stderr)
-        else:
-            geometry = frame_geometry(scene, frame)
-            signal, mask = _render_frame(setup, geometry, surface, frame)
-        expected.append(signal)
-        masks.append(mask)
-    expected = np.stack(expected)
-    stderr = np.stack(errors) if errors else None
+    expected, masks, stderr = _render_frames(setup, surface, seed)
+    free = expected
+    if scene.target.shape != "none":
+        free = _render_frames(scene_setup(scene.without_target()), surface, seed)[0]
     noise = scene.noise
     if scene.radiometry.photoelectrons:
         image = shot_noise(
@@ -129,7 +126,26 @@ def render_arrays(scene: Scene, *, seed: int | SampleSeed) -> dict[str, np.ndarr
         )
     else:
         image = expected.copy()
-    return rendered_arrays(scene, expected, image, np.stack(masks), surface, stderr=stderr)
+    return rendered_arrays(scene, expected, image, masks, surface, free=free, stderr=stderr)
+
+
+def _render_frames(setup: Setup, surface, seed: SampleSeed):
+    """Every frame's expected image, (frame, gate, y, x), mask and Monte Carlo error.
+
+    The error is None for the fast renderer (deterministic).
+    """
+    expected, masks, errors = [], [], []
+    for frame in range(setup.scene.sequence.frames):
+        if setup.scene.transport.method == "monte_carlo":
+            transported = montecarlo.render_frame(setup, surface, frame, seed)
+            signal, mask = transported.expected, transported.mask
+            errors.append(transported.stderr)
+        else:
+            geometry = frame_geometry(setup.scene, frame)
+            signal, mask = _render_frame(setup, geometry, surface, frame)
+        expected.append(signal)
+        masks.append(mask)
+    return np.stack(expected), np.stack(masks), np.stack(errors) if errors else None
 
 
 def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
