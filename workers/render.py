@@ -92,9 +92,9 @@ def render_arrays(scene: Scene, *, seed: int | SampleSeed) -> dict[str, np.ndarr
     A scene with a target is rendered twice: as it is, and as its target-free twin
     (`workers.scene.Scene.without_target`) on the same sea (the surface is drawn once)
     and, by Monte Carlo, the same photons, for the target's effect and its visibility
-    labels (`workers.labels.target_effect`). The twin costs a second render's light
-    (about 0.9 of a sample's time with the fast renderer, as much again by Monte Carlo:
-    ``docs/model.md`` §8); only its expected images are kept.
+    labels (`workers.labels.target_effect`). The twin costs about a target-free sample's
+    render (a target sample takes 1.6-1.9 times as long with the fast renderer, twice as
+    long by Monte Carlo: ``docs/model.md`` §8); only its expected images are kept.
 
     Parameters
     ----------
