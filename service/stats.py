@@ -225,10 +225,16 @@ def write_statistics(
     ------
     SweepError
         If the statistics path holds something other than oceanlidar statistics, or the
-        statistics of another store (`check_owner`).
+        statistics of another store (`check_owner`), or the store predates the target's
+        effect.
     """
     check_owner(url, storage_options)
     ds = store.open_store(url, storage_options=storage_options)
+    if "target_effect_relative" not in ds:
+        raise SweepError(
+            f"{url} has no target_effect_relative (written before it was stored, issue #24): "
+            "its statistics cannot be computed; run the sweep again with --overwrite"
+        )
     target = storage.stats_url(url)
     recorded = None if points is None else _recorded(ds, url, storage_options)
     if recorded is not None:

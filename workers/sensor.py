@@ -227,11 +227,9 @@ def sensor_at(setup: Setup, frame: int) -> Sensor:
     )
 
 
-def lines_of_sight(sensor: Sensor, grid: PlaneGrid, refractive_index: float, cells=None):
-    """Air path and in-water cosine of the flat-sea line of sight to each cell (or `cells`)."""
+def lines_of_sight(sensor: Sensor, grid: PlaneGrid, refractive_index: float):
+    """Air path and in-water cosine of the flat-sea line of sight to each cell."""
     x, y = grid.cell_centres()
-    if cells is not None:
-        x, y = x.ravel()[cells], y.ravel()[cells]
     return sight_lines(
         position=sensor.position, x=x, y=y, depth=grid.depth, refractive_index=refractive_index
     )
