@@ -29,8 +29,7 @@ from service.inputs import SweepError
 from service.schema import field_units
 from service.storage import KIND, LOCK_NAME
 from service.sweep import Plan
-from workers.labels import rendered_variables, surface_axis
-from workers.render import render, sample_labels
+from workers.labels import rendered_variables, sample_labels, surface_axis
 
 __all__ = [
     "CODECS",
@@ -47,7 +46,6 @@ __all__ = [
     "open_group",
     "open_store",
     "parameter_name",
-    "sample_dataset",
     "shard_samples",
     "shard_size",
     "swept_parameters",
@@ -238,12 +236,6 @@ def check_uniform(plan: Plan) -> None:
             f"sweep.parameters.{path}: cannot vary within one sweep (it sets the shape of "
             "the stored arrays); run one sweep per value"
         )
-
-
-def sample_dataset(plan: Plan, sample: int) -> xr.Dataset:
-    """Render sample `sample` of the plan, with its per-sample coordinates."""
-    address = plan.sample(sample)
-    return render(address.scene, seed=address.seed)
 
 
 def widest_image(plan: Plan, tables: list[dict] | None = None) -> tuple:

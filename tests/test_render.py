@@ -7,7 +7,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from workers.labels import RING_FRACTION, signal_means
 from workers.optics import fresnel_reflectance
-from workers.render import render
+from workers.render import render, render_arrays, render_images
 from workers.scene import Scene
 from workers.seeds import SampleSeed
 from workers.sensor import scene_setup
@@ -215,6 +215,15 @@ def test_target_effect_of_a_wide_disk_is_the_closed_form(depth, gate, reflectanc
     assert ds.target_mask.values.all()
     assert_allclose(ds.target_effect_relative.values[0, 0], effect / water(top, bottom), rtol=0.01)
     assert_allclose(ds.target_effect.values[0, 0], effect, rtol=0.03)
+
+
+def test_the_images_alone_are_those_of_the_sample():
+    # `detect` renders a store's images again without the twin: the same bytes
+    s = target_scene(radiometry={"white_plane_photons": 50.0})
+    arrays = render_arrays(s, seed=SampleSeed(root=2, point=1, realisation=3))
+    expected, image = render_images(s, seed=SampleSeed(root=2, point=1, realisation=3))
+    assert expected.tobytes() == arrays["expected"].tobytes()
+    assert_array_equal(image, arrays["image"])
 
 
 def test_a_target_in_the_gate_that_changes_it_by_little_is_unseen():

@@ -49,14 +49,14 @@ from workers import montecarlo
 from workers.gates import hidden_fraction
 from workers.interface import Projected, through_surface
 from workers.kernels import Cells, gather_levels, sample, span, splat_levels
-from workers.labels import labelled_dataset, rendered_arrays, sample_labels, target_mask
+from workers.labels import labelled_dataset, rendered_arrays, target_mask
 from workers.noise import shot_noise
 from workers.planes import FrameGeometry, Plane, frame_geometry
 from workers.scene import Scene
 from workers.seeds import SampleSeed
 from workers.sensor import Setup, scene_setup
 
-__all__ = ["render", "render_arrays", "sample_labels"]
+__all__ = ["render", "render_arrays", "render_images"]
 
 
 def render(scene: Scene, *, seed: int | SampleSeed) -> xr.Dataset:
@@ -110,15 +110,42 @@ def render_arrays(scene: Scene, *, seed: int | SampleSeed) -> dict[str, np.ndarr
         the signal means, the target's effect, ``target_visibility`` (and
         ``surface_elevation``).
     """
-    if not isinstance(seed, SampleSeed):
-        seed = SampleSeed(root=int(seed))
-    setup = scene_setup(scene)
-    times = np.arange(scene.sequence.frames) * scene.sequence.interval
-    surface = setup.surface(seed, times)
-    expected, masks, stderr = _render_frames(setup, surface, seed)
+    seed = seed if isinstance(seed, SampleSeed) else SampleSeed(root=int(seed))
+    surface, expected, masks, stderr, image = _render_sample(scene, seed)
     free = expected
     if scene.target.shape != "none":
         free = _render_frames(scene_setup(scene.without_target()), surface, seed)[0]
+    return rendered_arrays(scene, expected, image, masks, surface, free=free, stderr=stderr)
+
+
+def render_images(scene: Scene, *, seed: int | SampleSeed) -> tuple[np.ndarray, np.ndarray]:
+    """A sample's noise-free and noisy images alone: `render_arrays`'s, without its twin.
+
+    What `service.detect` renders again for a store without its ``expected`` images: the
+    target-free twin, which a target sample's labels need, would double its cost.
+
+    Parameters
+    ----------
+    scene : Scene
+        All parameters of the sample.
+    seed : int or SampleSeed
+        As for `render`.
+
+    Returns
+    -------
+    expected, image : ndarray, shape (frame, gate, y, x)
+        The values of `render_arrays`'s ``expected`` and ``image`` (float32 here).
+    """
+    seed = seed if isinstance(seed, SampleSeed) else SampleSeed(root=int(seed))
+    _, expected, _, _, image = _render_sample(scene, seed)
+    return expected, image
+
+
+def _render_sample(scene: Scene, seed: SampleSeed):
+    """The sample's sea, expected images, masks, Monte Carlo error and noisy images."""
+    setup = scene_setup(scene)
+    surface = setup.surface(seed, np.arange(scene.sequence.frames) * scene.sequence.interval)
+    expected, masks, stderr = _render_frames(setup, surface, seed)
     noise = scene.noise
     if scene.radiometry.photoelectrons:
         image = shot_noise(
@@ -126,7 +153,7 @@ def render_arrays(scene: Scene, *, seed: int | SampleSeed) -> dict[str, np.ndarr
         )
     else:
         image = expected.copy()
-    return rendered_arrays(scene, expected, image, masks, surface, free=free, stderr=stderr)
+    return surface, expected, masks, stderr, image
 
 
 def _render_frames(setup: Setup, surface, seed: SampleSeed):
