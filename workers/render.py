@@ -122,7 +122,8 @@ def render_images(scene: Scene, *, seed: int | SampleSeed) -> tuple[np.ndarray, 
     """A sample's noise-free and noisy images alone: `render_arrays`'s, without its twin.
 
     What `service.detect` renders again for a store without its ``expected`` images: the
-    target-free twin, which a target sample's labels need, would double its cost.
+    target-free twin, which a target sample's labels need, would cost it 0.6-1 times as
+    much again.
 
     Parameters
     ----------
