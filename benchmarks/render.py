@@ -118,6 +118,14 @@ a sample, before → after: 12.4, 12.5 → 13.9, 15.5 (128, sphere); 9.9, 10.4 �
 93.2, 89.9; 67.6, 74.3 → 80.2, 79.9 (1.04–1.19 times). Two lines of sight a pixel and side
 (the texture's remedy, docs/model.md §3) took about 1.9 times in a prototype (128 pixels, no
 target, one run).
+
+Issue #24 (a sample with a target also yields its target-free twin, for the target's
+effect and its visibility labels: `workers.render.render_arrays`, gathered from the same
+spread light in the same pass), with items 1-5 (the lattice offset and read scale, the
+Fournier-Forand spread, the shadows, the gated shares and delays): one run, loaded
+machine, ``--sizes 128 256``, numpy-pair ratios before (051395d) → after: sphere 49.6 →
+57.2 at 128 px, 58.0 → 62.1 at 256 (1.15 and 1.07 times); no target 38.8 → 41.4, 45.3 →
+48.2. Rendering the twin apart, as a second sample, had cost 1.6-1.9 times.
 """
 
 import argparse

@@ -32,6 +32,7 @@ from service import storage, store
 from service.inputs import SweepError
 from service.sweep import parse_sweep
 from workers.detection import DETECTORS, MIN_FALSE_ALARMS, evaluate_pair, held_out, roc_curve
+from workers.render import render_images
 
 __all__ = ["PFA", "detection_url", "pair_points", "write_detection"]
 
@@ -116,14 +117,16 @@ def _rendered_expected(plan, samples, image):
 
     The noisy images rendered again must be the stored ones (`image`), or the store was
     written by another version of the physics and its expected images cannot be recovered.
+    Only the images are rendered (`workers.render.render_images`: no target-free twin).
     """
-    rendered = [store.sample_dataset(plan, int(sample)) for sample in samples]
-    if not np.array_equal(np.stack([r["image"].values for r in rendered]), image):
+    addresses = [plan.sample(int(sample)) for sample in samples]
+    rendered = [render_images(a.scene, seed=a.seed) for a in addresses]
+    if not np.array_equal(np.stack([noisy for _, noisy in rendered]), image):
         raise SweepError(
             f"samples {samples[0]}..{samples[-1]} rendered again differ from the stored ones "
             "(written by another oceanlidar version?): their expected images cannot be recovered"
         )
-    return np.stack([r["expected"].values for r in rendered]).astype(np.float64)
+    return np.stack([expected for expected, _ in rendered]).astype(np.float64)
 
 
 def _evaluate(url, storage_options, positive, negative, realisations, test, plan):

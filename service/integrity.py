@@ -25,6 +25,7 @@ __all__ = [
     "read_samples",
     "repair_labels",
     "sample_checksum",
+    "stale_layout",
     "verify",
     "write_shard",
     "wrong_labels",
@@ -141,6 +142,30 @@ def wrong_labels(url: str, plan, storage_options: dict | None = None) -> dict[st
         store=url, mode="r", zarr_format=3, use_consolidated=True, storage_options=storage_options
     )
     return _wrong(group, template(plan, shard_samples(group))[0])
+
+
+def stale_layout(url: str, plan, storage_options: dict | None = None) -> list[str]:
+    """The rendered variables a store lacks, or holds in another shape than `plan`'s.
+
+    A store written before a variable was added to `workers.labels.rendered_variables`
+    (``target_effect``, ``target_effect_relative``, and ``target_visibility`` per frame,
+    issue #24), by the same version number, cannot be resumed: its tasks would write
+    samples the store has no room for.
+
+    Returns
+    -------
+    list of str
+        The variables, in `RENDERED_VARIABLES` order; empty when the layout is the plan's.
+    """
+    group = zarr.open_group(
+        store=url, mode="r", zarr_format=3, use_consolidated=True, storage_options=storage_options
+    )
+    expected, _ = template(plan, shard_samples(group))
+    return [
+        name
+        for name in RENDERED_VARIABLES
+        if name in expected and (name not in group or group[name].shape != expected[name].shape)
+    ]
 
 
 def _wrong(group, expected) -> dict[str, str]:

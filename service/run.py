@@ -390,6 +390,11 @@ def _check_output(plan: Plan, url: str, *, resume, overwrite, storage_options) -
             f"{store.package_version()}: samples would differ; resume with that version "
             "or start again with --overwrite"
         )
+    if stale := integrity.stale_layout(url, plan, storage_options):
+        raise SweepError(
+            f"{url} was written with another layout of its samples ({', '.join(stale)} "
+            "missing or shaped otherwise): start again with --overwrite"
+        )
     return True, [], []
 
 

@@ -4,22 +4,27 @@ The statistics dataset sits beside the store (`service.storage.stats_url`). One 
 group of parameter points reads those points' samples (never the whole store), reduces them
 over realisations and frames with numpy, and writes its points' whole chunks of the
 statistics store. Samples not yet written are ignored. The noise-free signals come from the
-per-sample means the render task computed (``target_signal``, ``background_signal``), so the
-store need not keep the noise-free images. After a resumed run only the points it wrote
+per-sample means the render task computed (``target_signal``, ``background_signal``, the
+target's effect against its target-free twin ``target_effect_relative``), so the store
+need not keep the noise-free images. After a resumed run only the points it wrote
 are recomputed, in place. Variables:
 
 - ``image_mean``, ``image_std`` (point, gate, y, x): mean and standard deviation images;
 - ``target_signal``, ``background_signal`` (point, gate): mean expected (noise-free)
   signal inside the target mask and in a ring of local background around it;
 - ``target_contrast`` (point, gate): the mean over samples and frames of each one's
-  (target − background) / background of the expected images (not the ratio of the means
-  above): what the physics leaves of the target, before noise, plus the beam's fall-off
-  between the mask and its ring (not 0 without a target in the gate: README);
+  ``target_effect_relative``, (T − T₀) / T₀ with T₀ the mean of the sample's target-free
+  twin over the same mask (`workers.labels.target_effect`): what the target changes in the
+  expected image, before noise; 0 where it changes nothing (a local (T − B) / B would
+  also hold the beam's fall-off between the mask and its ring: +0.06 to +0.20 with no
+  target in the gate);
 - ``cnr`` (point, gate): contrast-to-noise ratio of the noisy images, the mean of each
   sample's and frame's (target − background) over the standard deviation of its background
-  ring (shot noise and clutter);
-- ``visible_fraction`` (point, gate): fraction of samples and frames in which the target is
-  in the gate and at least one pixel's ray meets it;
+  ring (shot noise and clutter); a local contrast, so it holds the beam's fall-off between
+  mask and ring too;
+- ``visible_fraction`` (point, gate): fraction of samples and frames in which the target
+  shows in the gate (``target_visibility`` ``in_gate``: it brightens its mask by at least
+  ``target.visibility_threshold``);
 - ``samples`` (point): realisations written.
 """
 
@@ -36,7 +41,7 @@ import zarr
 
 from service import integrity, storage, store
 from service.inputs import SweepError
-from workers.labels import signal_means
+from workers.labels import VISIBILITY, signal_means
 
 __all__ = ["check_owner", "point_statistics", "write_statistics"]
 
@@ -45,13 +50,14 @@ POINTS_PER_TASK = 8
 _PER_GATE = {
     "target_signal": "mean expected signal inside the target mask",
     "background_signal": "mean expected signal in the background ring around the mask",
-    "target_contrast": "mean over samples and frames of (T - B) / B of the expected images",
+    "target_contrast": "mean over samples and frames of (T - T0) / T0 of the expected images, "
+    "T0 the target-free twin's over the same mask",
     "cnr": "mean over samples and frames of (T - B) / sd(B) of the noisy images",
-    "visible_fraction": "fraction of samples with the target in the gate and in view",
+    "visible_fraction": "fraction of samples and frames with the target in_gate",
 }
 
 
-def point_statistics(image, target, background, mask, visibility):
+def point_statistics(image, target, background, mask, relative, visibility):
     """The statistics of one parameter point from its written samples.
 
     Parameters
@@ -63,8 +69,11 @@ def point_statistics(image, target, background, mask, visibility):
         (`workers.labels.signal_means`), NaN where the region is empty.
     mask : ndarray of bool, shape (samples, frames, y, x)
         Pixels whose ray meets the target.
-    visibility : ndarray, shape (samples, gates)
-        Target position relative to each gate (1: in the gate).
+    relative : ndarray, shape (samples, frames, gates)
+        The relative change the target makes over its mask against the sample's
+        target-free twin (``target_effect_relative``), NaN where the mask is empty.
+    visibility : ndarray, shape (samples, frames, gates)
+        What the target shows in each gate (``target_visibility``; 1: ``in_gate``).
 
     Returns
     -------
@@ -83,18 +92,15 @@ def point_statistics(image, target, background, mask, visibility):
     inside, ring = signal_means(image, mask)
     square = signal_means(image.astype(np.float64) ** 2, mask)[1]
     spread = np.sqrt(np.maximum(square - ring**2, 0))
-    visible = mask.any(axis=(-2, -1))[..., np.newaxis] & (visibility[:, np.newaxis, :] == 1)
     with warnings.catch_warnings():
         # no target, or no background ring: those entries are NaN by design
         warnings.simplefilter("ignore", RuntimeWarning)
         per_gate = {
             "target_signal": np.nanmean(target, axis=(0, 1)),
             "background_signal": np.nanmean(background, axis=(0, 1)),
-            "target_contrast": np.nanmean(
-                (target - background) / np.where(background > 0, background, np.nan), axis=(0, 1)
-            ),
+            "target_contrast": np.nanmean(relative.astype(np.float64), axis=(0, 1)),
             "cnr": np.nanmean((inside - ring) / np.where(spread > 0, spread, np.nan), axis=(0, 1)),
-            "visible_fraction": visible.mean(axis=(0, 1)),
+            "visible_fraction": (visibility == VISIBILITY["in_gate"]).mean(axis=(0, 1)),
         }
     stats.update(per_gate)
     return {name: np.asarray(value, dtype=np.float32) for name, value in stats.items()}
@@ -168,7 +174,14 @@ def _reduce_points(url, target, points, done, realisations, storage_options):
     if picks.size == 0:
         return len(points)
     # all the points' samples at once: consecutive points are one slice of the store
-    names = ("image", "target_signal", "background_signal", "target_mask", "target_visibility")
+    names = (
+        "image",
+        "target_signal",
+        "background_signal",
+        "target_mask",
+        "target_effect_relative",
+        "target_visibility",
+    )
     read = {name: integrity.read_samples(source[name], picks.tolist()) for name in names}
     owner = np.repeat(np.arange(len(points)), done.sum(axis=1))
     for index, point in enumerate(points):
@@ -180,6 +193,7 @@ def _reduce_points(url, target, points, done, realisations, storage_options):
             target=read["target_signal"][mine],
             background=read["background_signal"][mine],
             mask=read["target_mask"][mine].astype(bool),
+            relative=read["target_effect_relative"][mine],
             visibility=read["target_visibility"][mine],
         )
         for name, value in stats.items():
@@ -211,10 +225,16 @@ def write_statistics(
     ------
     SweepError
         If the statistics path holds something other than oceanlidar statistics, or the
-        statistics of another store (`check_owner`).
+        statistics of another store (`check_owner`), or the store predates the target's
+        effect.
     """
     check_owner(url, storage_options)
     ds = store.open_store(url, storage_options=storage_options)
+    if "target_effect_relative" not in ds:
+        raise SweepError(
+            f"{url} has no target_effect_relative (written before it was stored, issue #24): "
+            "its statistics cannot be computed; run the sweep again with --overwrite"
+        )
     target = storage.stats_url(url)
     recorded = None if points is None else _recorded(ds, url, storage_options)
     if recorded is not None:

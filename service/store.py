@@ -3,13 +3,13 @@
 Layout (README, "The dataset"): dimensions ``sample, frame, gate, y, x``. Samples are grouped
 in shards of consecutive samples (zarr v3 sharding), one file per shard and array; inside a
 shard, one sample per chunk, so that reading one sample stays one small read. The small
-per-sample arrays (``completed``, ``checksum``, the signal means) have one chunk per shard.
-A shard belongs to one task (`service.run`), which writes all of it. The template
-(metadata and the coordinates that do not depend on rendering) is written once with
-``compute=False``; tasks then write whole shards, and only after that set their samples'
-``completed`` flags, so an interrupted run never marks a sample complete that is not
-written (`service.integrity`). Where stores live and what may be deleted:
-`service.storage`; the writer's lock: `service.lock`.
+per-sample arrays (``completed``, ``checksum``, the signal means, the target's effect and
+visibility) have one chunk per shard. A shard belongs to one task (`service.run`), which
+writes all of it. The template (metadata and the coordinates that do not depend on
+rendering) is written once with ``compute=False``; tasks then write whole shards, and only
+after that set their samples' ``completed`` flags, so an interrupted run never marks a
+sample complete that is not written (`service.integrity`). Where stores live and what may
+be deleted: `service.storage`; the writer's lock: `service.lock`.
 """
 
 from __future__ import annotations
@@ -29,8 +29,7 @@ from service.inputs import SweepError
 from service.schema import field_units
 from service.storage import KIND, LOCK_NAME
 from service.sweep import Plan
-from workers.labels import rendered_variables, surface_axis
-from workers.render import render, sample_labels
+from workers.labels import rendered_variables, sample_labels, surface_axis
 
 __all__ = [
     "CODECS",
@@ -47,7 +46,6 @@ __all__ = [
     "open_group",
     "open_store",
     "parameter_name",
-    "sample_dataset",
     "shard_samples",
     "shard_size",
     "swept_parameters",
@@ -63,6 +61,9 @@ RENDERED_VARIABLES = (
     "surface_elevation",
     "target_signal",
     "background_signal",
+    "target_effect",
+    "target_effect_relative",
+    "target_visibility",
 )
 """Per-sample variables that tasks write; the rest of a sample is written with the template."""
 SHARDED = frozenset({"image", "expected", "expected_stderr", "target_mask", "surface_elevation"})
@@ -237,12 +238,6 @@ def check_uniform(plan: Plan) -> None:
         )
 
 
-def sample_dataset(plan: Plan, sample: int) -> xr.Dataset:
-    """Render sample `sample` of the plan, with its per-sample coordinates."""
-    address = plan.sample(sample)
-    return render(address.scene, seed=address.seed)
-
-
 def widest_image(plan: Plan, tables: list[dict] | None = None) -> tuple:
     """The ``image`` entry of `rendered_variables` whose type holds every point's counts.
 
@@ -389,7 +384,7 @@ def template(plan: Plan, samples_per_shard: int | None = None) -> tuple[xr.Datas
         dim="sample",
         data_vars="all",
     )
-    for name in ("target_present", "target_visibility", *track):
+    for name in ("target_present", *track):
         variable = labels[name]
         data_vars[name] = (
             variable.dims,

@@ -190,11 +190,15 @@ class Plan:
 
 
 def _sample_bytes(scene: Scene, *, image: int, floats: int) -> int:
-    """A sample's stored bytes: its image `image` bytes a value, `floats` float32 images."""
+    """A sample's stored bytes: its image `image` bytes a value, `floats` float32 images.
+
+    Per frame also the mask (a byte a pixel) and per gate four float32 means (the signal
+    means and the target's effect) and the visibility flag.
+    """
     pixels = scene.receiver.pixels**2
     frames = scene.sequence.frames
     gates = len(scene.receiver.gate_depths)
-    size = frames * (gates * pixels * (image + 4 * floats) + pixels + 8 * gates)
+    size = frames * (gates * pixels * (image + 4 * floats) + pixels + 17 * gates)
     if scene.save_surface:
         size += frames * scene.surface.grid_size**2 * 4
     return size

@@ -7,10 +7,20 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import xarray as xr
 
 from workers.geometry import LaserRays, PlaneGrid
+
+
+def ring_around(mask, width):
+    """Pixels within `width` (Chebyshev distance) of `mask` (y, x), outside it: brute force."""
+    y, x = np.mgrid[: mask.shape[0], : mask.shape[1]]
+    near = np.zeros(mask.shape, bool)
+    for r, c in zip(*np.nonzero(mask), strict=True):
+        near |= (abs(y - r) <= width) & (abs(x - c) <= width)
+    return near & ~mask
 
 
 def plane_grid(camera, *, depth, refractive_index=1.34, guard=4):

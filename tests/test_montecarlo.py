@@ -239,6 +239,27 @@ def test_same_seed_same_bytes_and_seeds_differ():
     assert first["expected"].tobytes() == twin["expected"].tobytes()
 
 
+def test_the_target_effect_is_against_the_twin_with_the_same_photons():
+    # Issue #24, item 6, by Monte Carlo: the render task's twin follows the sample's photons,
+    # so its effect equals the twin rendered apart, and is exactly 0 in the gate above the
+    # sphere (the photons' paths there are the same with or without it).
+    s = scene(
+        water={"preset": "coastal"},
+        target={"shape": "sphere", "depth": 3.0, "radius": 0.5, "reflectance": 0.3},
+        receiver={"pixels": PIXELS, "gates": [[0.5, 2.0], [2.0, 4.0], [4.0, 6.0]]},
+        transport={"photons": 20_000},
+    )
+    sample = render_arrays(s, seed=3)
+    twin = render_arrays(s.without_target(), seed=3)
+    mask = sample["target_mask"][0].astype(bool)
+    shown, bare = (
+        a["expected"][0][:, mask].astype(np.float64).mean(axis=1) for a in (sample, twin)
+    )
+    np.testing.assert_allclose(sample["target_effect"][0], shown - bare, rtol=1e-6, atol=0)
+    assert sample["target_effect"][0, 0] == 0
+    assert sample["target_visibility"].tolist() == [[3, 1, 2]]
+
+
 def test_the_target_mask_is_where_central_lines_meet_the_sphere():
     # the same mask as the fast renderer's on a flat sea (the silhouette)
     base = {

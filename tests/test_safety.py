@@ -152,6 +152,25 @@ def test_a_store_of_an_older_version_is_named_not_deleted(work, capsys):
     assert snapshot(work) == before
 
 
+def test_a_store_of_an_earlier_layout_is_not_resumed(work, capsys):
+    # a store of the same version written before target_effect was stored (issue #24): its
+    # tasks would have nowhere to write it, its statistics nothing to read
+    metadata = json.loads((work / "one.zarr" / "zarr.json").read_text())
+    for name in ("target_effect", "target_effect_relative"):
+        del metadata["consolidated_metadata"]["metadata"][name]
+        shutil.rmtree(work / "one.zarr" / name)
+    (work / "one.zarr" / "zarr.json").write_text(json.dumps(metadata))
+    integrity.mark_incomplete(str(work / "one.zarr"), [4])
+    before = snapshot(work)
+    assert main(["run", str(work / "one.yaml"), "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert "(target_effect, target_effect_relative missing or shaped otherwise)" in err
+    assert "--overwrite" in err
+    assert main(["stats", str(work / "one.zarr")]) == 2
+    assert "has no target_effect_relative" in capsys.readouterr().err
+    assert snapshot(work) == before
+
+
 def test_overwrite_checks_everything_before_deleting_anything(work, capsys):
     shutil.rmtree(work / "one.stats.zarr")
     (work / "one.stats.zarr").mkdir()

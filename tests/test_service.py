@@ -13,13 +13,15 @@ import numpy as np
 import pytest
 import xarray as xr
 import yaml
-from conftest import ROOT, run_cli, same_values, start_cli
+from conftest import ROOT, ring_around, run_cli, same_values, start_cli
+from numpy.testing import assert_allclose
 
 from service import integrity, storage, store
 from service.cli import main
 from service.cluster import dask_client
 from service.run import execute, task_batches
 from service.sweep import load_sweep, parse_sweep
+from workers.labels import RING_FRACTION
 from workers.render import render
 from workers.seeds import SampleSeed
 
@@ -125,12 +127,30 @@ def test_store_metadata_and_statistics(two_worker_store):
     assert np.isnan(contrast[1]).all()  # no target, no contrast
     assert contrast[0, 0] > 0 and (contrast[2] > 0).all()  # the mine in a gate is bright
     assert contrast[0, 1] < 0  # and darkens the gate below it
-    # the contrast is the mean of each sample's, as its long_name says
-    target, ring = (
-        ds[name].values.astype(np.float64) for name in ("target_signal", "background_signal")
-    )
-    assert np.allclose(contrast[0], np.nanmean((target - ring)[0:3] / ring[0:3], axis=(0, 1)))
     assert stats["target_contrast"].attrs["long_name"].startswith("mean over samples and frames")
+    # Issue #24, item 7, from the stored images alone: the contrast is each sample's change
+    # over its mask against its target-free twin (the next point, the same realisation: the
+    # grid pairs target.shape sphere and none, as `detect` does), the CNR each sample's
+    # (mask - ring) of the noisy image over the ring's standard deviation (undefined where
+    # the ring is uniform, as a dim gate's zero counts are); both averaged over realisations
+    expected, image = (ds[name].values[:, 0].astype(np.float64) for name in ("expected", "image"))
+    masks = ds["target_mask"].values[:, 0].astype(bool)
+    width = max(2, round(RING_FRACTION * masks.shape[-1]))
+    for point in (0, 2):
+        change, cnr = [], []
+        for sample in range(point * 3, point * 3 + 3):
+            mask, ring = masks[sample], ring_around(masks[sample], width)
+            shown, bare = (
+                expected[sample][:, mask].mean(axis=1),
+                expected[sample + 3][:, mask].mean(axis=1),
+            )
+            change.append((shown - bare) / bare)
+            background = image[sample][:, ring]
+            spread = background.std(axis=1)
+            difference = image[sample][:, mask].mean(axis=1) - background.mean(axis=1)
+            cnr.append(np.where(spread > 0, difference / np.where(spread > 0, spread, 1), np.nan))
+        assert_allclose(contrast[point], np.mean(change, axis=0), rtol=1e-5)
+        assert_allclose(stats["cnr"].values[point], np.nanmean(cnr, axis=0), rtol=1e-5)
 
 
 def test_bounded_submission_and_batches(tmp_path):

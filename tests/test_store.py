@@ -88,7 +88,8 @@ def test_a_count_beyond_its_type_is_never_wrapped_and_never_stored():
     expected = np.full((1, 1, 8, 8), 0.5, np.float32)
     image = np.zeros((1, 1, 8, 8), np.float32)
     image[0, 0, 2, 3] = 300.0  # over uint8's 255
-    arrays = rendered_arrays(scene, expected, image, np.zeros((1, 8, 8), np.uint8), None)
+    mask = np.zeros((1, 8, 8), np.uint8)
+    arrays = rendered_arrays(scene, expected, image, mask, None, free=expected)
     assert arrays["image"].dtype == np.float32 and float(arrays["image"].max()) == 300.0
     reason = integrity.invalid_values(arrays, rendered_variables(scene))
     assert reason is not None and "image holds 1 count(s) over 255" in reason

@@ -1,36 +1,24 @@
 """The labels of a sample and the dataset that carries them.
 
-`sample_labels` holds what a scene fixes whatever the seed (target presence and visibility
-per gate, gate depths, platform track); `target_mask` marks the pixels a target covers;
-`rendered_arrays` types one sample's rendered variables and `labelled_dataset` labels
-them. The rules are in ``docs/model.md`` §8.
+`sample_labels` holds what a scene fixes whatever the seed (target presence, gate depths,
+platform track); `target_mask` marks the pixels a target covers; `target_effect` measures
+what the target changes in each gate's noise-free image against the sample's target-free
+twin, and `visibility` labels each gate from it; `rendered_arrays` types one sample's
+rendered variables and `labelled_dataset` labels them. The rules are in ``docs/model.md``
+§8.
 """
 
 from __future__ import annotations
-
-import functools
 
 import numpy as np
 import xarray as xr
 from scipy.ndimage import maximum_filter
 
-from workers.geometry import PlaneGrid, flat_sea_point
 from workers.optics import fresnel_reflectance
 from workers.radiometry import lidar_equation
 from workers.scene import Scene
-from workers.sensor import (
-    fine_grid,
-    gate_bounds,
-    impostor_on,
-    lines_of_sight,
-    platform_position,
-    receiver_terms,
-    scene_setup,
-    sensor_at,
-    target_centre,
-)
+from workers.sensor import platform_position, receiver_terms, scene_setup
 from workers.surface import centred_axis
-from workers.water import slab_backscatter_reflectance
 
 __all__ = [
     "COUNT_HEADROOM",
@@ -43,11 +31,14 @@ __all__ = [
     "sample_labels",
     "signal_means",
     "surface_axis",
+    "target_effect",
     "target_mask",
+    "visibility",
     "white_plane_count",
 ]
 
-VISIBILITY = {"none": 0, "in_gate": 1, "shadow": 2, "below_gate": 3}
+VISIBILITY = {"none": 0, "in_gate": 1, "shadow": 2, "unseen": 3}
+"""The flags of ``target_visibility`` (`visibility`)."""
 RING_FRACTION = 0.1
 """Width of the background ring around the target mask, as a fraction of the image."""
 COUNT_HEADROOM = 16.0
@@ -69,103 +60,6 @@ def target_mask(silhouette: np.ndarray) -> np.ndarray:
     if not mask.any() and silhouette.max(initial=0.0) > 0:
         mask = silhouette >= silhouette.max()
     return mask.astype(np.uint8)
-
-
-def _target_window(setup, sensor) -> PlaneGrid:
-    """The part of the image's target-plane grid around the target (a few cells wider).
-
-    The grid of the receiver's footprint at the target's depth (one cell per pixel at the
-    image's centre), cut to the target's reach: the labels need no more, whatever the
-    image's size.
-    """
-    scene = setup.scene
-    full = fine_grid(sensor, scene.target.depth, setup.water.refractive_index, guard=4, multiple=1)
-    row, col = full.cell_coordinates(*target_centre(setup, sensor.camera))
-    reach = scene.target.radius / min(full.spacing_u, full.spacing_v) + 3
-    rows, cols = full.shape
-    r0, r1 = (int(np.clip(v, 0, rows)) for v in (np.floor(row - reach), np.ceil(row + reach) + 1))
-    c0, c1 = (int(np.clip(v, 0, cols)) for v in (np.floor(col - reach), np.ceil(col + reach) + 1))
-    u, v = np.asarray(full.axis_u), np.asarray(full.axis_v)
-    origin = np.asarray(full.origin) + c0 * full.spacing_u * u + r0 * full.spacing_v * v
-    return PlaneGrid(
-        depth=full.depth,
-        origin=(float(origin[0]), float(origin[1])),
-        axis_u=full.axis_u,
-        axis_v=full.axis_v,
-        spacing_u=full.spacing_u,
-        spacing_v=full.spacing_v,
-        shape=(max(r1 - r0, 2), max(c1 - c0, 2)),
-    )
-
-
-def _in_view(sensor, grid: PlaneGrid, occupancy, refractive_index, block: int = 64) -> bool:
-    """Whether any pixel's flat-sea line of sight crosses the silhouette (rows in blocks)."""
-    camera = sensor.camera
-    for start in range(0, camera.pixels, block):
-        sights = flat_sea_point(
-            origin=sensor.position,
-            direction=camera.pixel_directions(slice(start, start + block)).reshape(-1, 3),
-            depth=grid.depth,
-            refractive_index=refractive_index,
-        )
-        if grid.gather(occupancy, grid.locate(sights[:, 0], sights[:, 1])).any():
-            return True
-    return False
-
-
-@functools.lru_cache(maxsize=256)
-def _visibility(scene: Scene) -> tuple[int, ...]:
-    r"""Label of the target against each gate, from what a flat sea's pixels would show.
-
-    On the first frame's target plane under a flat sea, without blur, two sums run over the
-    target's silhouette, in units of a white plane just under the surface:
-
-    - the target's return in the gate, :math:`T = \sum w\,e^{-2K\sec\vartheta\,z_s}` over
-      the cells whose surface depth z_s lies in the slab the cell's line of sight gates;
-    - the gate's water the target hides, :math:`H = \sum o\,\pi\beta(\pi)\sec^2\vartheta
-      \int_{\max(z_s, top)}^{bottom} e^{-2K\sec\vartheta\,z}dz`.
-
-    The rule: no target, or no part of its silhouette in the image: ``none``; T > H (the
-    target shows brighter than the water it hides): ``in_gate``; otherwise, if it hides
-    any of the slab (geometrically, whatever β(π)): ``shadow``; else ``below_gate`` (its
-    visible surface lies below the slab: the pixels show nothing of it).
-    """
-    setup = scene_setup(scene)
-    count = len(setup.gates)
-    if scene.target.shape == "none":
-        return (VISIBILITY["none"],) * count
-    water = setup.water
-    sensor = sensor_at(setup, 0)
-    grid = _target_window(setup, sensor)
-    impostor = impostor_on(setup, grid)
-    if not _in_view(sensor, grid, impostor.occupancy, water.refractive_index):
-        return (VISIBILITY["none"],) * count
-    k = water.diffuse_attenuation * setup.secant
-    cells = np.flatnonzero(impostor.occupancy)
-    occupancy = impostor.occupancy.ravel()[cells].astype(np.float64)
-    depth = impostor.surface_depth.ravel()[cells].astype(np.float64)
-    weight = impostor.weight.ravel()[cells]
-    sight = lines_of_sight(sensor, grid, water.refractive_index, cells)
-    labels = []
-    for paths in sensor.paths:
-        top, bottom = gate_bounds(sight, paths, water.refractive_index)
-        inside = (depth >= top) & (depth <= bottom)
-        shown = float(np.sum(weight * inside * np.exp(-2 * k * depth)))
-        slab = setup.secant**2 * slab_backscatter_reflectance(
-            backscatter_pi=1.0,
-            diffuse_attenuation=k,
-            top=np.clip(depth, top, np.maximum(bottom, top)),
-            bottom=np.maximum(bottom, top),
-            reference=0.0,
-        )
-        behind = float(np.sum(occupancy * slab))
-        if shown > water.backscatter_pi * behind:
-            labels.append(VISIBILITY["in_gate"])
-        elif behind > 0:
-            labels.append(VISIBILITY["shadow"])
-        else:
-            labels.append(VISIBILITY["below_gate"])
-    return tuple(labels)
 
 
 def white_plane_count(scene: Scene) -> float:
@@ -301,8 +195,70 @@ def signal_means(values: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.n
     return _masked_mean(values, mask), _masked_mean(values, ring)
 
 
-def _index(name: str) -> dict:
-    return {"long_name": f"{name} index", "units": "1"}
+def target_effect(
+    expected: np.ndarray, free: np.ndarray, mask: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    r"""What the target changes in each gate's noise-free image, over its mask.
+
+    .. math::
+
+        \Delta = \langle E \rangle_M - \langle E_0 \rangle_M, \qquad
+        \delta = \Delta / \langle E_0 \rangle_M
+
+    with :math:`\langle\cdot\rangle_M` the mean over the target mask M, E the sample's
+    expected image and :math:`E_0` its target-free twin's (the same scene, sea and photons
+    without the target: `workers.scene.Scene.without_target`).
+
+    Parameters
+    ----------
+    expected, free : ndarray, shape (..., gates, y, x)
+        The noise-free images of the sample and of its target-free twin (photoelectrons,
+        or units of a white plane under the sea).
+    mask : ndarray of bool, shape (..., y, x)
+        The target mask (`target_mask`).
+
+    Returns
+    -------
+    effect : ndarray, shape (..., gates)
+        Δ, in the images' units, float64; NaN where the mask is empty.
+    relative : ndarray, shape (..., gates)
+        δ [1]; NaN where the mask is empty, ±inf where the twin's mask is dark
+        (:math:`\langle E_0 \rangle_M = 0`) and the target is not, 0 where both are.
+    """
+    shown, bare = _masked_mean(expected, mask), _masked_mean(free, mask)
+    effect = shown - bare
+    with np.errstate(divide="ignore", invalid="ignore"):
+        relative = np.where(bare > 0, effect / bare, np.sign(effect) * np.inf)
+    relative[effect == 0] = 0.0
+    return effect, relative
+
+
+def visibility(relative: np.ndarray, mask: np.ndarray, *, threshold: float) -> np.ndarray:
+    """The target's label in each gate (`VISIBILITY`), from its relative effect.
+
+    Parameters
+    ----------
+    relative : ndarray, shape (..., gates)
+        The relative change the target makes over its mask (`target_effect`) [1].
+    mask : ndarray of bool, shape (..., y, x)
+        The target mask.
+    threshold : float
+        The least relative change that counts as seen (``target.visibility_threshold``)
+        [1].
+
+    Returns
+    -------
+    ndarray of uint8, shape (..., gates)
+        ``none`` (0) where the mask is empty (no target, or none of it in view);
+        ``in_gate`` (1) where the target brightens its mask by at least `threshold`,
+        ``shadow`` (2) where it darkens it by at least `threshold`, ``unseen`` (3) where
+        it changes it by less.
+    """
+    labels = np.full(relative.shape, VISIBILITY["unseen"], dtype=np.uint8)
+    labels[relative >= threshold] = VISIBILITY["in_gate"]
+    labels[relative <= -threshold] = VISIBILITY["shadow"]
+    labels[~mask.any(axis=(-2, -1))] = VISIBILITY["none"]
+    return labels
 
 
 def sample_labels(scene: Scene) -> xr.Dataset:
@@ -316,9 +272,9 @@ def sample_labels(scene: Scene) -> xr.Dataset:
     Returns
     -------
     xarray.Dataset
-        ``target_present`` (), ``target_visibility`` (gate) and the coordinates
-        ``gate`` and ``frame`` (indices), ``gate_top``, ``gate_bottom`` (gate), ``time``
-        and ``platform_x/y/z`` (frame).
+        ``target_present`` () and the coordinates ``gate`` and ``frame`` (indices),
+        ``gate_top``, ``gate_bottom`` (gate), ``time`` and ``platform_x/y/z`` (frame).
+        The target's visibility per gate is rendered (`rendered_variables`).
     """
     return xr.Dataset(*_label_variables(scene))
 
@@ -338,16 +294,6 @@ def _label_variables(scene: Scene) -> tuple[dict, dict]:
                 "units": "1",
                 "flag_values": np.arange(2, dtype=np.uint8),
                 "flag_meanings": "absent present",
-            },
-        ),
-        "target_visibility": (
-            ("gate",),
-            np.asarray(_visibility(scene), dtype=np.uint8),
-            {
-                "long_name": "target position relative to the gate",
-                "units": "1",
-                "flag_values": np.arange(4, dtype=np.uint8),
-                "flag_meanings": "none in_gate shadow below_gate",
             },
         ),
     }
@@ -384,9 +330,10 @@ def rendered_variables(scene: Scene) -> dict[str, tuple[tuple[str, ...], np.dtyp
     -------
     dict
         ``name -> (dimensions, dtype, attributes)`` for ``image``, ``expected``,
-        ``target_mask``, ``target_signal`` and ``background_signal``, and
-        ``surface_elevation`` when the scene saves its surface (and the surface axes
-        ``sx``, ``sy``: `surface_axis`). Units are CF's: photoelectron counts, ICCD
+        ``target_mask``, ``target_signal``, ``background_signal``, ``target_effect``,
+        ``target_effect_relative`` and ``target_visibility``, and ``surface_elevation``
+        when the scene saves its surface (and the surface axes ``sx``, ``sy``:
+        `surface_axis`). Units are CF's: photoelectron counts, ICCD
         output counts and signals in units of a white plane under the sea are all ``1``,
         and the ``long_name`` says which. Photoelectron counts are unsigned integers
         (`count_dtype`, with ``valid_max``); everything else float32.
@@ -437,6 +384,37 @@ def rendered_variables(scene: Scene) -> dict[str, tuple[tuple[str, ...], np.dtyp
                 "units": "1",
             },
         ),
+        "target_effect": (
+            ("frame", "gate"),
+            f32,
+            {
+                "long_name": f"change of the mean {signal} inside the target mask made by the "
+                "target (noise-free; the sample less its target-free twin)",
+                "units": "1",
+            },
+        ),
+        "target_effect_relative": (
+            ("frame", "gate"),
+            f32,
+            {
+                "long_name": "target_effect over the target-free twin's mean inside the mask",
+                "units": "1",
+                "comment": "NaN where the mask is empty; +-inf where the twin's mask is dark",
+            },
+        ),
+        "target_visibility": (
+            ("frame", "gate"),
+            u8,
+            {
+                "long_name": "what the target shows in the gate",
+                "units": "1",
+                "flag_values": np.arange(len(VISIBILITY), dtype=np.uint8),
+                "flag_meanings": " ".join(VISIBILITY),
+                "comment": "from target_effect_relative: in_gate at or above "
+                "+target.visibility_threshold (default 0.05), shadow at or below its "
+                "negative, unseen between; none where the mask is empty",
+            },
+        ),
     }
     if scene.transport.method == "monte_carlo":
         error = {"long_name": f"Monte Carlo standard error of the {signal} (noise-free)"}
@@ -461,7 +439,7 @@ def rendered_variables(scene: Scene) -> dict[str, tuple[tuple[str, ...], np.dtyp
 
 
 def rendered_arrays(
-    scene, expected, image, masks, surface, *, stderr=None
+    scene, expected, image, masks, surface, *, free, stderr=None
 ) -> dict[str, np.ndarray]:
     """One sample's rendered variables as arrays of the types `rendered_variables` gives.
 
@@ -479,6 +457,9 @@ def rendered_arrays(
         The target mask, (frame, y, x).
     surface : Surface or None
         The sea, for ``surface_elevation`` when the scene saves it.
+    free : ndarray
+        The noise-free images of the sample's target-free twin, (frame, gate, y, x): the
+        target's effect is measured against them (`target_effect`).
     stderr : ndarray, optional
         The Monte Carlo renderer's standard error of `expected`, (frame, gate, y, x):
         ``expected_stderr`` (`workers.montecarlo`).
@@ -487,16 +468,25 @@ def rendered_arrays(
     -------
     dict
         ``name -> array`` for ``image``, ``expected``, ``target_mask``,
-        ``target_signal``, ``background_signal`` (and ``surface_elevation``).
+        ``target_signal``, ``background_signal``, ``target_effect``,
+        ``target_effect_relative``, ``target_visibility`` (and ``surface_elevation``).
     """
     table = rendered_variables(scene)
-    target, background = signal_means(expected, masks.astype(bool))
+    mask = masks.astype(bool)
+    target, background = signal_means(expected, mask)
+    effect, relative = target_effect(expected, free, mask)
+    relative = relative.astype(np.float32)  # labelled as stored: re-thresholding agrees
     values = {
         "image": image,
         "expected": expected,
         "target_mask": masks,
         "target_signal": target,
         "background_signal": background,
+        "target_effect": effect,
+        "target_effect_relative": relative,
+        "target_visibility": visibility(
+            relative, mask, threshold=scene.target.visibility_threshold
+        ),
     }
     if "expected_stderr" in table:
         values["expected_stderr"] = stderr

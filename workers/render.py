@@ -49,14 +49,14 @@ import xarray as xr
 from workers import montecarlo
 from workers.interface import Projected, through_surface
 from workers.kernels import Cells, gather_levels, sample, span, splat_levels
-from workers.labels import labelled_dataset, rendered_arrays, sample_labels, target_mask
+from workers.labels import labelled_dataset, rendered_arrays, target_mask
 from workers.noise import shot_noise
 from workers.planes import FrameGeometry, Plane, frame_geometry
 from workers.scene import Scene
 from workers.seeds import SampleSeed
 from workers.sensor import Setup, scene_setup
 
-__all__ = ["render", "render_arrays", "sample_labels"]
+__all__ = ["render", "render_arrays", "render_images"]
 
 
 def render(scene: Scene, *, seed: int | SampleSeed) -> xr.Dataset:
@@ -75,9 +75,10 @@ def render(scene: Scene, *, seed: int | SampleSeed) -> xr.Dataset:
     -------
     xarray.Dataset
         ``image`` and ``expected`` (frame, gate, y, x), ``target_mask`` (frame, y, x),
-        ``target_present`` (), ``target_visibility`` (gate), coordinates ``gate_top``,
-        ``gate_bottom`` (gate), ``time`` and the platform position (frame), and
-        ``surface_elevation`` (frame, sy, sx) when ``scene.save_surface`` is set.
+        the signal means, the target's effect and ``target_visibility`` (frame, gate),
+        ``target_present`` (), coordinates ``gate_top``, ``gate_bottom`` (gate), ``time``
+        and the platform position (frame), and ``surface_elevation`` (frame, sy, sx)
+        when ``scene.save_surface`` is set.
     """
     return labelled_dataset(scene, render_arrays(scene, seed=seed))
 
@@ -87,6 +88,13 @@ def render_arrays(scene: Scene, *, seed: int | SampleSeed) -> dict[str, np.ndarr
 
     What a store's task writes (`service.run.render_shard`): the same values as
     `render`'s, without building a dataset (about 1 ms a sample).
+
+    A scene with a target yields its target-free twin (`workers.scene.Scene.without_target`)
+    on the same sea too, for the target's effect and its visibility labels
+    (`workers.labels.target_effect`): the fast renderer reads the same spread light a
+    second time without the target's light and shadow (in the same pass, bit for bit the
+    twin rendered apart); by Monte Carlo it is a second transport of the same photons
+    (twice the time: ``docs/model.md`` §8). Only its expected images are kept.
 
     Parameters
     ----------
@@ -99,29 +107,47 @@ def render_arrays(scene: Scene, *, seed: int | SampleSeed) -> dict[str, np.ndarr
     -------
     dict
         `workers.labels.rendered_arrays`: ``image``, ``expected``, ``target_mask``,
-        ``target_signal``, ``background_signal`` (and ``surface_elevation``).
+        the signal means, the target's effect, ``target_visibility`` (and
+        ``surface_elevation``).
     """
-    if not isinstance(seed, SampleSeed):
-        seed = SampleSeed(root=int(seed))
+    seed = seed if isinstance(seed, SampleSeed) else SampleSeed(root=int(seed))
+    surface, expected, masks, stderr, free, image = _render_sample(scene, seed)
+    if scene.target.shape == "none":
+        free = expected
+    elif free is None:  # Monte Carlo: the twin's own photons, the same streams
+        free = _render_frames(scene_setup(scene.without_target()), surface, seed)[0]
+    return rendered_arrays(scene, expected, image, masks, surface, free=free, stderr=stderr)
+
+
+def render_images(scene: Scene, *, seed: int | SampleSeed) -> tuple[np.ndarray, np.ndarray]:
+    """A sample's noise-free and noisy images alone: `render_arrays`'s, without its twin.
+
+    What `service.detect` renders again for a store without its ``expected`` images: the
+    labels, which need the target-free twin (by Monte Carlo a second transport), are not
+    rendered again.
+
+    Parameters
+    ----------
+    scene : Scene
+        All parameters of the sample.
+    seed : int or SampleSeed
+        As for `render`.
+
+    Returns
+    -------
+    expected, image : ndarray, shape (frame, gate, y, x)
+        The values of `render_arrays`'s ``expected`` and ``image`` (float32 here).
+    """
+    seed = seed if isinstance(seed, SampleSeed) else SampleSeed(root=int(seed))
+    _, expected, _, _, _, image = _render_sample(scene, seed)
+    return expected, image
+
+
+def _render_sample(scene: Scene, seed: SampleSeed):
+    """The sample's sea, expected images, masks, Monte Carlo error, twin and noisy images."""
     setup = scene_setup(scene)
-    frames = scene.sequence.frames
-    times = np.arange(frames) * scene.sequence.interval
-    surface = setup.surface(seed, times)
-    expected = []
-    masks = []
-    errors = []
-    for frame in range(frames):
-        if scene.transport.method == "monte_carlo":
-            transported = montecarlo.render_frame(setup, surface, frame, seed)
-            signal, mask = transported.expected, transported.mask
-            errors.append(transported.stderr)
-        else:
-            geometry = frame_geometry(scene, frame)
-            signal, mask = _render_frame(setup, geometry, surface, frame)
-        expected.append(signal)
-        masks.append(mask)
-    expected = np.stack(expected)
-    stderr = np.stack(errors) if errors else None
+    surface = setup.surface(seed, np.arange(scene.sequence.frames) * scene.sequence.interval)
+    expected, masks, stderr, free = _render_frames(setup, surface, seed)
     noise = scene.noise
     if scene.radiometry.photoelectrons:
         image = shot_noise(
@@ -129,7 +155,31 @@ def render_arrays(scene: Scene, *, seed: int | SampleSeed) -> dict[str, np.ndarr
         )
     else:
         image = expected.copy()
-    return rendered_arrays(scene, expected, image, np.stack(masks), surface, stderr=stderr)
+    return surface, expected, masks, stderr, free, image
+
+
+def _render_frames(setup: Setup, surface, seed: SampleSeed):
+    """Every frame's expected image, (frame, gate, y, x), mask, Monte Carlo error and twin.
+
+    The error is None for the fast renderer (deterministic). The twin, the expected image
+    without the target, comes with the fast renderer's when there is a target (the same
+    spread light gathered without the target's light and shadow); None otherwise.
+    """
+    expected, masks, errors, twins = [], [], [], []
+    for frame in range(setup.scene.sequence.frames):
+        if setup.scene.transport.method == "monte_carlo":
+            transported = montecarlo.render_frame(setup, surface, frame, seed)
+            signal, mask = transported.expected, transported.mask
+            errors.append(transported.stderr)
+        else:
+            geometry = frame_geometry(setup.scene, frame)
+            signal, mask, twin = _render_frame(setup, geometry, surface, frame)
+            if twin is not None:
+                twins.append(twin)
+        expected.append(signal)
+        masks.append(mask)
+    stack = [np.stack(values) if values else None for values in (errors, twins)]
+    return np.stack(expected), np.stack(masks), *stack
 
 
 def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
@@ -147,6 +197,7 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
 
     pixels = setup.scene.receiver.pixels
     images = np.zeros((len(setup.gates), pixels * pixels), dtype=np.float32)
+    free = np.zeros_like(images) if geometry.impostor is not None else None
     mask = np.zeros(pixels * pixels, dtype=np.uint8)
     impostor = geometry.impostor
     if impostor is not None:
@@ -181,7 +232,8 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
             seen = np.zeros(pixels * pixels, dtype=np.float32)
             rows_in = inside if coarse is None else (rows, slice(None))
             sources = (fine, source, rows_in)
-            _gather(plane, up_axes, sources, up_transmittance * sight_extra, seen, window=window)
+            weight = up_transmittance * sight_extra
+            _gather(plane, up_axes, sources, ((weight, seen, None),), window=window)
             for g in gates:
                 images[g] += seen
     down_gains = setup.gate_gains(down_excess)
@@ -190,19 +242,21 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
         gain = down_gains[g]
         ray_power = power * gain
         weight = up_transmittance * up_gains[g]
+        outputs = [(weight, free[g], None)] if impostor is not None else []
         if plane.seen is not None:
             # the pixels whose lines of sight the target stops, where they cross it
             whole = (0, *plane.seen.shape[:1], 0, plane.seen.shape[1])
             weight = weight * (1.0 - _sample(up_axes, cells, (plane.seen,), whole)[0])
-        sources = _splat(plane, down_axes, ray_power)
-        _gather(
-            plane, up_axes, sources, weight, images[g], tail=plane.tail, occlusion=plane.occlusion
-        )
+        outputs.append((weight, images[g], plane.occlusion))
+        _gather(plane, up_axes, _splat(plane, down_axes, ray_power), outputs, tail=plane.tail)
     # the near and far parts of a spread each ring a little below zero where almost no
     # light lands; their sum is light, never negative
-    np.maximum(images, 0.0, out=images)
-    images *= np.float32(setup.scale)
-    return images.reshape(len(setup.gates), pixels, pixels), mask.reshape(pixels, pixels)
+    shape = (len(setup.gates), pixels, pixels)
+    for values in (images,) if free is None else (images, free):
+        np.maximum(values, 0.0, out=values)
+        values *= np.float32(setup.scale)
+    twin = None if free is None else free.reshape(shape)
+    return images.reshape(shape), mask.reshape(pixels, pixels), twin
 
 
 def _splat(plane: Plane, rays: Projected, power: np.ndarray):
@@ -220,13 +274,15 @@ def _splat(plane: Plane, rays: Projected, power: np.ndarray):
 _NONE = np.zeros((0, 0), dtype=np.float32)
 
 
-def _gather(plane, sight, sources, weight, out, *, window=None, tail=None, occlusion=None):
-    """Spread light on a plane and add it, times `weight`, at the pixels' sights to `out`.
+def _gather(plane, sight, sources, outputs, *, window=None, tail=None):
+    """Spread light on a plane and add it at the pixels' sights to each of `outputs`.
 
     `sources` is ``(fine, source, rows)`` as from `_splat`; the light of the beam's `tail`
-    (`Plane.tail`) is added to the spread. Only the rows that the sights reach (their
-    `window`, `workers.kernels.span`: found here when None) are brought back from the
-    spectra.
+    (`Plane.tail`) is added to the spread. `outputs` holds ``(weight, out, occlusion)``
+    triples: the light, times the cells' `occlusion` (None: 1) and each pixel's
+    `weight`, is added to `out`; the spread is computed once for them all. Only the rows
+    that the sights reach (their `window`, `workers.kernels.span`: found here when None)
+    are brought back from the spectra.
     """
     levels = plane.levels
     cells, shape = Cells.of(levels), plane.grid.shape
@@ -238,9 +294,10 @@ def _gather(plane, sight, sources, weight, out, *, window=None, tail=None, occlu
         fine, source, rows_in=rows_in, rows_out=(rows, levels.coarse_rows(rows))
     )
     tails = (_NONE, _NONE) if tail is None else tail[:2]
-    occlusion = _NONE if occlusion is None else occlusion
     parts = (near, window, far, tails)
-    gather_levels(sight.lines, cells, shape, parts, levels.lift, occlusion, weight, out)
+    for weight, out, occlusion in outputs:
+        occlusion = _NONE if occlusion is None else occlusion
+        gather_levels(sight.lines, cells, shape, parts, levels.lift, occlusion, weight, out)
 
 
 def _sample(rays: Projected, cells: Cells, fields, box) -> np.ndarray:

@@ -163,6 +163,14 @@ class Scene(Section):
             field_of_view=math.radians(self.receiver.field_of_view_deg),
         )
 
+    def without_target(self) -> Scene:
+        """The same scene with ``target.shape: none``: its target-free twin.
+
+        The sea, the photons and everything else but the target are the same, so the
+        twin's images differ from this scene's by the target alone (`workers.seeds`).
+        """
+        return self.model_copy(update={"target": self.target.model_copy(update={"shape": "none"})})
+
     def sea(self) -> Sea | None:
         """The cascades of the scene's sea (`SurfaceSpec.sea` at its footprint)."""
         return self.surface.sea(self.footprint())

@@ -396,6 +396,17 @@ class Target(Section):
         "it for training data.",
         json_schema_extra=units("1"),
     )
+    visibility_threshold: float = Field(
+        0.05,
+        gt=0.0,
+        le=10.0,
+        description="Relative change of a gate's noise-free image over the target mask (the "
+        "sample against its target-free twin, `target_effect_relative`) from which the "
+        "target counts as seen in that gate: `in_gate` if it brightens the mask by at least "
+        "this, `shadow` if it darkens it by at least this, else `unseen` (docs/model.md §8). "
+        "A label's rule only: training may re-threshold `target_effect_relative`.",
+        json_schema_extra=units("1"),
+    )
 
     @model_validator(mode="after")
     def _submerged(self) -> Target:
