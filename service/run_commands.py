@@ -21,12 +21,13 @@ import dask
 import yaml
 from dask.utils import format_bytes, format_time
 
-from service import storage, store
+from service import integrity, storage, store
 from service.inputs import SweepError, shown
 from service.schema import sweep_json_schema
 from service.sweep import DEFAULT_MAX_MEMORY, Plan, load_sweep
 from workers.cascades import describe
-from workers.render import render
+from workers.labels import rendered_variables
+from workers.render import render_arrays
 from workers.section import SceneError
 
 __all__ = ["cmd_run", "cmd_schema", "cmd_validate", "report_samples", "run_time"]
@@ -106,10 +107,14 @@ def _timed_render(plan: Plan, point: int = 0) -> tuple[float, float]:
     for _ in range(2):
         started = time.perf_counter()
         try:
-            render(first_frame, seed=sample.seed)
+            rendered = render_arrays(first_frame, seed=sample.seed)
         except SceneError as error:
             raise SweepError(f"{sample.describe()}: {error}") from None
         timings.append(sequence.frames * (time.perf_counter() - started))
+        # what `run` would refuse to write (every sample of the scene alike, as a rule)
+        reason = integrity.invalid_values(rendered, rendered_variables(first_frame))
+        if reason is not None:
+            raise SweepError(f"{sample.describe()}: renders invalid values: {reason}")
     first, second = timings
     return max(first - second, 0.0), second
 

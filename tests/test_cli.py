@@ -7,6 +7,7 @@ from pathlib import Path
 
 import dask
 import jsonschema
+import numpy as np
 import pytest
 import xarray as xr
 import yaml
@@ -20,6 +21,7 @@ from service.run_commands import run_time
 from service.schema import sweep_json_schema
 from service.store import create_store, package_version, shard_size
 from service.sweep import load_sweep, parse_sweep
+from workers.render import render_arrays
 from workers.scene import Scene
 
 CONFIGS = sorted((ROOT / "configs").rglob("*.yaml"))
@@ -74,6 +76,24 @@ def test_validate_estimates_the_run_and_shows_the_resolved_scene(tmp_path, capsy
     scene = load_sweep(sweep).scenes[0]
     assert shown["water"]["theta0"] == 0.12 and shown["platform"]["altitude"] == 34.0
     assert Scene.model_validate(shown) == scene
+
+
+def test_validate_refuses_a_scene_that_renders_invalid_values(tmp_path, capsys, monkeypatch):
+    # the render `validate` times is checked as `run` checks each sample before writing
+    # it: a NaN there is a scene no sample of which would be written (a user trial found
+    # a 10 m sphere and 30 /m water validated, then every sample refused)
+    import service.run_commands as commands
+
+    def broken(scene, *, seed):
+        arrays = render_arrays(scene, seed=seed)
+        arrays["expected"][0, 0, 0, 0] = np.nan
+        return arrays
+
+    monkeypatch.setattr(commands, "render_arrays", broken)
+    assert main(["validate", str(tiny(tmp_path)), "--workers", "1"]) != 0
+    err = capsys.readouterr().err
+    assert "renders invalid values: expected holds 1 non-finite value(s)" in err
+    assert "Traceback" not in err
 
 
 def test_quiet_runs_print_nothing_but_errors(tmp_path, capsys):

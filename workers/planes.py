@@ -422,4 +422,7 @@ def _beam_depth_ratio(setup, sensor, grid: PlaneGrid, *, rise: float) -> np.ndar
         blurred = np.fft.irfft2(np.fft.rfft2(profile, s=shape) * mtf, s=shape)
         light.append(blurred[:rows, :cols])
     top, plane = light
-    return np.divide(top, plane, out=np.ones(grid.shape), where=plane > 1e-300)
+    # where the beam's light is too faint for its FFT's ring (and off the beam), no change
+    held = plane > 1e-6 * plane.max()
+    ratio = np.divide(top, plane, out=np.ones(grid.shape), where=held)
+    return np.maximum(ratio, 0.0)

@@ -69,6 +69,10 @@ _HANKEL_X = np.linspace(0.0, 200.0, 4001)
 """Quadrature nodes of the encircled-energy integral in x = 2πfR [1]."""
 
 
+_LARGE_EXPONENT = 600.0
+"""Exponent above which e^x is not taken alone (float64 overflows at 709)."""
+
+
 def scattered_mtf(water: WaterOptics, frequency, *, distance, passes=1):
     r"""Scattered part of the Wells MTF: the MTF less its unscattered share e^(−cz).
 
@@ -91,7 +95,12 @@ def scattered_mtf(water: WaterOptics, frequency, *, distance, passes=1):
     """
     psi = np.abs(np.asarray(frequency, dtype=np.float64)) * distance
     exponent = passes * water.forward_scattering * distance * water.mtf_exponent(psi)
-    return (np.exp(-passes * water.attenuation * distance) * np.expm1(exponent))[()]
+    unscattered = -passes * water.attenuation * distance
+    # e^(−pcz) (e^(pbz D) − 1), without cancellation where pbz D is small, nor overflow
+    # where it is large (e^(−pcz) underflows to 0, e^(pbz D) to inf: take e^(pbz D − pcz))
+    large = exponent > _LARGE_EXPONENT
+    small = np.exp(unscattered) * np.expm1(np.minimum(exponent, _LARGE_EXPONENT))
+    return np.where(large, np.exp(exponent + unscattered) - np.exp(unscattered), small)[()]
 
 
 @functools.lru_cache(maxsize=256)
