@@ -55,6 +55,22 @@ class Cells(NamedTuple):
     shift_u: np.float32
 
     @classmethod
+    def of_grid(cls, grid) -> Cells:
+        """The map of a lone fine grid (`workers.geometry.PlaneGrid`), for `sample`."""
+        (o0, o1), (u0, u1), (v0, v1) = grid.origin, grid.axis_u, grid.axis_v
+        zero, one = np.float32(0), np.float32(1)
+        return cls(
+            depth=np.float32(grid.depth),
+            origin_u=np.float32(o0 * u0 + o1 * u1),
+            scale_u=np.float32(1.0 / grid.spacing_u),
+            origin_v=np.float32(o0 * v0 + o1 * v1),
+            scale_v=np.float32(1.0 / grid.spacing_v),
+            factor=one,
+            shift_v=zero,
+            shift_u=zero,
+        )
+
+    @classmethod
     def of(cls, levels) -> Cells:
         """The map of a two-level plane (`workers.spread.Levels`)."""
         grid = levels.fine

@@ -14,6 +14,7 @@ from workers.caches import lru_bytes
 from workers.delays import return_delays
 from workers.geometry import LaserRays, Located, PlaneGrid, flat_sea_point
 from workers.interface import ray_components
+from workers.kernels import Cells
 from workers.optics import fresnel_reflectance
 from workers.scene import Scene
 from workers.sensor import (
@@ -26,6 +27,7 @@ from workers.sensor import (
     lines_of_sight,
     scene_setup,
     sensor_at,
+    sight_grid,
 )
 from workers.shadows import gate_shadow
 from workers.spread import (
@@ -94,7 +96,11 @@ class TargetLight:
 
 @dataclass(frozen=True)
 class FrameGeometry:
-    """Geometry of one frame: sensor rays, planes, filters and the target impostor."""
+    """Geometry of one frame: sensor rays, planes, filters and the target impostor.
+
+    With a target, `sight` is the pixels' own grid at its depth (`workers.sensor.sight_grid`)
+    and `sight_occupancy` the target's silhouette on it: each pixel's share, for its mask.
+    """
 
     position: np.ndarray
     central_air: float
@@ -105,6 +111,13 @@ class FrameGeometry:
     target_plane: Plane | None
     impostor: Impostor | None
     target_light: TargetLight | None
+    sight: PlaneGrid | None = None
+    sight_occupancy: np.ndarray | None = None
+
+    @property
+    def sight_cells(self) -> Cells:
+        """`workers.kernels.Cells` of `sight`: the pixels' own grid at the target's depth."""
+        return Cells.of_grid(self.sight)
 
 
 def read_blur(scene: Scene, sensor: Sensor, grid: PlaneGrid, *, uses: int) -> tuple[float, float]:
@@ -276,11 +289,14 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
             source = levels.downsample(fine) + coarse
             light = spread.filtered(fine, source, far_out=gate is None)
         planes.append(Plane(levels=levels, spread=spread, tail=light))
-    target_plane = impostor = target_light = None
+    target_plane = impostor = target_light = sight = sight_occupancy = None
     if t.shape != "none":
         target_plane, planes = planes[0], planes[1:]
         impostor = impostor_on(setup, target_plane.grid)
         target_light = _target_light(setup, sensor, target_plane.levels)
+        guard = max(int(np.ceil(GUARD * camera.pixels)), 1)
+        sight = sight_grid(sensor, t.depth, water.refractive_index, guard=guard)
+        sight_occupancy = impostor_on(setup, sight).occupancy
     gate_planes = []
     for g, plane in enumerate(planes):
         if impostor is not None:
@@ -289,6 +305,7 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
                 sensor,
                 gate_grid=plane.grid,
                 target_grid=target_plane.grid,
+                sight=sight,
                 paths=sensor.paths[g],
             )
             plane = replace(plane, occlusion=None if lit is None else 1.0 - lit, seen=seen)
@@ -304,6 +321,8 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
         target_plane=target_plane,
         impostor=impostor,
         target_light=target_light,
+        sight=sight,
+        sight_occupancy=sight_occupancy,
     )
 
 

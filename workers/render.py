@@ -204,8 +204,9 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
         plane = geometry.target_plane
         levels = plane.levels
         cells = Cells.of(levels)
-        box = _support(impostor.occupancy)
-        mask = target_mask(_sample(up_axes, cells, (impostor.occupancy,), box)[0])
+        sight_cells = geometry.sight_cells
+        occupancy = geometry.sight_occupancy
+        mask = target_mask(_sample(up_axes, sight_cells, (occupancy,), _support(occupancy))[0])
         extra = down_axes.extra(levels.fine.depth)
         sight_extra = up_axes.extra(levels.fine.depth)
         light = geometry.target_light
@@ -246,7 +247,7 @@ def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
         if plane.seen is not None:
             # the pixels whose lines of sight the target stops, where they cross it
             whole = (0, *plane.seen.shape[:1], 0, plane.seen.shape[1])
-            weight = weight * (1.0 - _sample(up_axes, cells, (plane.seen,), whole)[0])
+            weight = weight * (1.0 - _sample(up_axes, sight_cells, (plane.seen,), whole)[0])
         outputs.append((weight, images[g], plane.occlusion))
         _gather(plane, up_axes, _splat(plane, down_axes, ray_power), outputs, tail=plane.tail)
     # the near and far parts of a spread each ring a little below zero where almost no

@@ -298,7 +298,9 @@ class Water(Section):
         0.12,
         gt=0.0,
         le=1.0,
-        description="Phase-function angular scale θ0 (paper: 0.12).",
+        description="Phase-function angular scale θ0 (paper: 0.12) of the `paper` and "
+        "`wells` phase functions (and of the Monte Carlo's `paper`); the default "
+        "`fournier_forand` has none (it is fitted to b_b/b) and ignores it.",
         json_schema_extra=units("rad"),
     )
     refractive_index: float = Field(

@@ -8,7 +8,7 @@ The model is in ``docs/model.md``.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -300,6 +300,35 @@ def platform_position(scene: Scene, time: float) -> np.ndarray:
     reach = p.altitude * np.tan(nadir)
     start = np.array([-reach * np.sin(azimuth), -reach * np.cos(azimuth), p.altitude])
     return start + time * np.asarray(scene.sequence.velocity, dtype=float)
+
+
+def sight_grid(sensor: Sensor, depth: float, n_w: float, *, guard: int) -> PlaneGrid:
+    """A grid at `depth` whose nodes are the pixels' flat-sea lines of sight, a pixel apart.
+
+    What is read per pixel at its own scale, whatever the laser lattice (`laser.rays` and
+    its offset, `lattice_offset`): the target's mask and the view the target stops, each
+    cell holding its pixel's footprint. `guard` cells on every side.
+    """
+    camera = sensor.camera
+    lattice = LaserRays.central(
+        position=sensor.position,
+        rotation=camera.rotation,
+        beam="divergent",
+        field_of_view=camera.field_of_view,
+        rays=camera.pixels,
+        reference_range=sensor.reference_range,
+    )
+    grid = PlaneGrid.covering(
+        camera=camera, lattice=lattice, depth=depth, refractive_index=n_w, guard=guard
+    )
+    line = flat_sea_point(
+        origin=lattice[0][:1], direction=lattice[1][:1], depth=depth, refractive_index=n_w
+    )[0, :2]
+    origin = np.asarray(grid.origin, dtype=float)
+    for axis, spacing in ((grid.axis_u, grid.spacing_u), (grid.axis_v, grid.spacing_v)):
+        steps = (line - origin) @ axis / spacing
+        origin = origin + (steps - np.round(steps)) * spacing * np.asarray(axis)
+    return replace(grid, origin=(float(origin[0]), float(origin[1])))
 
 
 def fine_grid(sensor: Sensor, depth: float, n_w: float, *, guard: int, multiple: int):

@@ -24,7 +24,7 @@ _LOG_STEP = 1e-3
 """Half-step in ln ψ of the central difference giving Σ(ψ) = D + dD/dln ψ."""
 
 
-def gate_shadow(setup, sensor, *, gate_grid, target_grid, paths):
+def gate_shadow(setup, sensor, *, gate_grid, target_grid, sight, paths):
     r"""The deficits of a gate's water behind the target: seen, and lit (None if none).
 
     Parameters
@@ -35,13 +35,15 @@ def gate_shadow(setup, sensor, *, gate_grid, target_grid, paths):
         The frame's sensor.
     gate_grid, target_grid : PlaneGrid
         The fine grids of the gate's plane and of the plane through the target's centre.
+    sight : PlaneGrid
+        The pixels' own grid at the target's depth (`workers.sensor.sight_grid`).
     paths : tuple of float
         The gate's opening and closing path lengths (`workers.sensor.Sensor.paths`) [m].
 
     Returns
     -------
     seen : ndarray or None
-        On `target_grid`, the share of a pixel's view of the gate's water that the target
+        On `sight`, the share of a pixel's view of the gate's water that the target
         stops, at the place where the pixel's line of sight crosses the target's depth [1].
     lit : ndarray or None
         On `gate_grid`, the share of the laser's light that the target keeps from the
@@ -77,8 +79,7 @@ def gate_shadow(setup, sensor, *, gate_grid, target_grid, paths):
     Convolutions are linear (zero-padded FFTs) on each plane's fine grid.
     """
     water = setup.water
-    target = impostor_on(setup, target_grid)
-    seen = _deficit(setup, sensor, target_grid, paths, target)
+    seen = _deficit(setup, sensor, sight, paths, impostor_on(setup, sight))
     lit = _deficit(
         setup,
         sensor,
@@ -101,7 +102,7 @@ def gate_shadow(setup, sensor, *, gate_grid, target_grid, paths):
         return b_f * z_t * (sigma - 1.0) + one_way(f, drop)
 
     return (
-        _blurred(target_grid, seen, lambda f: one_way(f, z_t)),
+        _blurred(sight, seen, lambda f: one_way(f, z_t)),
         _blurred(gate_grid, lit, behind),
     )
 
