@@ -284,17 +284,31 @@ def gated_share(*, grid, centre, radius, refracted_nadir, top, bottom, on, delay
         "radius": radius,
     }
 
-    def within(depth):
-        chord = np.clip((base - depth) / cos_t, 0.0, radius)
-        return np.sqrt(radius**2 - chord**2)
-
     _, whole = disc_cover(**cells)
+    # a cell's nearest and farthest points from the centre: a disc of radius R holds all
+    # of a cell with its farthest point inside, none with its nearest point outside
+    reach_u, reach_w = (
+        np.abs(cells[axis]) + 0.5 * cells[f"cell_{axis}"] * np.array([[-1.0], [1.0]])
+        for axis in ("u", "w")
+    )
+    nearest = np.hypot(*(np.maximum(reach[0], 0.0) for reach in (reach_u, reach_w)))
+    farthest = np.hypot(reach_u[1], reach_w[1])
+
+    def held_within(depth):
+        """Each cell's return from the disc of the sphere's points shallower than `depth`."""
+        chord = np.clip((base - depth) / cos_t, 0.0, radius)
+        limit = np.sqrt(radius**2 - chord**2)
+        out = np.where(farthest <= limit, whole, 0.0)
+        cut = (nearest < limit) & (farthest > limit)
+        if cut.any():
+            part = {key: value[cut] if np.ndim(value) else value for key, value in cells.items()}
+            out[cut] = disc_cover(**part, within=limit[cut])[1]
+        return out
+
     top, bottom = (np.asarray(v, dtype=np.float64)[on] for v in (top, bottom))
     held = np.zeros(whole.shape)
     for delay, share in zip(delays, shares, strict=True):
-        _, outer = disc_cover(**cells, within=within(bottom - delay))
-        _, inner = disc_cover(**cells, within=within(top - delay))
-        held += share * (outer - inner)
+        held += share * (held_within(bottom - delay) - held_within(top - delay))
     out = np.zeros(grid.shape)
     out[on] = np.clip(np.divide(held, whole, out=np.zeros(whole.shape), where=whole > 0), 0, 1)
     return out
