@@ -73,15 +73,8 @@ class Cells(NamedTuple):
     @classmethod
     def of(cls, levels) -> Cells:
         """The map of a two-level plane (`workers.spread.Levels`)."""
-        grid = levels.fine
-        (o0, o1), (u0, u1), (v0, v1) = grid.origin, grid.axis_u, grid.axis_v
         shift_v, shift_u = levels.to_coarse(np.float32(0), np.float32(0))
-        return cls(
-            depth=np.float32(grid.depth),
-            origin_u=np.float32(o0 * u0 + o1 * u1),
-            scale_u=np.float32(1.0 / grid.spacing_u),
-            origin_v=np.float32(o0 * v0 + o1 * v1),
-            scale_v=np.float32(1.0 / grid.spacing_v),
+        return cls.of_grid(levels.fine)._replace(
             factor=np.float32(levels.factor),
             shift_v=np.float32(shift_v),
             shift_u=np.float32(shift_u),
