@@ -210,7 +210,7 @@ def test_biasing_keeps_weights_alive_in_strongly_scattering_water():
     s = scene(
         water={"preset": None, "absorption": 0.2, "scattering": 10.0, "backscatter": 0.18},
         target={"shape": "none"},
-        transport={"photons": 200_000},
+        transport={"photons": 100_000},  # gate-mean errors 10-19 %: the bug read 1e-6
     )
     setup = scene_setup(s)
     frames = [
