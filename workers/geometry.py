@@ -648,6 +648,28 @@ class PlaneGrid:
         values *= located.weights
         return values.sum(axis=0)
 
+    def convolved(self, field, transfer):
+        """`field` on this grid convolved, linearly (zero-padded to twice its size).
+
+        Parameters
+        ----------
+        field : ndarray
+            Values on the cells, shape `shape`.
+        transfer : callable
+            The kernel's transfer function of the spatial-frequency magnitude [cycles/m]
+            (an ndarray), real and even [1].
+
+        Returns
+        -------
+        ndarray, shape `shape`, float64
+        """
+        rows, cols = self.shape
+        shape = (2 * rows, 2 * cols)
+        fv = np.fft.fftfreq(shape[0], d=self.spacing_v)[:, np.newaxis]
+        fu = np.fft.rfftfreq(shape[1], d=self.spacing_u)[np.newaxis, :]
+        spectrum = np.fft.rfft2(field, s=shape) * transfer(np.hypot(fv, fu))
+        return np.fft.irfft2(spectrum, s=shape)[:rows, :cols]
+
     def frequency(self):
         """Spatial-frequency magnitude on the rfft2 grid of the cells [cycles/m]."""
         rows, cols = self.shape

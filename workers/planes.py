@@ -20,6 +20,7 @@ from workers.scene import Scene
 from workers.sensor import (
     Sensor,
     Setup,
+    central_point,
     fine_grid,
     gate_bounds,
     gated_share_on,
@@ -419,27 +420,21 @@ def _beam_depth_ratio(setup, sensor, grid: PlaneGrid, *, rise: float) -> np.ndar
     water = setup.water
     n_w = water.refractive_index
     scene = setup.scene
-    origins, directions = sensor.lattice
-    centre = flat_sea_point(
-        origin=origins[:1], direction=directions[:1], depth=grid.depth, refractive_index=n_w
-    )[0, :2]
+    centre = central_point(sensor, grid.depth, n_w)
     x, y = grid.cell_centres()
     squared = (x - centre[0]) ** 2 + (y - centre[1]) ** 2
     radius = sensor.reference_range * np.tan(0.5 * sensor.laser_fov)
-    rows, cols = grid.shape
-    shape = (2 * rows, 2 * cols)
-    fv = np.fft.fftfreq(shape[0], d=grid.spacing_v)[:, None]
-    fu = np.fft.rfftfreq(shape[1], d=grid.spacing_u)[None, :]
-    frequency = np.hypot(fv, fu)
     light = []
     for depth in (grid.depth - rise, grid.depth):
         path = depth * setup.secant
         growth = 1.0 + path / (n_w * sensor.reference_range)
         width = radius * (growth if scene.laser.beam == "divergent" else 1.0)
         profile = np.exp(-squared / width**2) * (radius / width) ** 2
-        mtf = water.mtf(frequency, distance=path).astype(np.float64)
-        blurred = np.fft.irfft2(np.fft.rfft2(profile, s=shape) * mtf, s=shape)
-        light.append(blurred[:rows, :cols])
+        light.append(
+            grid.convolved(
+                profile, lambda f, path=path: water.mtf(f, distance=path).astype(np.float64)
+            )
+        )
     top, plane = light
     # where the beam's light is too faint for its FFT's ring (and off the beam), no change
     held = plane > 1e-6 * plane.max()

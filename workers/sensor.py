@@ -302,6 +302,14 @@ def platform_position(scene: Scene, time: float) -> np.ndarray:
     return start + time * np.asarray(scene.sequence.velocity, dtype=float)
 
 
+def central_point(sensor: Sensor, depth: float, n_w: float) -> np.ndarray:
+    """World (x, y) where the laser lattice's central ray meets `depth` under a flat sea [m]."""
+    origins, directions = sensor.lattice
+    return flat_sea_point(
+        origin=origins[:1], direction=directions[:1], depth=depth, refractive_index=n_w
+    )[0, :2]
+
+
 def sight_grid(sensor: Sensor, depth: float, n_w: float, *, guard: int) -> PlaneGrid:
     """A grid at `depth` whose nodes are the pixels' flat-sea lines of sight, a pixel apart.
 

@@ -15,8 +15,8 @@ from dataclasses import replace
 import numpy as np
 
 from workers.gates import hidden_fraction
-from workers.geometry import PlaneGrid, flat_sea_point
-from workers.sensor import gate_bounds, impostor_on, lines_of_sight
+from workers.geometry import PlaneGrid
+from workers.sensor import central_point, gate_bounds, impostor_on, lines_of_sight
 
 __all__ = ["gate_shadow"]
 
@@ -113,13 +113,7 @@ def _seen_through(sensor, grid: PlaneGrid, target_grid: PlaneGrid, n_w: float) -
     Both grids hold one laser ray a cell about the central ray, so a cell's lines cross
     the target's plane in the cell at the same place of the lattice.
     """
-    origins, directions = sensor.lattice
-    centre, centre_t = (
-        flat_sea_point(
-            origin=origins[:1], direction=directions[:1], depth=g.depth, refractive_index=n_w
-        )[0, :2]
-        for g in (grid, target_grid)
-    )
+    centre, centre_t = (central_point(sensor, g.depth, n_w) for g in (grid, target_grid))
     offset = np.subtract(grid.origin, centre)
     origin = centre_t
     for axis, ratio in (
@@ -155,10 +149,5 @@ def _deficit(setup, sensor, grid: PlaneGrid, paths, impostor) -> np.ndarray:
 
 def _blurred(grid: PlaneGrid, field: np.ndarray, exponent) -> np.ndarray:
     """`field` convolved (linear, zero-padded) with the kernel of transfer e^exponent(f)."""
-    rows, cols = grid.shape
-    shape = (2 * rows, 2 * cols)
-    fv = np.fft.fftfreq(shape[0], d=grid.spacing_v)[:, None]
-    fu = np.fft.rfftfreq(shape[1], d=grid.spacing_u)[None, :]
-    transfer = np.exp(exponent(np.hypot(fv, fu)))
-    out = np.fft.irfft2(np.fft.rfft2(field, s=shape) * transfer, s=shape)[:rows, :cols]
+    out = grid.convolved(field, lambda frequency: np.exp(exponent(frequency)))
     return np.clip(out, 0.0, 1.0).astype(np.float32)
