@@ -27,8 +27,7 @@ MAX_DEPTH = 20
 MAX_NODES = 1_000_000
 
 
-class SweepError(ValueError):
-    """A sweep file a user must fix: the message names the place and the reason."""
+from service.errors import InputError as SweepError  # noqa: E402 (transitional name)
 
 
 SHOWN_CHARACTERS = 60
