@@ -3,7 +3,10 @@
 The gated strip of one sample (PNG, or an animated GIF of a sequence) and the statistics
 of a sweep against its swept parameters.
 
-Matplotlib runs headless (Agg); nothing here is needed to simulate, only to look.
+Matplotlib's object-oriented API draws every picture on its own `Figure` with an Agg
+canvas: no pyplot, no global backend switched, so pictures are drawn safely from several
+threads at once (the job server's requests). Nothing here is needed to simulate, only to
+look.
 """
 
 from __future__ import annotations
@@ -11,13 +14,10 @@ from __future__ import annotations
 import functools
 import textwrap
 
-import matplotlib
-
-matplotlib.use("Agg")
-
-import matplotlib.pyplot as plt
 import numpy as np
 import xarray as xr
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
 from PIL import Image
 
 from service import store
@@ -40,6 +40,13 @@ def render_preview(plan: Plan, sample: int) -> xr.Dataset:
     if not scene.save_surface:
         scene = scene.model_copy(update={"save_surface": True})
     return render(scene, seed=address.seed)
+
+
+def _figure(*, figsize: tuple[float, float]) -> Figure:
+    """A figure of `figsize` (inches) at `DPI` on its own Agg canvas (no pyplot)."""
+    figure = Figure(figsize=figsize, dpi=DPI)
+    FigureCanvasAgg(figure)
+    return figure
 
 
 def preview_figure(
@@ -73,13 +80,8 @@ def preview_figure(
     gates = ds.sizes["gate"]
     panels = gates + ("surface_elevation" in ds)
     low, high = scale if scale is not None else (None, None)
-    figure, axes = plt.subplots(
-        1,
-        panels,
-        figsize=(PANEL_INCHES * panels, PANEL_INCHES + 0.6),
-        dpi=DPI,
-        squeeze=False,
-    )
+    figure = _figure(figsize=(PANEL_INCHES * panels, PANEL_INCHES + 0.6))
+    axes = figure.subplots(1, panels, squeeze=False)
     axes = axes[0]
     images = ds["image"].isel(frame=frame).values
     units = ds["image"].attrs.get("units", "1")
@@ -136,9 +138,7 @@ def _draw_sea(figure, sea, ds: xr.Dataset, frame: int, measurements) -> None:
 
 def _pixels(figure) -> Image.Image:
     figure.canvas.draw()
-    picture = Image.fromarray(np.asarray(figure.canvas.buffer_rgba())).convert("RGB")
-    plt.close(figure)
-    return picture
+    return Image.fromarray(np.asarray(figure.canvas.buffer_rgba())).convert("RGB")
 
 
 def save_preview(
@@ -192,9 +192,8 @@ def plot_statistics(stats: xr.Dataset, path: str) -> None:
     swept = list(store.swept_parameters(stats))
     if not swept:
         raise SweepError("the store sweeps no parameter: nothing to plot against")
-    figure, axes = plt.subplots(
-        2, len(swept), figsize=(3.2 * len(swept), 5.0), dpi=DPI, squeeze=False
-    )
+    figure = _figure(figsize=(3.2 * len(swept), 5.0))
+    axes = figure.subplots(2, len(swept), squeeze=False)
     for column, name in enumerate(swept):
         values = stats[name].values
         numeric = values.dtype.kind in "biuf"
@@ -217,7 +216,6 @@ def plot_statistics(stats: xr.Dataset, path: str) -> None:
     axes[0, 0].legend(fontsize=6, title="gate", title_fontsize=6)
     figure.tight_layout()
     figure.savefig(path, dpi=DPI)
-    plt.close(figure)
 
 
 def _parameter_position(values) -> tuple[np.ndarray, list[str] | None]:
@@ -247,13 +245,8 @@ def plot_detection(detection: xr.Dataset, path: str) -> None:
     points = detection.sizes["point"]
     columns = max(4, len(swept))
     roc_rows = -(-points // columns)
-    figure, axes = plt.subplots(
-        roc_rows + 2,
-        columns,
-        figsize=(2.6 * columns, 2.5 * (roc_rows + 2)),
-        dpi=DPI,
-        squeeze=False,
-    )
+    figure = _figure(figsize=(2.6 * columns, 2.5 * (roc_rows + 2)))
+    axes = figure.subplots(roc_rows + 2, columns, squeeze=False)
     detectors = [str(d) for d in detection["detector"].values]
     colours = [f"C{i}" for i in range(len(detectors))]
     floor = 1.0 / (2 * detection.sizes["realisation"])
@@ -330,4 +323,3 @@ def plot_detection(detection: xr.Dataset, path: str) -> None:
         axes[roc_rows, 0].legend(fontsize=5)
     figure.tight_layout()
     figure.savefig(path, dpi=DPI)
-    plt.close(figure)
