@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     import numpy as np
 
-__all__ = ["Job", "JobState", "RunResult"]
+__all__ = ["ACTIVE", "Job", "JobState", "RunResult"]
 
 
 class JobState(StrEnum):
