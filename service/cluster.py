@@ -13,7 +13,7 @@ import dask
 from distributed import Client, LocalCluster
 from distributed.diagnostics.plugin import WorkerPlugin
 
-from service.inputs import SweepError
+from service.errors import BadOptionError
 
 __all__ = ["ClusterError", "dask_client", "dask_setup"]
 
@@ -96,7 +96,7 @@ def dask_client(
     workers' logs and warnings through.
     """
     if dashboard and importlib.util.find_spec("bokeh") is None:
-        raise SweepError("--dashboard needs bokeh: pip install 'oceanlidar[dashboard]'")
+        raise BadOptionError("--dashboard needs bokeh: pip install 'oceanlidar[dashboard]'")
     if scheduler is not None:
         try:
             client = Client(scheduler, security=security, timeout="30s")

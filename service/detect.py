@@ -29,7 +29,7 @@ import numpy as np
 import xarray as xr
 
 from service import storage, store
-from service.inputs import SweepError
+from service.errors import BadOptionError, BadSweepError, InputError
 from service.sweep import parse_sweep
 from workers.detection import DETECTORS, MIN_FALSE_ALARMS, evaluate_pair, held_out, roc_curve
 from workers.render import render_images
@@ -78,15 +78,15 @@ def pair_points(ds: xr.Dataset) -> tuple[list[tuple[int, int]], list[int]]:
 
     Raises
     ------
-    SweepError
+    BadSweepError
         When no point has a target, or none is target-free (nothing to evaluate).
     """
     realisations = int(ds.attrs["realisations"])
     present = ds["target_present"].values[::realisations].astype(bool)
     if not present.any():
-        raise SweepError("no parameter point has a target: there is nothing to detect")
+        raise BadSweepError("no parameter point has a target: there is nothing to detect")
     if present.all():
-        raise SweepError(
+        raise BadSweepError(
             "no parameter point is target-free, so there are no negatives to evaluate "
             "detectors against; sweep target.shape: [sphere, none] (or disk) to pair them"
         )
@@ -105,7 +105,7 @@ def pair_points(ds: xr.Dataset) -> tuple[list[tuple[int, int]], list[int]]:
         else:
             unpaired.append(int(point))
     if not pairs:
-        raise SweepError(
+        raise BadSweepError(
             "no point with a target has a target-free twin (equal in every swept parameter "
             "outside target.): sweep target.shape: [sphere, none] on a grid to pair them"
         )
@@ -122,7 +122,7 @@ def _rendered_expected(plan, samples, image):
     addresses = [plan.sample(int(sample)) for sample in samples]
     rendered = [render_images(a.scene, seed=a.seed) for a in addresses]
     if not np.array_equal(np.stack([noisy for _, noisy in rendered]), image):
-        raise SweepError(
+        raise BadSweepError(
             f"samples {samples[0]}..{samples[-1]} rendered again differ from the stored ones "
             "(written by another oceanlidar version?): their expected images cannot be recovered"
         )
@@ -140,7 +140,7 @@ def _evaluate(url, storage_options, positive, negative, realisations, test, plan
     both = source["completed"].get_orthogonal_selection((rows[positive],)).astype(bool)
     both &= source["completed"].get_orthogonal_selection((rows[negative],)).astype(bool)
     if both.sum() < MIN_REALISATIONS:
-        raise SweepError(
+        raise BadSweepError(
             f"points {positive} and {negative}: {both.sum()} realisations written at both, "
             f"fewer than {MIN_REALISATIONS}; complete the run with `oceanlidar run --resume`"
         )
@@ -148,7 +148,7 @@ def _evaluate(url, storage_options, positive, negative, realisations, test, plan
     for p in (positive, negative):
         image = source["image"].get_orthogonal_selection((rows[p][both],))
         if not np.array_equal(image, np.round(image)):
-            raise SweepError(
+            raise BadSweepError(
                 f"point {p}: images are not whole photoelectron counts (an ICCD excess-noise "
                 "stage?): the ideal observer needs Poisson counts"
             )
@@ -176,14 +176,14 @@ def _evaluate(url, storage_options, positive, negative, realisations, test, plan
 def _check_store(ds: xr.Dataset, url: str) -> None:
     for name in ("image", "completed", "target_present"):
         if name not in ds:
-            raise SweepError(f"{url}: the store has no {name!r}: not a sweep's store")
+            raise BadSweepError(f"{url}: the store has no {name!r}: not a sweep's store")
     if ds["image"].dtype.kind != "u":
-        raise SweepError(
+        raise BadSweepError(
             f"{url}: images are {ds['image'].attrs.get('long_name')!r}, not photoelectrons: "
             "detection needs shot noise with no gain (radiometry with photons, noise.gain 1)"
         )
     if int(ds.attrs["realisations"]) < MIN_REALISATIONS:
-        raise SweepError(
+        raise BadSweepError(
             f"{url}: {ds.attrs['realisations']} realisations per point; detection needs at "
             f"least {MIN_REALISATIONS} (half train the logistic detector, half test it)"
         )
@@ -193,13 +193,13 @@ def _sweep_plan(ds: xr.Dataset, url: str):
     """The store's sweep, read again from its text, to render samples again."""
     try:
         plan = parse_sweep(ds.attrs["sweep"])
-    except SweepError as error:
-        raise SweepError(
+    except InputError as error:
+        raise type(error)(
             f"{url}: the store has no 'expected' images, and its sweep cannot be read again "
             f"to render them: {error}"
         ) from None
     if plan.digest != ds.attrs.get("sweep_sha256"):
-        raise SweepError(
+        raise BadSweepError(
             f"{url}: the store has no 'expected' images, and its sweep reads differently now "
             "(another oceanlidar version?): they cannot be rendered again"
         )
@@ -358,7 +358,7 @@ def write_detection(
 
     Raises
     ------
-    SweepError
+    InputError
         A store that cannot be evaluated, or an output that is not a detection dataset.
     """
     ds = store.open_store(url, storage_options=storage_options)
@@ -366,7 +366,7 @@ def write_detection(
     pairs, unpaired = pair_points(ds)
     target = output or detection_url(url)
     if target.rstrip("/") == url.rstrip("/") or target.rstrip("/") == storage.stats_url(url):
-        raise SweepError(f"--output {target}: that is the sweep's own store or its statistics")
+        raise BadOptionError(f"--output {target}: that is the sweep's own store or its statistics")
     # an earlier detection dataset is replaced, anything else refused, before any work
     old = storage.removable_files(target, storage_options, kind=DATASET_KIND)
     realisations = int(ds.attrs["realisations"])

@@ -3,7 +3,8 @@
 Every error a user must fix is an `InputError`, raised before anything is written; its
 message names the field, flag or file and the reason. Its kinds tell a caller what went
 wrong without reading the message, and the job server answers each with its HTTP status
-(`InputError.status`):
+(`InputError.status`: 400, the API's answer to every input error so far; a kind that
+needs another sets its own):
 
 - `BadSweepError`: the sweep's content (its schema, a scene that does not validate, a
   parameter path, measurements, a sample index);
@@ -55,8 +56,6 @@ class BadOptionError(InputError):
 class UnusableOutputError(InputError):
     """An output that cannot take this run (exists, another layout, not a store)."""
 
-    status = 409
-
 
 class LockedError(UnusableOutputError):
     """An output another writer holds."""
@@ -64,5 +63,3 @@ class LockedError(UnusableOutputError):
 
 class TooBigError(InputError):
     """A sweep over the size or memory limits (lift them with ``--no-limits``)."""
-
-    status = 413

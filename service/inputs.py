@@ -3,8 +3,11 @@
 Everything a user gives (the sweep file, measurement files) is read through `read_text`
 (a regular file, at most `MAX_FILE_BYTES`, UTF-8) and YAML through `read_yaml` (safe tags
 only, no duplicate keys or sets, bounded depth and alias expansion). Errors are
-`SweepError`, whose message names the place and the reason; values a user gave are echoed
-through `shown`.
+`service.errors.BadFileError` (a file that cannot be read as asked: not a regular file, too
+large, not UTF-8 or plain YAML) or `service.errors.BadSweepError` (a value that is not a
+strict number), whose message names the place and the reason; values a user gave are
+echoed through `shown`. `SweepError` is the transitional name of
+`service.errors.InputError`.
 """
 
 from __future__ import annotations
@@ -20,15 +23,20 @@ from typing import Any
 
 import yaml
 
+from service.errors import BadFileError, BadSweepError
+
 __all__ = ["SweepError", "json_object", "read_text", "read_yaml", "shown", "strict_numbers"]
 
 MAX_FILE_BYTES = 1_000_000
+DEFAULT_MAX_MEMORY = 4 * 2**30
+"""Most memory [bytes] one sample of a sweep may need to render
+(`service.sweep.memory_estimate`); ``--max-memory`` sets another, ``--no-limits`` lifts it.
+Here, beside the other bounds on what a user gives, for the command line's help."""
 MAX_DEPTH = 20
 MAX_NODES = 1_000_000
 
 
 from service.errors import InputError as SweepError  # noqa: E402 (transitional name)
-
 
 SHOWN_CHARACTERS = 60
 """Longest echo of a user's value in a message; longer ones are cut."""
@@ -65,7 +73,7 @@ def _check_structure(text: str) -> None:
         if isinstance(event, yaml.CollectionStartEvent):
             stack.append([event.anchor, 0])
             if len(stack) - 1 > MAX_DEPTH:
-                raise SweepError(f"the file nests deeper than {MAX_DEPTH} levels")
+                raise BadFileError(f"the file nests deeper than {MAX_DEPTH} levels")
         elif isinstance(event, yaml.CollectionEndEvent):
             anchor, count = stack.pop()
             if anchor is not None:
@@ -77,13 +85,13 @@ def _check_structure(text: str) -> None:
             stack[-1][1] += 1
         elif isinstance(event, yaml.AliasEvent):
             if any(anchor == event.anchor for anchor, _ in stack):
-                raise SweepError(
+                raise BadFileError(
                     f"line {event.start_mark.line + 1}: the alias *{event.anchor} refers to "
                     "a collection that contains it (a self-referential alias)"
                 )
             stack[-1][1] += sizes.get(event.anchor, 1)
         if stack[-1][1] > MAX_NODES:
-            raise SweepError(
+            raise BadFileError(
                 f"the file expands to more than {MAX_NODES:,} values (through YAML aliases?)"
             )
 
@@ -103,7 +111,7 @@ class _Loader(yaml.SafeLoader):
             key = self.construct_object(key_node, deep=True)
             line = key_node.start_mark.line + 1
             if isinstance(key, Hashable) and key in seen:
-                raise SweepError(
+                raise BadFileError(
                     f"line {line}: duplicate key {shown(key)} (first on line {seen[key]})"
                 )
             if isinstance(key, Hashable):
@@ -111,7 +119,7 @@ class _Loader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
     def construct_set(self, node):
-        raise SweepError(
+        raise BadFileError(
             f"line {node.start_mark.line + 1}: YAML sets (!!set) are not accepted: they have "
             "no order, so the sweep would not mean one sequence of samples; use a list"
         )
@@ -131,14 +139,14 @@ def read_yaml(text: str) -> Any:
 
     Raises
     ------
-    SweepError
+    BadFileError
         If the text is too large, not YAML, nests too deep, expands too far or uses tags,
         sets or duplicate keys.
     """
     if len(text.encode()) > MAX_FILE_BYTES:
-        raise SweepError(f"the file is larger than {MAX_FILE_BYTES:,} bytes")
+        raise BadFileError(f"the file is larger than {MAX_FILE_BYTES:,} bytes")
     if "\x00" in text:
-        raise SweepError("the file is not YAML text (it contains NUL bytes)")
+        raise BadFileError("the file is not YAML text (it contains NUL bytes)")
     try:
         _check_structure(text)
         loader = _Loader(text)  # a SafeLoader: plain YAML only
@@ -147,15 +155,15 @@ def read_yaml(text: str) -> Any:
         finally:
             loader.dispose()
     except yaml.constructor.ConstructorError as error:
-        raise SweepError(
+        raise BadFileError(
             f"line {error.problem_mark.line + 1}: {error.problem} (only plain YAML is "
             "accepted: no language-specific tags)"
         ) from None
     except yaml.MarkedYAMLError as error:
         where = f"line {error.problem_mark.line + 1}: " if error.problem_mark else ""
-        raise SweepError(f"{where}not valid YAML: {error.problem}") from None
+        raise BadFileError(f"{where}not valid YAML: {error.problem}") from None
     except yaml.YAMLError as error:
-        raise SweepError(f"not valid YAML: {error}") from None
+        raise BadFileError(f"not valid YAML: {error}") from None
 
 
 def strict_numbers(raw: Any, parsed: Any, place: str) -> None:
@@ -166,11 +174,11 @@ def strict_numbers(raw: Any, parsed: Any, place: str) -> None:
     validated model's dump, walked side by side.
     """
     if isinstance(parsed, float) and not math.isfinite(parsed):
-        raise SweepError(f"{place}: must be a finite number, got {shown(raw)}")
+        raise BadSweepError(f"{place}: must be a finite number, got {shown(raw)}")
     if isinstance(raw, bool | str):
         if isinstance(parsed, int | float) and not isinstance(parsed, bool):
             kind = "a boolean" if isinstance(raw, bool) else "a string"
-            raise SweepError(
+            raise BadSweepError(
                 f"{place or '(top level)'}: expected a number, got {kind}, {shown(raw)}"
             )
         return
@@ -193,24 +201,24 @@ def read_text(path, *, place: str) -> str:
 
     Raises
     ------
-    SweepError
+    BadFileError
         Naming `place`, if the file is missing, not a regular file, too large or not
         UTF-8 text.
     """
     try:
         descriptor = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
     except OSError as error:
-        raise SweepError(f"{place}: {error.strerror}") from None
+        raise BadFileError(f"{place}: {error.strerror}") from None
     with os.fdopen(descriptor, "rb") as handle:
         if not stat.S_ISREG(os.fstat(descriptor).st_mode):
-            raise SweepError(f"{place}: not a regular file")
+            raise BadFileError(f"{place}: not a regular file")
         try:
             data = handle.read(MAX_FILE_BYTES + 1)
         except OSError as error:
-            raise SweepError(f"{place}: {error.strerror}") from None
+            raise BadFileError(f"{place}: {error.strerror}") from None
     if len(data) > MAX_FILE_BYTES:
-        raise SweepError(f"{place}: the file is larger than {MAX_FILE_BYTES:,} bytes")
+        raise BadFileError(f"{place}: the file is larger than {MAX_FILE_BYTES:,} bytes")
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError:
-        raise SweepError(f"{place}: not a UTF-8 text file") from None
+        raise BadFileError(f"{place}: not a UTF-8 text file") from None

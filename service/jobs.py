@@ -14,33 +14,22 @@ jobs running take turns on the workers: none starves another.
 from __future__ import annotations
 
 import fcntl
-import json
 import os
 import sqlite3
 import threading
 import time
 import uuid
 
-import fsspec
-
-from service import integrity, storage, store
-from service.inputs import MAX_FILE_BYTES, SweepError, shown
+from service import integrity, storage
+from service.admission import admit_job, parents
+from service.errors import InputError, LockedError, UnusableOutputError
+from service.inputs import shown
+from service.records import ACTIVE, Job, JobState
 from service.run import execute
-from service.sweep import DEFAULT_MAX_MEMORY, parse_sweep
+from service.sweep import parse_sweep
 
-__all__ = [
-    "ACTIVE",
-    "FINAL",
-    "ForbiddenError",
-    "JobTable",
-    "QueueFullError",
-    "Runner",
-    "confine_output",
-]
+__all__ = ["ForbiddenError", "JobTable", "QueueFullError", "Runner"]
 
-ACTIVE = ("queued", "running")
-FINAL = ("succeeded", "failed", "cancelled")
-MODES = ("new", "resume", "overwrite")
 DISPATCH_TICK = 0.2
 """Seconds between looks for queued jobs to start."""
 
@@ -78,7 +67,7 @@ class JobTable:
 
     Raises
     ------
-    SweepError
+    LockedError
         If another service has the table open.
     """
 
@@ -88,7 +77,7 @@ class JobTable:
             fcntl.flock(self._owner, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             self._owner.close()
-            raise SweepError(
+            raise LockedError(
                 f"--db {path}: another oceanlidar serve uses this job table (one service a table)"
             ) from None
         self._db = sqlite3.connect(path, check_same_thread=False, isolation_level=None)
@@ -101,124 +90,72 @@ class JobTable:
         with self._lock:
             return [dict(row) for row in self._db.execute(sql, parameters)]
 
-    def add(self, **fields) -> None:
-        """Insert one job (every column without a default given by name)."""
-        names = ", ".join(fields)
-        marks = ", ".join("?" for _ in fields)
-        self._query(f"INSERT INTO jobs ({names}) VALUES ({marks})", tuple(fields.values()))
+    def _jobs(self, sql: str, parameters=()) -> list[Job]:
+        return [Job.from_row(row) for row in self._query(f"SELECT * FROM jobs {sql}", parameters)]
 
-    def get(self, job_id: str) -> dict | None:
+    def add(self, job: Job) -> None:
+        """Insert one job."""
+        row = job.row()
+        names, marks = ", ".join(row), ", ".join("?" for _ in row)
+        self._query(f"INSERT INTO jobs ({names}) VALUES ({marks})", tuple(row.values()))
+
+    def get(self, job_id: str) -> Job | None:
         """The job `job_id`, or None."""
-        rows = self._query("SELECT * FROM jobs WHERE id = ?", (job_id,))
-        return rows[0] if rows else None
+        jobs = self._jobs("WHERE id = ?", (job_id,))
+        return jobs[0] if jobs else None
 
-    def list(self, state: str | None = None) -> list[dict]:
+    def list(self, state: str | None = None) -> list[Job]:
         """Jobs, newest first, of one state if `state` is given."""
         if state is None:
-            return self._query("SELECT * FROM jobs ORDER BY submitted DESC, rowid DESC")
-        return self._query(
-            "SELECT * FROM jobs WHERE state = ? ORDER BY submitted DESC, rowid DESC", (state,)
-        )
+            return self._jobs("ORDER BY submitted DESC, rowid DESC")
+        return self._jobs("WHERE state = ? ORDER BY submitted DESC, rowid DESC", (state,))
 
-    def latest(self, url: str) -> dict | None:
+    def latest(self, url: str) -> Job | None:
         """The newest job that writes (or wrote) the store `url`, or None."""
-        rows = self._query(
-            "SELECT * FROM jobs WHERE url = ? ORDER BY submitted DESC, rowid DESC LIMIT 1", (url,)
-        )
-        return rows[0] if rows else None
+        jobs = self._jobs("WHERE url = ? ORDER BY submitted DESC, rowid DESC LIMIT 1", (url,))
+        return jobs[0] if jobs else None
 
-    def update(self, job_id: str, **fields) -> None:
-        """Set columns of one job."""
-        names = ", ".join(f"{name} = ?" for name in fields)
-        self._query(f"UPDATE jobs SET {names} WHERE id = ?", (*fields.values(), job_id))
+    def update(self, job_id: str, **values) -> None:
+        """Set fields of one job (`Job`'s, by name)."""
+        columns = Job.columns(**values)
+        names = ", ".join(f"{name} = ?" for name in columns)
+        self._query(f"UPDATE jobs SET {names} WHERE id = ?", (*columns.values(), job_id))
 
-    def set_state(self, job_id: str, state: str, *, when: tuple = ACTIVE, **fields) -> bool:
+    def set_state(self, job_id: str, state: JobState, *, when: tuple = ACTIVE, **values) -> bool:
         """Move a job to `state` if it is in one of `when`; whether it moved."""
-        names = "".join(f", {name} = ?" for name in fields)
+        columns = Job.columns(**values)
+        names = "".join(f", {name} = ?" for name in columns)
         marks = ", ".join("?" for _ in when)
         with self._lock:
             cursor = self._db.execute(
                 f"UPDATE jobs SET state = ?{names} WHERE id = ? AND state IN ({marks})",
-                (state, *fields.values(), job_id, *when),
+                (str(state), *columns.values(), job_id, *map(str, when)),
             )
             return cursor.rowcount == 1
 
     def active(self) -> int:
         """How many jobs are queued or running."""
-        return self._query("SELECT COUNT(*) AS n FROM jobs WHERE state IN ('queued', 'running')")[
-            0
-        ]["n"]
-
-    def next_queued(self) -> dict | None:
-        """The job to start next: interrupted ones first, then the oldest."""
+        marks = ", ".join("?" for _ in ACTIVE)
         rows = self._query(
-            "SELECT * FROM jobs WHERE state = 'queued' "
-            "ORDER BY interrupted DESC, submitted, rowid LIMIT 1"
+            f"SELECT COUNT(*) AS n FROM jobs WHERE state IN ({marks})", tuple(map(str, ACTIVE))
         )
-        return rows[0] if rows else None
+        return rows[0]["n"]
+
+    def next_queued(self) -> Job | None:
+        """The job to start next: interrupted ones first, then the oldest."""
+        jobs = self._jobs(
+            "WHERE state = ? ORDER BY interrupted DESC, submitted, rowid LIMIT 1",
+            (str(JobState.QUEUED),),
+        )
+        return jobs[0] if jobs else None
 
     def recover(self) -> int:
         """Queue again, to resume, the jobs a previous service left running; how many."""
         with self._lock:
             return self._db.execute(
-                "UPDATE jobs SET state = 'queued', interrupted = 1 WHERE state = 'running'"
+                "UPDATE jobs SET state = ?, interrupted = 1 WHERE state = ?",
+                (str(JobState.QUEUED), str(JobState.RUNNING)),
             ).rowcount
-
-
-def confine_output(output: str, data_root: str) -> str:
-    """The store URL of a sweep's `output` under `data_root`.
-
-    Raises
-    ------
-    SweepError
-        If `output` is a URL (chained ``::`` ones included) or an absolute path, or climbs
-        out of `data_root`, as written or through links.
-    """
-    if any(ord(character) < 32 for character in output):
-        raise SweepError(f"output: control characters are not allowed, got {shown(output)}")
-    protocol, _ = fsspec.core.split_protocol(output)
-    normal = os.path.normpath(output)
-    if (
-        protocol is not None
-        or "://" in output
-        or "::" in output
-        or os.path.isabs(output)
-        or normal == os.curdir
-        or normal.split(os.sep)[0] == os.pardir
-    ):
-        raise SweepError(
-            f"output: must be a path relative to the service's data root, inside it, "
-            f"got {shown(output)}"
-        )
-    url = f"{data_root.rstrip('/')}/{normal}"
-    if fsspec.core.split_protocol(data_root)[0] in (None, "file", "local"):
-        root = os.path.realpath(data_root)
-        if os.path.commonpath([root, os.path.realpath(url)]) != root:
-            raise SweepError(f"output: {shown(output)} leads out of the service's data root")
-    return url
-
-
-def _parents(url: str) -> list[str]:
-    """The folders `url` lies in, innermost first (``a/b/c`` → ``a/b``, ``a``)."""
-    parts = url.rstrip("/").split("/")
-    return ["/".join(parts[:depth]) for depth in range(len(parts) - 1, 0, -1)]
-
-
-def public(job: dict) -> dict:
-    """A job as the API shows it."""
-    left = (job["total"] - job["done"]) / job["rate"] if job["rate"] > 0 else None
-    fields = ("id", "name", "owner", "state", "mode", "output", "submitted", "started")
-    return {
-        **{name: job[name] for name in fields},
-        "finished": job["finished"],
-        "url": job["url"],
-        "samples": {"done": job["done"], "total": job["total"]},
-        "rate": job["rate"],
-        "seconds_left": left if job["state"] == "running" else None,
-        "message": job["message"],
-        "resumed": bool(job["interrupted"]),
-        "errors": json.loads(job["errors"]),
-    }
 
 
 class Runner:
@@ -268,73 +205,42 @@ class Runner:
             thread.join(timeout=30)
         self._dispatcher.join(timeout=5)
 
-    def plan(self, text: str, mode: str):
-        """Check a submitted sweep as ``oceanlidar run`` would; its plan and store URL.
+    def submit(self, text: str, *, owner: str, mode: str = "new") -> Job:
+        """Queue a sweep admitted as ``oceanlidar run`` admits it (`admit_job`); the job.
 
         Raises
         ------
-        SweepError
-            With the field path and the reason; nothing is queued or written.
-        """
-        if mode not in MODES:
-            raise SweepError(f"mode: must be one of {', '.join(MODES)}, got {shown(mode)}")
-        if len(text.encode()) > MAX_FILE_BYTES:
-            raise SweepError(f"the sweep is larger than {MAX_FILE_BYTES:,} bytes")
-        plan = parse_sweep(text, folder=self.data_root, max_memory=DEFAULT_MAX_MEMORY)
-        plan.check_limits(remedy="split it into smaller sweeps (the service's limit)")
-        store.check_uniform(plan)
-        url = confine_output(plan.sweep.output, self.data_root)
-        root = self.data_root.rstrip("/")
-        for group in _parents(url):
-            if not group.startswith(f"{root}/"):
-                break
-            if storage.root_attributes(group, self.storage_options) is not None:
-                inside = group[len(root) + 1 :]
-                raise SweepError(
-                    f"output: {shown(plan.sweep.output)} lies inside the store {shown(inside)}"
-                )
-        if mode == "new" and storage.occupied(url, self.storage_options):
-            raise SweepError(
-                f"output: {shown(plan.sweep.output)} already exists; submit with mode "
-                "resume (oceanlidar submit --resume) to complete it or overwrite "
-                "(--overwrite) to replace it"
-            )
-        return plan, url
-
-    def submit(self, text: str, *, owner: str, mode: str = "new") -> dict:
-        """Queue a sweep; the job.
-
-        Raises
-        ------
-        SweepError
-            For a bad sweep, or an output another unfinished job writes.
+        InputError
+            For a bad sweep or mode, or an output this job may not write (another
+            unfinished job writes it: `UnusableOutputError`).
         ForbiddenError
             If a resume or an overwrite names a store another owner's job wrote.
         QueueFullError
             If `queue_limit` jobs are unfinished.
         """
-        plan, url = self.plan(text, mode)
+        plan, url = admit_job(
+            text, mode, data_root=self.data_root, storage_options=self.storage_options
+        )
         with self._admit:
             previous = self.table.latest(url)
-            if mode != "new" and previous is not None and previous["owner"] != owner:
+            if mode != "new" and previous is not None and previous.owner != owner:
                 raise ForbiddenError(
-                    f"output: {shown(plan.sweep.output)} was written by job {previous['id']} "
-                    f"of {previous['owner']}; only its owner may {mode} it"
+                    f"output: {shown(plan.sweep.output)} was written by job {previous.id} "
+                    f"of {previous.owner}; only its owner may {mode} it"
                 )
             if self.table.active() >= self.queue_limit:
                 raise QueueFullError(f"{self.queue_limit} jobs are queued or running; try later")
-            for job in self.table.list("queued") + self.table.list("running"):
-                if url in (job["url"], *_parents(job["url"])) or job["url"] in _parents(url):
-                    raise SweepError(
-                        f"output: job {job['id']} writes {shown(job['url'])}, the same store "
+            for job in self.table.list(JobState.QUEUED) + self.table.list(JobState.RUNNING):
+                if url in (job.url, *parents(job.url)) or job.url in parents(url):
+                    raise UnusableOutputError(
+                        f"output: job {job.id} writes {shown(job.url)}, the same store "
                         "or one inside the other"
                     )
-            job_id = uuid.uuid4().hex[:12]
-            self.table.add(
-                id=job_id,
+            job = Job(
+                id=uuid.uuid4().hex[:12],
                 owner=owner,
                 name=plan.sweep.name,
-                state="queued",
+                state=JobState.QUEUED,
                 mode=mode,
                 sweep=text,
                 output=plan.sweep.output,
@@ -342,11 +248,14 @@ class Runner:
                 submitted=time.time(),
                 total=plan.samples,
             )
-        return self.table.get(job_id)
+            self.table.add(job)
+        return job
 
     def cancel(self, job_id: str) -> bool:
         """Cancel a queued or running job; False if it had finished."""
-        if self.table.set_state(job_id, "cancelled", when=("queued",), finished=time.time()):
+        if self.table.set_state(
+            job_id, JobState.CANCELLED, when=(JobState.QUEUED,), finished=time.time()
+        ):
             return True
         entry = self._running.get(job_id)
         if entry is None:
@@ -363,69 +272,67 @@ class Runner:
                 continue
             job = self.table.next_queued()
             if job is None or not self.table.set_state(
-                job["id"], "running", when=("queued",), started=time.time()
+                job.id, JobState.RUNNING, when=(JobState.QUEUED,), started=time.time()
             ):
                 continue
             cancel = threading.Event()
             thread = threading.Thread(
-                target=self._run, args=(job, cancel), name=f"job-{job['id']}", daemon=True
+                target=self._run, args=(job, cancel), name=f"job-{job.id}", daemon=True
             )
-            self._running[job["id"]] = (thread, cancel)
+            self._running[job.id] = (thread, cancel)
             thread.start()
 
-    def _run(self, job: dict, cancel: threading.Event) -> None:
-        job_id = job["id"]
-
+    def _run(self, job: Job, cancel: threading.Event) -> None:
         def progress(done: int, rate: float) -> None:
-            self.table.update(job_id, done=done, rate=rate)
+            self.table.update(job.id, done=done, rate=rate)
 
         try:
-            plan = parse_sweep(job["sweep"], folder=self.data_root, max_memory=None)
+            plan = parse_sweep(job.sweep, folder=self.data_root, max_memory=None)
             # an interrupted job resumes its own store (this sweep's, by its hash); one that
             # was stopped before it made it (an overwrite that had not yet deleted the old
             # store) starts as it was asked
-            attributes = storage.root_attributes(job["url"], self.storage_options) or {}
-            resume = job["mode"] == "resume" or (
-                bool(job["interrupted"]) and attributes.get("sweep_sha256") == plan.digest
+            attributes = storage.root_attributes(job.url, self.storage_options) or {}
+            resume = job.mode == "resume" or (
+                job.interrupted and attributes.get("sweep_sha256") == plan.digest
             )
             with open(os.devnull, "w") as quiet:
                 result = execute(
                     plan,
-                    job["url"],
+                    job.url,
                     client=self.client,
                     resume=resume,
-                    overwrite=job["mode"] == "overwrite" and not resume,
+                    overwrite=job.mode == "overwrite" and not resume,
                     storage_options=self.storage_options,
                     batch_size=self.batch_size,
                     progress_stream=quiet,
                     cancel=cancel,
                     on_progress=progress,
-                    claim=f"oceanlidar service job {job_id}",
+                    claim=f"oceanlidar service job {job.id}",
                 )
         except Exception as error:  # a job's failure must not take the service down
-            message = str(error) if isinstance(error, SweepError) else repr(error)
-            self.table.set_state(job_id, "failed", finished=time.time(), message=message)
+            message = str(error) if isinstance(error, InputError) else repr(error)
+            self.table.set_state(job.id, JobState.FAILED, finished=time.time(), message=message)
             return
-        errors = {str(sample): reason for sample, reason in result.rejected + result.refused}
-        for start, count, error in result.failed:
-            errors.update({str(s): error for s in range(start, start + count)})
-        for start, count in result.stuck:
-            errors.update(
-                {str(s): "no result before the task timeout" for s in range(start, start + count)}
-            )
-        fields = {"errors": json.dumps(errors), "finished": time.time()}
+        errors = {
+            str(sample): reason
+            for samples in result.problems().values()
+            for sample, reason in samples
+        }
+        finished = {"errors": errors, "finished": time.time()}
         if result.interrupted:
             if self._stop.is_set():  # the service stops: resume at its next start
-                self.table.update(job_id, interrupted=1)
+                self.table.update(job.id, interrupted=True)
                 return
             done = int(
-                integrity.completed_samples(job["url"], storage_options=self.storage_options).sum()
+                integrity.completed_samples(job.url, storage_options=self.storage_options).sum()
             )
             message = "cancelled; submit it again with resume to complete it"
-            self.table.set_state(job_id, "cancelled", message=message, done=done, **fields)
+            self.table.set_state(
+                job.id, JobState.CANCELLED, message=message, done=done, **finished
+            )
         elif errors or result.stopped:
             problems = [plan.sample(int(s)).describe() for s in list(errors)[:3]]
             message = result.stopped or "failed: " + "; ".join(problems)
-            self.table.set_state(job_id, "failed", message=message, **fields)
+            self.table.set_state(job.id, JobState.FAILED, message=message, **finished)
         else:
-            self.table.set_state(job_id, "succeeded", done=plan.samples, **fields)
+            self.table.set_state(job.id, JobState.SUCCEEDED, done=plan.samples, **finished)

@@ -8,7 +8,8 @@ import math
 import os
 from pathlib import Path
 
-from service.inputs import SweepError, read_text, shown
+from service.errors import BadFileError, BadSweepError
+from service.inputs import read_text, shown
 
 __all__ = ["inline_measurements", "read_measurements"]
 
@@ -29,26 +30,26 @@ def inline_measurements(data: dict, folder: Path | str) -> None:
     if name is None:
         return
     if not isinstance(name, str) or not name or any(ord(c) < 32 for c in name):
-        raise SweepError(f"{place}.file: must be the path of a CSV file, got {shown(name)}")
+        raise BadSweepError(f"{place}.file: must be the path of a CSV file, got {shown(name)}")
     if "://" in str(folder):
-        raise SweepError(
+        raise BadSweepError(
             f"{place}.file: measurement files are read from a local folder only, not "
             f"{shown(str(folder))}; give the points inline ({place}.points)"
         )
     folder = Path(folder)
     relative = os.path.normpath(name)
     if os.path.isabs(relative) or relative.split(os.sep)[0] == os.pardir:
-        raise SweepError(
+        raise BadSweepError(
             f"{place}.file: must name a file in the sweep file's folder or below it, "
             f"got {shown(name)}"
         )
     if not (folder / relative).resolve().is_relative_to(Path(folder).resolve()):
-        raise SweepError(
+        raise BadSweepError(
             f"{place}.file: {shown(name)} leads out of the sweep file's folder (a symbolic "
             "link); copy the file there"
         )
     if conditioning.get("points") is not None:
-        raise SweepError(f"{place}: give points or file, not both")
+        raise BadSweepError(f"{place}: give points or file, not both")
     conditioning["points"] = read_measurements(folder / relative, place=f"{place}.file")
 
 
@@ -74,7 +75,7 @@ def read_measurements(path, *, place: str = "measurements") -> list[list[float]]
 
     Raises
     ------
-    SweepError
+    BadFileError
         If the file cannot be read, is larger than the sweep-file limit, or a line is
         not the header's number of finite numbers.
     """
@@ -88,12 +89,12 @@ def read_measurements(path, *, place: str = "measurements") -> list[list[float]]
             if row and "".join(row).strip() and not row[0].lstrip().startswith("#")
         ]
     except csv.Error as error:
-        raise SweepError(f"{place}: not CSV ({error})") from None
+        raise BadFileError(f"{place}: not CSV ({error})") from None
     columns = ["x", "y", "elevation", "time"]
     header = [name.strip().lower() for name in lines[0][1]] if lines else []
     if header not in (columns[:3], columns):
         # the file's contents are never echoed: it may be any file the user can read
-        raise SweepError(
+        raise BadFileError(
             f"{place}: must start with the header line x,y,elevation or x,y,elevation,time"
         )
     points = []
@@ -103,11 +104,11 @@ def read_measurements(path, *, place: str = "measurements") -> list[list[float]]
         except ValueError:
             values = []
         if len(values) != len(header) or not all(math.isfinite(v) for v in values):
-            raise SweepError(
+            raise BadFileError(
                 f"{place} line {number}: expected {len(header)} finite numbers "
                 f"({','.join(header)})"
             )
         points.append(values)
     if not points:
-        raise SweepError(f"{place}: holds no points")
+        raise BadFileError(f"{place}: holds no points")
     return points

@@ -21,7 +21,7 @@ from matplotlib.figure import Figure
 from PIL import Image
 
 from service import store
-from service.inputs import SweepError
+from service.errors import BadOptionError, BadSweepError
 from service.sweep import Plan
 from workers.render import render
 
@@ -163,13 +163,13 @@ def save_preview(
 
     Raises
     ------
-    SweepError
+    BadOptionError
         For a frame the sample lacks, a frame given for a GIF, or another file type.
     """
     lower = path.lower()
     count = ds.sizes["frame"]
     if frame is not None and not 0 <= frame < count:
-        raise SweepError(f"--frame {frame}: the sample has frames 0..{count - 1}")
+        raise BadOptionError(f"--frame {frame}: the sample has frames 0..{count - 1}")
     image = ds["image"].values
     scale = (float(image.min()), float(image.max())) if shared_scale else None
     draw = functools.partial(
@@ -177,21 +177,21 @@ def save_preview(
     )
     if lower.endswith(".gif"):
         if frame is not None:
-            raise SweepError(f"--frame {frame}: a GIF holds every frame; write a .png for one")
+            raise BadOptionError(f"--frame {frame}: a GIF holds every frame; write a .png for one")
         frames = [_pixels(draw(frame=index)) for index in range(count)]
         frames[0].save(path, save_all=True, append_images=frames[1:], duration=200, loop=0)
         return len(frames)
     if lower.endswith(".png"):
         _pixels(draw(frame=frame or 0)).save(path)
         return 1
-    raise SweepError(f"--output {path}: write a .png (one frame) or a .gif (all frames)")
+    raise BadOptionError(f"--output {path}: write a .png (one frame) or a .gif (all frames)")
 
 
 def plot_statistics(stats: xr.Dataset, path: str) -> None:
     """Target contrast and contrast-to-noise ratio against each swept parameter, per gate."""
     swept = list(store.swept_parameters(stats))
     if not swept:
-        raise SweepError("the store sweeps no parameter: nothing to plot against")
+        raise BadSweepError("the store sweeps no parameter: nothing to plot against")
     figure = _figure(figsize=(3.2 * len(swept), 5.0))
     axes = figure.subplots(2, len(swept), squeeze=False)
     for column, name in enumerate(swept):

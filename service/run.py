@@ -24,16 +24,16 @@ import functools
 import hashlib
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass, field
 
 import numpy as np
 from distributed import Client, wait
 
 from service import integrity, lock, storage, store
+from service.admission import check_output
 from service.cluster import ClusterError, dask_client
-from service.inputs import SweepError
 from service.progress import Progress
-from service.stats import check_owner, write_statistics
+from service.records import RunResult
+from service.stats import write_statistics
 from service.sweep import Plan
 from service.tuning import tune_allocator
 from workers.labels import rendered_variables
@@ -42,7 +42,6 @@ from workers.section import SceneError
 
 __all__ = [
     "RunCancelledError",
-    "RunResult",
     "execute",
     "render_shard",
     "run_plan",
@@ -127,38 +126,6 @@ class RunCancelledError(Exception):
     """A run stopped because its `cancel` event was set (`run_plan`)."""
 
 
-@dataclass
-class RunResult:
-    """What a run did.
-
-    ``failed`` holds ``(start, count, error)`` for tasks that raised or lost their worker;
-    ``refused`` holds ``(sample, reason)`` for samples whose scene cannot be rendered
-    (`workers.section.SceneError`: bad input, not retried); ``rejected`` holds
-    ``(sample, reason)`` for samples rendered with invalid values
-    (`service.integrity.invalid_values`); neither are written nor marked complete; ``damaged``
-    holds ``(sample, reason)`` for samples that ``verify`` found damaged and recomputed;
-    ``relabelled`` names the labels and coordinates it found wrong and wrote again;
-    ``stuck`` holds ``(start, count)`` for tasks given up after the task timeout;
-    ``stopped`` says why a run stopped early (a storage failure no retry cures);
-    ``points`` holds the parameter points whose samples a resumed run (re)wrote (None: all).
-    """
-
-    total: int
-    written: int = 0
-    skipped: int = 0
-    failed: list = field(default_factory=list)
-    refused: list = field(default_factory=list)
-    rejected: list = field(default_factory=list)
-    damaged: list = field(default_factory=list)
-    relabelled: list = field(default_factory=list)
-    stuck: list = field(default_factory=list)
-    stopped: str | None = None
-    seconds: float = 0.0
-    interrupted: bool = False
-    max_in_flight: int = 0
-    points: np.ndarray | None = None
-
-
 def run_plan(
     plan: Plan,
     url: str,
@@ -194,7 +161,9 @@ def run_plan(
         todo = np.flatnonzero(~done)
     else:
         todo = range(plan.samples)  # lazy: the client holds no per-sample list
-    result = RunResult(total=plan.samples, skipped=plan.samples - len(todo))
+    result = RunResult(
+        total=plan.samples, task_timeout=task_timeout, skipped=plan.samples - len(todo)
+    )
     if resume:
         result.points = np.unique(todo // plan.realisations)
     progress = Progress(plan.samples, result.skipped, progress_stream, on_progress)
@@ -351,53 +320,6 @@ def _submit_bounded(
         raise
 
 
-def _check_output(plan: Plan, url: str, *, resume, overwrite, storage_options) -> tuple:
-    """Check what is at the output before anything is written or deleted.
-
-    Returns
-    -------
-    tuple of (bool, list, list)
-        Whether an existing store is resumed, and the files of the old store and of its
-        statistics that ``--overwrite`` deletes (`service.storage.removable_files`).
-
-    Raises
-    ------
-    SweepError
-        If the output or the statistics path holds something this run may not replace
-        (the statistics of another store among them: `service.stats.check_owner`).
-    """
-    check_owner(url, storage_options)
-    stats_files = storage.removable_files(
-        storage.stats_url(url), storage_options, kind="statistics"
-    )
-    if not storage.occupied(url, storage_options):
-        return False, [], []
-    if not resume and not overwrite:
-        raise SweepError(f"{url} already exists; pass --resume to complete it or --overwrite")
-    if overwrite:
-        return False, storage.removable_files(url, storage_options, kind="samples"), stats_files
-    previous = storage.root_attributes(url, storage_options) or {}
-    if previous.get(storage.KIND) != "samples":
-        raise SweepError(f"{url} is not an oceanlidar samples store; cannot resume into it")
-    if previous.get("sweep_sha256") != plan.digest:
-        raise SweepError(
-            f"{url} holds a different sweep (its hash differs); refusing to resume into it"
-        )
-    written_by = previous.get("oceanlidar_version")
-    if written_by != store.package_version():
-        raise SweepError(
-            f"{url} was written by oceanlidar {written_by}, this is "
-            f"{store.package_version()}: samples would differ; resume with that version "
-            "or start again with --overwrite"
-        )
-    if stale := integrity.stale_layout(url, plan, storage_options):
-        raise SweepError(
-            f"{url} was written with another layout of its samples ({', '.join(stale)} "
-            "missing or shaped otherwise): start again with --overwrite"
-        )
-    return True, [], []
-
-
 def execute(
     plan: Plan,
     url: str,
@@ -441,10 +363,10 @@ def execute(
     url = storage.normalise(url, storage_options)
     options = {"resume": resume, "overwrite": overwrite, "storage_options": storage_options}
     with storage.storage_errors(url):
-        _check_output(plan, url, **options)
+        check_output(plan, url, **options)
     with lock.writer_lock(url, storage_options, claim=claim) as token:
         with storage.storage_errors(url):
-            resuming, old_files, old_stats = _check_output(plan, url, **options)
+            resuming, old_files, old_stats = check_output(plan, url, **options)
         # connect before touching storage: an unreachable cluster leaves everything as it was
         connect = functools.partial(
             dask_client,
@@ -492,14 +414,7 @@ def execute(
                 on_progress=on_progress,
             )
             result.damaged, result.relabelled = damaged, relabelled
-            if not (
-                result.interrupted
-                or result.failed
-                or result.refused
-                or result.rejected
-                or result.stuck
-                or result.stopped
-            ):
+            if result.ok:
                 write_statistics(url, storage_options=storage_options, points=result.points)
         if result.interrupted:  # tasks in flight at the interrupt may have written since
             with storage.storage_errors(url):

@@ -24,7 +24,7 @@ from pydantic import (
     model_validator,
 )
 
-from service.inputs import SweepError
+from service.errors import BadSweepError
 from workers.scene import Scene
 
 __all__ = [
@@ -207,7 +207,7 @@ def scene_field(path: str):
 
     Raises
     ------
-    SweepError
+    BadSweepError
         If the path names no field, or a section rather than a value.
     """
     model: Any = Scene
@@ -218,13 +218,13 @@ def scene_field(path: str):
         if fields is None or part not in fields:
             known = ", ".join(sorted(fields)) if fields else "nothing (a leaf value)"
             where = ".".join(parts[:depth]) or "the scene"
-            raise SweepError(f"sweep.parameters.{path}: unknown path; {where} has {known}")
+            raise BadSweepError(f"sweep.parameters.{path}: unknown path; {where} has {known}")
         field = fields[part]
         annotation = field.annotation
         is_model = isinstance(annotation, type) and issubclass(annotation, BaseModel)
         model = annotation if is_model else None
     if model is not None:
-        raise SweepError(f"sweep.parameters.{path}: names a section, not a value")
+        raise BadSweepError(f"sweep.parameters.{path}: names a section, not a value")
     return field
 
 

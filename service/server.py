@@ -33,8 +33,10 @@ from starlette.routing import Route
 
 from service import storage, store
 from service.cluster import dask_client
-from service.inputs import MAX_FILE_BYTES, SweepError
-from service.jobs import FINAL, ForbiddenError, JobTable, QueueFullError, Runner, public
+from service.errors import BadFileError, BadOptionError, InputError
+from service.inputs import MAX_FILE_BYTES
+from service.jobs import ForbiddenError, JobTable, QueueFullError, Runner
+from service.records import Job, JobState
 from service.sweep import parse_sweep
 
 __all__ = ["LOOPBACK", "create_app", "read_tokens", "serve"]
@@ -60,7 +62,7 @@ def read_tokens(path: str | None) -> dict[str, str]:
 
     Raises
     ------
-    SweepError
+    BadFileError
         If the file cannot be read, or names an owner or a token twice (a token must say
         who sent it).
     """
@@ -71,14 +73,14 @@ def read_tokens(path: str | None) -> dict[str, str]:
         with open(path, encoding="utf-8") as handle:
             lines = [line.split() for line in handle if line.strip() and line[0] != "#"]
     except (OSError, UnicodeDecodeError) as error:
-        raise SweepError(f"--token-file {path}: {getattr(error, 'strerror', error)}") from None
+        raise BadFileError(f"--token-file {path}: {getattr(error, 'strerror', error)}") from None
     if any(len(fields) > 2 for fields in lines):
-        raise SweepError(f"--token-file {path}: one 'OWNER TOKEN' or 'TOKEN' a line")
+        raise BadFileError(f"--token-file {path}: one 'OWNER TOKEN' or 'TOKEN' a line")
     owners = [fields[0] if len(fields) == 2 else "default" for fields in lines]
     tokens = [fields[-1] for fields in lines]
     for kind, names in (("owner", owners), ("token", tokens)):
         if len(set(names)) < len(names):
-            raise SweepError(f"--token-file {path}: each {kind} may appear on one line only")
+            raise BadFileError(f"--token-file {path}: each {kind} may appear on one line only")
     return dict(zip(owners, tokens, strict=True))
 
 
@@ -169,32 +171,32 @@ class _Service:
             job = await run_in_threadpool(
                 self.runner.submit, text, owner=request.state.owner, mode=mode
             )
-        except SweepError as error:
-            return _error(400, str(error))
+        except InputError as error:
+            return _error(error.status, str(error))
         except ForbiddenError as error:
             return _error(403, str(error))
         except QueueFullError as error:
             return _error(429, str(error))
-        return JSONResponse(public(job), status_code=201)
+        return JSONResponse(job.public(), status_code=201)
 
     async def jobs(self, request: Request) -> JSONResponse:
         state = request.query_params.get("state")
-        return JSONResponse({"jobs": [public(job) for job in self.table.list(state)]})
+        return JSONResponse({"jobs": [job.public() for job in self.table.list(state)]})
 
     async def job(self, request: Request) -> JSONResponse:
         job = self.table.get(request.path_params["id"])
-        return JSONResponse(public(job)) if job else _error(404, "no such job")
+        return JSONResponse(job.public()) if job else _error(404, "no such job")
 
     async def cancel(self, request: Request) -> JSONResponse:
         job_id = request.path_params["id"]
         job = self.table.get(job_id)
         if job is None:
             return _error(404, "no such job")
-        if job["owner"] != request.state.owner:
-            return _error(403, f"job {job_id} is {job['owner']}'s: only its owner may cancel it")
+        if job.owner != request.state.owner:
+            return _error(403, f"job {job_id} is {job.owner}'s: only its owner may cancel it")
         if not self.runner.cancel(job_id):
             return _error(409, f"job {job_id} has finished: nothing to cancel")
-        return JSONResponse(public(self.table.get(job_id)))
+        return JSONResponse(self.table.get(job_id).public())
 
     async def events(self, request: Request) -> Response:
         job_id = request.path_params["id"]
@@ -204,11 +206,12 @@ class _Service:
         async def stream():
             last = None
             while True:
-                job = public(self.table.get(job_id))
-                if job != last:
-                    yield f"event: progress\ndata: {json.dumps(job)}\n\n"
-                    last = job
-                if job["state"] in FINAL:
+                job = self.table.get(job_id)
+                shown = job.public()
+                if shown != last:
+                    yield f"event: progress\ndata: {json.dumps(shown)}\n\n"
+                    last = shown
+                if job.state.final:
                     return
                 await asyncio.sleep(EVENT_TICK)
 
@@ -217,52 +220,54 @@ class _Service:
     async def page_list(self, request: Request) -> HTMLResponse:
         jobs = self.table.list()
         rows = "".join(
-            f"<tr><td><a href='/jobs/{j['id']}'>{j['id']}</a></td><td>{html.escape(j['name'])}"
-            f"</td><td>{html.escape(j['owner'])}</td><td class='state'>{j['state']}</td>"
-            f"<td><progress value='{j['done']}' max='{j['total']}'></progress> "
-            f"{j['done']}/{j['total']}</td><td>{_when(j['submitted'])}</td></tr>"
+            f"<tr><td><a href='/jobs/{j.id}'>{j.id}</a></td><td>{html.escape(j.name)}"
+            f"</td><td>{html.escape(j.owner)}</td><td class='state'>{j.state}</td>"
+            f"<td><progress value='{j.done}' max='{j.total}'></progress> "
+            f"{j.done}/{j.total}</td><td>{_when(j.submitted)}</td></tr>"
             for j in jobs
         )
         table = (
             "<table><tr><th>job</th><th>sweep</th><th>owner</th><th>state</th>"
             f"<th>samples</th><th>submitted</th></tr>{rows}</table>"
         )
-        refresh = any(j["state"] not in FINAL for j in jobs)
+        refresh = any(not j.state.final for j in jobs)
         return HTMLResponse(_page("oceanlidar jobs", table, refresh=refresh))
 
     async def page_job(self, request: Request) -> HTMLResponse:
         job = self.table.get(request.path_params["id"])
         if job is None:
             return HTMLResponse(_page("no such job", "<p>no such job</p>"), status_code=404)
-        shown = public(job)
         parts = [
-            f"<p class='state'>{job['state']} <progress value='{job['done']}' "
-            f"max='{job['total']}'></progress> {job['done']}/{job['total']} samples</p>",
-            f"<p>owner {html.escape(job['owner'])}, output <code>{html.escape(job['url'])}"
-            "</code></p>",
+            f"<p class='state'>{job.state} <progress value='{job.done}' "
+            f"max='{job.total}'></progress> {job.done}/{job.total} samples</p>",
+            f"<p>owner {html.escape(job.owner)}, output <code>{html.escape(job.url)}</code></p>",
         ]
-        if job["message"]:
-            parts.append(f"<p class='message'>{html.escape(job['message'])}</p>")
-        if shown["errors"]:
+        if job.message:
+            parts.append(f"<p class='message'>{html.escape(job.message)}</p>")
+        if job.errors:
             errors = "".join(
-                f"<li>sample {s}: {html.escape(r)}</li>" for s, r in shown["errors"].items()
+                f"<li>sample {s}: {html.escape(r)}</li>" for s, r in job.errors.items()
             )
             parts.append(f"<ul class='errors'>{errors}</ul>")
-        if job["state"] == "succeeded":
+        if job.state is JobState.SUCCEEDED:
             parts += [
-                f"<h2>statistics</h2><img id='statistics' src='/jobs/{job['id']}/statistics.png'"
+                f"<h2>statistics</h2><img id='statistics' src='/jobs/{job.id}/statistics.png'"
                 " alt='statistics plot'>",
-                f"<h2>first samples</h2><img id='preview' src='/jobs/{job['id']}/preview.png'"
+                f"<h2>first samples</h2><img id='preview' src='/jobs/{job.id}/preview.png'"
                 " alt='preview strip'>",
             ]
-        parts.append(f"<h2>sweep</h2><pre class='sweep'>{html.escape(job['sweep'])}</pre>")
-        title = f"oceanlidar job {job['id']}: {html.escape(job['name'])}"
-        return HTMLResponse(_page(title, "".join(parts), refresh=job["state"] not in FINAL))
+        parts.append(f"<h2>sweep</h2><pre class='sweep'>{html.escape(job.sweep)}</pre>")
+        title = f"oceanlidar job {job.id}: {html.escape(job.name)}"
+        return HTMLResponse(_page(title, "".join(parts), refresh=not job.state.final))
 
     async def picture(self, request: Request) -> Response:
         job_id, kind = request.path_params["id"], request.path_params["picture"]
         job = self.table.get(job_id)
-        if job is None or job["state"] != "succeeded" or kind not in ("statistics", "preview"):
+        if (
+            job is None
+            or job.state is not JobState.SUCCEEDED
+            or kind not in ("statistics", "preview")
+        ):
             return _error(404, "no such picture")
         if (job_id, kind) not in self.pictures:
             draw = _statistics_png if kind == "statistics" else _preview_png
@@ -270,28 +275,28 @@ class _Service:
                 self.pictures[job_id, kind] = await run_in_threadpool(
                     draw, job, self.runner.data_root
                 )
-            except SweepError as error:  # e.g. nothing swept: nothing to plot against
+            except InputError as error:  # e.g. nothing swept: nothing to plot against
                 return _error(404, str(error))
         return Response(self.pictures[job_id, kind], media_type="image/png")
 
 
-def _statistics_png(job: dict, data_root: str) -> bytes:
+def _statistics_png(job: Job, data_root: str) -> bytes:
     from service.plots import plot_statistics
 
-    stats = store.open_store(storage.stats_url(job["url"])).load()
+    stats = store.open_store(storage.stats_url(job.url)).load()
     buffer = io.BytesIO()
     plot_statistics(stats, buffer)
     return buffer.getvalue()
 
 
-def _preview_png(job: dict, data_root: str) -> bytes:
+def _preview_png(job: Job, data_root: str) -> bytes:
     """The gated images of the first samples, one row each (rendered again, as stored)."""
     import matplotlib.pyplot as plt
     from PIL import Image
 
     from service.plots import preview_figure, render_preview
 
-    plan = parse_sweep(job["sweep"], folder=data_root, max_memory=None)
+    plan = parse_sweep(job.sweep, folder=data_root, max_memory=None)
     rows = []
     for sample in range(min(PREVIEW_SAMPLES, plan.samples)):
         figure = preview_figure(render_preview(plan, sample), title=f"sample {sample}")
@@ -334,16 +339,16 @@ def serve(args, security) -> int:
     tokens = read_tokens(args.token_file)
     if args.no_auth:
         if args.host not in LOOPBACK:
-            raise SweepError(f"--no-auth is allowed on 127.0.0.1 only, not --host {args.host}")
+            raise BadOptionError(f"--no-auth is allowed on 127.0.0.1 only, not --host {args.host}")
         tokens = {}
     elif not tokens:
-        raise SweepError(
+        raise BadOptionError(
             "no token: give --token-file PATH or OCEANLIDAR_TOKEN (or --no-auth, on "
             "127.0.0.1 only)"
         )
     for flag in ("max_running", "queue_limit", "batch"):
         if getattr(args, flag) is not None and getattr(args, flag) < 1:
-            raise SweepError(f"--{flag.replace('_', '-')} must be at least 1")
+            raise BadOptionError(f"--{flag.replace('_', '-')} must be at least 1")
     root = storage.normalise(args.data_root, args.storage_options)
     if "://" not in root:
         os.makedirs(root, exist_ok=True)

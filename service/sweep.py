@@ -25,7 +25,8 @@ from dask.utils import format_bytes
 from pydantic import ValidationError
 from scipy.stats import qmc
 
-from service.inputs import SweepError, read_text, read_yaml, shown, strict_numbers
+from service.errors import BadSweepError, InputError, TooBigError
+from service.inputs import DEFAULT_MAX_MEMORY, read_text, read_yaml, shown, strict_numbers
 from service.measurements import inline_measurements
 from service.schema import Distribution, Sweep, Value, Values, scene_field
 from workers.cascades import MAX_CASCADES
@@ -40,9 +41,8 @@ __all__ = ["Plan", "Sample", "load_sweep", "memory_estimate", "parse_sweep"]
 MAX_POINTS = 10_000_000
 DEFAULT_MAX_SAMPLES = 1_000_000
 DEFAULT_MAX_BYTES = 50 * 2**30
-DEFAULT_MAX_MEMORY = 4 * 2**30
-"""Most memory [bytes] one sample may need to render (`memory_estimate`); ``--max-memory``
-sets another, ``--no-limits`` lifts it."""
+NO_LIMITS = "pass --no-limits to run it anyway"
+"""What the command line's messages about the limits advise."""
 MAX_TRAVEL = 100_000.0
 """Farthest the platform may fly during a sequence [m]: beyond 100 km, float32 ray
 coordinates resolve less than a centimetre, coarser than the surface grids need."""
@@ -125,11 +125,11 @@ class Plan:
 
         Raises
         ------
-        SweepError
+        BadSweepError
             If the sweep has no such sample.
         """
         if not 0 <= index < self.samples:
-            raise SweepError(f"sample {index}: the sweep has samples 0..{self.samples - 1}")
+            raise BadSweepError(f"sample {index}: the sweep has samples 0..{self.samples - 1}")
         point, realisation = divmod(int(index), self.realisations)
         return Sample(
             index=int(index),
@@ -174,16 +174,16 @@ class Plan:
         *,
         max_samples=DEFAULT_MAX_SAMPLES,
         max_bytes=DEFAULT_MAX_BYTES,
-        remedy="pass --no-limits to run it anyway",
+        remedy=NO_LIMITS,
     ):
         """Refuse sweeps beyond the size limits; `remedy` ends the message."""
         if self.samples > max_samples:
-            raise SweepError(
+            raise TooBigError(
                 f"the sweep has {self.samples:,} samples, over the limit of {max_samples:,}; "
                 f"{remedy}"
             )
         if self.total_bytes() > max_bytes:
-            raise SweepError(
+            raise TooBigError(
                 f"the sweep would store about {format_bytes(self.total_bytes())}, over the "
                 f"limit of {format_bytes(max_bytes)}; {remedy}"
             )
@@ -286,7 +286,7 @@ def _transport_memory(scene: dict, *, pixels: int, gates: int) -> int:
 def _check_memory(scene: dict, max_memory: float | None) -> None:
     estimate = memory_estimate(scene)
     if max_memory is not None and estimate > max_memory:
-        raise SweepError(
+        raise TooBigError(
             f"scene: one sample would need about {format_bytes(estimate)} of memory to render "
             f"(surface.grid_size, receiver.pixels, sequence.frames, measurement times), over "
             f"the limit of {format_bytes(max_memory)}; pass --max-memory GIB or --no-limits "
@@ -304,11 +304,11 @@ def _check_scene(raw: dict, scene: Scene) -> None:
     try:
         count_dtype(scene)
     except ValueError as error:
-        raise SweepError(f"scene.{error}") from None
+        raise BadSweepError(f"scene.{error}") from None
     sequence = scene.sequence
     travel = max(map(abs, sequence.velocity)) * ((sequence.frames - 1) * sequence.interval)
     if travel > MAX_TRAVEL:
-        raise SweepError(
+        raise BadSweepError(
             f"scene.sequence.velocity: the platform would fly {travel:.3g} m during the "
             f"sequence, over the limit of {MAX_TRAVEL:,.0f} m"
         )
@@ -335,8 +335,9 @@ def load_sweep(path, *, max_memory: float | None = DEFAULT_MAX_MEMORY) -> Plan:
 
     Raises
     ------
-    SweepError
-        With a message that names the place and the reason.
+    InputError
+        A `BadSweepError`, `BadFileError` or `TooBigError`, with a message that names the
+        place and the reason.
     """
     text = read_text(path, place=str(path))
     return parse_sweep(text, folder=Path(path).parent, max_memory=max_memory)
@@ -365,24 +366,24 @@ def parse_sweep(text: str, *, folder=None, max_memory: float | None = DEFAULT_MA
     """
     data = read_yaml(text)
     if not isinstance(data, dict):
-        raise SweepError("the file must be a YAML mapping with name, seed, output and scene")
+        raise BadSweepError("the file must be a YAML mapping with name, seed, output and scene")
     inline_measurements(data, folder if folder is not None else Path())
     try:
         sweep = Sweep.model_validate(data)
     except ValidationError as error:
-        raise SweepError(_format_errors(error)) from None
+        raise BadSweepError(_format_errors(error)) from None
     strict_numbers(data, sweep.model_dump(), "")
     _check_memory(sweep.scene, max_memory)
     try:
         default = Scene.model_validate(sweep.scene)
     except ValidationError as error:
-        raise SweepError(_format_errors(error, "scene")) from None
+        raise BadSweepError(_format_errors(error, "scene")) from None
     _check_scene(sweep.scene, default)
     for path in sweep.sweep.parameters:
         scene_field(path)
     points = _expand(sweep)
     if not points:
-        raise SweepError("sweep: the sweep expands to no parameter point")
+        raise BadSweepError("sweep: the sweep expands to no parameter point")
     scenes = []
     cache: dict[str, Scene] = {}
     for index, point in enumerate(points):
@@ -397,11 +398,11 @@ def parse_sweep(text: str, *, folder=None, max_memory: float | None = DEFAULT_MA
                 cache[key] = Scene.model_validate(data)
                 _check_scene(data, cache[key])
             except ValidationError as error:
-                raise SweepError(
+                raise BadSweepError(
                     f"parameter point {index} ({values}):\n" + _format_errors(error, "scene")
                 ) from None
-            except SweepError as error:
-                raise SweepError(f"parameter point {index} ({values}):\n{error}") from None
+            except InputError as error:
+                raise type(error)(f"parameter point {index} ({values}):\n{error}") from None
         scenes.append(cache[key])
     canonical = sweep.model_dump(mode="json", exclude={"output"})
     # parameters in file order: grid expansion and random draws follow it
@@ -457,14 +458,14 @@ def _expand(sweep: Sweep) -> list[dict[str, Any]]:
         for value in values:  # 3 and 3.0 are one value
             key = json.dumps(json.loads(json.dumps(value, default=str), parse_int=float))
             if key in seen:
-                raise SweepError(
+                raise BadSweepError(
                     f"sweep.parameters.{path}.values: {shown(value)} is listed twice, so the "
                     "grid would repeat its points (raise realisations for more samples of one)"
                 )
             seen.add(key)
     size = math.prod(len(v) for v in lists.values())
     if size > MAX_POINTS:
-        raise SweepError(
+        raise TooBigError(
             f"sweep: the grid has {size:,} parameter points, over the limit of {MAX_POINTS:,}"
         )
     combos = itertools.product(*lists.values())

@@ -15,9 +15,9 @@ from conftest import ROOT, TINY_SWEEP, run_cli
 
 from service import plots
 from service.cli import main
+from service.cli.run_commands import run_time
 from service.cluster import QUIET, dask_client
 from service.run import render_shard, task_batches
-from service.run_commands import run_time
 from service.schema import sweep_json_schema
 from service.store import create_store, package_version, shard_size
 from service.sweep import load_sweep, parse_sweep
@@ -82,7 +82,7 @@ def test_validate_refuses_a_scene_that_renders_invalid_values(tmp_path, capsys, 
     # the render `validate` times is checked as `run` checks each sample before writing
     # it: a NaN there is a scene no sample of which would be written (a user trial found
     # a 10 m sphere and 30 /m water validated, then every sample refused)
-    import service.run_commands as commands
+    import service.cli.run_commands as commands
 
     def broken(scene, *, seed):
         arrays = render_arrays(scene, seed=seed)

@@ -8,6 +8,7 @@ from numpy.testing import assert_allclose
 from workers.geometry import (
     LaserRays,
     PinholeCamera,
+    fast_length,
     flat_sea_point,
     footprint_length,
     pan_tilt_rotation,
@@ -265,3 +266,23 @@ def test_the_central_rays_are_those_of_the_lattice(beam, rays):
     origins, directions = LaserRays.central(**common)
     assert_allclose(origins, np.asarray(lattice.origins)[index], atol=1e-12)
     assert_allclose(directions, np.asarray(lattice.directions)[index], atol=1e-12)
+
+
+def five_smooth(m):
+    for p in (2, 3, 5):
+        while m % p == 0:
+            m //= p
+    return m == 1
+
+
+def test_fast_lengths_are_the_smallest_even_5_smooth_lengths():
+    # the planes' FFT lengths (scipy's next_fast_len of half the length, doubled) are
+    # what a plain search gives: they set the grids' shapes, so the stored bytes
+    def search(n):
+        m = max(n, 2)
+        while m % 2 or not five_smooth(m):
+            m += 1
+        return m
+
+    assert [fast_length(n) for n in range(5000)] == [search(n) for n in range(5000)]
+    assert fast_length(np.float64(13.0)) == 16

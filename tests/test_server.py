@@ -486,8 +486,8 @@ def test_token_files_name_each_owner_and_each_token_once(tmp_path):
 
 
 def test_outputs_stay_under_the_data_root(tmp_path):
+    from service.admission import confine_output
     from service.inputs import SweepError
-    from service.jobs import confine_output
 
     root = tmp_path / "data"
     root.mkdir()
@@ -537,4 +537,4 @@ def test_one_service_a_table_and_no_store_inside_another(tmp_path):
         with pytest.raises(SweepError, match=f"^output: .*{re.escape(reason)}"):
             runner.submit(sweep(output), owner="bob")
     assert len(table.list()) == 1
-    assert runner.submit(sweep("runs/b.zarr"), owner="bob")["state"] == "queued"
+    assert runner.submit(sweep("runs/b.zarr"), owner="bob").state == "queued"

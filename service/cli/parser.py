@@ -1,19 +1,21 @@
 """The ``oceanlidar`` command line's arguments: one `argparse` parser, one subparser a command.
 
 Bad flags exit with status 2, argparse's own (the command line's "bad input", as
-`service.cli` uses it), after the usage line; nothing is overridden.
+`service.cli` uses it), after the usage line; nothing is overridden. Light by design: it
+imports no command (`service.cli.main` does, once one is chosen), so ``--help`` is quick.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 
-from service.client import add_commands
-from service.inputs import json_object
-from service.store import package_version
-from service.sweep import DEFAULT_MAX_MEMORY
+from service.inputs import DEFAULT_MAX_MEMORY, json_object
 
-__all__ = ["parser"]
+__all__ = ["DEFAULT_SERVER", "parser"]
+
+DEFAULT_SERVER = "http://127.0.0.1:8000"
+"""The job service the clients talk to without ``--server`` or ``OCEANLIDAR_SERVER``."""
 
 MAX_MEMORY_HELP = f"most memory one sample may need, GiB (default {DEFAULT_MAX_MEMORY / 2**30:g})"
 
@@ -96,13 +98,86 @@ def _preview(commands) -> None:
     _storage_options(preview)
 
 
+def _job_commands(commands) -> None:
+    """``serve`` (the job service) and its clients ``submit``, ``jobs``, ``status``, ``cancel``."""
+    serve = commands.add_parser("serve", help="run the batch service (HTTP API and web page)")
+    serve.add_argument(
+        "--host", default="127.0.0.1", help="address to listen on (default: %(default)s)"
+    )
+    serve.add_argument("--port", type=int, default=8000, help="port (default: %(default)s)")
+    serve.add_argument("--db", default="oceanlidar-jobs.sqlite", help="job table, SQLite file")
+    serve.add_argument(
+        "--data-root",
+        default="oceanlidar-data",
+        help="folder or URL prefix that every job's output lies under (default: %(default)s)",
+    )
+    serve.add_argument("--storage-options", type=json_object, help="data root's fsspec options")
+    serve.add_argument("--token-file", help="tokens, 'OWNER TOKEN' a line (else OCEANLIDAR_TOKEN)")
+    serve.add_argument("--no-auth", action="store_true", help="no token (127.0.0.1 only)")
+    serve.add_argument("--max-running", type=int, default=4, help="jobs run at once (default 4)")
+    serve.add_argument(
+        "--queue-limit", type=int, default=100, help="most unfinished jobs (default 100)"
+    )
+    serve.add_argument(
+        "--batch",
+        type=int,
+        default=None,
+        help="samples per shard and task of a new store (default: as many as fit in "
+        "16 MiB uncompressed, at most 256, leaving at least 8 shards)",
+    )
+    where = serve.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None, help="embedded cluster's workers")
+    where.add_argument("--scheduler", help="address of an existing dask scheduler")
+    tls = serve.add_argument_group("TLS (for tls:// schedulers; else dask's configuration)")
+    tls.add_argument("--tls-ca-file", help="CA certificate(s), PEM")
+    tls.add_argument("--tls-cert", help="client certificate, PEM")
+    tls.add_argument("--tls-key", help="client private key, PEM")
+
+    submit = commands.add_parser("submit", help="submit a sweep to the service")
+    submit.add_argument("sweep", help="sweep YAML file")
+    mode = submit.add_mutually_exclusive_group()
+    mode.add_argument("--resume", action="store_true", help="complete an existing store")
+    mode.add_argument("--overwrite", action="store_true", help="replace an existing store")
+    jobs = commands.add_parser("jobs", help="list the service's jobs, newest first")
+    jobs.add_argument("--state", help="only jobs in this state")
+    status = commands.add_parser("status", help="a job's state and progress")
+    status.add_argument("id", help="job id")
+    status.add_argument("--watch", action="store_true", help="follow it until it finishes")
+    cancel = commands.add_parser("cancel", help="cancel a job (its store stays resumable)")
+    cancel.add_argument("id", help="job id")
+    for parser in (submit, jobs, status, cancel):
+        parser.add_argument(
+            "--server", help=f"service URL (else OCEANLIDAR_SERVER, {DEFAULT_SERVER})"
+        )
+        parser.add_argument("--token-file", help="file holding the token (else OCEANLIDAR_TOKEN)")
+
+
+class _Version(argparse.Action):
+    """``--version``: print the installed version and exit (looked up only when asked)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS):
+        super().__init__(
+            option_strings,
+            dest,
+            nargs=0,
+            default=default,
+            help="show program's version number and exit",
+        )
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        from service.store import package_version  # zarr, xarray: not for every command
+
+        print(f"{parser.prog} {package_version()}", file=sys.stdout)
+        parser.exit()
+
+
 def parser() -> argparse.ArgumentParser:
     """The command line's parser: global flags, then one subcommand."""
     top = argparse.ArgumentParser(
         prog="oceanlidar",
         description="Simulate airborne range-gated LIDAR images through a rough sea.",
     )
-    top.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
+    top.add_argument("--version", action=_Version)
     top.add_argument(
         "-v",
         "--verbose",
@@ -162,5 +237,5 @@ def parser() -> argparse.ArgumentParser:
     plot.add_argument("store", help="store path or URL")
     plot.add_argument("--output", required=True, help="FILE.png")
     _storage_options(plot)
-    add_commands(commands)
+    _job_commands(commands)
     return top

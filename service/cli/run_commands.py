@@ -1,7 +1,8 @@
 """The sweep's commands: ``run``, ``validate`` (with an estimated run time) and ``schema``.
 
-Each takes the parsed arguments (`service.parser`) and returns an exit code; bad input is
-raised as `service.inputs.SweepError` and reported by `service.cli`. Messages go through
+Each takes the parsed arguments (`service.cli.parser`) and returns an exit code; bad input
+is raised as a `service.errors.InputError` and reported by `service.cli.main`. A sweep is
+admitted as the job service admits one (`service.admission`). Messages go through
 the ``oceanlidar`` logger (``-q`` keeps the errors only), what a command prints as its
 result goes to stdout.
 """
@@ -16,15 +17,18 @@ import signal
 import sys
 import threading
 import time
+from pathlib import Path
 
 import dask
 import yaml
 from dask.utils import format_bytes, format_time
 
 from service import integrity, storage, store
-from service.inputs import SweepError, shown
+from service.admission import Rules, admit
+from service.errors import BadFileError, BadOptionError, BadSweepError
+from service.inputs import DEFAULT_MAX_MEMORY, read_text, shown
 from service.schema import sweep_json_schema
-from service.sweep import DEFAULT_MAX_MEMORY, Plan, load_sweep
+from service.sweep import Plan
 from workers.cascades import describe
 from workers.labels import rendered_variables
 from workers.render import render_arrays
@@ -42,15 +46,13 @@ SHOWN_PROBLEMS = 20
 
 
 def load(args) -> Plan:
-    """The plan of ``args.sweep`` under the limits the flags set, checked for one store."""
-    limit = DEFAULT_MAX_MEMORY if args.max_memory is None else args.max_memory * 2**30
+    """The plan of ``args.sweep`` admitted under the limits the flags set (`admit`)."""
     if args.max_memory is not None and not args.max_memory > 0:
-        raise SweepError("--max-memory must be a positive number of GiB")
-    plan = load_sweep(args.sweep, max_memory=None if args.no_limits else limit)
-    if not args.no_limits:
-        plan.check_limits()
-    store.check_uniform(plan)
-    return plan
+        raise BadOptionError("--max-memory must be a positive number of GiB")
+    memory = DEFAULT_MAX_MEMORY if args.max_memory is None else args.max_memory * 2**30
+    rules = Rules(limits=not args.no_limits, max_memory=memory)
+    text = read_text(args.sweep, place=args.sweep)
+    return admit(text, folder=Path(args.sweep).parent, rules=rules)
 
 
 def plan_lines(
@@ -109,12 +111,12 @@ def _timed_render(plan: Plan, point: int = 0) -> tuple[float, float]:
         try:
             rendered = render_arrays(first_frame, seed=sample.seed)
         except SceneError as error:
-            raise SweepError(f"{sample.describe()}: {error}") from None
+            raise BadSweepError(f"{sample.describe()}: {error}") from None
         timings.append(sequence.frames * (time.perf_counter() - started))
         # what `run` would refuse to write (every sample of the scene alike, as a rule)
         reason = integrity.invalid_values(rendered, rendered_variables(first_frame))
         if reason is not None:
-            raise SweepError(f"{sample.describe()}: renders invalid values: {reason}")
+            raise BadSweepError(f"{sample.describe()}: renders invalid values: {reason}")
     first, second = timings
     return max(first - second, 0.0), second
 
@@ -185,16 +187,16 @@ def security(args):
         if (args.scheduler or "").startswith("tls://") and not dask.config.get(
             "distributed.comm.tls.ca-file", None
         ):
-            raise SweepError(
+            raise BadOptionError(
                 f"--scheduler {shown(args.scheduler)}: a tls:// scheduler needs "
                 "--tls-ca-file, --tls-cert and --tls-key (or dask's TLS configuration)"
             )
         return None
     if not all(given):
-        raise SweepError("--tls-ca-file, --tls-cert and --tls-key go together")
+        raise BadOptionError("--tls-ca-file, --tls-cert and --tls-key go together")
     for path in given:
         if not os.path.isfile(path):
-            raise SweepError(f"{path}: no such file")
+            raise BadFileError(f"{path}: no such file")
     from distributed import Security
 
     return Security(
@@ -221,13 +223,13 @@ def report_samples(plan: Plan, what: str, problems: list) -> None:
 
 def _check_run_flags(args) -> None:
     if args.workers is not None and args.workers < 1:
-        raise SweepError("--workers must be at least 1")
+        raise BadOptionError("--workers must be at least 1")
     if args.batch is not None and args.batch < 1:
-        raise SweepError("--batch must be at least 1")
+        raise BadOptionError("--batch must be at least 1")
     if not args.task_timeout > 0:
-        raise SweepError("--task-timeout must be a positive number of seconds")
+        raise BadOptionError("--task-timeout must be a positive number of seconds")
     if args.verify and not args.resume:
-        raise SweepError("--verify goes with --resume (a new store has nothing to verify)")
+        raise BadOptionError("--verify goes with --resume (a new store has nothing to verify)")
 
 
 @contextlib.contextmanager
@@ -300,21 +302,11 @@ def cmd_run(args) -> int:
     if result.interrupted:
         log.error("interrupted: run again with --resume to complete %s", url)
         return EXIT_FAILURE
-    failed = [
-        (s, error) for start, count, error in result.failed for s in range(start, start + count)
-    ]
-    stuck = [
-        (s, f"no result {args.task_timeout:g} s after submission (a frozen worker?); given up")
-        for start, count in result.stuck
-        for s in range(start, start + count)
-    ]
-    report_samples(plan, "refused (bad input, not retried)", result.refused)
-    report_samples(plan, "not stored", result.rejected)
-    report_samples(plan, "failed", failed)
-    report_samples(plan, "stuck", stuck)
+    for what, problems in result.problems().items():
+        report_samples(plan, what, problems)
     if result.stopped:
         log.error("stopped: %s; run again with --resume", result.stopped)
-    if failed or stuck or result.refused or result.rejected or result.stopped:
+    if not result.ok:
         log.error("statistics not written: some samples failed")
         return EXIT_FAILURE
     log.info("statistics: %s", storage.stats_url(url))

@@ -1,8 +1,8 @@
 """The store's commands: ``info``, ``stats``, ``detect``, ``preview`` and ``plot``.
 
-Each takes the parsed arguments (`service.parser`) and returns an exit code; bad input is
-raised as `service.inputs.SweepError`, a damaged store as
-`service.integrity.DamagedStoreError`, both reported by `service.cli`.
+Each takes the parsed arguments (`service.cli.parser`) and returns an exit code; bad input
+is raised as a `service.errors.InputError`, a damaged store as
+`service.integrity.DamagedStoreError`, both reported by `service.cli.main`.
 """
 
 from __future__ import annotations
@@ -11,7 +11,8 @@ import logging
 import os
 
 from service import integrity, lock, storage, store
-from service.inputs import SweepError, shown
+from service.errors import BadOptionError, InputError, UnusableOutputError
+from service.inputs import shown
 from service.sweep import load_sweep, parse_sweep
 
 __all__ = ["cmd_detect", "cmd_info", "cmd_plot", "cmd_preview", "cmd_stats"]
@@ -36,18 +37,18 @@ def _open(url: str, storage_options: dict | None):
 
     Raises
     ------
-    SweepError
+    UnusableOutputError
         If nothing, or not an oceanlidar samples store, is there.
     """
     if not storage.store_exists(url, storage_options):
-        raise SweepError(f"{url}: no store there")
+        raise UnusableOutputError(f"{url}: no store there")
     attributes = storage.root_attributes(url, storage_options) or {}
     if attributes.get(storage.KIND) != "samples":
-        raise SweepError(f"{url}: not an oceanlidar samples store")
+        raise UnusableOutputError(f"{url}: not an oceanlidar samples store")
     try:
         return store.open_store(url, storage_options=storage_options)
     except Exception as error:
-        raise SweepError(f"{url}: not an oceanlidar store ({error})") from None
+        raise UnusableOutputError(f"{url}: not an oceanlidar store ({error})") from None
 
 
 def _statistics(url: str, storage_options: dict | None) -> str | None:
@@ -91,7 +92,7 @@ def _label_problems(url: str, ds, storage_options: dict | None) -> dict:
     """Print and return `service.integrity.wrong_labels` of the store, if its sweep loads."""
     try:
         plan = parse_sweep(ds.attrs["sweep"], max_memory=None)
-    except SweepError as error:  # e.g. a measurement file the sweep names is not here
+    except InputError as error:  # e.g. a measurement file the sweep names is not here
         print(f"  labels and coordinates: not checked (its sweep does not load here: {error})")
         return {}
     if plan.digest != ds.attrs.get("sweep_sha256"):  # a measurement file changed since
@@ -139,9 +140,9 @@ def _stored_sample(url: str, sample: int, storage_options: dict | None):
     ds = _open(url, storage_options)
     total = ds.sizes["sample"]
     if not 0 <= sample < total:
-        raise SweepError(f"--sample {sample}: the store has samples 0..{total - 1}")
+        raise BadOptionError(f"--sample {sample}: the store has samples 0..{total - 1}")
     if not integrity.completed_samples(url, storage_options=storage_options)[sample]:
-        raise SweepError(f"--sample {sample}: not written yet in {url} (resume its run)")
+        raise BadOptionError(f"--sample {sample}: not written yet in {url} (resume its run)")
     one = ds.isel(sample=sample).load()
     values = ", ".join(
         f"{path}={shown(one[name].values.item())}"
@@ -193,7 +194,7 @@ def cmd_plot(args) -> int:
     _open(url, args.storage_options)
     stats_path = _statistics(url, args.storage_options)
     if stats_path is None:
-        raise SweepError(f"{url}: no statistics yet; run `oceanlidar stats` first")
+        raise UnusableOutputError(f"{url}: no statistics yet; run `oceanlidar stats` first")
     stats = store.open_store(stats_path, storage_options=args.storage_options)
     try:
         stats = stats.load()  # small: per point and gate

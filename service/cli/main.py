@@ -1,10 +1,13 @@
 """The ``oceanlidar`` command line: logging, the commands, and their exit codes.
 
-Exit codes: 0 success, 2 bad input (a message, no traceback, nothing written; bad flags
-too, argparse's own status), 1 failure (a sample that could not be rendered, an
-interrupted run, an unreadable store). The arguments are in `service.parser`, the
-commands in `service.run_commands` (run, validate, schema) and `service.store_commands`
-(info, stats, detect, preview, plot).
+Exit codes: 0 success, 2 bad input (a `service.errors.InputError`: a message, no
+traceback, nothing written; bad flags too, argparse's own status), 1 failure (a sample
+that could not be rendered, an interrupted run, an unreadable store). The arguments are in
+`service.cli.parser`; the commands, ``cmd_NAME`` each, in `service.cli.run_commands` (run,
+validate, schema), `service.cli.store_commands` (info, stats, detect, preview, plot) and
+`service.cli.job_commands` (serve, submit, jobs, status, cancel). A command's module is
+imported when the command runs: parsing the command line imports neither dask, zarr nor
+the server.
 
 Messages go through `logging`: the ``oceanlidar`` logger prints them plainly on stderr
 (``-q``: errors only); dask's own messages and Python warnings, the embedded workers'
@@ -13,28 +16,23 @@ included, stay off the console unless ``-v`` asks for them (``-vv``: debugging).
 
 from __future__ import annotations
 
+import importlib
 import logging
 import sys
 
-from service import client, integrity, run_commands, store_commands
-from service.inputs import SweepError
-from service.parser import parser
+from service.cli.parser import parser
+from service.errors import InputError
 
 __all__ = ["main"]
 
 EXIT_FAILURE, EXIT_BAD_INPUT = 1, 2
 
 COMMANDS = {
-    "run": run_commands.cmd_run,
-    "validate": run_commands.cmd_validate,
-    "schema": run_commands.cmd_schema,
-    "info": store_commands.cmd_info,
-    "stats": store_commands.cmd_stats,
-    "detect": store_commands.cmd_detect,
-    "preview": store_commands.cmd_preview,
-    "plot": store_commands.cmd_plot,
-    **client.COMMANDS,
+    **dict.fromkeys(("run", "validate", "schema"), "service.cli.run_commands"),
+    **dict.fromkeys(("info", "stats", "detect", "preview", "plot"), "service.cli.store_commands"),
+    **dict.fromkeys(("serve", "submit", "jobs", "status", "cancel"), "service.cli.job_commands"),
 }
+"""The module that holds each command's ``cmd_NAME``, by command."""
 
 MESSAGE_LINE = 500
 """Longest line of an error message: whatever a message quotes of the input, it is cut."""
@@ -92,17 +90,18 @@ def main(argv=None) -> int:
     args = parser().parse_args(argv)
     configure_logging(args.verbose - args.quiet)
     try:
-        return COMMANDS[args.command](args)
-    except SweepError as error:
+        module = importlib.import_module(COMMANDS[args.command])
+        return getattr(module, f"cmd_{args.command}")(args)
+    except InputError as error:
         print(f"oceanlidar {args.command}: error: {_capped(str(error))}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except integrity.DamagedStoreError as error:
-        print(f"oceanlidar {args.command}: error: {error}", file=sys.stderr)
-        return EXIT_FAILURE
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return EXIT_FAILURE
+    except Exception as error:
+        from service.integrity import DamagedStoreError  # zarr: only once a command failed
 
-
-if __name__ == "__main__":
-    sys.exit(main())
+        if not isinstance(error, DamagedStoreError):
+            raise
+        print(f"oceanlidar {args.command}: error: {error}", file=sys.stderr)
+        return EXIT_FAILURE

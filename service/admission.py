@@ -1,0 +1,230 @@
+"""Admission of a sweep: everything checked before anything is queued, written or deleted.
+
+One path for both front ends: ``oceanlidar run`` and ``validate`` (`service.cli`) admit the
+sweep file with `admit`, and `service.run.execute` checks the output with `check_output`;
+the job service (``POST /v1/jobs``, `service.jobs.Runner.submit`) admits the submitted
+text with `admit_job`, which calls both, and confines the output under its data root
+(`confine_output`). What differs between them is a `Rules`: the limits, and the remedy
+their messages name (the command line's flags, the service's modes). Every refusal is an
+`service.errors.InputError` of its kind.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import fsspec
+
+from service import integrity, storage, store
+from service.errors import BadFileError, BadOptionError, UnusableOutputError
+from service.inputs import DEFAULT_MAX_MEMORY, MAX_FILE_BYTES, shown
+from service.stats import check_owner
+from service.sweep import NO_LIMITS, Plan, parse_sweep
+
+__all__ = [
+    "CLI",
+    "MODES",
+    "SERVICE",
+    "Rules",
+    "admit",
+    "admit_job",
+    "check_output",
+    "confine_output",
+    "parents",
+]
+
+MODES = ("new", "resume", "overwrite")
+"""What a run does with an existing output: refuse it, complete it, replace it."""
+
+
+@dataclass(frozen=True)
+class Rules:
+    """How a front end admits sweeps: its limits, and the remedies its messages name.
+
+    Attributes
+    ----------
+    limits : bool
+        Whether the size and memory limits hold (``--no-limits`` lifts them).
+    max_memory : float
+        The most memory [bytes] one sample may need (`service.sweep.memory_estimate`).
+    too_big : str
+        What to do about a sweep over the size limits.
+    exists : str
+        What to do about an output that exists, in a new run.
+    """
+
+    limits: bool = True
+    max_memory: float = DEFAULT_MAX_MEMORY
+    too_big: str = NO_LIMITS
+    exists: str = "pass --resume to complete it or --overwrite"
+
+
+CLI = Rules()
+"""The command line's rules (its flags change the limits: `Rules(limits=..., ...)`)."""
+SERVICE = Rules(
+    too_big="split it into smaller sweeps (the service's limit)",
+    exists="submit with mode resume (oceanlidar submit --resume) to complete it or "
+    "overwrite (--overwrite) to replace it",
+)
+"""The job service's rules: always its limits."""
+
+
+def admit(text: str, *, folder, rules: Rules = CLI) -> Plan:
+    """The plan of the sweep `text`: validated, within `rules`' limits, one store's layout.
+
+    `folder` is where the sweep's relative paths start (`service.sweep.parse_sweep`).
+
+    Raises
+    ------
+    InputError
+        A `BadSweepError`, `BadFileError` (a measurement file) or `TooBigError`.
+    """
+    plan = parse_sweep(text, folder=folder, max_memory=rules.max_memory if rules.limits else None)
+    if rules.limits:
+        plan.check_limits(remedy=rules.too_big)
+    store.check_uniform(plan)
+    return plan
+
+
+def check_output(
+    plan: Plan,
+    url: str,
+    *,
+    resume: bool,
+    overwrite: bool,
+    storage_options: dict | None,
+    name: str | None = None,
+    rules: Rules = CLI,
+) -> tuple:
+    """Check what is at the output before anything is written or deleted.
+
+    `name` is how messages name the output (default: its URL).
+
+    Returns
+    -------
+    tuple of (bool, list, list)
+        Whether an existing store is resumed, and the files of the old store and of its
+        statistics that ``--overwrite`` deletes (`service.storage.removable_files`).
+
+    Raises
+    ------
+    UnusableOutputError
+        If the output or the statistics path holds something this run may not replace
+        (the statistics of another store among them: `service.stats.check_owner`).
+    """
+    name = name or url
+    check_owner(url, storage_options)
+    stats_files = storage.removable_files(
+        storage.stats_url(url), storage_options, kind="statistics"
+    )
+    if not storage.occupied(url, storage_options):
+        return False, [], []
+    if not resume and not overwrite:
+        raise UnusableOutputError(f"{name} already exists; {rules.exists}")
+    if overwrite:
+        return False, storage.removable_files(url, storage_options, kind="samples"), stats_files
+    previous = storage.root_attributes(url, storage_options) or {}
+    if previous.get(storage.KIND) != "samples":
+        raise UnusableOutputError(
+            f"{name} is not an oceanlidar samples store; cannot resume into it"
+        )
+    if previous.get("sweep_sha256") != plan.digest:
+        raise UnusableOutputError(
+            f"{name} holds a different sweep (its hash differs); refusing to resume into it"
+        )
+    written_by = previous.get("oceanlidar_version")
+    if written_by != store.package_version():
+        raise UnusableOutputError(
+            f"{name} was written by oceanlidar {written_by}, this is "
+            f"{store.package_version()}: samples would differ; resume with that version "
+            "or start again with --overwrite"
+        )
+    if stale := integrity.stale_layout(url, plan, storage_options):
+        raise UnusableOutputError(
+            f"{name} was written with another layout of its samples ({', '.join(stale)} "
+            "missing or shaped otherwise): start again with --overwrite"
+        )
+    return True, [], []
+
+
+def confine_output(output: str, data_root: str) -> str:
+    """The store URL of a sweep's `output` under `data_root`.
+
+    Raises
+    ------
+    UnusableOutputError
+        If `output` is a URL (chained ``::`` ones included) or an absolute path, or climbs
+        out of `data_root`, as written or through links.
+    """
+    if any(ord(character) < 32 for character in output):
+        raise UnusableOutputError(
+            f"output: control characters are not allowed, got {shown(output)}"
+        )
+    protocol, _ = fsspec.core.split_protocol(output)
+    normal = os.path.normpath(output)
+    if (
+        protocol is not None
+        or "://" in output
+        or "::" in output
+        or os.path.isabs(output)
+        or normal == os.curdir
+        or normal.split(os.sep)[0] == os.pardir
+    ):
+        raise UnusableOutputError(
+            f"output: must be a path relative to the service's data root, inside it, "
+            f"got {shown(output)}"
+        )
+    url = f"{data_root.rstrip('/')}/{normal}"
+    if fsspec.core.split_protocol(data_root)[0] in (None, "file", "local"):
+        root = os.path.realpath(data_root)
+        if os.path.commonpath([root, os.path.realpath(url)]) != root:
+            raise UnusableOutputError(
+                f"output: {shown(output)} leads out of the service's data root"
+            )
+    return url
+
+
+def parents(url: str) -> list[str]:
+    """The folders `url` lies in, innermost first (``a/b/c`` → ``a/b``, ``a``)."""
+    parts = url.rstrip("/").split("/")
+    return ["/".join(parts[:depth]) for depth in range(len(parts) - 1, 0, -1)]
+
+
+def admit_job(text: str, mode: str, *, data_root: str, storage_options: dict | None) -> tuple:
+    """Check a submitted sweep as ``oceanlidar run`` would; its plan and store URL.
+
+    The sweep is admitted under the service's `SERVICE` rules, its output confined under
+    `data_root` (never inside another store) and checked for `mode` (one of `MODES`).
+
+    Raises
+    ------
+    InputError
+        With the field path and the reason; nothing is queued or written.
+    """
+    if mode not in MODES:
+        raise BadOptionError(f"mode: must be one of {', '.join(MODES)}, got {shown(mode)}")
+    if len(text.encode()) > MAX_FILE_BYTES:
+        raise BadFileError(f"the sweep is larger than {MAX_FILE_BYTES:,} bytes")
+    plan = admit(text, folder=data_root, rules=SERVICE)
+    url = confine_output(plan.sweep.output, data_root)
+    root = data_root.rstrip("/")
+    for group in parents(url):
+        if not group.startswith(f"{root}/"):
+            break
+        if storage.root_attributes(group, storage_options) is not None:
+            inside = group[len(root) + 1 :]
+            raise UnusableOutputError(
+                f"output: {shown(plan.sweep.output)} lies inside the store {shown(inside)}"
+            )
+    with storage.storage_errors(url):
+        check_output(
+            plan,
+            url,
+            resume=mode == "resume",
+            overwrite=mode == "overwrite",
+            storage_options=storage_options,
+            name=f"output: {shown(plan.sweep.output)}",
+            rules=SERVICE,
+        )
+    return plan, url

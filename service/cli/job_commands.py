@@ -1,0 +1,167 @@
+"""The job service's commands: ``serve`` and its clients.
+
+The clients are ``submit``, ``jobs``, ``status`` and ``cancel`` (their arguments are in
+`service.cli.parser`).
+
+The clients find the service at ``--server`` or ``OCEANLIDAR_SERVER`` and send the token of
+``--token-file`` or ``OCEANLIDAR_TOKEN``. Exit codes as the rest of the CLI: 0 success, 2
+bad input (a sweep or request the service refused, a wrong token, an unknown job), 1
+failure (the service unreachable or full, a job that failed or was cancelled).
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import os
+import sys
+import time
+import urllib.error
+import urllib.parse
+import urllib.request
+
+from service.cli.parser import DEFAULT_SERVER
+from service.errors import InputError
+from service.inputs import read_text
+from service.records import JobState
+
+__all__ = ["cmd_cancel", "cmd_jobs", "cmd_serve", "cmd_status", "cmd_submit"]
+
+TIMEOUT = 30.0
+"""Seconds to wait for the service's answer to a request."""
+
+
+class UnavailableError(RuntimeError):
+    """The service cannot be reached, or cannot take the request now."""
+
+
+def _token(args) -> str:
+    if args.token_file is None:
+        return os.environ.get("OCEANLIDAR_TOKEN", "").strip()
+    lines = read_text(args.token_file, place=f"--token-file {args.token_file}").split()
+    return lines[-1] if lines else ""
+
+
+def _request(args, method: str, path: str, body: bytes | None = None, *, stream=False):
+    """The service's JSON answer (or, with `stream`, the open response).
+
+    Raises
+    ------
+    InputError
+        If the service refused the request as bad (4xx but 429): its message (the
+        service's answer names no kind).
+    UnavailableError
+        If it cannot be reached, is full (429) or failed (5xx).
+    """
+    base = args.server or os.environ.get("OCEANLIDAR_SERVER") or DEFAULT_SERVER
+    request = urllib.request.Request(base.rstrip("/") + path, data=body, method=method)
+    if token := _token(args):
+        request.add_header("Authorization", f"Bearer {token}")
+    try:
+        response = urllib.request.urlopen(request, timeout=None if stream else TIMEOUT)
+    except urllib.error.HTTPError as error:
+        try:
+            message = json.loads(error.read()).get("error", error.reason)
+        except ValueError:
+            message = error.reason
+        if 400 <= error.code < 500 and error.code != 429:
+            raise InputError(message) from None
+        raise UnavailableError(f"{base}: {error.code} {message}") from None
+    except (urllib.error.URLError, OSError) as error:
+        reason = getattr(error, "reason", error)
+        raise UnavailableError(f"cannot reach the service at {base}: {reason}") from None
+    if stream:
+        return response
+    with response:
+        return json.loads(response.read())
+
+
+def _line(job: dict) -> str:
+    done, total = job["samples"]["done"], job["samples"]["total"]
+    left = f", {job['seconds_left']:.0f} s left" if job.get("seconds_left") is not None else ""
+    return (
+        f"{job['id']}  {job['state']:<9}  {done}/{total} samples  {job['rate']:.2f}/s{left}  "
+        f"{job['name']} -> {job['url']}"
+    )
+
+
+def _final(job: dict) -> int:
+    for sample, reason in list(job["errors"].items())[:20]:
+        print(f"  sample {sample}: {reason}", file=sys.stderr)
+    if job["message"]:
+        print(f"  {job['message']}", file=sys.stderr)
+    return 1 if job["state"] in (JobState.FAILED, JobState.CANCELLED) else 0
+
+
+def _client(command):
+    """`command`, with the service unreachable or full reported as a failure (exit 1)."""
+
+    @functools.wraps(command)
+    def run(args) -> int:
+        try:
+            return command(args)
+        except UnavailableError as error:
+            print(f"oceanlidar {args.command}: error: {error}", file=sys.stderr)
+            return 1
+
+    return run
+
+
+@_client
+def cmd_submit(args) -> int:
+    """Submit a sweep file; print the job's id."""
+    text = read_text(args.sweep, place=args.sweep).encode()
+    mode = "resume" if args.resume else "overwrite" if args.overwrite else "new"
+    job = _request(args, "POST", f"/v1/jobs?mode={mode}", text)
+    print(job["id"])
+    print(_line(job), file=sys.stderr)
+    return 0
+
+
+@_client
+def cmd_jobs(args) -> int:
+    """List the service's jobs, newest first."""
+    query = f"?{urllib.parse.urlencode({'state': args.state})}" if args.state else ""
+    for job in _request(args, "GET", f"/v1/jobs{query}")["jobs"]:
+        print(_line(job))
+    return 0
+
+
+@_client
+def cmd_status(args) -> int:
+    """A job's state and progress; ``--watch`` follows its events until it finishes."""
+    path = f"/v1/jobs/{urllib.parse.quote(args.id, safe='')}"
+    if not args.watch:
+        job = _request(args, "GET", path)
+        print(_line(job))
+        return _final(job)
+    job = None
+    with _request(args, "GET", f"{path}/events", stream=True) as events:
+        for raw in events:
+            line = raw.decode().rstrip("\n")
+            if line.startswith("data: "):
+                job = json.loads(line[6:])
+                print(_line(job), flush=True)
+    if job is None or not JobState(job["state"]).final:
+        raise UnavailableError("the event stream ended before the job finished")
+    return _final(job)
+
+
+@_client
+def cmd_cancel(args) -> int:
+    """Cancel a job; wait until its running tasks have stopped."""
+    path = f"/v1/jobs/{urllib.parse.quote(args.id, safe='')}"
+    job = _request(args, "DELETE", path)
+    while job["state"] == JobState.RUNNING:  # cancelling: running tasks stop within seconds
+        time.sleep(0.5)
+        job = _request(args, "GET", path)
+    print(_line(job))
+    return 0
+
+
+def cmd_serve(args) -> int:
+    """Run the job service until interrupted."""
+    from service.cli.run_commands import security
+    from service.server import serve
+
+    return serve(args, security(args))

@@ -1,0 +1,207 @@
+"""The service's records: a job of the job service (`Job`, `JobState`) and a run (`RunResult`).
+
+A job is a row of the job table (`service.jobs.JobTable`) read into a `Job`; what the API
+shows of it is `Job.public` (the JSON of ``/v1/jobs``). A run's outcome is a `RunResult`
+(`service.run.execute`); its `RunResult.problems` is the one report of the samples it could
+not write, printed by ``oceanlidar run`` and stored as a job's ``errors``.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from enum import StrEnum
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy as np
+
+__all__ = ["ACTIVE", "Job", "JobState", "RunResult"]
+
+
+class JobState(StrEnum):
+    """Where a job is: waiting, running, or finished one of three ways.
+
+    The values are the API's state strings and the job table's.
+    """
+
+    QUEUED = "queued"
+    RUNNING = "running"
+    SUCCEEDED = "succeeded"
+    FAILED = "failed"
+    CANCELLED = "cancelled"
+
+    @property
+    def final(self) -> bool:
+        """Whether the job has finished (it moves no more)."""
+        return self not in ACTIVE
+
+
+ACTIVE = (JobState.QUEUED, JobState.RUNNING)
+"""The states of unfinished jobs."""
+
+
+@dataclass
+class Job:
+    """One submitted sweep: its text (never credentials), owner, state and progress.
+
+    Attributes
+    ----------
+    id, owner, name : str
+        The job's id, who submitted it, and its sweep's name.
+    state : JobState
+    mode : str
+        ``new``, ``resume`` or ``overwrite`` (`service.admission.MODES`).
+    sweep : str
+        The sweep's YAML text as submitted.
+    output, url : str
+        The sweep's output as written, and the store it names under the data root.
+    submitted, started, finished : float or None
+        Seconds since the epoch.
+    total, done : int
+        Samples of the sweep, and samples complete.
+    rate : float
+        Samples a second of the run.
+    message : str or None
+        Why it failed or was cancelled.
+    errors : dict
+        The reason of each sample not written, by sample (`RunResult.problems`).
+    interrupted : bool
+        Whether a service stopped while it ran (it resumes at the next start).
+    """
+
+    id: str
+    owner: str
+    name: str
+    state: JobState
+    mode: str
+    sweep: str
+    output: str
+    url: str
+    submitted: float
+    total: int
+    started: float | None = None
+    finished: float | None = None
+    done: int = 0
+    rate: float = 0.0
+    message: str | None = None
+    errors: dict[str, str] = field(default_factory=dict)
+    interrupted: bool = False
+
+    @classmethod
+    def from_row(cls, row: dict) -> Job:
+        """The job of a job-table row (its columns by name)."""
+        return cls(
+            **{
+                **row,
+                "state": JobState(row["state"]),
+                "errors": json.loads(row["errors"]),
+                "interrupted": bool(row["interrupted"]),
+            }
+        )
+
+    def row(self) -> dict:
+        """The job-table row of this job, its columns by name."""
+        return self.columns(**vars(self))
+
+    @staticmethod
+    def columns(**values) -> dict:
+        """Job fields by name as the job table's columns hold them (JSON, integers)."""
+        converters = {"state": str, "errors": json.dumps, "interrupted": int}
+        return {
+            name: converters.get(name, lambda value: value)(value)
+            for name, value in values.items()
+        }
+
+    def public(self) -> dict:
+        """The job as the API shows it."""
+        left = (self.total - self.done) / self.rate if self.rate > 0 else None
+        return {
+            "id": self.id,
+            "name": self.name,
+            "owner": self.owner,
+            "state": self.state.value,
+            "mode": self.mode,
+            "output": self.output,
+            "submitted": self.submitted,
+            "started": self.started,
+            "finished": self.finished,
+            "url": self.url,
+            "samples": {"done": self.done, "total": self.total},
+            "rate": self.rate,
+            "seconds_left": left if self.state is JobState.RUNNING else None,
+            "message": self.message,
+            "resumed": self.interrupted,
+            "errors": self.errors,
+        }
+
+
+@dataclass
+class RunResult:
+    """What a run did.
+
+    ``failed`` holds ``(start, count, error)`` for tasks that raised or lost their worker;
+    ``refused`` holds ``(sample, reason)`` for samples whose scene cannot be rendered
+    (`workers.section.SceneError`: bad input, not retried); ``rejected`` holds
+    ``(sample, reason)`` for samples rendered with invalid values
+    (`service.integrity.invalid_values`); neither are written nor marked complete; ``damaged``
+    holds ``(sample, reason)`` for samples that ``verify`` found damaged and recomputed;
+    ``relabelled`` names the labels and coordinates it found wrong and wrote again;
+    ``stuck`` holds ``(start, count)`` for tasks given up `task_timeout` seconds after
+    their submission; ``stopped`` says why a run stopped early (a storage failure no retry
+    cures); ``points`` holds the parameter points whose samples a resumed run (re)wrote
+    (None: all).
+    """
+
+    total: int
+    task_timeout: float
+    written: int = 0
+    skipped: int = 0
+    failed: list = field(default_factory=list)
+    refused: list = field(default_factory=list)
+    rejected: list = field(default_factory=list)
+    damaged: list = field(default_factory=list)
+    relabelled: list = field(default_factory=list)
+    stuck: list = field(default_factory=list)
+    stopped: str | None = None
+    seconds: float = 0.0
+    interrupted: bool = False
+    max_in_flight: int = 0
+    points: np.ndarray | None = None
+
+    @property
+    def ok(self) -> bool:
+        """Whether every sample was written: nothing interrupted, failed, refused or stopped."""
+        return not (
+            self.interrupted
+            or self.failed
+            or self.refused
+            or self.rejected
+            or self.stuck
+            or self.stopped
+        )
+
+    def problems(self) -> dict[str, list[tuple[int, str]]]:
+        """The samples not written, ``(sample, reason)``, by what happened to them.
+
+        Four kinds, in this order: refused (a scene that cannot be rendered), not stored
+        (invalid values), failed (a task that raised or lost its worker), stuck (a task
+        given up); a kind with no sample is left out. A run that `stopped` or was
+        interrupted may have left samples unwritten that are none of these.
+        """
+        stuck = f"no result {self.task_timeout:g} s after submission (a frozen worker?); given up"
+        kinds = {
+            "refused (bad input, not retried)": self.refused,
+            "not stored": self.rejected,
+            "failed": [
+                (sample, error)
+                for start, count, error in self.failed
+                for sample in range(start, start + count)
+            ],
+            "stuck": [
+                (sample, stuck)
+                for start, count in self.stuck
+                for sample in range(start, start + count)
+            ],
+        }
+        return {kind: samples for kind, samples in kinds.items() if samples}
