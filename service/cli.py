@@ -16,9 +16,10 @@ from __future__ import annotations
 import logging
 import sys
 
-from service import client, integrity, run_commands, store_commands
+from service import client, run_commands, store_commands
 from service.inputs import SweepError
 from service.parser import parser
+from service.store.shards import DamagedStoreError
 
 __all__ = ["main"]
 
@@ -96,7 +97,7 @@ def main(argv=None) -> int:
     except SweepError as error:
         print(f"oceanlidar {args.command}: error: {_capped(str(error))}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except integrity.DamagedStoreError as error:
+    except DamagedStoreError as error:
         print(f"oceanlidar {args.command}: error: {error}", file=sys.stderr)
         return EXIT_FAILURE
     except KeyboardInterrupt:

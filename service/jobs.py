@@ -23,9 +23,9 @@ import uuid
 
 import fsspec
 
-from service import integrity, storage, store
 from service.inputs import MAX_FILE_BYTES, SweepError, shown
 from service.run import execute
+from service.store.template import check_uniform
 from service.sweep import DEFAULT_MAX_MEMORY, parse_sweep
 
 __all__ = [
@@ -230,24 +230,20 @@ class Runner:
         The jobs.
     client : distributed.Client
         The one cluster every job runs on.
-    data_root : str
+    data_root : Store
         Folder or object-storage prefix that every output lies under and every
-        measurement file is read from.
+        measurement file is read from, with the fsspec options of the service (never a
+        submitter's).
     max_running : int
         Jobs run at once; the others wait, in order.
     queue_limit : int
         Most unfinished (queued or running) jobs; more are refused (`QueueFullError`).
     batch_size : int or None
-        Samples per shard and task of a new store; None: `service.store.shard_size`'s.
-    storage_options : dict or None
-        fsspec options of the data root (the service's, never a submitter's).
+        Samples per shard and task of a new store; None: `service.store.layout.shard_size`'s.
     """
 
-    def __init__(
-        self, table, client, *, data_root, max_running, queue_limit, batch_size, storage_options
-    ):
-        self.table, self.client = table, client
-        self.data_root, self.storage_options = data_root, storage_options
+    def __init__(self, table, client, *, data_root, max_running, queue_limit, batch_size):
+        self.table, self.client, self.data_root = table, client, data_root
         self.max_running, self.queue_limit, self.batch_size = max_running, queue_limit, batch_size
         self._running: dict[str, tuple[threading.Thread, threading.Event]] = {}
         self._stop = threading.Event()
@@ -280,20 +276,20 @@ class Runner:
             raise SweepError(f"mode: must be one of {', '.join(MODES)}, got {shown(mode)}")
         if len(text.encode()) > MAX_FILE_BYTES:
             raise SweepError(f"the sweep is larger than {MAX_FILE_BYTES:,} bytes")
-        plan = parse_sweep(text, folder=self.data_root, max_memory=DEFAULT_MAX_MEMORY)
+        plan = parse_sweep(text, folder=self.data_root.url, max_memory=DEFAULT_MAX_MEMORY)
         plan.check_limits(remedy="split it into smaller sweeps (the service's limit)")
-        store.check_uniform(plan)
-        url = confine_output(plan.sweep.output, self.data_root)
-        root = self.data_root.rstrip("/")
+        check_uniform(plan)
+        url = confine_output(plan.sweep.output, self.data_root.url)
+        root = self.data_root.url.rstrip("/")
         for group in _parents(url):
             if not group.startswith(f"{root}/"):
                 break
-            if storage.root_attributes(group, self.storage_options) is not None:
+            if self.data_root.other(group).attributes() is not None:
                 inside = group[len(root) + 1 :]
                 raise SweepError(
                     f"output: {shown(plan.sweep.output)} lies inside the store {shown(inside)}"
                 )
-        if mode == "new" and storage.occupied(url, self.storage_options):
+        if mode == "new" and self.data_root.other(url).occupied():
             raise SweepError(
                 f"output: {shown(plan.sweep.output)} already exists; submit with mode "
                 "resume (oceanlidar submit --resume) to complete it or overwrite "
@@ -380,22 +376,22 @@ class Runner:
             self.table.update(job_id, done=done, rate=rate)
 
         try:
-            plan = parse_sweep(job["sweep"], folder=self.data_root, max_memory=None)
+            plan = parse_sweep(job["sweep"], folder=self.data_root.url, max_memory=None)
+            store = self.data_root.other(job["url"])
             # an interrupted job resumes its own store (this sweep's, by its hash); one that
             # was stopped before it made it (an overwrite that had not yet deleted the old
             # store) starts as it was asked
-            attributes = storage.root_attributes(job["url"], self.storage_options) or {}
+            attributes = store.attributes() or {}
             resume = job["mode"] == "resume" or (
                 bool(job["interrupted"]) and attributes.get("sweep_sha256") == plan.digest
             )
             with open(os.devnull, "w") as quiet:
                 result = execute(
                     plan,
-                    job["url"],
+                    store,
                     client=self.client,
                     resume=resume,
                     overwrite=job["mode"] == "overwrite" and not resume,
-                    storage_options=self.storage_options,
                     batch_size=self.batch_size,
                     progress_stream=quiet,
                     cancel=cancel,
@@ -418,9 +414,7 @@ class Runner:
             if self._stop.is_set():  # the service stops: resume at its next start
                 self.table.update(job_id, interrupted=1)
                 return
-            done = int(
-                integrity.completed_samples(job["url"], storage_options=self.storage_options).sum()
-            )
+            done = int(store.completed().sum())
             message = "cancelled; submit it again with resume to complete it"
             self.table.set_state(job_id, "cancelled", message=message, done=done, **fields)
         elif errors or result.stopped:

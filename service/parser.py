@@ -10,7 +10,7 @@ import argparse
 
 from service.client import add_commands
 from service.inputs import json_object
-from service.store import package_version
+from service.store.layout import package_version
 from service.sweep import DEFAULT_MAX_MEMORY
 
 __all__ = ["parser"]

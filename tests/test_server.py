@@ -19,8 +19,9 @@ import urllib.request
 import pytest
 from conftest import TINY_SWEEP, assert_same_samples, cli_command, free_port, run_cli
 
-from service import integrity, storage
 from service.cli import main
+from service.store.location import KIND, Store
+from service.store.lock import LOCK_NAME
 
 TOKEN = "s3cret-token"
 LONG = 40
@@ -172,7 +173,7 @@ def test_submit_and_watch_gives_the_bytes_of_run(
     job = service.job(job_id)
     assert job["owner"] == "alice" and job["errors"] == {}
     assert_same_samples(job["url"], reference, names=None)
-    assert storage.root_attributes(storage.stats_url(job["url"]))[storage.KIND] == "statistics"
+    assert Store(job["url"]).stats.attributes()[KIND] == "statistics"
     assert main(["jobs", "--state", "succeeded"]) == 0
     assert job_id in capsys.readouterr().out
 
@@ -224,11 +225,11 @@ def test_cancel_stops_the_job_and_resume_completes_it(service, reference, monkey
     assert status == 200 and job["state"] in ("running", "cancelled"), job
     job = service.wait(job_id, finished)
     assert job["state"] == "cancelled", job
-    complete = integrity.completed_samples(job["url"])
+    complete = Store(job["url"]).completed()
     time.sleep(2.0)  # nothing runs on after the cancel
-    assert (integrity.completed_samples(job["url"]) == complete).all()
+    assert (Store(job["url"]).completed() == complete).all()
     assert 4 <= complete.sum() < 2 * LONG
-    assert not os.path.exists(f"{job['url']}/{storage.LOCK_NAME}")
+    assert not os.path.exists(f"{job['url']}/{LOCK_NAME}")
     client(monkeypatch, service)
     assert main(["status", job_id]) == 1
     status, refused = service.submit(text)
@@ -262,10 +263,10 @@ def test_cancel_lets_no_task_write_on(service):
     assert service.request("DELETE", f"/v1/jobs/{job_id}")[0] == 200
     job = service.wait(job_id, finished)
     assert job["state"] == "cancelled", job
-    complete = integrity.completed_samples(job["url"])
+    complete = Store(job["url"]).completed()
     assert complete.sum() == job["samples"]["done"] < 8
     time.sleep(1.0)  # tasks that were executing ended before the job said cancelled
-    assert (integrity.completed_samples(job["url"]) == complete).all()
+    assert (Store(job["url"]).completed() == complete).all()
 
 
 def test_sigkill_mid_job_then_restart_resumes(reference, tmp_path, monkeypatch, capsys):
@@ -278,10 +279,10 @@ def test_sigkill_mid_job_then_restart_resumes(reference, tmp_path, monkeypatch, 
         server.wait(first, lambda job: job["samples"]["done"] >= 6)
         server.kill()
         url = str(tmp_path / "data" / "killed.zarr")
-        assert 6 <= integrity.completed_samples(url).sum() < 2 * LONG
+        assert 6 <= Store(url).completed().sum() < 2 * LONG
         # the server comes back as another process on another host (a restarted pod): the
         # lock its job left still names the job, and is taken over
-        lock = tmp_path / "data" / "killed.zarr" / storage.LOCK_NAME
+        lock = tmp_path / "data" / "killed.zarr" / LOCK_NAME
         holder = json.loads(lock.read_text())
         lock.write_text(json.dumps({**holder, "host": "an-earlier-pod", "pid": 1}))
         # a job killed as it started, before its overwrite had replaced the old store
@@ -302,7 +303,7 @@ def test_sigkill_mid_job_then_restart_resumes(reference, tmp_path, monkeypatch, 
         assert job["state"] == "succeeded" and job["resumed"], job
         assert_same_samples(url, reference, names=None)
         assert server.wait(second, finished)["state"] == "succeeded"
-        done = integrity.completed_samples(replaced)
+        done = Store(replaced).completed()
         assert done.size == 2 and done.all()  # one realisation of two points: replaced
         assert server.job(third)["state"] == "cancelled"
         assert not (tmp_path / "data" / "dropped.zarr").exists()

@@ -11,8 +11,10 @@ import pytest
 import xarray as xr
 from conftest import cli_command, run_cli
 
-from service import store
 from service.inputs import SweepError
+from service.store import template
+from service.store.location import Store
+from service.store.template import create_store
 from service.sweep import load_sweep, memory_estimate, parse_sweep
 from workers.render import render
 from workers.scene import Scene
@@ -477,9 +479,9 @@ def test_the_store_carries_every_swept_fields_unit(tmp_path):
     lines = "".join(f"    {path}: {{values: {v}}}\n" for path, v in values.items())
     plan = parse_sweep(BASE + "sweep:\n  method: zip\n  parameters:\n" + lines)
     url = str(tmp_path / "units.zarr")
-    store.create_store(plan, url)
+    create_store(plan, Store(url))
     ds = xr.open_zarr(url)
-    names = {path: name for name, path in store.swept_parameters(ds).items()}
+    names = {path: name for name, path in template.swept_parameters(ds).items()}
     assert {path: ds[names[path]].attrs["units"] for path in expected} == expected
 
 
