@@ -15,7 +15,7 @@ wrong without reading the message, and the job server answers each with its HTTP
 - `LockedError`: an output another writer holds (an unusable output);
 - `TooBigError`: a sweep over the size or memory limits.
 
-Failures (exit 1) are apart: a store found damaged (`service.integrity.DamagedStoreError`),
+Failures (exit 1) are apart: a store found damaged (`service.store.shards.DamagedStoreError`),
 a scene that validates but cannot be rendered (`workers.section.SceneError`), a run that
 failed or was interrupted.
 """

@@ -69,7 +69,7 @@ class JobTable:
     The service holds an exclusive lock on ``PATH.lock`` (``flock``) while the table is
     open, released by the system when its process ends however it ends: a job found
     ``running`` at start was left by a service that has died, whose store locks (they
-    name the job) may then be taken over (`service.lock.writer_lock`).
+    name the job) may then be taken over (`service.store.lock.writer_lock`).
 
     Parameters
     ----------

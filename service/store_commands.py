@@ -98,7 +98,7 @@ def cmd_info(args) -> int:
 
 
 def _label_problems(store: Store, ds) -> dict:
-    """Print and return `service.integrity.wrong_labels` of the store, if its sweep loads."""
+    """Print and return `service.store.integrity.wrong_labels` of the store, if its sweep loads."""
     try:
         plan = parse_sweep(ds.attrs["sweep"], max_memory=None)
     except SweepError as error:  # e.g. a measurement file the sweep names is not here

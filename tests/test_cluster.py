@@ -138,7 +138,10 @@ def test_a_killed_client_resumes_to_the_same_bytes(cluster, tmp_path):
     assert again.returncode == 0, again.stderr
     reference = str(tmp_path / "reference.zarr")
     execute(
-        parse_sweep(sweep.read_text()), reference, workers=1, progress_stream=open(os.devnull, "w")
+        parse_sweep(sweep.read_text()),
+        Store.at(reference),
+        workers=1,
+        progress_stream=open(os.devnull, "w"),
     )
     assert_same_samples(str(target), reference)
 

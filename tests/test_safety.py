@@ -16,7 +16,7 @@ import xarray as xr
 from conftest import TINY_SCENE, TINY_SWEEP, run_cli, start_cli
 
 from service.cli import main
-from service.store import integrity, lock
+from service.store import integrity, lock, shards
 from service.store.location import KIND, Store
 from service.store.lock import LOCK_NAME
 from service.store.template import create_store
@@ -289,7 +289,7 @@ def test_lost_or_damaged_labels_are_found_and_written_again(work, capsys):
     quiet = open(os.devnull, "w")
     result = execute(
         plan,
-        "one.zarr",
+        Store.at("one.zarr"),
         workers=1,
         resume=True,
         verify=True,
@@ -516,7 +516,7 @@ def test_a_full_disk_stops_the_run_with_one_message(tmp_path, monkeypatch, capsy
         tasks.add(min(samples))
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(integrity, "write_shard", full)
+    monkeypatch.setattr(shards, "write_shard", full)
     sweep = tiny_sweep(tmp_path, realisations=10)
     assert main(["run", str(sweep), "--output", str(tmp_path / "t.zarr"), "--batch", "1"]) == 1
     err = capsys.readouterr().err

@@ -521,11 +521,10 @@ def test_one_service_a_table_and_no_store_inside_another(tmp_path):
     runner = Runner(
         table,
         None,  # nothing runs: the queue is not worked
-        data_root=str(tmp_path / "data"),
+        data_root=Store(str(tmp_path / "data")),
         max_running=1,
         queue_limit=10,
         batch_size=1,
-        storage_options=None,
     )
     runner.submit(sweep("runs/a.zarr"), owner="alice")
     for output, reason in [

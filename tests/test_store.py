@@ -261,7 +261,7 @@ def test_a_shard_whose_task_is_given_up_goes_to_no_other_task(tmp_path, monkeypa
     url = str(tmp_path / "s.zarr")
     result = execute(
         plan,
-        url,
+        Store.at(url),
         workers=1,
         batch_size=3,
         task_timeout=3.0,
