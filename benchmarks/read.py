@@ -1,7 +1,7 @@
 """Read throughput of a store: the training reader against xarray, samples per second.
 
 Renders a sweep of 128-pixel six-gate samples with noise into a local store (shards as
-`service.store.shard_size` chooses by default: 40 samples), then reads every sample in a
+`service.store.layout.shard_size` chooses by default: 40 samples), then reads every sample in a
 shuffled order, as a training epoch does, four ways: `service.dataset.SampleDataset` in
 batches (``__getitems__``, what a ``torch.utils.data.DataLoader`` with a batch sampler
 calls) and one item at a time (``__getitem__``), and ``xr.open_zarr`` in batches and one
@@ -26,7 +26,8 @@ import xarray as xr
 from service.cluster import dask_client
 from service.dataset import SampleDataset
 from service.run import run_plan
-from service.store import create_store
+from service.store.location import Store
+from service.store.template import create_store
 from service.sweep import parse_sweep
 
 SWEEP = """\
@@ -54,9 +55,9 @@ def main():
     batches = [order[i : i + args.batch] for i in range(0, len(order), args.batch)]
     with tempfile.TemporaryDirectory() as folder:
         url = os.path.join(folder, "read.zarr")
-        create_store(plan, url)
+        create_store(plan, Store(url))
         with dask_client(workers=2, scheduler=None) as client, open(os.devnull, "w") as quiet:
-            run_plan(plan, url, client=client, progress_stream=quiet)
+            run_plan(plan, Store(url), client=client, progress_stream=quiet)
         size = sum(
             os.path.getsize(os.path.join(root, f))
             for root, _, files in os.walk(url)

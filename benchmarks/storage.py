@@ -14,12 +14,14 @@ import os
 import tempfile
 from pathlib import Path
 
-from service import store
 from service.run import render_shard, task_batches
+from service.store.location import Store
+from service.store.template import create_store
 from service.sweep import load_sweep
+from workers.variables import rendered_order
 
 ROOT = Path(__file__).resolve().parent.parent
-PER_SAMPLE = (*store.RENDERED_VARIABLES, "completed", "checksum")
+PER_SAMPLE = (*rendered_order(), "completed", "checksum")
 
 
 def stored_bytes(url: str, names=PER_SAMPLE) -> int:
@@ -43,9 +45,9 @@ def per_sample(plan, samples: int, *, expected: bool, folder: str) -> tuple[floa
     )
     one = dataclasses.replace(plan, sweep=sweep, points=plan.points[:1], scenes=plan.scenes[:1])
     url = os.path.join(folder, f"{plan.sweep.name}-{expected}.zarr")
-    store.create_store(one, url, samples_per_shard=samples)
+    create_store(one, Store(url), samples_per_shard=samples)
     for _, jobs in task_batches(one, range(samples), samples):
-        render_shard(url, jobs)
+        render_shard(Store(url), jobs)
     return stored_bytes(url) / samples, stored_bytes(url, ["surface_elevation"]) / samples
 
 
@@ -65,7 +67,7 @@ def main():
             scene = plan.scenes[0]
             bare, surface = per_sample(plan, args.samples, expected=False, folder=folder)
             full, _ = per_sample(plan, args.samples, expected=True, folder=folder)
-            image = store.widest_image(plan)[1].name
+            image = plan.image_dtype().name
             name = str(Path(path).resolve().relative_to(ROOT))
             print(
                 f"{name:32} {scene.receiver.pixels:6d} {image:>7} {bare / 1024:10.1f} "

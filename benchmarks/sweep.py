@@ -21,11 +21,11 @@ does; the overhead against the two loops is printed too.
 
 Usage: ``python benchmarks/sweep.py [--samples 192] [--rounds 3] [--pixels 128] [--batch N]``
 (``--batch``: samples a shard and a task, as ``oceanlidar run --batch``; by default the
-store's choice, `service.store.shard_size`: 8 for the default 64-sample rounds, 40 with
+store's choice, `service.store.layout.shard_size`: 8 for the default 64-sample rounds, 40 with
 ``--samples 960``).
 
 Third session of 2026-11-24, the quiet machine (load 0.5–1.4), ``--samples 960``, shards
-of 40, two runs (the second after `service.integrity.write_shard` stopped comparing chunks
+of 40, two runs (the second after `service.store.shards.write_shard` stopped comparing chunks
 with the fill value: 0.25–0.3 ms less a sample in `write_shard` alone, within this script's
 noise): loop 57.0 / 57.2 samples/s (17.5 ms CPU), two loops side by side 1.90 times one;
 ``render_shard`` in-process 9.5 / 8.6 %; **1 worker 12.1 / 9.8 %**; 2 workers 17.4 /
@@ -117,10 +117,12 @@ import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
 
-from service import store
 from service.cluster import dask_client
 from service.run import render_shard, run_plan, task_batches
 from service.stats import write_statistics
+from service.store import layout
+from service.store.location import Store
+from service.store.template import create_store
 from service.sweep import parse_sweep
 from service.tuning import tune_allocator
 from workers.render import render_arrays
@@ -153,7 +155,7 @@ def in_process(way: str, text: str, url: str, batch: int, part=(0, 1)) -> tuple[
     tune_allocator()
     plan = parse_sweep(text)
     if way == "inline":
-        store.create_store(plan, url, samples_per_shard=batch)
+        create_store(plan, Store(url), samples_per_shard=batch)
     start, cpu = time.perf_counter(), time.process_time()
     if way == "loop":
         for sample in range(part[0], plan.samples, part[1]):
@@ -162,7 +164,7 @@ def in_process(way: str, text: str, url: str, batch: int, part=(0, 1)) -> tuple[
             render_arrays(plan.scenes[point], seed=seed)
     else:
         for _, jobs in task_batches(plan, range(plan.samples), batch):
-            render_shard(url, jobs)
+            render_shard(Store(url), jobs)
     return time.perf_counter() - start, time.process_time() - cpu
 
 
@@ -181,7 +183,7 @@ def main():
         parse_sweep(SWEEP.format(seed=seed, realisations=per_round, pixels=args.pixels))
         for seed in range(1, args.rounds + 1)
     ]
-    args.batch = store.shard_size(plans[0], args.batch)
+    args.batch = layout.shard_size(plans[0], args.batch)
     ways = ["loop", "pair", "inline", *WORKERS]
     wall = dict.fromkeys(ways, 0.0)
     cpu = dict.fromkeys(ways, 0.0)  # this process
@@ -205,16 +207,16 @@ def main():
         for n, client in clients.items():
             client.run(tune_allocator)
             warm = os.path.join(folder, f"warm{n}.zarr")  # imports, per-scene caches
-            store.create_store(plans[0], warm, samples_per_shard=args.batch)
-            run_plan(plans[0], warm, client=client, progress_stream=quiet)
+            create_store(plans[0], Store(warm), samples_per_shard=args.batch)
+            run_plan(plans[0], Store(warm), client=client, progress_stream=quiet)
         for i, plan in enumerate(plans):
             for way in ways:
                 url = os.path.join(folder, f"{way}-{i}.zarr")
                 if way in WORKERS:
-                    store.create_store(plan, url, samples_per_shard=args.batch)
+                    create_store(plan, Store(url), samples_per_shard=args.batch)
                     before = clients[way].run(time.process_time)
                     start, cpu0 = time.perf_counter(), time.process_time()
-                    result = run_plan(plan, url, client=clients[way], progress_stream=quiet)
+                    result = run_plan(plan, Store(url), client=clients[way], progress_stream=quiet)
                     assert result.written == plan.samples
                     seconds = time.perf_counter() - start, time.process_time() - cpu0
                 elif way == "pair":  # two loops side by side: what two cores give
@@ -232,7 +234,7 @@ def main():
                     after = clients[way].run(time.process_time)
                     worker_cpu[way] += sum(after[w] - before[w] for w in before)
                     start = time.perf_counter()
-                    write_statistics(url)
+                    write_statistics(Store(url))
                     stats[way] += time.perf_counter() - start
             loads.append(os.getloadavg()[0])
     rate = {way: samples / wall[way] for way in ways}

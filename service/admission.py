@@ -16,10 +16,13 @@ from dataclasses import dataclass
 
 import fsspec
 
-from service import integrity, storage, store
+from service import package_version
 from service.errors import BadFileError, BadOptionError, UnusableOutputError
 from service.inputs import DEFAULT_MAX_MEMORY, MAX_FILE_BYTES, shown
 from service.stats import check_owner
+from service.store import integrity
+from service.store.location import KIND, Store
+from service.store.template import check_uniform
 from service.sweep import NO_LIMITS, Plan, parse_sweep
 
 __all__ = [
@@ -83,29 +86,28 @@ def admit(text: str, *, folder, rules: Rules = CLI) -> Plan:
     plan = parse_sweep(text, folder=folder, max_memory=rules.max_memory if rules.limits else None)
     if rules.limits:
         plan.check_limits(remedy=rules.too_big)
-    store.check_uniform(plan)
+    check_uniform(plan)
     return plan
 
 
 def check_output(
     plan: Plan,
-    url: str,
+    store: Store,
     *,
     resume: bool,
     overwrite: bool,
-    storage_options: dict | None,
     name: str | None = None,
     rules: Rules = CLI,
 ) -> tuple:
     """Check what is at the output before anything is written or deleted.
 
-    `name` is how messages name the output (default: its URL).
+    `name` is how messages name the output `store` (default: its URL).
 
     Returns
     -------
     tuple of (bool, list, list)
         Whether an existing store is resumed, and the files of the old store and of its
-        statistics that ``--overwrite`` deletes (`service.storage.removable_files`).
+        statistics that ``--overwrite`` deletes (`service.store.location.Store.removable`).
 
     Raises
     ------
@@ -113,19 +115,17 @@ def check_output(
         If the output or the statistics path holds something this run may not replace
         (the statistics of another store among them: `service.stats.check_owner`).
     """
-    name = name or url
-    check_owner(url, storage_options)
-    stats_files = storage.removable_files(
-        storage.stats_url(url), storage_options, kind="statistics"
-    )
-    if not storage.occupied(url, storage_options):
+    name = name or store.url
+    check_owner(store)
+    stats_files = store.stats.removable("statistics")
+    if not store.occupied():
         return False, [], []
     if not resume and not overwrite:
         raise UnusableOutputError(f"{name} already exists; {rules.exists}")
     if overwrite:
-        return False, storage.removable_files(url, storage_options, kind="samples"), stats_files
-    previous = storage.root_attributes(url, storage_options) or {}
-    if previous.get(storage.KIND) != "samples":
+        return False, store.removable("samples"), stats_files
+    previous = store.attributes() or {}
+    if previous.get(KIND) != "samples":
         raise UnusableOutputError(
             f"{name} is not an oceanlidar samples store; cannot resume into it"
         )
@@ -134,13 +134,13 @@ def check_output(
             f"{name} holds a different sweep (its hash differs); refusing to resume into it"
         )
     written_by = previous.get("oceanlidar_version")
-    if written_by != store.package_version():
+    if written_by != package_version():
         raise UnusableOutputError(
             f"{name} was written by oceanlidar {written_by}, this is "
-            f"{store.package_version()}: samples would differ; resume with that version "
+            f"{package_version()}: samples would differ; resume with that version "
             "or start again with --overwrite"
         )
-    if stale := integrity.stale_layout(url, plan, storage_options):
+    if stale := integrity.stale_layout(store, plan):
         raise UnusableOutputError(
             f"{name} was written with another layout of its samples ({', '.join(stale)} "
             "missing or shaped otherwise): start again with --overwrite"
@@ -191,11 +191,12 @@ def parents(url: str) -> list[str]:
     return ["/".join(parts[:depth]) for depth in range(len(parts) - 1, 0, -1)]
 
 
-def admit_job(text: str, mode: str, *, data_root: str, storage_options: dict | None) -> tuple:
+def admit_job(text: str, mode: str, *, data_root: Store) -> tuple:
     """Check a submitted sweep as ``oceanlidar run`` would; its plan and store URL.
 
     The sweep is admitted under the service's `SERVICE` rules, its output confined under
-    `data_root` (never inside another store) and checked for `mode` (one of `MODES`).
+    `data_root` (a folder or prefix with the service's storage options; never inside
+    another store) and checked for `mode` (one of `MODES`).
 
     Raises
     ------
@@ -206,24 +207,24 @@ def admit_job(text: str, mode: str, *, data_root: str, storage_options: dict | N
         raise BadOptionError(f"mode: must be one of {', '.join(MODES)}, got {shown(mode)}")
     if len(text.encode()) > MAX_FILE_BYTES:
         raise BadFileError(f"the sweep is larger than {MAX_FILE_BYTES:,} bytes")
-    plan = admit(text, folder=data_root, rules=SERVICE)
-    url = confine_output(plan.sweep.output, data_root)
-    root = data_root.rstrip("/")
+    plan = admit(text, folder=data_root.url, rules=SERVICE)
+    url = confine_output(plan.sweep.output, data_root.url)
+    root = data_root.url.rstrip("/")
     for group in parents(url):
         if not group.startswith(f"{root}/"):
             break
-        if storage.root_attributes(group, storage_options) is not None:
+        if data_root.other(group).attributes() is not None:
             inside = group[len(root) + 1 :]
             raise UnusableOutputError(
                 f"output: {shown(plan.sweep.output)} lies inside the store {shown(inside)}"
             )
-    with storage.storage_errors(url):
+    store = data_root.other(url)
+    with store.errors():
         check_output(
             plan,
-            url,
+            store,
             resume=mode == "resume",
             overwrite=mode == "overwrite",
-            storage_options=storage_options,
             name=f"output: {shown(plan.sweep.output)}",
             rules=SERVICE,
         )

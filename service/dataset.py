@@ -13,22 +13,15 @@ worker processes). README, "The dataset".
 
 from __future__ import annotations
 
-import json
 import os
 
-import google_crc32c
 import numpy as np
 import xarray as xr
-import zarr
-from numcodecs import Blosc, Zstd
 
-from service.integrity import DamagedStoreError
-from service.storage import filesystem
+from service.store.location import Store
+from service.store.shards import ShardReader
 
 __all__ = ["SampleDataset", "open_dataset"]
-
-EMPTY = 2**64 - 1
-"""Offset and length of an inner chunk that a shard does not hold (the fill value)."""
 
 SMALL_DIMENSIONS = frozenset({"sample", "frame", "gate"})
 """Variables with only these dimensions are loaded eagerly (bytes per sample: tens)."""
@@ -52,7 +45,7 @@ def open_dataset(url: str, *, storage_options: dict | None = None) -> xr.Dataset
         Images and masks lazy (dask, one sample per chunk); every variable whose
         dimensions are among ``sample``, ``frame`` and ``gate`` loaded.
     """
-    ds = xr.open_zarr(url, consolidated=True, storage_options=storage_options)
+    ds = Store(url, storage_options).dataset()
     small = [name for name, v in ds.variables.items() if set(v.dims) <= SMALL_DIMENSIONS]
     loaded = ds[small].load()
     ds = ds.assign(loaded.data_vars).assign_coords(loaded.coords)
@@ -61,87 +54,6 @@ def open_dataset(url: str, *, storage_options: dict | None = None) -> xr.Dataset
             if name in variable.attrs:
                 variable.attrs[name] = np.asarray(variable.attrs[name], dtype=variable.dtype)
     return ds
-
-
-DECODERS = {"zstd": Zstd, "blosc": Blosc}
-"""numcodecs decoders of the inner compressors `service.store` has written (Blosc frames
-carry their own settings; zstd before November 2026)."""
-
-
-def _endian(codec: dict) -> str:
-    """The byte order of a ``bytes`` codec entry of zarr.json (absent: single bytes)."""
-    return codec.get("configuration", {}).get("endian", "little")
-
-
-class _Shards:
-    """One sharded array of a store, read straight from its shard files.
-
-    The layout is `service.store`'s: shards of consecutive samples along the first axis,
-    one sample per inner chunk, inner codecs bytes (little-endian), zstd or Blosc (whose
-    frames carry their own settings) and CRC32C, and the shard's index at its end (two
-    little-endian uint64 per chunk, then its CRC32C), chunk files named ``c.4.0.0.0.0``.
-    Any other layout, which zarr would read but this reader would misread, is refused.
-    """
-
-    def __init__(self, fs, root: str, name: str) -> None:
-        meta = json.loads(fs.cat_file(f"{root}/{name}/zarr.json"))
-        sharding = meta["codecs"][0]
-        config = sharding.get("configuration", {})
-        codecs = config.get("codecs", [])
-        index = config.get("index_codecs", [])
-        names = [codec["name"] for codec in (*codecs, *index)]
-        keys = meta["chunk_key_encoding"]
-        if (
-            sharding["name"] != "sharding_indexed"
-            or len(codecs) != 3
-            or names[1] not in DECODERS
-            or names[:1] + names[2:] != ["bytes", "crc32c", "bytes", "crc32c"]
-            or _endian(codecs[0]) != "little"
-            or _endian(index[0]) != "little"
-            or config.get("index_location", "end") != "end"
-            or (keys["name"], keys.get("configuration", {}).get("separator")) != ("default", ".")
-        ):
-            raise ValueError(f"{root}: {name} is not stored in shards as service.store writes")
-        self.fs, self.name = fs, name
-        self.per_shard = int(meta["chunk_grid"]["configuration"]["chunk_shape"][0])
-        self.shape = tuple(config["chunk_shape"][1:])
-        self.dtype = np.dtype(meta["data_type"]).newbyteorder("<")
-        self.fill = np.asarray(meta["fill_value"]).astype(self.dtype)
-        self.key = f"{root}/{name}/c.{{}}" + ".0" * (len(meta["shape"]) - 1)
-        self.indexes: dict[int, np.ndarray | None] = {}
-        self.codec = DECODERS[names[1]]()
-
-    def _index(self, shard: int) -> np.ndarray | None:
-        """The shard's (offset, length) per sample; None if it holds nothing."""
-        if shard not in self.indexes:
-            size = 16 * self.per_shard + 4
-            try:
-                tail = self.fs.cat_file(self.key.format(shard), start=-size)
-            except FileNotFoundError:
-                self.indexes[shard] = None
-                return None
-            self._check(tail, f"shard {shard}'s index")
-            self.indexes[shard] = np.frombuffer(tail[:-4], "<u8").reshape(-1, 2)
-        return self.indexes[shard]
-
-    def _check(self, data: bytes, what: str) -> None:
-        if google_crc32c.value(data[:-4]) != int.from_bytes(data[-4:], "little"):
-            raise DamagedStoreError(
-                f"{what} of {self.name} fails its checksum; run the sweep again with "
-                "--resume --verify to recompute it"
-            )
-
-    def read(self, sample: int) -> np.ndarray:
-        """The sample's array (the fill value where it was never written)."""
-        shard, position = divmod(int(sample), self.per_shard)
-        index = self._index(shard)
-        if index is None or index[position, 0] == EMPTY:
-            return np.full(self.shape, self.fill, self.dtype)
-        offset, length = (int(v) for v in index[position])
-        data = self.fs.cat_file(self.key.format(shard), start=offset, end=offset + length)
-        self._check(data, f"sample {sample}: its chunk")
-        values = np.frombuffer(self.codec.decode(data[:-4]), self.dtype)
-        return values.reshape(self.shape)
 
 
 class SampleDataset:
@@ -173,7 +85,7 @@ class SampleDataset:
     Item ``i`` is the ``i``-th written sample, `sample_index` maps it to the store's
     ``sample``. An item is a dict of numpy arrays (one per name, without the ``sample``
     dimension) plus ``sample``. Arrays are read-only views of the decompressed chunk. A
-    chunk whose CRC32C fails raises `service.integrity.DamagedStoreError` naming it.
+    chunk whose CRC32C fails raises `service.errors.DamagedStoreError` naming it.
     """
 
     def __init__(
@@ -185,10 +97,9 @@ class SampleDataset:
         completed_only: bool = True,
         storage_options: dict | None = None,
     ) -> None:
-        self.url = url
-        self.storage_options = storage_options
+        self.store = Store(url, storage_options)
         self.arrays = tuple(arrays)
-        group = self._open()
+        group = self.store.group()
         missing = [name for name in (*self.arrays, *labels) if name not in group]
         if missing:
             known = ", ".join(sorted(group.array_keys()))
@@ -200,20 +111,11 @@ class SampleDataset:
         self.labels = {name: group[name][:] for name in labels}
         self._shards, self._pid = None, None
 
-    def _open(self):
-        return zarr.open_group(
-            store=self.url,
-            mode="r",
-            zarr_format=3,
-            use_consolidated=True,
-            storage_options=self.storage_options,
-        )
-
-    def _readers(self) -> dict[str, _Shards]:
+    def _readers(self) -> dict[str, ShardReader]:
         """The arrays' shard readers, made once per process (a forked worker remakes them)."""
         if self._shards is None or self._pid != os.getpid():
-            fs, root = filesystem(self.url, self.storage_options)
-            self._shards = {name: _Shards(fs, root, name) for name in self.arrays}
+            store = self.store.other(self.store.url)  # its file system made in this process
+            self._shards = {name: ShardReader(store, name) for name in self.arrays}
             self._pid = os.getpid()
         return self._shards
 

@@ -5,7 +5,7 @@ of the same scene (`pair_points`), reads both points' samples realisation by rea
 (pairs never cross realisations: row i of both saw the same sea; a store without the
 noise-free images has them rendered again from its sweep and seeds), scores them with the
 detectors of `workers.detection` on the dask cluster in use (one task per pair) and writes
-a detection dataset beside the store (`detection_url`). Variables, per positive point:
+a detection dataset beside the store (`detection_store`). Variables, per positive point:
 
 - ``score_positive``, ``score_negative`` (point, detector, realisation): every score, NaN
   where a detector is not evaluated (the trained one's training realisations);
@@ -28,13 +28,16 @@ import dask
 import numpy as np
 import xarray as xr
 
-from service import storage, store
+from service import package_version
 from service.errors import BadOptionError, BadSweepError, InputError
+from service.store.layout import CONVENTIONS
+from service.store.location import Store
+from service.store.template import swept_parameters
 from service.sweep import parse_sweep
 from workers.detection import DETECTORS, MIN_FALSE_ALARMS, evaluate_pair, held_out, roc_curve
 from workers.render import render_images
 
-__all__ = ["PFA", "detection_url", "pair_points", "write_detection"]
+__all__ = ["PFA", "detection_store", "pair_points", "write_detection"]
 
 PFA = (1e-1, 1e-2)
 """False-alarm probabilities at which the probability of detection is reported."""
@@ -46,16 +49,16 @@ DATASET_KIND = "detection"
 """``oceanlidar_dataset`` attribute of a detection dataset (what may be overwritten)."""
 
 
-def detection_url(url: str) -> str:
-    """Where the detection dataset of the store at `url` lives by default (beside it)."""
-    return storage.sibling_url(url, "detect")
+def detection_store(store: Store) -> Store:
+    """Where the detection dataset of `store` lives by default (beside it)."""
+    return store.sibling("detect")
 
 
 def _point_values(ds: xr.Dataset) -> tuple[list[str], list[dict]]:
     """The swept parameters and each point's values of them."""
     realisations = int(ds.attrs["realisations"])
     first = np.arange(int(ds.attrs["points"])) * realisations
-    names = store.swept_parameters(ds)
+    names = swept_parameters(ds)
     swept = list(names.values())
     columns = {path: ds[name].values[first].tolist() for name, path in names.items()}
     return swept, [{name: columns[name][p] for name in swept} for p in range(len(first))]
@@ -129,13 +132,13 @@ def _rendered_expected(plan, samples, image):
     return np.stack([expected for expected, _ in rendered]).astype(np.float64)
 
 
-def _evaluate(url, storage_options, positive, negative, realisations, test, plan):
+def _evaluate(store: Store, positive, negative, realisations, test, plan):
     """Read one pair's samples (the realisations written at both points) and score them.
 
     `plan`: the store's sweep, to render the expected images again when the store has none
     (None: read them).
     """
-    source = store.open_group(url, storage_options)
+    source = store.group()
     rows = {p: np.arange(realisations) + p * realisations for p in (positive, negative)}
     both = source["completed"].get_orthogonal_selection((rows[positive],)).astype(bool)
     both &= source["completed"].get_orthogonal_selection((rows[negative],)).astype(bool)
@@ -312,7 +315,7 @@ def _dataset(ds, pairs, results, realisations, test) -> xr.Dataset:
         "gate_top": ds["gate_top"].load(),
         "gate_bottom": ds["gate_bottom"].load(),
     }
-    for name in store.swept_parameters(ds):
+    for name in swept_parameters(ds):
         coord = ds[name]
         coords[name] = (
             "point",
@@ -322,36 +325,32 @@ def _dataset(ds, pairs, results, realisations, test) -> xr.Dataset:
     detection = xr.Dataset(data_vars, coords=coords)
     detection.attrs.update(
         title=ds.attrs.get("title", "") + " detection study",
-        Conventions=store.CONVENTIONS,
+        Conventions=CONVENTIONS,
         oceanlidar_dataset=DATASET_KIND,
         sweep_sha256=ds.attrs.get("sweep_sha256", ""),
-        oceanlidar_version=store.package_version(),
+        oceanlidar_version=package_version(),
         bootstrap="95 % percentile interval, 2000 resamples of realisation pairs, seed 0",
         **{f"detector_{name}": text for name, text in DETECTORS.items()},
     )
     return detection
 
 
-def write_detection(
-    url: str, *, output: str | None = None, storage_options: dict | None = None
-) -> tuple[str, list[int]]:
-    """Run the detection study of the store at `url` and write its dataset.
+def write_detection(store: Store, *, output: Store | None = None) -> tuple[Store, list[int]]:
+    """Run the detection study of `store` and write its dataset.
 
     Runs one task per positive point on the dask client in use, or on local threads.
 
     Parameters
     ----------
-    url : str
+    store : Store
         The sweep's store.
-    output : str, optional
-        Where to write (default `detection_url`); an earlier detection dataset there is
+    output : Store, optional
+        Where to write (default `detection_store`); an earlier detection dataset there is
         replaced, anything else is refused.
-    storage_options : dict, optional
-        fsspec options of both.
 
     Returns
     -------
-    target : str
+    target : Store
         Where the dataset was written.
     unpaired : list of int
         Points with a target left out for want of a target-free twin.
@@ -361,31 +360,28 @@ def write_detection(
     InputError
         A store that cannot be evaluated, or an output that is not a detection dataset.
     """
-    ds = store.open_store(url, storage_options=storage_options)
+    url = store.url
+    ds = store.dataset()
     _check_store(ds, url)
     pairs, unpaired = pair_points(ds)
-    target = output or detection_url(url)
-    if target.rstrip("/") == url.rstrip("/") or target.rstrip("/") == storage.stats_url(url):
-        raise BadOptionError(f"--output {target}: that is the sweep's own store or its statistics")
+    target = output or detection_store(store)
+    if target.url.rstrip("/") in (url.rstrip("/"), store.stats.url):
+        raise BadOptionError(
+            f"--output {target.url}: that is the sweep's own store or its statistics"
+        )
     # an earlier detection dataset is replaced, anything else refused, before any work
-    old = storage.removable_files(target, storage_options, kind=DATASET_KIND)
+    old = target.removable(DATASET_KIND)
     realisations = int(ds.attrs["realisations"])
     test = held_out(realisations)
     plan = None if "expected" in ds else _sweep_plan(ds, url)
-    tasks = [
-        dask.delayed(_evaluate)(url, storage_options, p, q, realisations, test, plan)
-        for p, q in pairs
-    ]
+    tasks = [dask.delayed(_evaluate)(store, p, q, realisations, test, plan) for p, q in pairs]
     results = dask.compute(*tasks)
     detection = _dataset(ds, pairs, results, realisations, test)
     detection.attrs["expected_images"] = (
         "read from the store" if plan is None else "rendered again"
     )
-    partial = f"{target.rstrip('/')}.partial-{uuid.uuid4().hex[:12]}"
-    with store.consolidated_v3():
-        detection.to_zarr(
-            partial, mode="w-", consolidated=True, zarr_format=3, storage_options=storage_options
-        )
-    storage.remove_files(target, storage_options, old)
-    storage.move(partial, target, storage_options)
+    partial = target.partial(uuid.uuid4().hex[:12])
+    partial.write(detection, mode="w-")
+    target.remove(old)
+    partial.move_to(target)
     return target, unpaired

@@ -16,7 +16,8 @@ needs another sets its own):
 - `LockedError`: an output another writer holds (an unusable output);
 - `TooBigError`: a sweep over the size or memory limits.
 
-Failures (exit 1) are apart: a store found damaged (`service.integrity.DamagedStoreError`),
+Failures (exit 1) are apart: a store found damaged (`DamagedStoreError`, here so that the
+command line catches it without importing zarr),
 a scene that validates but cannot be rendered (`workers.section.SceneError`), a run that
 failed or was interrupted.
 """
@@ -27,6 +28,7 @@ __all__ = [
     "BadFileError",
     "BadOptionError",
     "BadSweepError",
+    "DamagedStoreError",
     "InputError",
     "LockedError",
     "TooBigError",
@@ -63,3 +65,7 @@ class LockedError(UnusableOutputError):
 
 class TooBigError(InputError):
     """A sweep over the size or memory limits (lift them with ``--no-limits``)."""
+
+
+class DamagedStoreError(RuntimeError):
+    """A chunk of a store cannot be read back: the message names the sample (exit 1)."""

@@ -6,8 +6,7 @@ only, no duplicate keys or sets, bounded depth and alias expansion). Errors are
 `service.errors.BadFileError` (a file that cannot be read as asked: not a regular file, too
 large, not UTF-8 or plain YAML) or `service.errors.BadSweepError` (a value that is not a
 strict number), whose message names the place and the reason; values a user gave are
-echoed through `shown`. `SweepError` is the transitional name of
-`service.errors.InputError`.
+echoed through `shown`.
 """
 
 from __future__ import annotations
@@ -25,7 +24,7 @@ import yaml
 
 from service.errors import BadFileError, BadSweepError
 
-__all__ = ["SweepError", "json_object", "read_text", "read_yaml", "shown", "strict_numbers"]
+__all__ = ["json_object", "read_text", "read_yaml", "shown", "strict_numbers"]
 
 MAX_FILE_BYTES = 1_000_000
 DEFAULT_MAX_MEMORY = 4 * 2**30
@@ -35,8 +34,6 @@ Here, beside the other bounds on what a user gives, for the command line's help.
 MAX_DEPTH = 20
 MAX_NODES = 1_000_000
 
-
-from service.errors import InputError as SweepError  # noqa: E402 (transitional name)
 
 SHOWN_CHARACTERS = 60
 """Longest echo of a user's value in a message; longer ones are cut."""

@@ -20,7 +20,6 @@ import threading
 import time
 import uuid
 
-from service import integrity, storage
 from service.admission import admit_job, parents
 from service.errors import InputError, LockedError, UnusableOutputError
 from service.inputs import shown
@@ -58,7 +57,7 @@ class JobTable:
     The service holds an exclusive lock on ``PATH.lock`` (``flock``) while the table is
     open, released by the system when its process ends however it ends: a job found
     ``running`` at start was left by a service that has died, whose store locks (they
-    name the job) may then be taken over (`service.lock.writer_lock`).
+    name the job) may then be taken over (`service.store.lock.writer_lock`).
 
     Parameters
     ----------
@@ -167,24 +166,20 @@ class Runner:
         The jobs.
     client : distributed.Client
         The one cluster every job runs on.
-    data_root : str
+    data_root : Store
         Folder or object-storage prefix that every output lies under and every
-        measurement file is read from.
+        measurement file is read from, with the fsspec options of the service (never a
+        submitter's).
     max_running : int
         Jobs run at once; the others wait, in order.
     queue_limit : int
         Most unfinished (queued or running) jobs; more are refused (`QueueFullError`).
     batch_size : int or None
-        Samples per shard and task of a new store; None: `service.store.shard_size`'s.
-    storage_options : dict or None
-        fsspec options of the data root (the service's, never a submitter's).
+        Samples per shard and task of a new store; None: `service.store.layout.shard_size`'s.
     """
 
-    def __init__(
-        self, table, client, *, data_root, max_running, queue_limit, batch_size, storage_options
-    ):
-        self.table, self.client = table, client
-        self.data_root, self.storage_options = data_root, storage_options
+    def __init__(self, table, client, *, data_root, max_running, queue_limit, batch_size):
+        self.table, self.client, self.data_root = table, client, data_root
         self.max_running, self.queue_limit, self.batch_size = max_running, queue_limit, batch_size
         self._running: dict[str, tuple[threading.Thread, threading.Event]] = {}
         self._stop = threading.Event()
@@ -218,9 +213,7 @@ class Runner:
         QueueFullError
             If `queue_limit` jobs are unfinished.
         """
-        plan, url = admit_job(
-            text, mode, data_root=self.data_root, storage_options=self.storage_options
-        )
+        plan, url = admit_job(text, mode, data_root=self.data_root)
         with self._admit:
             previous = self.table.latest(url)
             if mode != "new" and previous is not None and previous.owner != owner:
@@ -287,22 +280,22 @@ class Runner:
             self.table.update(job.id, done=done, rate=rate)
 
         try:
-            plan = parse_sweep(job.sweep, folder=self.data_root, max_memory=None)
+            plan = parse_sweep(job.sweep, folder=self.data_root.url, max_memory=None)
+            store = self.data_root.other(job.url)
             # an interrupted job resumes its own store (this sweep's, by its hash); one that
             # was stopped before it made it (an overwrite that had not yet deleted the old
             # store) starts as it was asked
-            attributes = storage.root_attributes(job.url, self.storage_options) or {}
+            attributes = store.attributes() or {}
             resume = job.mode == "resume" or (
                 job.interrupted and attributes.get("sweep_sha256") == plan.digest
             )
             with open(os.devnull, "w") as quiet:
                 result = execute(
                     plan,
-                    job.url,
+                    store,
                     client=self.client,
                     resume=resume,
                     overwrite=job.mode == "overwrite" and not resume,
-                    storage_options=self.storage_options,
                     batch_size=self.batch_size,
                     progress_stream=quiet,
                     cancel=cancel,
@@ -323,9 +316,7 @@ class Runner:
             if self._stop.is_set():  # the service stops: resume at its next start
                 self.table.update(job.id, interrupted=True)
                 return
-            done = int(
-                integrity.completed_samples(job.url, storage_options=self.storage_options).sum()
-            )
+            done = int(store.completed().sum())
             message = "cancelled; submit it again with resume to complete it"
             self.table.set_state(
                 job.id, JobState.CANCELLED, message=message, done=done, **finished

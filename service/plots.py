@@ -20,8 +20,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from PIL import Image
 
-from service import store
 from service.errors import BadOptionError, BadSweepError
+from service.store.template import swept_parameters
 from service.sweep import Plan
 from workers.render import render
 
@@ -189,7 +189,7 @@ def save_preview(
 
 def plot_statistics(stats: xr.Dataset, path: str) -> None:
     """Target contrast and contrast-to-noise ratio against each swept parameter, per gate."""
-    swept = list(store.swept_parameters(stats))
+    swept = list(swept_parameters(stats))
     if not swept:
         raise BadSweepError("the store sweeps no parameter: nothing to plot against")
     figure = _figure(figsize=(3.2 * len(swept), 5.0))
@@ -241,7 +241,7 @@ def plot_detection(detection: xr.Dataset, path: str) -> None:
         left out), one colour per detector; points that share every other parameter are
         joined by a line.
     """
-    swept = [n for n, path in store.swept_parameters(detection).items() if path != "target.shape"]
+    swept = [n for n, path in swept_parameters(detection).items() if path != "target.shape"]
     points = detection.sizes["point"]
     columns = max(4, len(swept))
     roc_rows = -(-points // columns)

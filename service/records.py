@@ -144,9 +144,9 @@ class RunResult:
     ``refused`` holds ``(sample, reason)`` for samples whose scene cannot be rendered
     (`workers.section.SceneError`: bad input, not retried); ``rejected`` holds
     ``(sample, reason)`` for samples rendered with invalid values
-    (`service.integrity.invalid_values`); neither are written nor marked complete; ``damaged``
-    holds ``(sample, reason)`` for samples that ``verify`` found damaged and recomputed;
-    ``relabelled`` names the labels and coordinates it found wrong and wrote again;
+    (`service.store.integrity.invalid_values`); neither are written nor marked complete;
+    ``damaged`` holds ``(sample, reason)`` for samples that ``verify`` found damaged and
+    recomputed; ``relabelled`` names the labels and coordinates it found wrong and wrote again;
     ``stuck`` holds ``(start, count)`` for tasks given up `task_timeout` seconds after
     their submission; ``stopped`` says why a run stopped early (a storage failure no retry
     cures); ``points`` holds the parameter points whose samples a resumed run (re)wrote

@@ -1,7 +1,7 @@
 """Run a sweep on dask (on the client of `service.cluster`), then write its statistics.
 
 One task per shard of the store (`service.store`): it renders the shard's missing samples
-and writes the whole shard (`service.integrity.write_shard`). A shard is written by one
+and writes the whole shard (`service.store.shards.write_shard`). A shard is written by one
 task at a time, never two: each shard has one task in the first pass; the samples of
 shards whose task failed are then rendered one per task with a single task in flight, and
 a shard whose task was given up as stuck (it may still be running) is never given to
@@ -28,15 +28,17 @@ from collections.abc import Iterator
 import numpy as np
 from distributed import Client, wait
 
-from service import integrity, lock, storage, store
 from service.admission import check_output
 from service.cluster import ClusterError, dask_client
 from service.progress import Progress
 from service.records import RunResult
 from service.stats import write_statistics
+from service.store import integrity, shards
+from service.store.layout import shard_samples
+from service.store.location import Store
+from service.store.template import create_store
 from service.sweep import Plan
 from service.tuning import tune_allocator
-from workers.labels import rendered_variables
 from workers.render import render_arrays
 from workers.section import SceneError
 
@@ -62,29 +64,27 @@ PROBE_TIMEOUT = 120
 """Seconds a worker has to confirm it sees the store, before anything is rendered."""
 
 
-def render_shard(url, jobs, storage_options=None):
+def render_shard(store: Store, jobs):
     """Render samples of one shard and write the whole shard (runs on a dask worker).
 
     Parameters
     ----------
-    url : str
+    store : Store
         The store.
     jobs : list of tuple
         ``(sample, scene, seed)`` per sample, all in one shard: its index, its
         `workers.scene.Scene` (hashable, sent as it is) and `workers.seeds.SampleSeed`.
-    storage_options : dict, optional
-        fsspec options.
 
     Returns
     -------
     list of tuple
         ``(sample, reason, refused)`` for every sample not written: ``refused`` True for a
         scene that cannot be rendered (`workers.section.SceneError`), False for values
-        rejected by `service.integrity.invalid_values`. Those are neither written nor
+        rejected by `service.store.integrity.invalid_values`. Those are neither written nor
         marked complete; the valid samples around them are.
     """
     tune_allocator()
-    group = store.open_group(url, storage_options)
+    group = store.group("r+")
     rejected, valid = [], {}
     for sample, scene, seed in jobs:
         try:
@@ -92,13 +92,13 @@ def render_shard(url, jobs, storage_options=None):
         except SceneError as error:
             rejected.append((sample, str(error), True))
             continue
-        reason = integrity.invalid_values(rendered, rendered_variables(scene))
+        reason = integrity.invalid_values(rendered, scene)
         if reason is None:
             valid[sample] = rendered
         else:
             rejected.append((sample, reason, False))
     if valid:
-        integrity.write_shard(group, valid)
+        shards.write_shard(group, valid)
     return rejected
 
 
@@ -128,19 +128,18 @@ class RunCancelledError(Exception):
 
 def run_plan(
     plan: Plan,
-    url: str,
+    store: Store,
     *,
     client: Client,
     resume: bool = False,
-    storage_options: dict | None = None,
     task_timeout: float = TASK_TIMEOUT,
     progress_stream=None,
     cancel=None,
     on_progress=None,
 ) -> RunResult:
-    """Render every missing sample of `plan` into the store at `url`.
+    """Render every missing sample of `plan` into `store`.
 
-    The store must exist (`service.store.create_store`); one task per shard. With
+    The store must exist (`service.store.template.create_store`); one task per shard. With
     `resume`, samples already marked complete are skipped. Shards whose task fails (after
     dask's retries, or because a worker died under it) have their samples run again one
     per task, one task in flight, so a sample that kills its worker is reported alone and
@@ -155,10 +154,9 @@ def run_plan(
     resumable. `on_progress(done, rate)` is called as samples complete
     (samples, samples/s).
     """
-    size = store.shard_samples(store.open_group(url, storage_options))
+    size = shard_samples(store.group())
     if resume:
-        done = integrity.completed_samples(url, storage_options=storage_options)
-        todo = np.flatnonzero(~done)
+        todo = np.flatnonzero(~store.completed())
     else:
         todo = range(plan.samples)  # lazy: the client holds no per-sample list
     result = RunResult(
@@ -169,15 +167,14 @@ def run_plan(
     progress = Progress(plan.samples, result.skipped, progress_stream, on_progress)
     threads = sum(client.nthreads().values()) or 1
     # task keys name the store and the sweep: concurrent runs never share a task
-    run_id = f"{_store_key(url)}-{plan.digest[:16]}"
+    run_id = f"{_store_key(store)}-{plan.digest[:16]}"
     started = time.monotonic()
     window = max(2, IN_FLIGHT_PER_THREAD * threads)
     failed: list = []
     submit = functools.partial(
         _submit_bounded,
         client,
-        url,
-        storage_options=storage_options,
+        store,
         task_timeout=task_timeout,
         result=result,
         progress=progress,
@@ -212,9 +209,9 @@ def run_plan(
     return result
 
 
-def _store_key(url: str) -> str:
-    """The part of the task keys that names the store at `url`."""
-    return hashlib.sha256(url.encode()).hexdigest()[:16]
+def _store_key(store: Store) -> str:
+    """The part of the task keys that names `store`."""
+    return hashlib.sha256(store.url.encode()).hexdigest()[:16]
 
 
 def _wait_executing(client: Client, prefix: str, timeout: float) -> bool:
@@ -242,12 +239,11 @@ def _lasting_storage_error(error: BaseException | None) -> bool:
 
 def _submit_bounded(
     client,
-    url,
+    store,
     batches,
     window,
     tag,
     *,
-    storage_options,
     task_timeout,
     result,
     progress,
@@ -264,9 +260,8 @@ def _submit_bounded(
             return False
         future = client.submit(
             render_shard,
-            url,
+            store,
             jobs,
-            storage_options,
             key=f"oceanlidar-{tag}-{start}-{len(jobs)}",
             retries=RETRIES,
             pure=False,
@@ -298,7 +293,7 @@ def _submit_bounded(
                         (result.refused if refused else result.rejected).append((sample, reason))
                     progress.update(len(samples))
                 elif _lasting_storage_error(error := future.exception()):
-                    result.stopped = f"{url}: {error.strerror} (errno {error.errno})"
+                    result.stopped = f"{store.url}: {error.strerror} (errno {error.errno})"
                 else:
                     failed.append((samples, repr(error)))
                 future.release()
@@ -322,7 +317,7 @@ def _submit_bounded(
 
 def execute(
     plan: Plan,
-    url: str,
+    store: Store,
     *,
     workers: int | None = None,
     scheduler: str | None = None,
@@ -332,7 +327,6 @@ def execute(
     resume: bool = False,
     verify: bool = False,
     overwrite: bool = False,
-    storage_options: dict | None = None,
     batch_size: int | None = None,
     task_timeout: float = TASK_TIMEOUT,
     progress_stream=None,
@@ -343,9 +337,10 @@ def execute(
 ) -> RunResult:
     """Create (or reopen) the store, run the missing samples and write the statistics.
 
-    `batch_size` is the samples per shard (and task) of a new store (by default
-    `service.store.shard_size`'s choice); a resumed store keeps its own. With `resume` and
-    `verify`, every completed sample is read back first (`service.integrity.verify`) and the
+    `store` is normalised (`service.store.location.Store.at`). `batch_size` is the samples
+    per shard (and task) of a new store (by default `service.store.layout.shard_size`'s
+    choice); a resumed store keeps its own. With `resume` and `verify`, every completed
+    sample is read back first (`service.store.integrity.verify`) and the
     damaged ones are rendered again with the missing ones. After a resumed run, only the
     statistics of the points it wrote are recomputed (`service.stats.write_statistics`).
     `dashboard` and `verbose` go to `service.cluster.dask_client`.
@@ -358,15 +353,14 @@ def execute(
 
     `client` runs the samples on a cluster already connected (`workers`, `scheduler` and
     `security` are then unused); `cancel` and `on_progress` are passed to `run_plan`;
-    `claim` to `service.lock.writer_lock`.
+    `claim` to `service.store.lock.writer_lock`.
     """
-    url = storage.normalise(url, storage_options)
-    options = {"resume": resume, "overwrite": overwrite, "storage_options": storage_options}
-    with storage.storage_errors(url):
-        check_output(plan, url, **options)
-    with lock.writer_lock(url, storage_options, claim=claim) as token:
-        with storage.storage_errors(url):
-            resuming, old_files, old_stats = check_output(plan, url, **options)
+    options = {"resume": resume, "overwrite": overwrite}
+    with store.errors():
+        check_output(plan, store, **options)
+    with store.lock(claim=claim) as token:
+        with store.errors():
+            resuming, old_files, old_stats = check_output(plan, store, **options)
         # connect before touching storage: an unreachable cluster leaves everything as it was
         connect = functools.partial(
             dask_client,
@@ -377,7 +371,7 @@ def execute(
             verbose=verbose,
         )
         with contextlib.nullcontext(client) if client is not None else connect() as client:
-            probe = client.submit(lock.check_workers_see, url, storage_options, token, pure=False)
+            probe = client.submit(store.check_workers_see, token, pure=False)
             try:
                 probe.result(timeout=PROBE_TIMEOUT)
             except TimeoutError:
@@ -386,28 +380,25 @@ def execute(
                 ) from None
             # an earlier run into this store (a service killed mid-job, on a cluster that
             # outlived it) may have tasks still executing: none may write past this point
-            if _wait_executing(client, f"oceanlidar-{_store_key(url)}", task_timeout):
+            if _wait_executing(client, f"oceanlidar-{_store_key(store)}", task_timeout):
                 raise ClusterError(
-                    f"tasks of an earlier run into {url} are still executing on the "
+                    f"tasks of an earlier run into {store.url} are still executing on the "
                     f"cluster after {task_timeout:.0f} s; try again once they end"
                 )
-            with storage.storage_errors(url):
-                storage.remove_files(storage.stats_url(url), storage_options, old_stats)
-                storage.remove_files(url, storage_options, old_files)
+            with store.errors():
+                store.stats.remove(old_stats)
+                store.remove(old_files)
                 if not resuming:
-                    store.create_store(
-                        plan, url, storage_options=storage_options, samples_per_shard=batch_size
-                    )
+                    create_store(plan, store, samples_per_shard=batch_size)
             checked = resuming and verify
-            relabelled = integrity.repair_labels(url, plan, storage_options) if checked else []
-            damaged = integrity.verify(url, storage_options) if checked else []
-            integrity.mark_incomplete(url, [sample for sample, _ in damaged], storage_options)
+            relabelled = integrity.repair_labels(store, plan) if checked else []
+            damaged = integrity.verify(store) if checked else []
+            store.mark_incomplete([sample for sample, _ in damaged])
             result = run_plan(
                 plan,
-                url,
+                store,
                 client=client,
                 resume=resuming,
-                storage_options=storage_options,
                 task_timeout=task_timeout,
                 progress_stream=progress_stream,
                 cancel=cancel,
@@ -415,9 +406,9 @@ def execute(
             )
             result.damaged, result.relabelled = damaged, relabelled
             if result.ok:
-                write_statistics(url, storage_options=storage_options, points=result.points)
+                write_statistics(store, points=result.points)
         if result.interrupted:  # tasks in flight at the interrupt may have written since
-            with storage.storage_errors(url):
-                done = integrity.completed_samples(url, storage_options=storage_options)
+            with store.errors():
+                done = store.completed()
             result.written = max(result.written, int(done.sum()) - result.skipped)
     return result

@@ -31,12 +31,13 @@ from starlette.responses import (
 )
 from starlette.routing import Route
 
-from service import storage, store
+from service import package_version
 from service.cluster import dask_client
 from service.errors import BadFileError, BadOptionError, InputError
 from service.inputs import MAX_FILE_BYTES
 from service.jobs import ForbiddenError, JobTable, QueueFullError, Runner
 from service.records import Job, JobState
+from service.store.location import Store
 from service.sweep import parse_sweep
 
 __all__ = ["LOOPBACK", "create_app", "read_tokens", "serve"]
@@ -137,7 +138,7 @@ class _Service:
         return guarded
 
     async def health(self, request: Request) -> JSONResponse:
-        return JSONResponse({"status": "ok", "version": store.package_version()})
+        return JSONResponse({"status": "ok", "version": package_version()})
 
     async def login(self, request: Request) -> Response:
         if request.method == "POST":
@@ -280,23 +281,23 @@ class _Service:
         return Response(self.pictures[job_id, kind], media_type="image/png")
 
 
-def _statistics_png(job: Job, data_root: str) -> bytes:
+def _statistics_png(job: Job, data_root: Store) -> bytes:
     from service.plots import plot_statistics
 
-    stats = store.open_store(storage.stats_url(job.url)).load()
+    stats = data_root.other(job.url).stats.dataset().load()
     buffer = io.BytesIO()
     plot_statistics(stats, buffer)
     return buffer.getvalue()
 
 
-def _preview_png(job: Job, data_root: str) -> bytes:
+def _preview_png(job: Job, data_root: Store) -> bytes:
     """The gated images of the first samples, one row each (rendered again, as stored)."""
     import matplotlib.pyplot as plt
     from PIL import Image
 
     from service.plots import preview_figure, render_preview
 
-    plan = parse_sweep(job.sweep, folder=data_root, max_memory=None)
+    plan = parse_sweep(job.sweep, folder=data_root.url, max_memory=None)
     rows = []
     for sample in range(min(PREVIEW_SAMPLES, plan.samples)):
         figure = preview_figure(render_preview(plan, sample), title=f"sample {sample}")
@@ -349,9 +350,9 @@ def serve(args, security) -> int:
     for flag in ("max_running", "queue_limit", "batch"):
         if getattr(args, flag) is not None and getattr(args, flag) < 1:
             raise BadOptionError(f"--{flag.replace('_', '-')} must be at least 1")
-    root = storage.normalise(args.data_root, args.storage_options)
-    if "://" not in root:
-        os.makedirs(root, exist_ok=True)
+    root = Store.at(args.data_root, args.storage_options)
+    if "://" not in root.url:
+        os.makedirs(root.url, exist_ok=True)
     table = JobTable(args.db)
     with dask_client(workers=args.workers, scheduler=args.scheduler, security=security) as client:
         runner = Runner(
@@ -361,7 +362,6 @@ def serve(args, security) -> int:
             max_running=args.max_running,
             queue_limit=args.queue_limit,
             batch_size=args.batch,
-            storage_options=args.storage_options,
         )
         config = uvicorn.Config(
             create_app(runner, tokens),
@@ -372,7 +372,8 @@ def serve(args, security) -> int:
         )
         runner.start()
         print(
-            f"oceanlidar serve: http://{args.host}:{args.port} (data root {root}, jobs {args.db})",
+            f"oceanlidar serve: http://{args.host}:{args.port} (data root {root.url}, "
+            f"jobs {args.db})",
             file=sys.stderr,
             flush=True,
         )

@@ -1,13 +1,13 @@
 """Statistics of a sweep, per parameter point and gate.
 
-The statistics dataset sits beside the store (`service.storage.stats_url`). One dask task per
-group of parameter points reads those points' samples (never the whole store), reduces them
-over realisations and frames with numpy, and writes its points' whole chunks of the
-statistics store. Samples not yet written are ignored. The noise-free signals come from the
-per-sample means the render task computed (``target_signal``, ``background_signal``, the
-target's effect against its target-free twin ``target_effect_relative``), so the store
-need not keep the noise-free images. After a resumed run only the points it wrote
-are recomputed, in place. Variables:
+The statistics dataset sits beside the store (`service.store.location.Store.stats`). One
+dask task per group of parameter points reads those points' samples (never the whole
+store), reduces them over realisations and frames with numpy, and writes its points' whole
+chunks of the statistics store. Samples not yet written are ignored. The noise-free
+signals come from the per-sample means the render task computed (``target_signal``,
+``background_signal``, the target's effect against its target-free twin
+``target_effect_relative``), so the store need not keep the noise-free images. After a
+resumed run only the points it wrote are recomputed, in place. Variables:
 
 - ``image_mean``, ``image_std`` (point, gate, y, x): mean and standard deviation images;
 - ``target_signal``, ``background_signal`` (point, gate): mean expected (noise-free)
@@ -37,11 +37,14 @@ import warnings
 import dask
 import numpy as np
 import xarray as xr
-import zarr
 
-from service import integrity, storage, store
-from service.inputs import SweepError
-from workers.labels import VISIBILITY, signal_means
+from service import package_version
+from service.errors import UnusableOutputError
+from service.store.layout import CODECS, CONVENTIONS, lazy_array, one_per_chunk
+from service.store.location import KIND, Store
+from service.store.shards import read_samples
+from workers.labels import signal_means
+from workers.variables import Visibility
 
 __all__ = ["check_owner", "point_statistics", "write_statistics"]
 
@@ -100,13 +103,13 @@ def point_statistics(image, target, background, mask, relative, visibility):
             "background_signal": np.nanmean(background, axis=(0, 1)),
             "target_contrast": np.nanmean(relative.astype(np.float64), axis=(0, 1)),
             "cnr": np.nanmean((inside - ring) / np.where(spread > 0, spread, np.nan), axis=(0, 1)),
-            "visible_fraction": (visibility == VISIBILITY["in_gate"]).mean(axis=(0, 1)),
+            "visible_fraction": (visibility == Visibility.in_gate).mean(axis=(0, 1)),
         }
     stats.update(per_gate)
     return {name: np.asarray(value, dtype=np.float32) for name, value in stats.items()}
 
 
-def _template(ds: xr.Dataset, url: str) -> xr.Dataset:
+def _template(ds: xr.Dataset, source: Store) -> xr.Dataset:
     points = int(ds.attrs["points"])
     realisations = int(ds.attrs["realisations"])
     gates, ny, nx = ds.sizes["gate"], ds.sizes["y"], ds.sizes["x"]
@@ -115,24 +118,24 @@ def _template(ds: xr.Dataset, url: str) -> xr.Dataset:
     data_vars = {
         "image_mean": (
             ("point", "gate", "y", "x"),
-            store.lazy_array((points, gates, ny, nx), np.nan, np.float32),
+            lazy_array((points, gates, ny, nx), np.nan, np.float32),
             {"long_name": "mean image over realisations and frames", "units": units},
         ),
         "image_std": (
             ("point", "gate", "y", "x"),
-            store.lazy_array((points, gates, ny, nx), np.nan, np.float32),
+            lazy_array((points, gates, ny, nx), np.nan, np.float32),
             {"long_name": "standard deviation image over realisations and frames", "units": units},
         ),
         "samples": (
             ("point",),
-            store.lazy_array((points,), 0, np.int32),
+            lazy_array((points,), 0, np.int32),
             {"long_name": "realisations written", "units": "1"},
         ),
     }
     for name, long_name in _PER_GATE.items():
         data_vars[name] = (
             ("point", "gate"),
-            store.lazy_array((points, gates), np.nan, np.float32),
+            lazy_array((points, gates), np.nan, np.float32),
             {"long_name": long_name, "units": signal_units if "signal" in name else "1"},
         )
     first = np.arange(points) * realisations
@@ -152,22 +155,21 @@ def _template(ds: xr.Dataset, url: str) -> xr.Dataset:
     stats = xr.Dataset(data_vars, coords=coords)
     stats.attrs.update(
         title=ds.attrs.get("title", "") + " statistics",
-        Conventions=store.CONVENTIONS,
+        Conventions=CONVENTIONS,
         sweep_sha256=ds.attrs.get("sweep_sha256", ""),
-        samples_store=storage.store_name(url),
-        oceanlidar_version=store.package_version(),
-        **{storage.KIND: "statistics"},
+        samples_store=source.name,
+        oceanlidar_version=package_version(),
+        **{KIND: "statistics"},
     )
     return stats
 
 
-def _reduce_points(url, target, points, done, realisations, storage_options):
+def _reduce_points(source: Store, target: Store, points, done, realisations):
     """Read the samples of `points`, reduce them, write their statistics chunks.
 
     `done` holds the completion flags of those points' samples, in order.
     """
-    source = store.open_group(url, storage_options)
-    sink = store.open_group(target, storage_options)
+    samples, sink = source.group(), target.group("r+")
     done = np.asarray(done, dtype=bool).reshape(len(points), realisations)
     starts = np.asarray(points)[:, np.newaxis] * realisations
     picks = (starts + np.arange(realisations))[done]
@@ -182,7 +184,7 @@ def _reduce_points(url, target, points, done, realisations, storage_options):
         "target_effect_relative",
         "target_visibility",
     )
-    read = {name: integrity.read_samples(source[name], picks.tolist()) for name in names}
+    read = {name: read_samples(samples[name], picks.tolist()) for name in names}
     owner = np.repeat(np.arange(len(points)), done.sum(axis=1))
     for index, point in enumerate(points):
         mine = owner == index
@@ -202,128 +204,111 @@ def _reduce_points(url, target, points, done, realisations, storage_options):
     return len(points)
 
 
-def write_statistics(
-    url: str, *, storage_options: dict | None = None, points: np.ndarray | None = None
-) -> str:
-    """(Re)compute the statistics of the store at `url` and write them beside it.
+def write_statistics(store: Store, *, points: np.ndarray | None = None) -> Store:
+    """(Re)compute the statistics of `store` and write them beside it (`Store.stats`).
 
     With `points` (after a resumed run: the points whose samples it wrote), only those
     points (and any whose statistics count other samples than the store holds) are
     recomputed, in place, if sound statistics of this sweep are there (else everything
     is). Otherwise new statistics are written to a fresh store beside the old
     ones and moved into place only when complete: a failure leaves the previous statistics
-    as they were. The caller holds the sample store's writer lock
-    (`service.lock.writer_lock`). Runs on the dask client in use (the sweep's cluster), or
-    on local threads.
+    as they were. The caller holds the sample store's writer lock (`Store.lock`). Runs on
+    the dask client in use (the sweep's cluster), or on local threads.
 
     Returns
     -------
-    str
+    Store
         Where the statistics were written.
 
     Raises
     ------
-    SweepError
+    UnusableOutputError
         If the statistics path holds something other than oceanlidar statistics, or the
         statistics of another store (`check_owner`), or the store predates the target's
         effect.
     """
-    check_owner(url, storage_options)
-    ds = store.open_store(url, storage_options=storage_options)
+    check_owner(store)
+    ds = store.dataset()
     if "target_effect_relative" not in ds:
-        raise SweepError(
-            f"{url} has no target_effect_relative (written before it was stored, issue #24): "
-            "its statistics cannot be computed; run the sweep again with --overwrite"
+        raise UnusableOutputError(
+            f"{store.url} has no target_effect_relative (written before it was stored, issue "
+            "#24): its statistics cannot be computed; run the sweep again with --overwrite"
         )
-    target = storage.stats_url(url)
-    recorded = None if points is None else _recorded(ds, url, storage_options)
+    target = store.stats
+    recorded = None if points is None else _recorded(ds, store)
     if recorded is not None:
         # the run's points, and any whose statistics count other samples than are written
-        done = integrity.completed_samples(url, storage_options=storage_options)
-        stale = recorded != done.reshape(recorded.size, -1).sum(axis=1)
+        stale = recorded != store.completed().reshape(recorded.size, -1).sum(axis=1)
         update = np.union1d(np.asarray(points, dtype=int), np.flatnonzero(stale))
-        _reduce_all(ds, url, target, update.tolist(), storage_options)
+        _reduce_all(ds, store, target, update.tolist())
         return target
-    old = storage.removable_files(target, storage_options, kind="statistics")
-    partial = f"{target.rstrip('/')}.partial-{uuid.uuid4().hex[:12]}"
+    old = target.removable("statistics")
+    partial = target.partial(uuid.uuid4().hex[:12])
     try:
-        _compute(ds, url, partial, storage_options)
+        _compute(ds, store, partial)
     except BaseException:
-        with contextlib.suppress(SweepError, OSError):  # best effort: it is not in place
-            storage.remove_files(
-                partial,
-                storage_options,
-                storage.removable_files(partial, storage_options, kind="statistics"),
-            )
+        with contextlib.suppress(UnusableOutputError, OSError):  # best effort: not in place
+            partial.remove(partial.removable("statistics"))
         raise
-    storage.remove_files(target, storage_options, old)
-    storage.move(partial, target, storage_options)
+    target.remove(old)
+    partial.move_to(target)
     return target
 
 
-def check_owner(url: str, storage_options: dict | None = None) -> None:
-    """Refuse to write statistics beside `url` over those of another samples store.
+def check_owner(store: Store) -> None:
+    """Refuse to write statistics beside `store` over those of another samples store.
 
     Two outputs share one statistics path (``run`` and ``run.zarr`` in one folder:
-    `service.storage.stats_url`). Statistics record the name of the store they were
+    `service.store.location.Store.stats`). Statistics record the name of the store they were
     computed from (attribute ``samples_store``, its last path component, beside
     ``sweep_sha256``), so that a store and its statistics copied or moved together stay
     a pair; those of another store that is still beside them are never replaced.
 
     Parameters
     ----------
-    url : str
-        The samples store, normalised (`service.storage.normalise`).
-    storage_options : dict, optional
-        fsspec options.
+    store : Store
+        The samples store, normalised (`service.store.location.Store.at`).
 
     Raises
     ------
-    SweepError
+    UnusableOutputError
         If the statistics path holds the statistics of another samples store there.
     """
-    target = storage.stats_url(url)
-    attributes = storage.root_attributes(target, storage_options) or {}
-    owner, name = attributes.get("samples_store"), storage.store_name(url)
-    if attributes.get(storage.KIND) != "statistics" or owner in (None, name):
+    target = store.stats
+    attributes = target.attributes() or {}
+    owner, name = attributes.get("samples_store"), store.name
+    if attributes.get(KIND) != "statistics" or owner in (None, name):
         return
-    other = url.rstrip("/")[: -len(name)] + str(owner)
-    if (storage.root_attributes(other, storage_options) or {}).get(storage.KIND) == "samples":
+    other = store.other(store.url.rstrip("/")[: -len(name)] + str(owner))
+    if other.kind() == "samples":
         remedy = (
             "write this sweep to another output"
-            if storage.stats_url(other) == target  # "one" and "one.zarr" share statistics
-            else f"delete {target}, a copy: {other}'s are {storage.stats_url(other)}"
+            if other.stats == target  # "one" and "one.zarr" share statistics
+            else f"delete {target.url}, a copy: {other.url}'s are {other.stats.url}"
         )
-        raise SweepError(
-            f"{target} holds the statistics of another store, {other}, which the statistics "
-            f"of {url} would replace; {remedy}"
+        raise UnusableOutputError(
+            f"{target.url} holds the statistics of another store, {other.url}, which the "
+            f"statistics of {store.url} would replace; {remedy}"
         )
 
 
-def _recorded(ds: xr.Dataset, url: str, storage_options: dict | None):
-    """Samples per point that the statistics beside `url` were computed from.
+def _recorded(ds: xr.Dataset, store: Store):
+    """Samples per point that the statistics beside `store` were computed from.
 
-    None unless they are statistics of the store `ds` at `url` (by its name and its
-    sweep's hash), of this version, with every variable and a readable ``samples`` array (their
-    images are not read).
+    None unless they are statistics of the store `ds` at `store` (by its name and its
+    sweep's hash), of this version, with every variable and a readable ``samples`` array
+    (their images are not read).
     """
-    target = storage.stats_url(url)
-    attributes = storage.root_attributes(target, storage_options) or {}
+    attributes = store.stats.attributes() or {}
     if (
-        attributes.get(storage.KIND) != "statistics"
-        or attributes.get("samples_store") != storage.store_name(url)
+        attributes.get(KIND) != "statistics"
+        or attributes.get("samples_store") != store.name
         or attributes.get("sweep_sha256") != ds.attrs.get("sweep_sha256")
-        or attributes.get("oceanlidar_version") != store.package_version()
+        or attributes.get("oceanlidar_version") != package_version()
     ):
         return None
     try:
-        group = zarr.open_group(
-            store=target,
-            mode="r",
-            zarr_format=3,
-            use_consolidated=True,
-            storage_options=storage_options,
-        )
+        group = store.stats.group()
         if not {"image_mean", "image_std", "samples", *_PER_GATE} <= set(group.array_keys()):
             return None
         counts = group["samples"][:]
@@ -332,38 +317,28 @@ def _recorded(ds: xr.Dataset, url: str, storage_options: dict | None):
     return counts if counts.shape == (int(ds.attrs["points"]),) else None
 
 
-def _compute(ds: xr.Dataset, url: str, target: str, storage_options: dict | None) -> None:
-    """Write the statistics of `ds` (the store at `url`) into a new store at `target`."""
-    template = _template(ds, url)
-    with store.consolidated_v3():
-        template.to_zarr(
-            target,
-            mode="w-",
-            compute=False,
-            consolidated=True,
-            zarr_format=3,
-            encoding={
-                **{name: {"compressors": store.CODECS} for name in template.coords},
-                **{name: store.one_per_chunk(template[name].shape[1:]) for name in template},
-            },
-            storage_options=storage_options,
-        )
-    _reduce_all(ds, url, target, list(range(int(ds.attrs["points"]))), storage_options)
+def _compute(ds: xr.Dataset, source: Store, target: Store) -> None:
+    """Write the statistics of `ds` (the store `source`) into a new store at `target`."""
+    template = _template(ds, source)
+    encoding = {
+        **{name: {"compressors": CODECS} for name in template.coords},
+        **{name: one_per_chunk(template[name].shape[1:]) for name in template},
+    }
+    target.write(template, mode="w-", compute=False, encoding=encoding)
+    _reduce_all(ds, source, target, list(range(int(ds.attrs["points"]))))
 
 
-def _reduce_all(ds: xr.Dataset, url: str, target: str, points: list[int], storage_options):
+def _reduce_all(ds: xr.Dataset, source: Store, target: Store, points: list[int]):
     """Compute the statistics of `points` into the statistics store at `target`."""
     realisations = int(ds.attrs["realisations"])
-    done = integrity.completed_samples(url, storage_options=storage_options)
-    flags = done.reshape(-1, realisations)
+    flags = source.completed().reshape(-1, realisations)
     tasks = [
         dask.delayed(_reduce_points)(
-            url,
+            source,
             target,
             points[start : start + POINTS_PER_TASK],
             flags[points[start : start + POINTS_PER_TASK]].ravel(),
             realisations,
-            storage_options,
         )
         for start in range(0, len(points), POINTS_PER_TASK)
     ]

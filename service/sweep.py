@@ -30,11 +30,11 @@ from service.inputs import DEFAULT_MAX_MEMORY, read_text, read_yaml, shown, stri
 from service.measurements import inline_measurements
 from service.schema import Distribution, Sweep, Value, Values, scene_field
 from workers.cascades import MAX_CASCADES
-from workers.labels import count_dtype
 from workers.montecarlo import LAUNCH_CHUNK, LOOKUP_ENTRIES
 from workers.scene import Scene
 from workers.seeds import SampleSeed
 from workers.spread import MAX_COARSE
+from workers.variables import count_dtype
 
 __all__ = ["Plan", "Sample", "load_sweep", "memory_estimate", "parse_sweep"]
 
@@ -141,10 +141,11 @@ class Plan:
         )
 
     def image_dtype(self) -> np.dtype:
-        """The store's image type: the widest any point needs (`service.store.widest_image`).
+        """The store's image type: the widest any point needs.
 
         Each point's counts take `count_dtype`, other images float32; counts beside floats
-        make a float type that holds every count exactly.
+        make a float type that holds every count exactly
+        (`service.store.template.widest_image`).
         """
         kinds = {count_dtype(scene) or np.dtype(np.float32) for scene in self.scenes}
         return np.result_type(*kinds)
@@ -153,7 +154,8 @@ class Plan:
         """Float32 arrays of an image's shape every sample stores beside ``image``.
 
         ``expected`` with ``store: {expected: true}``; ``expected_stderr`` when any point is
-        rendered by Monte Carlo (``transport.method``; `service.store.variable_table`).
+        rendered by Monte Carlo (``transport.method``;
+        `service.store.template.store_variables`).
         """
         monte_carlo = any(s.transport.method == "monte_carlo" for s in self.scenes)
         return int(self.sweep.store.expected) + int(monte_carlo)
@@ -298,7 +300,7 @@ def _check_scene(raw: dict, scene: Scene) -> None:
     """Checks of a validated scene beyond its schema.
 
     Strict numbers, a bounded track, counts that fit the store's unsigned integers
-    (`workers.labels.count_dtype`).
+    (`workers.variables.count_dtype`).
     """
     strict_numbers(raw, scene.model_dump(), "scene")
     try:

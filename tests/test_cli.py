@@ -13,13 +13,15 @@ import xarray as xr
 import yaml
 from conftest import ROOT, TINY_SWEEP, run_cli
 
-from service import plots
+from service import package_version, plots
 from service.cli import main
 from service.cli.run_commands import run_time
 from service.cluster import QUIET, dask_client
 from service.run import render_shard, task_batches
 from service.schema import sweep_json_schema
-from service.store import create_store, package_version, shard_size
+from service.store.layout import shard_size
+from service.store.location import Store
+from service.store.template import create_store
 from service.sweep import load_sweep, parse_sweep
 from workers.render import render_arrays
 from workers.scene import Scene
@@ -146,9 +148,9 @@ def stored(tmp_path_factory):
     text = TINY_SWEEP.format(name="s", seed=2, realisations=2, output="s.zarr")
     plan = parse_sweep(text.replace("scene:\n", "scene:\n  sequence: {frames: 2}\n"))
     url = str(folder / "s.zarr")
-    create_store(plan, url)
+    create_store(plan, Store(url))
     for _, jobs in task_batches(plan, range(plan.samples), shard_size(plan)):
-        assert render_shard(url, jobs) == []
+        assert render_shard(Store(url), jobs) == []
     return url
 
 

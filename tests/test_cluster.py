@@ -15,7 +15,8 @@ from distributed import Client
 from distributed.diagnostics.plugin import WorkerPlugin
 
 from service.run import execute, run_plan
-from service.store import create_store
+from service.store.location import Store
+from service.store.template import create_store
 from service.sweep import parse_sweep
 
 BIN = Path(sys.executable).parent
@@ -66,11 +67,13 @@ class CrashOnSample(WorkerPlugin):
 def test_a_sample_that_kills_its_worker_is_reported_and_the_rest_complete(cluster, tmp_path):
     plan = parse_sweep(SWEEP)
     url = str(tmp_path / "crash.zarr")
-    create_store(plan, url, samples_per_shard=1)
+    create_store(plan, Store(url), samples_per_shard=1)
     with Client(cluster, timeout="60s") as client:
         client.register_plugin(CrashOnSample(4), name="crash-on-sample-4")
         try:
-            result = run_plan(plan, url, client=client, progress_stream=open(os.devnull, "w"))
+            result = run_plan(
+                plan, Store(url), client=client, progress_stream=open(os.devnull, "w")
+            )
         finally:
             client.unregister_worker_plugin("crash-on-sample-4")
         client.wait_for_workers(2, timeout=120)
@@ -89,7 +92,7 @@ def test_a_sample_that_kills_its_worker_is_reported_and_the_rest_complete(cluste
 def test_a_worker_killed_mid_sweep_changes_no_byte(cluster, tmp_path):
     plan = parse_sweep(sweep_text(realisations=8))
     url = str(tmp_path / "killed.zarr")
-    create_store(plan, url, samples_per_shard=1)
+    create_store(plan, Store(url), samples_per_shard=1)
     with Client(cluster, timeout="60s") as client:
         victim = next(iter(client.run(os.getpid).values()))
 
@@ -103,12 +106,12 @@ def test_a_worker_killed_mid_sweep_changes_no_byte(cluster, tmp_path):
 
         killer = threading.Thread(target=kill_when_started)
         killer.start()
-        result = run_plan(plan, url, client=client, progress_stream=open(os.devnull, "w"))
+        result = run_plan(plan, Store(url), client=client, progress_stream=open(os.devnull, "w"))
         killer.join()
         client.wait_for_workers(2, timeout=120)
     assert result.failed == [] and result.written == plan.samples
     reference = str(tmp_path / "undisturbed.zarr")
-    execute(plan, reference, workers=1, progress_stream=open(os.devnull, "w"))
+    execute(plan, Store.at(reference), workers=1, progress_stream=open(os.devnull, "w"))
     assert_same_samples(url, reference)
 
 
@@ -135,7 +138,10 @@ def test_a_killed_client_resumes_to_the_same_bytes(cluster, tmp_path):
     assert again.returncode == 0, again.stderr
     reference = str(tmp_path / "reference.zarr")
     execute(
-        parse_sweep(sweep.read_text()), reference, workers=1, progress_stream=open(os.devnull, "w")
+        parse_sweep(sweep.read_text()),
+        Store.at(reference),
+        workers=1,
+        progress_stream=open(os.devnull, "w"),
     )
     assert_same_samples(str(target), reference)
 

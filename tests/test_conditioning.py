@@ -9,7 +9,7 @@ import pytest
 from numpy.testing import assert_allclose
 from pydantic import ValidationError
 
-from service.inputs import SweepError
+from service.errors import InputError
 from service.plots import preview_figure
 from service.sweep import load_sweep, parse_sweep
 from workers.cascades import Sea
@@ -330,7 +330,7 @@ def test_csv_points_are_read_relative_to_the_sweep_and_honoured(tmp_path, monkey
 )
 def test_bad_csv_files_are_refused(tmp_path, conditioning, csv, message):
     path = write_sweep(tmp_path, conditioning, csv)
-    with pytest.raises(SweepError, match=r"scene.*surface\.conditioning") as error:
+    with pytest.raises(InputError, match=r"scene.*surface\.conditioning") as error:
         load_sweep(path)
     assert message in str(error.value)
 

@@ -93,10 +93,17 @@ def test_only_the_papers_examples_use_the_papers_shading(path):
 
 
 MODULES = sorted(
-    path
-    for package in ("workers", "service", "service/cli")
-    for path in (ROOT / package).glob("[!_]*.py")
+    path for package in ("workers", "service") for path in (ROOT / package).rglob("[!_]*.py")
 )
+PACKAGES = sorted(
+    path for package in ("workers", "service") for path in (ROOT / package).rglob("__init__.py")
+)
+
+
+def module_name(path):
+    """The dotted name of a module or package of the project (``service.store.location``)."""
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
 def code_lines(path):
@@ -116,26 +123,25 @@ def code_lines(path):
     )
 
 
-def module_name(path):
-    """The dotted name of the project module at `path` (``service.cli.main``)."""
-    return ".".join(path.relative_to(ROOT).with_suffix("").parts)
-
-
-@pytest.mark.parametrize("path", MODULES, ids=[str(p.relative_to(ROOT)) for p in MODULES])
+@pytest.mark.parametrize("path", MODULES, ids=[module_name(p) for p in MODULES])
 def test_every_module_is_small_and_in_the_architecture(path):
     assert code_lines(path) <= 350
     assert f"| `{path.name}` |" in (ROOT / "ARCHITECTURE.md").read_text()
 
 
-def _project_imports(path):
-    """The project modules `path` imports, at its top or inside functions."""
+def _project_imports(path, modules):
+    """The project modules `path` imports, at its top or inside functions.
+
+    ``from PACKAGE import NAME`` imports the module ``PACKAGE.NAME`` where there is one
+    (`modules`), else the package.
+    """
     names = set()
     for node in ast.walk(ast.parse(path.read_text())):
         if isinstance(node, ast.ImportFrom) and node.module:
-            if node.module in ("workers", "service"):
-                names.update(f"{node.module}.{alias.name}" for alias in node.names)
-            elif node.module.split(".")[0] in ("workers", "service"):
-                names.add(node.module)
+            if node.module.split(".")[0] in ("workers", "service"):
+                for alias in node.names:
+                    inner = f"{node.module}.{alias.name}"
+                    names.add(inner if inner in modules else node.module)
         elif isinstance(node, ast.Import):
             names.update(
                 a.name for a in node.names if a.name.split(".")[0] in ("workers", "service")
@@ -145,7 +151,8 @@ def _project_imports(path):
 
 def test_no_import_circle():
     # issue #13: modules import in one direction (a lazy import inside a function counts)
-    graph = {module_name(p): _project_imports(p) for p in MODULES}
+    modules = {module_name(p): p for p in MODULES + PACKAGES}
+    graph = {name: _project_imports(path, modules) for name, path in modules.items()}
     done, path = set(), []
 
     def visit(module):

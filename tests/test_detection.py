@@ -6,10 +6,11 @@ import xarray as xr
 from conftest import TINY_SCENE, same_values
 from scipy.stats import multivariate_normal, norm, poisson
 
-from service import store
 from service.cli import main
 from service.detect import pair_points
-from service.inputs import SweepError
+from service.errors import InputError
+from service.store.location import Store, consolidated_v3
+from service.store.template import create_store
 from service.sweep import parse_sweep
 from workers.detection import (
     DETECTORS,
@@ -218,7 +219,7 @@ def test_points_pair_with_the_target_free_twin_of_their_scene():
 )
 def test_pairing_refuses_a_sweep_without_both_classes(shapes, message):
     points = [{"target.depth": 3.0 + i, "target.shape": s} for i, s in enumerate(shapes)]
-    with pytest.raises(SweepError, match=message):
+    with pytest.raises(InputError, match=message):
         pair_points(point_dataset(points))
 
 
@@ -339,7 +340,7 @@ def test_expected_images_missing_from_the_store_are_rendered_again(detection, tm
     copy = xr.open_zarr(folder / "small.zarr").drop_vars("expected")
     for variable in copy.variables.values():
         variable.encoding = {}  # written afresh: dask's chunks, not the shards
-    with store.consolidated_v3():
+    with consolidated_v3():
         copy.to_zarr(bare, zarr_format=3, consolidated=True)
     assert main(["detect", str(bare)]) == 0
     again = xr.open_zarr(tmp_path / "bare.detect.zarr").load()
@@ -387,7 +388,7 @@ def test_detect_refuses_stores_it_cannot_evaluate(tmp_path, capsys, change, real
         name="t", seed=1, realisations=realisations, output="t.zarr"
     )
     url = str(tmp_path / "t.zarr")
-    store.create_store(parse_sweep(text), url)  # the template: no sample written yet
+    create_store(parse_sweep(text), Store(url))  # the template: no sample written yet
     assert main(["detect", url]) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "t.detect.zarr").exists()

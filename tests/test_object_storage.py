@@ -13,7 +13,8 @@ import xarray as xr
 from conftest import TINY_SWEEP, assert_same_samples, free_port, run_cli
 
 from service.run import execute, render_shard, task_batches
-from service.store import create_store
+from service.store.location import Store
+from service.store.template import create_store
 from service.sweep import parse_sweep
 
 boto3 = pytest.importorskip("boto3")
@@ -67,9 +68,9 @@ def test_a_sweep_to_s3_resumes_to_the_bytes_of_a_local_run(s3, tmp_path):
     plan = parse_sweep(SWEEP)
     url = "s3://oceanlidar/run.zarr"
     # a first run that stopped after its first shard of two samples, as a worker leaves it
-    create_store(plan, url, storage_options=s3, samples_per_shard=2)
+    create_store(plan, Store(url, s3), samples_per_shard=2)
     _, jobs = next(task_batches(plan, range(plan.samples), 2))
-    render_shard(url, jobs, s3)
+    render_shard(Store(url, s3), jobs)
     sweep = tmp_path / "s3.yaml"
     sweep.write_text(SWEEP)
     options = json.dumps(s3)
@@ -79,7 +80,7 @@ def test_a_sweep_to_s3_resumes_to_the_bytes_of_a_local_run(s3, tmp_path):
     assert result.returncode == 0, result.stderr
     assert "2 already complete" in result.stderr
     local = str(tmp_path / "local.zarr")
-    execute(plan, local, workers=1, progress_stream=open(os.devnull, "w"))
+    execute(plan, Store.at(local), workers=1, progress_stream=open(os.devnull, "w"))
     assert_same_samples(url, local, storage_options=s3)
     stats = xr.open_zarr("s3://oceanlidar/run.stats.zarr", storage_options=s3)
     assert stats["samples"].values.tolist() == [3, 3]
@@ -91,14 +92,13 @@ def test_a_sweep_to_s3_resumes_to_the_bytes_of_a_local_run(s3, tmp_path):
 
 def test_a_second_writer_is_refused_on_object_storage(s3, tmp_path, capsys):
     from service.cli import main
-    from service.lock import writer_lock
-    from service.storage import LOCK_NAME
+    from service.store.lock import LOCK_NAME
 
     url = "s3://oceanlidar/locked.zarr"
     sweep = tmp_path / "s3.yaml"
     sweep.write_text(SWEEP)
     fs = fsspec.filesystem("s3", **s3)
-    with writer_lock(url, s3):
+    with Store(url, s3).lock():
         assert fs.exists(f"oceanlidar/locked.zarr/{LOCK_NAME}")
         command = ["run", str(sweep), "--output", url, "--storage-options", json.dumps(s3)]
         assert main(command) == 2

@@ -10,6 +10,7 @@ from PIL import Image
 from service.cli import main
 from service.plots import DPI, PANEL_INCHES, preview_figure, render_preview
 from service.run import execute
+from service.store.location import Store
 from service.sweep import load_sweep, parse_sweep
 
 PAPER = Path(__file__).resolve().parent.parent / "configs" / "paper"
@@ -68,7 +69,7 @@ def test_plot_draws_contrast_and_cnr_against_each_swept_parameter(tmp_path):
     )
     plan = parse_sweep(text)
     url = str(tmp_path / "s.zarr")
-    execute(plan, url, workers=1, progress_stream=open(os.devnull, "w"))
+    execute(plan, Store.at(url), workers=1, progress_stream=open(os.devnull, "w"))
     target = tmp_path / "stats.png"
     assert main(["plot", url, "--output", str(target)]) == 0
     with Image.open(target) as picture:

@@ -15,8 +15,11 @@ import pytest
 import xarray as xr
 from conftest import TINY_SCENE, TINY_SWEEP, run_cli, start_cli
 
-from service import integrity, lock, storage, store
 from service.cli import main
+from service.store import integrity, lock, shards
+from service.store.location import KIND, Store
+from service.store.lock import LOCK_NAME
+from service.store.template import create_store
 from workers.render import render_arrays
 
 
@@ -77,7 +80,7 @@ def test_statistics_never_replace_another_sweeps_store(work, capsys):
 def test_two_outputs_never_share_their_statistics(work, capsys):
     # outputs "one" and "one.zarr" have one statistics path, one.stats.zarr: sweep "two"
     # written to "one" must not replace the statistics of sweep "one" (in one.zarr)
-    assert storage.root_attributes(work / "one.stats.zarr")["samples_store"] == "one.zarr"
+    assert Store(str(work / "one.stats.zarr")).attributes()["samples_store"] == "one.zarr"
     sweep_file(work, name="two", output="one", seed=4)
     refusal = f"holds the statistics of another store, {work / 'one.zarr'}"
     before = snapshot(work)
@@ -101,7 +104,7 @@ def test_two_outputs_never_share_their_statistics(work, capsys):
     # statistics whose store is gone are the other's to replace
     shutil.rmtree(work / "one.zarr")
     assert main(["stats", "one"]) == 0
-    assert storage.root_attributes(work / "one.stats.zarr")["samples_store"] == "one"
+    assert Store(str(work / "one.stats.zarr")).attributes()["samples_store"] == "one"
 
 
 def test_copied_statistics_are_named_as_a_copy_and_the_original_kept(work, capsys):
@@ -120,7 +123,7 @@ def test_copied_statistics_are_named_as_a_copy_and_the_original_kept(work, capsy
     shutil.rmtree(work / "copy.stats.zarr")  # as the message says: the original's are kept
     assert main(["stats", "copy.zarr"]) == 0
     assert snapshot(work / "one.stats.zarr") == original
-    assert storage.root_attributes(work / "copy.stats.zarr")["samples_store"] == "copy.zarr"
+    assert Store(str(work / "copy.stats.zarr")).attributes()["samples_store"] == "copy.zarr"
 
 
 @pytest.mark.parametrize(
@@ -132,7 +135,7 @@ def test_overwrite_deletes_only_what_the_store_lists(work, capsys, stranger):
     path = work / "one.zarr" / stranger
     path.parent.mkdir(exist_ok=True)
     # a folder carrying the project's attribute is not a licence to delete it either
-    path.write_text(json.dumps({"node_type": "group", "attributes": {storage.KIND: "samples"}}))
+    path.write_text(json.dumps({"node_type": "group", "attributes": {KIND: "samples"}}))
     before = snapshot(work)
     assert main(["run", str(work / "one.yaml"), "--overwrite"]) == 2
     err = capsys.readouterr().err
@@ -143,7 +146,7 @@ def test_overwrite_deletes_only_what_the_store_lists(work, capsys, stranger):
 def test_a_store_of_an_older_version_is_named_not_deleted(work, capsys):
     # stores written before the kind attribute: refused with the version that wrote them
     metadata = json.loads((work / "one.zarr" / "zarr.json").read_text())
-    del metadata["attributes"][storage.KIND]
+    del metadata["attributes"][KIND]
     (work / "one.zarr" / "zarr.json").write_text(json.dumps(metadata))
     before = snapshot(work)
     assert main(["run", str(work / "one.yaml"), "--overwrite"]) == 2
@@ -160,7 +163,7 @@ def test_a_store_of_an_earlier_layout_is_not_resumed(work, capsys):
         del metadata["consolidated_metadata"]["metadata"][name]
         shutil.rmtree(work / "one.zarr" / name)
     (work / "one.zarr" / "zarr.json").write_text(json.dumps(metadata))
-    integrity.mark_incomplete(str(work / "one.zarr"), [4])
+    Store.at(str(work / "one.zarr")).mark_incomplete([4])
     before = snapshot(work)
     assert main(["run", str(work / "one.yaml"), "--resume"]) == 2
     err = capsys.readouterr().err
@@ -187,7 +190,7 @@ def test_overwrite_replaces_a_store_and_its_statistics(work):
     result = run_cli(*command, cwd=work)
     assert result.returncode == 0, result.stderr
     assert snapshot(work / "one.zarr") == before  # same sweep, same bytes
-    assert not (work / "one.zarr" / storage.LOCK_NAME).exists()
+    assert not (work / "one.zarr" / LOCK_NAME).exists()
     assert sorted(p.name for p in work.iterdir()) == ["one.stats.zarr", "one.yaml", "one.zarr"]
 
 
@@ -281,12 +284,12 @@ def test_lost_or_damaged_labels_are_found_and_written_again(work, capsys):
     # any later run computes them all again
     cancelled = threading.Event()
     cancelled.set()
-    integrity.mark_incomplete("one.zarr", [4])  # work left, for the cancel to stop
+    Store.at("one.zarr").mark_incomplete([4])  # work left, for the cancel to stop
     plan = load_sweep(work / "one.yaml")
     quiet = open(os.devnull, "w")
     result = execute(
         plan,
-        "one.zarr",
+        Store.at("one.zarr"),
         workers=1,
         resume=True,
         verify=True,
@@ -338,18 +341,18 @@ def test_shards_of_samples_without_a_target_verify_intact(tmp_path):
 
     plan = parse_sweep(TINY_SWEEP.format(name="e", seed=3, realisations=2, output="e.zarr"))
     url = str(tmp_path / "e.zarr")
-    store.create_store(plan, url, samples_per_shard=2)
+    create_store(plan, Store(url), samples_per_shard=2)
     for _, jobs in task_batches(plan, range(plan.samples), 2):
-        assert render_shard(url, jobs) == []
+        assert render_shard(Store(url), jobs) == []
     for name in ("target_mask", "target_signal", "background_signal"):
         shards = sorted((tmp_path / "e.zarr" / name).glob("c.*"))
         assert [p.name.split(".")[1] for p in shards] == ["0", "1"]
-        assert integrity.verify(url) == []
+        assert integrity.verify(Store(url)) == []
         shards[1].unlink()  # as an older version left it
-    assert integrity.verify(url) == []
+    assert integrity.verify(Store(url)) == []
     # a shard lost whose values were not all fill is still found, and named
     next((tmp_path / "e.zarr" / "image").glob("c.1.*")).unlink()
-    problems = integrity.verify(url)
+    problems = integrity.verify(Store(url))
     assert [sample for sample, _ in problems] == [2, 3]
     assert all(reason.startswith("no image or target_mask") for _, reason in problems)
 
@@ -371,7 +374,7 @@ def test_damaged_statistics_are_named_and_written_again(tmp_path, monkeypatch, c
 
 def write_lock(work, **holder):
     record = {"host": socket.gethostname(), "since": "2026-01-01T00:00:00+00:00", **holder}
-    (work / "one.zarr" / storage.LOCK_NAME).write_text(json.dumps({"token": "x", **record}))
+    (work / "one.zarr" / LOCK_NAME).write_text(json.dumps({"token": "x", **record}))
 
 
 def test_a_locked_store_is_refused_and_a_dead_holders_lock_taken_over(work, capsys):
@@ -381,13 +384,13 @@ def test_a_locked_store_is_refused_and_a_dead_holders_lock_taken_over(work, caps
         assert main([*command[:1], *(str(work / c) for c in command[1:2]), *command[2:]]) == 2
         err = capsys.readouterr().err
         assert "locked by another run (host elsewhere" in err
-        assert str(work / "one.zarr" / storage.LOCK_NAME) in err
+        assert str(work / "one.zarr" / LOCK_NAME) in err
         assert snapshot(work) == before
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
     write_lock(work, pid=dead.pid)
     assert main(["stats", str(work / "one.zarr")]) == 0
-    assert not (work / "one.zarr" / storage.LOCK_NAME).exists()
+    assert not (work / "one.zarr" / LOCK_NAME).exists()
 
 
 def test_two_fresh_runs_racing_for_one_output(tmp_path):
@@ -513,7 +516,7 @@ def test_a_full_disk_stops_the_run_with_one_message(tmp_path, monkeypatch, capsy
         tasks.add(min(samples))
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(integrity, "write_shard", full)
+    monkeypatch.setattr(shards, "write_shard", full)
     sweep = tiny_sweep(tmp_path, realisations=10)
     assert main(["run", str(sweep), "--output", str(tmp_path / "t.zarr"), "--batch", "1"]) == 1
     err = capsys.readouterr().err
@@ -540,7 +543,7 @@ def test_the_template_is_built_without_rendering_a_sample(tmp_path, monkeypatch)
     assert plan.sample_bytes() > 2**24  # one sample: over 16 MiB
     tracemalloc.start()
     try:
-        store.create_store(plan, str(tmp_path / "big.zarr"))
+        create_store(plan, Store(str(tmp_path / "big.zarr")))
         peak = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
@@ -557,13 +560,13 @@ def test_the_local_lock_is_taken_atomically(tmp_path, monkeypatch):
     # (fsspec's mode="create" checks, then writes, and would let both through).
     from fsspec.implementations.local import LocalFileSystem
 
-    from service.inputs import SweepError
+    from service.errors import LockedError
 
     url = str(tmp_path / "race.zarr")
     monkeypatch.setattr(LocalFileSystem, "exists", lambda self, path, **kwargs: False)
-    with lock.writer_lock(url):
-        with pytest.raises(SweepError, match="locked by another run"):
-            with lock.writer_lock(url):
+    with Store(url).lock():
+        with pytest.raises(LockedError, match="locked by another run"):
+            with Store(url).lock():
                 pass
 
 
@@ -571,21 +574,21 @@ def test_a_lock_of_the_same_claim_is_taken_over_from_any_host(tmp_path):
     # The batch service claims a job's store with the job's id; restarted (as process 1 of
     # a new container, in a pod with another host name), it takes over its own job's lock,
     # and nobody else's.
-    from service.inputs import SweepError
+    from service.errors import LockedError
 
     url = tmp_path / "claimed.zarr"
     url.mkdir()
     held = {"host": "an-earlier-pod", "pid": 1, "token": "gone", "since": "?", "claim": "job a"}
-    (url / storage.LOCK_NAME).write_text(json.dumps(held))
+    (url / LOCK_NAME).write_text(json.dumps(held))
     for claim in (None, "job b"):
-        with pytest.raises(SweepError, match="locked by another run"):
-            with lock.writer_lock(str(url), claim=claim):
+        with pytest.raises(LockedError, match="locked by another run"):
+            with Store(str(url)).lock(claim=claim):
                 pass
-        assert json.loads((url / storage.LOCK_NAME).read_text()) == held
-    with lock.writer_lock(str(url), claim="job a") as token:
-        holder = json.loads((url / storage.LOCK_NAME).read_text())
+        assert json.loads((url / LOCK_NAME).read_text()) == held
+    with Store(str(url)).lock(claim="job a") as token:
+        holder = json.loads((url / LOCK_NAME).read_text())
         assert holder["token"] == token and holder["claim"] == "job a"
-    assert not (url / storage.LOCK_NAME).exists()
+    assert not (url / LOCK_NAME).exists()
 
 
 def test_a_stale_lock_is_taken_over_by_one_run_only(tmp_path, monkeypatch):
@@ -593,14 +596,14 @@ def test_a_stale_lock_is_taken_over_by_one_run_only(tmp_path, monkeypatch):
     # staleness check): only one may end up holding the lock, and the other is refused
     # with the message, not a traceback. Removing the lock without the guard lets the
     # second run delete the first one's fresh lock, and both write.
-    from service.inputs import SweepError
+    from service.errors import InputError
 
     url = tmp_path / "stale.zarr"
     url.mkdir()
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
     stale = {"host": socket.gethostname(), "pid": dead.pid, "token": "gone", "since": "?"}
-    (url / storage.LOCK_NAME).write_text(json.dumps(stale))
+    (url / LOCK_NAME).write_text(json.dumps(stale))
     both_looked = threading.Barrier(2, timeout=10)
     is_stale = lock._is_stale
 
@@ -614,10 +617,10 @@ def test_a_stale_lock_is_taken_over_by_one_run_only(tmp_path, monkeypatch):
 
     def take():
         try:
-            with lock.writer_lock(str(url)) as token:
+            with Store(str(url)).lock() as token:
                 outcomes.append(("held", token))
                 time.sleep(0.5)  # still holding while the other run tries
-        except SweepError as error:
+        except InputError as error:
             outcomes.append(("refused", str(error)))
         except Exception as error:  # a crash is an outcome to report
             outcomes.append(("crashed", repr(error)))
@@ -629,8 +632,8 @@ def test_a_stale_lock_is_taken_over_by_one_run_only(tmp_path, monkeypatch):
         run.join(timeout=30)
     assert sorted(kind for kind, _ in outcomes) == ["held", "refused"], outcomes
     assert "locked by another run" in dict(outcomes)["refused"]
-    assert not (url / storage.LOCK_NAME).exists()
-    assert not (url / (storage.LOCK_NAME + lock.TAKEOVER_SUFFIX)).exists()
+    assert not (url / LOCK_NAME).exists()
+    assert not (url / (LOCK_NAME + lock.TAKEOVER_SUFFIX)).exists()
 
 
 def test_a_cluster_slow_to_shut_down_does_not_fail_a_finished_run(monkeypatch, caplog):

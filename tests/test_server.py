@@ -19,8 +19,9 @@ import urllib.request
 import pytest
 from conftest import TINY_SWEEP, assert_same_samples, cli_command, free_port, run_cli
 
-from service import integrity, storage
 from service.cli import main
+from service.store.location import KIND, Store
+from service.store.lock import LOCK_NAME
 
 TOKEN = "s3cret-token"
 LONG = 40
@@ -172,7 +173,7 @@ def test_submit_and_watch_gives_the_bytes_of_run(
     job = service.job(job_id)
     assert job["owner"] == "alice" and job["errors"] == {}
     assert_same_samples(job["url"], reference, names=None)
-    assert storage.root_attributes(storage.stats_url(job["url"]))[storage.KIND] == "statistics"
+    assert Store(job["url"]).stats.attributes()[KIND] == "statistics"
     assert main(["jobs", "--state", "succeeded"]) == 0
     assert job_id in capsys.readouterr().out
 
@@ -224,11 +225,11 @@ def test_cancel_stops_the_job_and_resume_completes_it(service, reference, monkey
     assert status == 200 and job["state"] in ("running", "cancelled"), job
     job = service.wait(job_id, finished)
     assert job["state"] == "cancelled", job
-    complete = integrity.completed_samples(job["url"])
+    complete = Store(job["url"]).completed()
     time.sleep(2.0)  # nothing runs on after the cancel
-    assert (integrity.completed_samples(job["url"]) == complete).all()
+    assert (Store(job["url"]).completed() == complete).all()
     assert 4 <= complete.sum() < 2 * LONG
-    assert not os.path.exists(f"{job['url']}/{storage.LOCK_NAME}")
+    assert not os.path.exists(f"{job['url']}/{LOCK_NAME}")
     client(monkeypatch, service)
     assert main(["status", job_id]) == 1
     status, refused = service.submit(text)
@@ -262,10 +263,10 @@ def test_cancel_lets_no_task_write_on(service):
     assert service.request("DELETE", f"/v1/jobs/{job_id}")[0] == 200
     job = service.wait(job_id, finished)
     assert job["state"] == "cancelled", job
-    complete = integrity.completed_samples(job["url"])
+    complete = Store(job["url"]).completed()
     assert complete.sum() == job["samples"]["done"] < 8
     time.sleep(1.0)  # tasks that were executing ended before the job said cancelled
-    assert (integrity.completed_samples(job["url"]) == complete).all()
+    assert (Store(job["url"]).completed() == complete).all()
 
 
 def test_sigkill_mid_job_then_restart_resumes(reference, tmp_path, monkeypatch, capsys):
@@ -278,10 +279,10 @@ def test_sigkill_mid_job_then_restart_resumes(reference, tmp_path, monkeypatch, 
         server.wait(first, lambda job: job["samples"]["done"] >= 6)
         server.kill()
         url = str(tmp_path / "data" / "killed.zarr")
-        assert 6 <= integrity.completed_samples(url).sum() < 2 * LONG
+        assert 6 <= Store(url).completed().sum() < 2 * LONG
         # the server comes back as another process on another host (a restarted pod): the
         # lock its job left still names the job, and is taken over
-        lock = tmp_path / "data" / "killed.zarr" / storage.LOCK_NAME
+        lock = tmp_path / "data" / "killed.zarr" / LOCK_NAME
         holder = json.loads(lock.read_text())
         lock.write_text(json.dumps({**holder, "host": "an-earlier-pod", "pid": 1}))
         # a job killed as it started, before its overwrite had replaced the old store
@@ -302,7 +303,7 @@ def test_sigkill_mid_job_then_restart_resumes(reference, tmp_path, monkeypatch, 
         assert job["state"] == "succeeded" and job["resumed"], job
         assert_same_samples(url, reference, names=None)
         assert server.wait(second, finished)["state"] == "succeeded"
-        done = integrity.completed_samples(replaced)
+        done = Store(replaced).completed()
         assert done.size == 2 and done.all()  # one realisation of two points: replaced
         assert server.job(third)["state"] == "cancelled"
         assert not (tmp_path / "data" / "dropped.zarr").exists()
@@ -469,7 +470,7 @@ def test_page_shows_the_job_in_a_browser(open_service, tmp_path):
 
 
 def test_token_files_name_each_owner_and_each_token_once(tmp_path):
-    from service.inputs import SweepError
+    from service.errors import InputError
     from service.server import read_tokens
 
     tokens = tmp_path / "tokens"
@@ -481,38 +482,38 @@ def test_token_files_name_each_owner_and_each_token_once(tmp_path):
         ("t-1\nt-2\n", "owner"),  # two tokens of the owner 'default'
     ]:
         tokens.write_text(text)
-        with pytest.raises(SweepError, match=f"each {twice} may appear on one line only"):
+        with pytest.raises(InputError, match=f"each {twice} may appear on one line only"):
             read_tokens(str(tokens))
 
 
 def test_outputs_stay_under_the_data_root(tmp_path):
     from service.admission import confine_output
-    from service.inputs import SweepError
+    from service.errors import InputError
 
     root = tmp_path / "data"
     root.mkdir()
     assert confine_output("runs/a.zarr", str(root)) == f"{root}/runs/a.zarr"
     os.symlink(tmp_path, root / "link")
     for output in [*ESCAPES, "memory::a.zarr", "a.zarr::s3://bucket", ".", "a/../.."]:
-        with pytest.raises(SweepError, match=r"^output: "):
+        with pytest.raises(InputError, match=r"^output: "):
             confine_output(output, str(root))
 
 
 def test_an_object_storage_data_root_reads_no_measurement_file():
-    from service.inputs import SweepError
+    from service.errors import InputError
     from service.sweep import parse_sweep
 
     text = sweep("x.zarr").replace("surface: {", "surface: {conditioning: {file: points.csv}, ")
-    with pytest.raises(SweepError, match=r"^scene\.surface\.conditioning\.file: .*local folder"):
+    with pytest.raises(InputError, match=r"^scene\.surface\.conditioning\.file: .*local folder"):
         parse_sweep(text, folder="s3://bucket/oceanlidar")
 
 
 def test_one_service_a_table_and_no_store_inside_another(tmp_path):
-    from service.inputs import SweepError
+    from service.errors import InputError
     from service.jobs import JobTable, Runner
 
     table = JobTable(str(tmp_path / "jobs.sqlite"))
-    with pytest.raises(SweepError, match="another oceanlidar serve uses this job table"):
+    with pytest.raises(InputError, match="another oceanlidar serve uses this job table"):
         JobTable(str(tmp_path / "jobs.sqlite"))
     (tmp_path / "data" / "done.zarr").mkdir(parents=True)
     group = {"zarr_format": 3, "node_type": "group", "attributes": {}}
@@ -520,11 +521,10 @@ def test_one_service_a_table_and_no_store_inside_another(tmp_path):
     runner = Runner(
         table,
         None,  # nothing runs: the queue is not worked
-        data_root=str(tmp_path / "data"),
+        data_root=Store(str(tmp_path / "data")),
         max_running=1,
         queue_limit=10,
         batch_size=1,
-        storage_options=None,
     )
     runner.submit(sweep("runs/a.zarr"), owner="alice")
     for output, reason in [
@@ -534,7 +534,7 @@ def test_one_service_a_table_and_no_store_inside_another(tmp_path):
         ("done.zarr/b/c.zarr", "lies inside the store 'done.zarr'"),
         ('"a\\0b.zarr"', "control characters"),
     ]:
-        with pytest.raises(SweepError, match=f"^output: .*{re.escape(reason)}"):
+        with pytest.raises(InputError, match=f"^output: .*{re.escape(reason)}"):
             runner.submit(sweep(output), owner="bob")
     assert len(table.list()) == 1
     assert runner.submit(sweep("runs/b.zarr"), owner="bob").state == "queued"

@@ -16,10 +16,12 @@ import yaml
 from conftest import ROOT, ring_around, run_cli, same_values, start_cli
 from numpy.testing import assert_allclose
 
-from service import integrity, storage, store
 from service.cli import main
 from service.cluster import dask_client
 from service.run import execute, task_batches
+from service.store.location import Store
+from service.store.lock import LOCK_NAME
+from service.store.template import create_store
 from service.sweep import load_sweep, parse_sweep
 from workers.labels import RING_FRACTION
 from workers.render import render
@@ -61,7 +63,9 @@ def two_worker_store(tmp_path_factory):
     folder = tmp_path_factory.mktemp("two")
     plan = load_sweep(write(folder / "sweep.yaml"))
     url = str(folder / "small.zarr")
-    result = execute(plan, url, workers=2, batch_size=2, progress_stream=open(os.devnull, "w"))
+    result = execute(
+        plan, Store.at(url), workers=2, batch_size=2, progress_stream=open(os.devnull, "w")
+    )
     assert result.written == plan.samples == 12 and not result.failed
     return plan, url
 
@@ -88,9 +92,9 @@ def test_samples_equal_render_of_the_same_scene_and_seed(two_worker_store):
 def test_one_and_two_workers_write_the_same_bytes(two_worker_store, tmp_path):
     plan, url = two_worker_store
     other = str(tmp_path / "small.zarr")  # same name: statistics record their store's name
-    execute(plan, other, workers=1, batch_size=3, progress_stream=open(os.devnull, "w"))
+    execute(plan, Store.at(other), workers=1, batch_size=3, progress_stream=open(os.devnull, "w"))
     assert_same_store(url, other)
-    assert_same_store(storage.stats_url(url), storage.stats_url(other))
+    assert_same_store(Store(url).stats.url, Store(other).stats.url)
 
 
 def test_store_metadata_and_statistics(two_worker_store):
@@ -113,7 +117,7 @@ def test_store_metadata_and_statistics(two_worker_store):
         "units": "m",
         "parameter": "target.depth",
     }
-    stats = xr.open_zarr(storage.stats_url(url))
+    stats = xr.open_zarr(Store(url).stats.url)
     assert stats.sizes["point"] == 4 and stats.sizes["gate"] == 2
     assert stats["gate_top"].values.tolist() == [2.0, 5.0]
     assert stats["samples"].values.tolist() == [3, 3, 3, 3]
@@ -159,11 +163,11 @@ def test_bounded_submission_and_batches(tmp_path):
     batches = list(task_batches(plan, [0, 1, 2, 3, 5, 6, 7, 11], 3))
     assert [[job[0] for job in jobs] for _, jobs in batches] == [[0, 1, 2], [3, 5], [6, 7], [11]]
     url = str(tmp_path / "b.zarr")
-    store.create_store(plan, url, samples_per_shard=1)
+    create_store(plan, Store(url), samples_per_shard=1)
     from service.run import run_plan
 
     with dask_client(workers=1, scheduler=None) as client:
-        result = run_plan(plan, url, client=client, progress_stream=open(os.devnull, "w"))
+        result = run_plan(plan, Store(url), client=client, progress_stream=open(os.devnull, "w"))
     assert result.written == 12 and result.max_in_flight <= 2
 
 
@@ -173,7 +177,7 @@ def test_interrupted_run_resumes_to_the_same_store(tmp_path):
     sweep = write(tmp_path / "sweep.yaml", SWEEP.replace("realisations: 3", "realisations: 12"))
     plan = load_sweep(sweep)
     url = str(tmp_path / "reference.zarr")
-    execute(plan, url, workers=1, batch_size=4, progress_stream=open(os.devnull, "w"))
+    execute(plan, Store.at(url), workers=1, batch_size=4, progress_stream=open(os.devnull, "w"))
     target = tmp_path / "interrupted.zarr"
     process = start_cli(
         "run",
@@ -195,7 +199,7 @@ def test_interrupted_run_resumes_to_the_same_store(tmp_path):
     while time.monotonic() < deadline and process.poll() is None:
         if (target / "completed").exists():
             try:
-                done = int(integrity.completed_samples(str(target)).sum())
+                done = int(Store(str(target)).completed().sum())
             except Exception:  # the store is being written; look again
                 done = 0
             if done >= 2:
@@ -205,7 +209,7 @@ def test_interrupted_run_resumes_to_the_same_store(tmp_path):
     _, err = process.communicate(timeout=120)
     assert 2 <= done, err
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err  # the workers' own
-    partial = integrity.completed_samples(str(target))
+    partial = Store(str(target)).completed()
     assert process.returncode == 1 and "--resume" in err, err
     assert 0 < partial.sum() < plan.samples
     # the summary counts the tasks in flight at the signal that completed after it too
@@ -228,14 +232,14 @@ def test_a_terminated_run_stops_as_interrupted_and_releases_its_lock(tmp_path):
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and process.poll() is None:
         with contextlib.suppress(Exception):  # the store is being created
-            if integrity.completed_samples(str(target)).sum() >= 1:
+            if Store(str(target)).completed().sum() >= 1:
                 break
         time.sleep(0.05)
     process.send_signal(signal.SIGTERM)
     _, err = process.communicate(timeout=120)
     assert process.returncode == 1 and "interrupted: run again with --resume" in err, err
-    assert not (target / storage.LOCK_NAME).exists()
-    assert 0 < integrity.completed_samples(str(target)).sum() < 48
+    assert not (target / LOCK_NAME).exists()
+    assert 0 < Store(str(target)).completed().sum() < 48
 
 
 def test_existing_output_is_refused_and_left_unchanged(two_worker_store, tmp_path, capsys):
@@ -408,7 +412,7 @@ def test_list_valued_parameters_become_string_coordinates(tmp_path):
         )
     )
     url = str(tmp_path / "v.zarr")
-    store.create_store(plan, url)
+    create_store(plan, Store(url))
     ds = xr.open_zarr(url)
     assert ds["sequence_velocity"].values[0] == "[0, 0, 0]"
     assert ds["sequence_velocity"].values[-1] == "[1, 0, 0]"

@@ -8,15 +8,16 @@ import pytest
 import xarray as xr
 from conftest import assert_same_samples
 
-from service import integrity, storage, store
 from service.cli import main
 from service.dataset import SampleDataset
-from service.inputs import SweepError
+from service.errors import InputError
 from service.run import execute
+from service.store import integrity
+from service.store.location import Store
 from service.sweep import parse_sweep
-from workers.labels import rendered_variables
 from workers.render import render, render_arrays
 from workers.seeds import SampleSeed
+from workers.variables import rendered_order
 
 SCENE = """\
 name: {name}
@@ -54,7 +55,7 @@ def mixed(tmp_path_factory):
     """The mixed sweep run on two workers (shards of two samples)."""
     plan = plan_of(MIXED, "mixed")
     url = str(tmp_path_factory.mktemp("mixed") / "mixed.zarr")
-    result = execute(plan, url, workers=2, batch_size=2, **QUIET)
+    result = execute(plan, Store.at(url), workers=2, batch_size=2, **QUIET)
     assert result.written == plan.samples == 8 and not result.failed and not result.rejected
     return plan, url
 
@@ -70,9 +71,9 @@ def test_sweeps_take_the_renderer_and_its_photons_as_parameters():
         ("[10]", "transport.photons"),
     ):
         text = SCENE + "    " + field + ": {{values: " + bad + "}}\n"
-        with pytest.raises(SweepError, match=f"scene.{field}"):
+        with pytest.raises(InputError, match=f"scene.{field}"):
             plan_of(text)
-    with pytest.raises(SweepError, match="transport has"):
+    with pytest.raises(InputError, match="transport has"):
         plan_of(SCENE + "    transport.photon: {{values: [5000]}}\n")
 
 
@@ -99,14 +100,14 @@ def test_a_monte_carlo_sweep_stores_its_standard_error(tmp_path, capsys):
         alone = render_arrays(address.scene, seed=address.seed)
         assert error[sample].tobytes() == alone["expected_stderr"].tobytes()
     # counted in the plan's bytes (limits, shard size)
-    stored = sum(ds[name].nbytes for name in store.RENDERED_VARIABLES if name in ds)
+    stored = sum(ds[name].nbytes for name in rendered_order() if name in ds)
     assert plan.total_bytes() == stored
     # the store's commands all take it
     capsys.readouterr()
     assert main(["info", url, "--verify"]) == 0
     assert "verified: 16 of 16 complete samples read back intact" in capsys.readouterr().out
     assert main(["stats", url]) == 0
-    assert xr.open_zarr(storage.stats_url(url))["samples"].values.tolist() == [8, 8]
+    assert xr.open_zarr(Store(url).stats.url)["samples"].values.tolist() == [8, 8]
     assert main(["preview", url, "--sample", "1", "--output", str(tmp_path / "p.png")]) == 0
     assert (tmp_path / "p.png").stat().st_size > 0
     assert main(["detect", url]) == 0
@@ -129,7 +130,7 @@ def test_a_mixed_sweep_stores_zero_error_at_its_small_angle_points(mixed):
         "0 for samples rendered by the small-angle renderer"
         in (ds["expected_stderr"].attrs["comment"])
     )
-    stored = sum(ds[name].nbytes for name in store.RENDERED_VARIABLES if name in ds)
+    stored = sum(ds[name].nbytes for name in rendered_order() if name in ds)
     assert plan.total_bytes() == stored
     # every sample otherwise as rendered alone; the small-angle renderer has no such output
     for sample in (1, 3, 4):
@@ -144,10 +145,10 @@ def test_a_mixed_sweep_stores_zero_error_at_its_small_angle_points(mixed):
         if not small[sample]:
             assert error[sample].tobytes() == alone["expected_stderr"].values.tobytes()
     # the checksums cover the error; the training reader decodes it
-    assert integrity.verify(url) == []
+    assert integrity.verify(Store(url)) == []
     item = SampleDataset(url, arrays=("expected_stderr", "image"))[3]
     assert item["expected_stderr"].tobytes() == error[3].tobytes()
-    stats = xr.open_zarr(storage.stats_url(url))
+    stats = xr.open_zarr(Store(url).stats.url)
     assert stats["samples"].values.tolist() == [2, 2, 2, 2]
     assert methods(stats).tolist() == ["small_angle", "monte_carlo"] * 2
 
@@ -156,32 +157,31 @@ def test_an_error_chunk_changed_after_its_sample_was_written_is_found(mixed, tmp
     _, url = mixed
     copy = str(tmp_path / "mixed.zarr")
     shutil.copytree(url, copy)  # the module's store stays intact
-    group = store.open_group(copy)
+    group = Store(copy).group("r+")
     values = group["expected_stderr"][3]
     values[0, 0, 0, 0] += 1.0
     group["expected_stderr"][3] = values  # a valid chunk, but not the checksum's
-    assert integrity.verify(copy) == [(3, "its chunks do not match its checksum")]
+    assert integrity.verify(Store(copy)) == [(3, "its chunks do not match its checksum")]
 
 
 def test_one_and_two_workers_write_the_same_bytes(mixed, tmp_path):
     plan, url = mixed
     other = str(tmp_path / "mixed.zarr")  # same name: statistics record their store's name
-    execute(plan, other, workers=1, batch_size=3, **QUIET)
+    execute(plan, Store.at(other), workers=1, batch_size=3, **QUIET)
     assert_same_samples(url, other, names=None)
-    assert_same_samples(storage.stats_url(url), storage.stats_url(other), names=None)
+    assert_same_samples(Store(url).stats.url, Store(other).stats.url, names=None)
 
 
 def test_invalid_errors_are_never_stored():
     plan = plan_of(MONTE_CARLO)
     scene = plan.scenes[0]
-    table = rendered_variables(scene)
     arrays = render_arrays(scene, seed=SampleSeed(root=5, point=0, realisation=0))
-    assert integrity.invalid_values(arrays, table) is None
+    assert integrity.invalid_values(arrays, scene) is None
     for bad, reason in ((np.nan, "non-finite"), (-1.0, "negative")):
         spoiled = {**arrays, "expected_stderr": arrays["expected_stderr"].copy()}
         spoiled["expected_stderr"][0, 0, 0, 0] = bad
         assert f"expected_stderr holds 1 {reason} value" in integrity.invalid_values(
-            spoiled, table
+            spoiled, scene
         )
 
 

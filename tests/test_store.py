@@ -16,16 +16,18 @@ import xarray as xr
 import zarr
 from conftest import TINY_SCENE, run_cli
 
-from service import integrity, store
 from service.dataset import SampleDataset, open_dataset
-from service.inputs import SweepError
+from service.errors import DamagedStoreError, InputError
 from service.run import execute, render_shard, task_batches
 from service.stats import write_statistics
-from service.storage import stats_url
+from service.store import integrity, layout, shards, template
+from service.store.location import Store
+from service.store.template import create_store
 from service.sweep import parse_sweep
-from workers.labels import count_dtype, rendered_arrays, rendered_variables
+from workers.labels import rendered_arrays
 from workers.render import render, render_arrays
 from workers.seeds import SampleSeed
+from workers.variables import count_dtype, rendered_order, variables
 
 SWEEP = (
     TINY_SCENE.replace("receiver: {{pixels: 16, ", "receiver: {{pixels: 8, ")
@@ -48,9 +50,9 @@ def tiny_plan(realisations=3, **replace):
 
 def fill(plan, url, samples_per_shard=2):
     """A store of `plan` with every sample written, in this process (no cluster)."""
-    store.create_store(plan, url, samples_per_shard=samples_per_shard)
+    create_store(plan, Store(url), samples_per_shard=samples_per_shard)
     for _, jobs in task_batches(plan, range(plan.samples), samples_per_shard):
-        render_shard(url, jobs)
+        render_shard(Store(url), jobs)
 
 
 @pytest.fixture(scope="module")
@@ -91,7 +93,7 @@ def test_a_count_beyond_its_type_is_never_wrapped_and_never_stored():
     mask = np.zeros((1, 8, 8), np.uint8)
     arrays = rendered_arrays(scene, expected, image, mask, None, free=expected)
     assert arrays["image"].dtype == np.float32 and float(arrays["image"].max()) == 300.0
-    reason = integrity.invalid_values(arrays, rendered_variables(scene))
+    reason = integrity.invalid_values(arrays, scene)
     assert reason is not None and "image holds 1 count(s) over 255" in reason
 
 
@@ -123,7 +125,7 @@ def test_a_sweep_of_counts_and_float_images_stores_both_exactly(tmp_path, photon
             "white_plane_photons: 100": f"white_plane_photons: {photons}",
         },
     )
-    kinds = [rendered_variables(scene)["image"][1] for scene in plan.scenes]
+    kinds = [variables(scene)["image"].dtype for scene in plan.scenes]
     # depths 3 and 6 m, gains 1 and 10: the shallow target's counts are the widest
     assert kinds[0] == counts and kinds[1] == kinds[3] == np.float32
     url = str(tmp_path / "g.zarr")
@@ -136,7 +138,7 @@ def test_a_sweep_of_counts_and_float_images_stores_both_exactly(tmp_path, photon
         alone = render(scene, seed=SampleSeed(root=4, point=point, realisation=0))
         assert np.array_equal(ds["image"].values[point], alone["image"].values)
     # the plan's size (limits, shard size) counts every point's image in the store's type
-    stored_bytes = sum(ds[name].nbytes for name in store.RENDERED_VARIABLES if name in ds)
+    stored_bytes = sum(ds[name].nbytes for name in rendered_order() if name in ds)
     assert plan.total_bytes() == stored_bytes
     assert plan.sample_bytes() == stored_bytes // plan.samples
 
@@ -168,18 +170,18 @@ def test_expected_images_are_stored_only_when_asked(filled, tmp_path):
 
 def test_shards_fill_their_bytes_and_counts_are_compressed_by_shuffled_lz4(tmp_path, monkeypatch):
     plan = tiny_plan(realisations=50)  # 200 tiny samples: the shard count rule binds
-    assert store.shard_size(plan) == plan.samples // store.MIN_SHARDS == 25
-    assert store.shard_size(plan, 3) == 3
-    for realisations, size in ((5, 2), (1, 1), (1000, store.MAX_SHARD_SAMPLES)):
+    assert layout.shard_size(plan) == plan.samples // layout.MIN_SHARDS == 25
+    assert layout.shard_size(plan, 3) == 3
+    for realisations, size in ((5, 2), (1, 1), (1000, layout.MAX_SHARD_SAMPLES)):
         small = tiny_plan(realisations=realisations)  # 20: 10 shards; 4: 4; 4000: 16
-        assert store.shard_size(small) == size
-        assert -(-small.samples // size) >= min(store.MIN_SHARDS, small.samples)
-    monkeypatch.setattr(store, "SHARD_BYTES", 5 * plan.sample_bytes() + 1)
-    assert store.shard_size(plan) == 5
+        assert layout.shard_size(small) == size
+        assert -(-small.samples // size) >= min(layout.MIN_SHARDS, small.samples)
+    monkeypatch.setattr(layout, "SHARD_BYTES", 5 * plan.sample_bytes() + 1)
+    assert layout.shard_size(plan) == 5
     url = str(tmp_path / "s.zarr")
-    store.create_store(plan, url)
+    create_store(plan, Store(url))
     group = zarr.open_group(url, mode="r")
-    assert store.shard_samples(group) == 5 and group["image"].shards[0] == 5
+    assert layout.shard_samples(group) == 5 and group["image"].shards[0] == 5
     assert group["image"].dtype.kind == "u"
     for name in ("image", "target_mask"):
         blosc = group[name].compressors[0].to_dict()
@@ -188,11 +190,11 @@ def test_shards_fill_their_bytes_and_counts_are_compressed_by_shuffled_lz4(tmp_p
         assert blosc["configuration"]["shuffle"] == "bitshuffle", name
     assert group["target_signal"].compressors[0].to_dict()["name"] == "zstd"
     with_expected = parse_sweep(plan.text.replace("sweep:\n", "store: {expected: true}\nsweep:\n"))
-    store.create_store(with_expected, str(tmp_path / "e.zarr"))
+    create_store(with_expected, Store(str(tmp_path / "e.zarr")))
     blosc = zarr.open_array(str(tmp_path / "e.zarr" / "expected")).compressors[0].to_dict()
     assert blosc["configuration"]["cname"] == "zstd"
     assert blosc["configuration"]["shuffle"] == "shuffle"
-    assert len(integrity.read_samples(group["image"], [4, 5])) == 2  # readable, unwritten
+    assert len(shards.read_samples(group["image"], [4, 5])) == 2  # readable, unwritten
 
 
 def test_one_task_per_shard_and_a_failed_shard_rerun_one_sample_at_a_time(
@@ -201,7 +203,7 @@ def test_one_task_per_shard_and_a_failed_shard_rerun_one_sample_at_a_time(
     """No two tasks ever write one shard at once: each shard's writes are timed."""
     writes: dict[int, list] = {}
     lock = threading.Lock()
-    original = integrity.write_shard
+    original = shards.write_shard
 
     def timed(group, samples):
         started = time.monotonic()
@@ -215,14 +217,16 @@ def test_one_task_per_shard_and_a_failed_shard_rerun_one_sample_at_a_time(
             raise RuntimeError("poison")
         return render_arrays(scene, seed=seed)
 
-    monkeypatch.setattr(integrity, "write_shard", timed)
+    monkeypatch.setattr(shards, "write_shard", timed)
     monkeypatch.setattr(threads, "render_arrays", poisoned)
     plan = tiny_plan(realisations=3)
     url = str(tmp_path / "p.zarr")
-    result = execute(plan, url, workers=2, batch_size=3, progress_stream=open(os.devnull, "w"))
+    result = execute(
+        plan, Store.at(url), workers=2, batch_size=3, progress_stream=open(os.devnull, "w")
+    )
     # sample 4 (point 1, realisation 1) fails alone; 3 and 5 of its shard are written
     assert [(start, count) for start, count, _ in result.failed] == [(4, 1)]
-    done = integrity.completed_samples(url)
+    done = Store(url).completed()
     assert done.tolist() == [True] * 4 + [False] + [True] * 7
     assert len(writes[1]) == 2  # samples 3 and 5, one task each, after the failed shard
     for shard, spans in writes.items():
@@ -257,7 +261,7 @@ def test_a_shard_whose_task_is_given_up_goes_to_no_other_task(tmp_path, monkeypa
     url = str(tmp_path / "s.zarr")
     result = execute(
         plan,
-        url,
+        Store.at(url),
         workers=1,
         batch_size=3,
         task_timeout=3.0,
@@ -268,7 +272,7 @@ def test_a_shard_whose_task_is_given_up_goes_to_no_other_task(tmp_path, monkeypa
     # its shard were never given to another task
     assert result.stuck == [(3, 1), (4, 1), (5, 1)] and result.failed == []
     assert 5 not in renders
-    done = integrity.completed_samples(url).tolist()  # 3: its own task may write it late
+    done = Store(url).completed().tolist()  # 3: its own task may write it late
     assert done[:3] + done[4:] == [True] * 3 + [False, False] + [True] * 6
 
 
@@ -289,8 +293,8 @@ def test_open_dataset_selects_by_gate_and_groups_by_swept_parameters(filled):
     flags = ds["target_visibility"].attrs["flag_values"]
     assert flags.dtype == ds["target_visibility"].dtype == np.uint8
     assert ds["image"].attrs["valid_max"].dtype == ds["image"].dtype
-    write_statistics(url)
-    stats = open_dataset(stats_url(url))
+    write_statistics(Store(url))
+    stats = open_dataset(Store(url).stats.url)
     assert stats.sel(gate=0)["target_contrast"].dims == ("point",)
     assert stats["target_depth"].attrs["parameter"] == "target.depth"
 
@@ -315,9 +319,9 @@ def test_a_cf_checker_passes_a_small_export(filled, tmp_path):
 def test_the_training_reader_returns_the_stores_samples(filled, tmp_path):
     plan, url = filled
     partial = str(tmp_path / "partial.zarr")
-    store.create_store(plan, partial, samples_per_shard=2)
+    create_store(plan, Store(partial), samples_per_shard=2)
     _, jobs = next(task_batches(plan, [2, 3], 2))
-    render_shard(partial, jobs)
+    render_shard(Store(partial), jobs)
     reader = SampleDataset(partial, labels=("target_present", "target_depth"))
     assert len(reader) == 2 and reader.sample_index.tolist() == [2, 3]
     ds = xr.open_zarr(url)
@@ -346,14 +350,14 @@ def test_the_training_reader_returns_the_stores_samples(filled, tmp_path):
     shard.write_bytes(bytes(data))
     damaged = SampleDataset(partial)
     assert damaged[1]["image"].tobytes() == ds["image"].values[3].tobytes()
-    with pytest.raises(integrity.DamagedStoreError, match="sample 2: its chunk of target_mask"):
+    with pytest.raises(DamagedStoreError, match="sample 2: its chunk of target_mask"):
         damaged[0]
 
 
 def test_the_training_reader_reads_stores_of_zstd_shards(tmp_path, monkeypatch):
     # stores written before Blosc (November 2026) hold zstd shards
-    monkeypatch.setattr(store, "COUNT_CODECS", store.CODECS)
-    monkeypatch.setattr(store, "FLOAT_CODECS", store.CODECS)
+    monkeypatch.setattr(layout, "COUNT_CODECS", layout.CODECS)
+    monkeypatch.setattr(layout, "FLOAT_CODECS", layout.CODECS)
     plan = tiny_plan(realisations=1)
     url = str(tmp_path / "z.zarr")
     fill(plan, url)
@@ -399,7 +403,7 @@ def test_statistics_after_resume_recompute_only_the_points_written(tmp_path):
     stats = tmp_path / "s.stats.zarr"
     full = xr.open_zarr(stats).load()
     chunks = {p: p.stat().st_mtime_ns for p in stats.rglob("c.*")}
-    integrity.mark_incomplete(str(tmp_path / "s.zarr"), [4, 5])  # point 1's samples
+    Store.at(str(tmp_path / "s.zarr")).mark_incomplete([4, 5])  # point 1's samples
     time.sleep(0.01)
     result = run_cli(*command, "--resume", cwd=tmp_path)
     assert result.returncode == 0 and "wrote 2 samples" in result.stderr, result.stderr
@@ -412,7 +416,7 @@ def test_statistics_after_resume_recompute_only_the_points_written(tmp_path):
         assert full[name].values.tobytes() == again[name].values.tobytes(), name
     # statistics damaged beyond their images: recomputed whole, and equal
     (stats / "samples" / "c.0").write_bytes(b"garbage")
-    write_statistics(str(tmp_path / "s.zarr"), points=np.array([1]))
+    write_statistics(Store(str(tmp_path / "s.zarr")), points=np.array([1]))
     for name in full.data_vars:
         assert full[name].values.tobytes() == xr.open_zarr(stats)[name].values.tobytes()
 
@@ -431,8 +435,8 @@ def test_a_surface_saved_under_a_footprint_sweep_asks_for_an_explicit_spacing(sw
         )
         + f"  save_surface: true\nsweep:\n  parameters:\n    {swept}\n"
     )
-    with pytest.raises(SweepError) as error:
-        store.check_uniform(plan)
+    with pytest.raises(InputError) as error:
+        template.check_uniform(plan)
     message = str(error.value)
     assert "default surface.spacing follows the receiver's footprint" in message
     for field in ("platform.altitude", "platform.nadir_deg", "receiver.field_of_view_deg"):
@@ -440,7 +444,7 @@ def test_a_surface_saved_under_a_footprint_sweep_asks_for_an_explicit_spacing(sw
     assert "set surface.spacing (and surface.coarse_patches) explicitly" in message
     assert "cannot vary" not in message
     fixed = parse_sweep(plan.text.replace("grid_size: 32,", "grid_size: 32, spacing: 0.1,"))
-    store.check_uniform(fixed)  # with the spacing given the sweep is accepted
+    template.check_uniform(fixed)  # with the spacing given the sweep is accepted
 
 
 def test_a_swept_spacing_with_a_saved_surface_is_refused_by_name():
@@ -449,5 +453,5 @@ def test_a_swept_spacing_with_a_saved_surface_is_refused_by_name():
         + "  save_surface: true\nsweep:\n  parameters:\n"
         + "    surface.spacing: {values: [0.1, 0.2]}\n"
     )
-    with pytest.raises(SweepError, match=r"sweep.parameters.surface.spacing: cannot vary"):
-        store.check_uniform(plan)
+    with pytest.raises(InputError, match=r"sweep.parameters.surface.spacing: cannot vary"):
+        template.check_uniform(plan)

@@ -11,8 +11,10 @@ import pytest
 import xarray as xr
 from conftest import cli_command, run_cli
 
-from service import store
-from service.inputs import SweepError
+from service.errors import InputError
+from service.store import template
+from service.store.location import Store
+from service.store.template import create_store
 from service.sweep import load_sweep, memory_estimate, parse_sweep
 from workers.render import render
 from workers.scene import Scene
@@ -108,9 +110,9 @@ def test_size_limits_name_the_number_and_the_way_out():
             target.depth: {values: [1.0, 2.0, 3.0]}
         """
     )
-    with pytest.raises(SweepError, match=r"6 samples, over the limit of 5.*--no-limits"):
+    with pytest.raises(InputError, match=r"6 samples, over the limit of 5.*--no-limits"):
         plan.check_limits(max_samples=5)
-    with pytest.raises(SweepError, match="would store about"):
+    with pytest.raises(InputError, match="would store about"):
         plan.check_limits(max_bytes=1000)
     plan.check_limits()
 
@@ -212,7 +214,7 @@ def test_size_limits_name_the_number_and_the_way_out():
     ],
 )
 def test_bad_sweeps_say_where_and_why(text, message):
-    with pytest.raises(SweepError, match=message):
+    with pytest.raises(InputError, match=message):
         parse_sweep(text)
 
 
@@ -221,20 +223,20 @@ def test_alias_bomb_is_refused_before_it_expands():
     for i in range(1, 9):
         refs = ", ".join([f"*{chr(96 + i)}"] * 9)
         lines.append(f"{chr(97 + i)}: &{chr(97 + i)} [{refs}]")
-    with pytest.raises(SweepError, match="expands to more than"):
+    with pytest.raises(InputError, match="expands to more than"):
         parse_sweep("\n".join(lines) + "\n")
 
 
 def test_files_that_are_not_yaml_text(tmp_path):
     binary = tmp_path / "image.png"
     binary.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\xff\xfe")
-    with pytest.raises(SweepError, match=r"not a UTF-8 text file|NUL"):
+    with pytest.raises(InputError, match=r"not a UTF-8 text file|NUL"):
         load_sweep(binary)
-    with pytest.raises(SweepError, match="No such file"):
+    with pytest.raises(InputError, match="No such file"):
         load_sweep(tmp_path / "missing.yaml")
     huge = tmp_path / "huge.yaml"
     huge.write_text("a: " + "x" * 2_000_000)
-    with pytest.raises(SweepError, match="larger than"):
+    with pytest.raises(InputError, match="larger than"):
         load_sweep(huge)
 
 
@@ -243,7 +245,7 @@ def test_oversized_grid_is_refused_before_expansion():
         f"    target.{name}: {{values: {list(range(1, 60))}}}\n"
         for name in ("depth", "radius", "reflectance", "x", "y")
     )
-    with pytest.raises(SweepError, match="points"):
+    with pytest.raises(InputError, match="points"):
         parse_sweep(BASE + "sweep:\n  parameters:\n" + params)
 
 
@@ -269,7 +271,7 @@ def test_distribution_parameters_are_checked(spec, message):
     text = (
         BASE + f"sweep:\n  method: random\n  count: 3\n  parameters:\n    target.depth: {spec}\n"
     )
-    with pytest.raises(SweepError, match=message):
+    with pytest.raises(InputError, match=message):
         parse_sweep(text)
 
 
@@ -296,7 +298,7 @@ def test_inputs_must_be_regular_files(tmp_path, role):
         sweep = conditioned(tmp_path, name) if role == "measurements" else tmp_path / name
         if name == "zero.yaml":  # a measurement link to /dev/zero also leads out of the folder
             refused = "not a regular file" if role == "sweep" else "leads out of the sweep"
-            with pytest.raises(SweepError, match=refused):
+            with pytest.raises(InputError, match=refused):
                 load_sweep(sweep)
             continue
         # a FIFO blocks whoever opens it for reading: a process of its own, and a timeout
@@ -339,7 +341,7 @@ def test_measurement_files_stay_beside_the_sweep_and_are_never_echoed(tmp_path, 
     outside = tmp_path.parent / f"{tmp_path.name}-outside.csv"
     outside.write_text("x,y,elevation\n0.5,0.5,0.1\n")
     (tmp_path / "link.csv").symlink_to(outside)  # a valid file, but not the folder's
-    with pytest.raises(SweepError, match=message) as error:
+    with pytest.raises(InputError, match=message) as error:
         load_sweep(conditioned(tmp_path, name))
     assert "hunter2" not in str(error.value) and "root:" not in str(error.value)
 
@@ -348,7 +350,7 @@ def test_echoed_values_are_capped(tmp_path, capsys):
     from service.cli import main
 
     huge = "x" * 600_000
-    with pytest.raises(SweepError) as error:
+    with pytest.raises(InputError) as error:
         parse_sweep(BASE + f"sweep:\n  parameters:\n    target.shape: {{values: [{huge}]}}\n")
     assert "600,002 characters" in str(error.value) and len(str(error.value)) < 1000
     # a key is echoed as the place of the error: cut too
@@ -364,7 +366,7 @@ def test_memory_is_estimated_before_anything_is_built(tmp_path, capsys):
     from service.cli import main
 
     frames = BASE.replace("pixels: 16}", "pixels: 1024}\n  sequence: {frames: 64}")
-    with pytest.raises(SweepError, match=r"would need about .* GiB .* limit of 4\.00 GiB"):
+    with pytest.raises(InputError, match=r"would need about .* GiB .* limit of 4\.00 GiB"):
         parse_sweep(frames)
     assert parse_sweep(frames, max_memory=None).scenes[0].receiver.pixels == 1024
     # 24 measurement times on a 2048² grid: the kriging system alone, refused unbuilt
@@ -374,7 +376,7 @@ def test_memory_is_estimated_before_anything_is_built(tmp_path, capsys):
         "allow_repeat: true}",
         f"allow_repeat: true, conditioning: {{points: {points}}}}}",
     ).replace("grid_size: 32", "grid_size: 2048")
-    with pytest.raises(SweepError, match="would need about"):
+    with pytest.raises(InputError, match="would need about"):
         parse_sweep(measured)
     sweep = tmp_path / "frames.yaml"
     sweep.write_text(frames)
@@ -477,9 +479,9 @@ def test_the_store_carries_every_swept_fields_unit(tmp_path):
     lines = "".join(f"    {path}: {{values: {v}}}\n" for path, v in values.items())
     plan = parse_sweep(BASE + "sweep:\n  method: zip\n  parameters:\n" + lines)
     url = str(tmp_path / "units.zarr")
-    store.create_store(plan, url)
+    create_store(plan, Store(url))
     ds = xr.open_zarr(url)
-    names = {path: name for name, path in store.swept_parameters(ds).items()}
+    names = {path: name for name, path in template.swept_parameters(ds).items()}
     assert {path: ds[names[path]].attrs["units"] for path in expected} == expected
 
 
@@ -531,5 +533,5 @@ def test_sobol_points_form_a_net_over_two_parameters():
 
 
 def test_sobol_needs_a_power_of_two():
-    with pytest.raises(SweepError, match="power of two, not 12"):
+    with pytest.raises(InputError, match="power of two, not 12"):
         design("sobol", 12)

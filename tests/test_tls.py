@@ -10,6 +10,7 @@ import pytest
 from conftest import ROOT, TINY_SCENE, assert_same_samples, dask_processes, run_cli
 
 from service.run import execute
+from service.store.location import Store
 from service.sweep import parse_sweep
 
 x509 = pytest.importorskip("cryptography.x509")
@@ -92,7 +93,7 @@ def test_a_sweep_over_tls_writes_the_embedded_bytes(tls_cluster, tmp_path):
     result = run_cli("run", sweep, "--scheduler", address, *tls, "--output", output, cwd=tmp_path)
     assert result.returncode == 0, result.stderr
     local = str(tmp_path / "local.zarr")
-    execute(parse_sweep(SWEEP), local, workers=1, progress_stream=open(os.devnull, "w"))
+    execute(parse_sweep(SWEEP), Store.at(local), workers=1, progress_stream=open(os.devnull, "w"))
     assert_same_samples(output, local)
 
 
@@ -131,5 +132,5 @@ def test_the_service_runs_its_jobs_on_a_tls_cluster(tls_cluster, tmp_path):
     finally:
         server.stop()
     local = str(tmp_path / "local.zarr")
-    execute(parse_sweep(SWEEP), local, workers=1, progress_stream=open(os.devnull, "w"))
+    execute(parse_sweep(SWEEP), Store.at(local), workers=1, progress_stream=open(os.devnull, "w"))
     assert_same_samples(job["url"], local)

@@ -21,7 +21,7 @@ import logging
 import sys
 
 from service.cli.parser import parser
-from service.errors import InputError
+from service.errors import DamagedStoreError, InputError
 
 __all__ = ["main"]
 
@@ -98,10 +98,6 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return EXIT_FAILURE
-    except Exception as error:
-        from service.integrity import DamagedStoreError  # zarr: only once a command failed
-
-        if not isinstance(error, DamagedStoreError):
-            raise
+    except DamagedStoreError as error:
         print(f"oceanlidar {args.command}: error: {error}", file=sys.stderr)
         return EXIT_FAILURE

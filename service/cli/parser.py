@@ -165,7 +165,7 @@ class _Version(argparse.Action):
         )
 
     def __call__(self, parser, namespace, values, option_string=None):
-        from service.store import package_version  # zarr, xarray: not for every command
+        from service import package_version
 
         print(f"{parser.prog} {package_version()}", file=sys.stdout)
         parser.exit()

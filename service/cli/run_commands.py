@@ -23,14 +23,15 @@ import dask
 import yaml
 from dask.utils import format_bytes, format_time
 
-from service import integrity, storage, store
 from service.admission import Rules, admit
 from service.errors import BadFileError, BadOptionError, BadSweepError
 from service.inputs import DEFAULT_MAX_MEMORY, read_text, shown
 from service.schema import sweep_json_schema
+from service.store.integrity import invalid_values
+from service.store.layout import shard_size
+from service.store.location import Store
 from service.sweep import Plan
 from workers.cascades import describe
-from workers.labels import rendered_variables
 from workers.render import render_arrays
 from workers.section import SceneError
 
@@ -62,7 +63,7 @@ def plan_lines(
 
     With `resume`, the tasks are those of a new store: a resumed store keeps its shards.
     """
-    batch = store.shard_size(plan, batch)
+    batch = shard_size(plan, batch)
     tasks = -(-plan.samples // batch)
     kept = " for a new store; a resumed one keeps its own" if resume else ""
     return [
@@ -114,7 +115,7 @@ def _timed_render(plan: Plan, point: int = 0) -> tuple[float, float]:
             raise BadSweepError(f"{sample.describe()}: {error}") from None
         timings.append(sequence.frames * (time.perf_counter() - started))
         # what `run` would refuse to write (every sample of the scene alike, as a rule)
-        reason = integrity.invalid_values(rendered, rendered_variables(first_frame))
+        reason = invalid_values(rendered, first_frame)
         if reason is not None:
             raise BadSweepError(f"{sample.describe()}: renders invalid values: {reason}")
     first, second = timings
@@ -264,11 +265,12 @@ def cmd_run(args) -> int:
     url = args.output or plan.sweep.output
     for line in plan_lines(plan, args.batch, url, resume=args.resume):
         log.info(line)
+    store = Store.at(url, args.storage_options)
     try:
         with open(os.devnull, "w") as devnull, _terminate_as_interrupt():
             result = execute(
                 plan,
-                url,
+                store,
                 workers=args.workers,
                 scheduler=args.scheduler,
                 security=security(args),
@@ -277,7 +279,6 @@ def cmd_run(args) -> int:
                 resume=args.resume,
                 verify=args.verify,
                 overwrite=args.overwrite,
-                storage_options=args.storage_options,
                 batch_size=args.batch,
                 task_timeout=args.task_timeout,
                 progress_stream=devnull if args.quiet else sys.stderr,
@@ -309,5 +310,5 @@ def cmd_run(args) -> int:
     if not result.ok:
         log.error("statistics not written: some samples failed")
         return EXIT_FAILURE
-    log.info("statistics: %s", storage.stats_url(url))
+    log.info("statistics: %s", Store(url).stats.url)  # beside the output as it was named
     return EXIT_OK

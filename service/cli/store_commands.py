@@ -2,7 +2,8 @@
 
 Each takes the parsed arguments (`service.cli.parser`) and returns an exit code; bad input
 is raised as a `service.errors.InputError`, a damaged store as
-`service.integrity.DamagedStoreError`, both reported by `service.cli.main`.
+`service.errors.DamagedStoreError`, both reported by `service.cli.main`. Each builds the
+store's `service.store.location.Store` once from its arguments (`_store`).
 """
 
 from __future__ import annotations
@@ -10,9 +11,11 @@ from __future__ import annotations
 import logging
 import os
 
-from service import integrity, lock, storage, store
-from service.errors import BadOptionError, InputError, UnusableOutputError
+from service.errors import BadOptionError, DamagedStoreError, InputError, UnusableOutputError
 from service.inputs import shown
+from service.store import integrity
+from service.store.location import KIND, Store
+from service.store.template import swept_parameters
 from service.sweep import load_sweep, parse_sweep
 
 __all__ = ["cmd_detect", "cmd_info", "cmd_plot", "cmd_preview", "cmd_stats"]
@@ -32,42 +35,47 @@ def _print_problems(what: str, problems: list) -> None:
         print(f"  ... and {len(problems) - SHOWN_PROBLEMS} more samples")
 
 
-def _open(url: str, storage_options: dict | None):
-    """The samples store at `url` (normalised), opened lazily.
+def _store(args, url: str) -> Store:
+    """The store the command names (normalised), with its ``--storage-options``."""
+    return Store.at(url, args.storage_options)
+
+
+def _open(store: Store):
+    """The samples store, opened lazily.
 
     Raises
     ------
     UnusableOutputError
         If nothing, or not an oceanlidar samples store, is there.
     """
-    if not storage.store_exists(url, storage_options):
+    url = store.url
+    if not store.exists():
         raise UnusableOutputError(f"{url}: no store there")
-    attributes = storage.root_attributes(url, storage_options) or {}
-    if attributes.get(storage.KIND) != "samples":
+    if store.kind() != "samples":
         raise UnusableOutputError(f"{url}: not an oceanlidar samples store")
     try:
-        return store.open_store(url, storage_options=storage_options)
+        return store.dataset()
     except Exception as error:
         raise UnusableOutputError(f"{url}: not an oceanlidar store ({error})") from None
 
 
-def _statistics(url: str, storage_options: dict | None) -> str | None:
-    """The statistics store beside `url`, if one of this store is there."""
-    stats = storage.stats_url(url)
-    attributes = storage.root_attributes(stats, storage_options) or {}
-    ours = attributes.get("samples_store") in (None, storage.store_name(url))
-    if attributes.get(storage.KIND) != "statistics" or not ours:
+def _statistics(store: Store) -> Store | None:
+    """The statistics store beside `store`, if one of this store is there."""
+    attributes = store.stats.attributes() or {}
+    ours = attributes.get("samples_store") in (None, store.name)
+    if attributes.get(KIND) != "statistics" or not ours:
         return None  # none, or another store's (copied here, or of "one" beside "one.zarr")
-    return stats
+    return store.stats
 
 
 def cmd_info(args) -> int:
     """What a store holds and how complete it is; ``--verify`` reads every sample back."""
-    url = storage.normalise(args.store, args.storage_options)
-    ds = _open(url, args.storage_options)
-    done = int(integrity.completed_samples(url, storage_options=args.storage_options).sum())
+    store = _store(args, args.store)
+    url = store.url
+    ds = _open(store)
+    done = int(store.completed().sum())
     total = ds.sizes["sample"]
-    swept = [f"{name} ({path})" for name, path in store.swept_parameters(ds).items()]
+    swept = [f"{name} ({path})" for name, path in swept_parameters(ds).items()]
     print(f"{url}: {ds.attrs.get('title', '')}")
     print(f"  samples: {done}/{total} complete ({100 * done / max(total, 1):.1f} %)")
     print(f"  points: {ds.attrs.get('points')}  realisations: {ds.attrs.get('realisations')}")
@@ -76,20 +84,21 @@ def cmd_info(args) -> int:
     print(f"  swept: {', '.join(map(str, swept)) or '(nothing)'}")
     print(f"  sweep sha256: {ds.attrs.get('sweep_sha256')}")
     print(f"  written by: oceanlidar {ds.attrs.get('oceanlidar_version')}")
-    print(f"  statistics: {_statistics(url, args.storage_options) or '(none)'}")
+    stats = _statistics(store)
+    print(f"  statistics: {stats.url if stats else '(none)'}")
     if not args.verify:
         return EXIT_OK
-    problems = integrity.verify(url, args.storage_options)
+    problems = integrity.verify(store)
     print(f"  verified: {done - len(problems)} of {done} complete samples read back intact")
     _print_problems("damaged or missing", problems)
-    labels = _label_problems(url, ds, args.storage_options)
+    labels = _label_problems(store, ds)
     if problems or "lost" in labels.values():
         print("  run the sweep again with --resume --verify to recompute them")
     return EXIT_FAILURE if problems or labels else EXIT_OK
 
 
-def _label_problems(url: str, ds, storage_options: dict | None) -> dict:
-    """Print and return `service.integrity.wrong_labels` of the store, if its sweep loads."""
+def _label_problems(store: Store, ds) -> dict:
+    """Print and return `service.store.integrity.wrong_labels` of the store, if its sweep loads."""
     try:
         plan = parse_sweep(ds.attrs["sweep"], max_memory=None)
     except InputError as error:  # e.g. a measurement file the sweep names is not here
@@ -98,7 +107,7 @@ def _label_problems(url: str, ds, storage_options: dict | None) -> dict:
     if plan.digest != ds.attrs.get("sweep_sha256"):  # a measurement file changed since
         print("  labels and coordinates: not checked (its sweep reads other files here)")
         return {}
-    labels = integrity.wrong_labels(url, plan, storage_options)
+    labels = integrity.wrong_labels(store, plan)
     lost = ", ".join(name for name, kind in labels.items() if kind == "lost") or "none"
     print(f"  labels and coordinates lost or unreadable: {lost}")
     if differing := [name for name, kind in labels.items() if kind == "differs"]:
@@ -113,10 +122,10 @@ def cmd_stats(args) -> int:
     """(Re)compute a store's statistics, holding its writer lock."""
     from service.stats import write_statistics
 
-    url = storage.normalise(args.store, args.storage_options)
-    _open(url, args.storage_options)
-    with lock.writer_lock(url, args.storage_options):
-        print(write_statistics(url, storage_options=args.storage_options))
+    store = _store(args, args.store)
+    _open(store)
+    with store.lock():
+        print(write_statistics(store).url)
     return EXIT_OK
 
 
@@ -124,32 +133,30 @@ def cmd_detect(args) -> int:
     """The detection study of a store (`service.detect`)."""
     from service.detect import write_detection
 
-    url = storage.normalise(args.store, args.storage_options)
-    _open(url, args.storage_options)
-    target, unpaired = write_detection(
-        url, output=args.output, storage_options=args.storage_options
-    )
+    store = _store(args, args.store)
+    _open(store)
+    output = store.other(args.output) if args.output else None
+    target, unpaired = write_detection(store, output=output)
     if unpaired:
         log.warning("points with no target-free twin, left out: %s", unpaired)
-    print(target)
+    print(target.url)
     return EXIT_OK
 
 
-def _stored_sample(url: str, sample: int, storage_options: dict | None):
+def _stored_sample(store: Store, sample: int):
     """Sample `sample` of a store, loaded, and its title; refused if not written."""
-    ds = _open(url, storage_options)
+    ds = _open(store)
     total = ds.sizes["sample"]
     if not 0 <= sample < total:
         raise BadOptionError(f"--sample {sample}: the store has samples 0..{total - 1}")
-    if not integrity.completed_samples(url, storage_options=storage_options)[sample]:
-        raise BadOptionError(f"--sample {sample}: not written yet in {url} (resume its run)")
+    if not store.completed()[sample]:
+        raise BadOptionError(f"--sample {sample}: not written yet in {store.url} (resume its run)")
     one = ds.isel(sample=sample).load()
     values = ", ".join(
-        f"{path}={shown(one[name].values.item())}"
-        for name, path in store.swept_parameters(ds).items()
+        f"{path}={shown(one[name].values.item())}" for name, path in swept_parameters(ds).items()
     )
     where = f"point {int(one['point'])}" + (f": {values}" if values else "")
-    name = ds.attrs.get("title", url)
+    name = ds.attrs.get("title", store.url)
     return one, f"{name}, sample {sample} ({where}; realisation {int(one['realisation'])})"
 
 
@@ -164,8 +171,7 @@ def cmd_preview(args) -> int:
         title = f"{plan.sweep.name}, {address.describe()}"
         measurements = address.scene.surface.conditioning.points
     else:
-        url = storage.normalise(args.source, args.storage_options)
-        ds, title = _stored_sample(url, args.sample, args.storage_options)
+        ds, title = _stored_sample(_store(args, args.source), args.sample)
         measurements = None
     frames = save_preview(
         ds,
@@ -184,24 +190,21 @@ def cmd_plot(args) -> int:
     from service.detect import DATASET_KIND
     from service.plots import plot_detection, plot_statistics
 
-    url = storage.normalise(args.store, args.storage_options)
-    attributes = storage.root_attributes(url, args.storage_options) or {}
-    if attributes.get(storage.KIND) == DATASET_KIND:
-        detection = store.open_store(url, storage_options=args.storage_options)
-        plot_detection(detection, args.output)
+    store = _store(args, args.store)
+    if store.kind() == DATASET_KIND:
+        plot_detection(store.dataset(), args.output)
         log.info("%s", args.output)
         return EXIT_OK
-    _open(url, args.storage_options)
-    stats_path = _statistics(url, args.storage_options)
-    if stats_path is None:
-        raise UnusableOutputError(f"{url}: no statistics yet; run `oceanlidar stats` first")
-    stats = store.open_store(stats_path, storage_options=args.storage_options)
+    _open(store)
+    statistics = _statistics(store)
+    if statistics is None:
+        raise UnusableOutputError(f"{store.url}: no statistics yet; run `oceanlidar stats` first")
     try:
-        stats = stats.load()  # small: per point and gate
+        stats = statistics.dataset().load()  # small: per point and gate
     except Exception as error:
-        raise integrity.DamagedStoreError(
-            f"{stats_path}: a chunk cannot be read ({type(error).__name__}); run "
-            f"`oceanlidar stats {url}` to write the statistics again"
+        raise DamagedStoreError(
+            f"{statistics.url}: a chunk cannot be read ({type(error).__name__}); run "
+            f"`oceanlidar stats {store.url}` to write the statistics again"
         ) from None
     plot_statistics(stats, args.output)
     log.info("%s", args.output)

@@ -1,7 +1,8 @@
 """The writer's lock: one run (or ``stats``) writes a store at a time.
 
-The lock is the file `service.storage.LOCK_NAME` in the store, created exclusively; the
-workers check that they see it (`check_workers_see`) before anything is rendered.
+The lock is the file `LOCK_NAME` in the store, created exclusively; the workers check that
+they see it (`check_workers_see`) before anything is rendered. Both take the
+`service.store.location.Store` (`Store.lock`, `Store.check_workers_see`).
 """
 
 from __future__ import annotations
@@ -14,10 +15,13 @@ import socket
 import time
 import uuid
 
-from service.inputs import SweepError, shown
-from service.storage import LOCK_NAME, filesystem, storage_errors
+from service.errors import LockedError, UnusableOutputError
+from service.inputs import shown
 
-__all__ = ["check_workers_see", "writer_lock"]
+__all__ = ["LOCK_NAME", "check_workers_see", "writer_lock"]
+
+LOCK_NAME = "oceanlidar.lock"
+"""The writer's lock, a file in the store (`writer_lock`)."""
 
 TAKEOVER_SUFFIX = ".takeover"
 """Suffix of the guard file held while a stale lock is removed (`_remove_stale`)."""
@@ -26,22 +30,29 @@ TAKEOVER_WAIT = 5.0
 """Longest wait for another run's takeover guard, s."""
 
 
-def check_workers_see(url: str, storage_options: dict | None, token: str) -> None:
+def check_workers_see(store, token: str) -> None:
     """Check, on a worker, that the store the runner locked is there and writable.
 
     Run this as a dask task before any sample is rendered: a worker that sees another file
     system (``memory://``, a disk of its own machine) does not find the lock's token.
 
+    Parameters
+    ----------
+    store : service.store.location.Store
+        The store.
+    token : str
+        The lock's token (`writer_lock`).
+
     Raises
     ------
-    SweepError
+    UnusableOutputError
         If the worker does not see the lock, or cannot write beside it.
     """
-    fs, path = filesystem(url, storage_options)
-    with storage_errors(url):
+    fs, path = store.fs, store.path
+    with store.errors():
         if _holder(fs, f"{path}/{LOCK_NAME}").get("token") != token:
-            raise SweepError(
-                f"the workers do not see the store {shown(url)} that the runner created "
+            raise UnusableOutputError(
+                f"the workers do not see the store {shown(store.url)} that the runner created "
                 "(another machine's disk, or a store in one process's memory?): write to "
                 "storage every worker shares, such as an object-store URL"
             )
@@ -107,7 +118,7 @@ def _remove_stale(fs, lock: str, holder: dict, record: dict) -> None:
 
     Raises
     ------
-    SweepError
+    LockedError
         If the guard stays in place for `TAKEOVER_WAIT` s (a taker died within the
         microseconds it holds it): the message names the file to delete.
     """
@@ -119,7 +130,7 @@ def _remove_stale(fs, lock: str, holder: dict, record: dict) -> None:
             break
         except FileExistsError:
             if time.monotonic() > deadline:
-                raise SweepError(
+                raise LockedError(
                     f"another run is taking over the stale lock {lock}; if none is, delete "
                     f"{guard} and try again"
                 ) from None
@@ -132,7 +143,7 @@ def _remove_stale(fs, lock: str, holder: dict, record: dict) -> None:
 
 
 @contextlib.contextmanager
-def writer_lock(url: str, storage_options: dict | None = None, *, claim: str | None = None):
+def writer_lock(store, *, claim: str | None = None):
     """Hold the store's writer lock: one run (or ``stats``) writes a store at a time.
 
     The lock is the file `LOCK_NAME` in the store, created only if absent (an exclusive
@@ -146,10 +157,8 @@ def writer_lock(url: str, storage_options: dict | None = None, *, claim: str | N
 
     Parameters
     ----------
-    url : str
+    store : service.store.location.Store
         The store.
-    storage_options : dict or None
-        fsspec options of `url`.
     claim : str or None
         Who the run writes for, kept in the lock: a lock of the same claim left by a run
         that was interrupted is taken over.
@@ -161,10 +170,12 @@ def writer_lock(url: str, storage_options: dict | None = None, *, claim: str | N
 
     Raises
     ------
-    SweepError
-        If another run holds the lock, or the store's place cannot be written.
+    LockedError
+        If another run holds the lock.
+    UnusableOutputError
+        If the store's place cannot be written.
     """
-    fs, path = filesystem(url, storage_options)
+    fs, path = store.fs, store.path
     lock = f"{path}/{LOCK_NAME}"
     token = uuid.uuid4().hex
     record = {
@@ -175,13 +186,13 @@ def writer_lock(url: str, storage_options: dict | None = None, *, claim: str | N
     }
     if claim is not None:
         record["claim"] = claim
-    with storage_errors(url):
+    with store.errors():
         created = not fs.exists(path)
-        if "file" in fs.protocol:
+        if store.local:
             fs.makedirs(path, exist_ok=True)
     for attempt in range(2):
         try:
-            with storage_errors(url):
+            with store.errors():
                 _create_exclusive(fs, lock, json.dumps(record).encode())
             break
         except FileExistsError:
@@ -189,8 +200,8 @@ def writer_lock(url: str, storage_options: dict | None = None, *, claim: str | N
             if attempt == 0 and _is_stale(holder, claim):
                 _remove_stale(fs, lock, holder, record)
                 continue
-            raise SweepError(
-                f"{url} is locked by another run (host {holder.get('host', '?')}, process "
+            raise LockedError(
+                f"{store.url} is locked by another run (host {holder.get('host', '?')}, process "
                 f"{holder.get('pid', '?')}, since {holder.get('since', '?')}); wait for it, "
                 f"or, if no run is writing there any more, delete {lock} and try again"
             ) from None
@@ -199,6 +210,6 @@ def writer_lock(url: str, storage_options: dict | None = None, *, claim: str | N
     finally:
         if _holder(fs, lock).get("token") == token:
             fs.rm(lock)
-        if created and "file" in fs.protocol:
+        if created and store.local:
             with contextlib.suppress(OSError):  # holds a store now
                 os.rmdir(path)

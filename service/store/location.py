@@ -1,0 +1,358 @@
+"""A store where it lives: `Store`, a zarr store at a URL and the fsspec options to reach it.
+
+Every dataset the service writes or reads (samples, statistics, detection) is a `Store`:
+its file system and path, its zarr group (`Store.group`, the one way the service opens
+one) and its dataset (`Store.dataset`), its siblings (statistics and detection beside it),
+its writer's lock (`Store.lock`, `service.store.lock`) and the samples' completion flags.
+`Store.errors` turns a failure to reach or write storage into an
+`service.errors.UnusableOutputError` naming the URL. Deletion is refused unless every file
+is one the store's own metadata lists (`Store.removable`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import json
+import os
+import re
+import warnings
+from dataclasses import dataclass, field
+
+import fsspec
+import numpy as np
+import xarray as xr
+import zarr
+
+from service.errors import BadOptionError, UnusableOutputError
+from service.inputs import shown
+from service.store.lock import LOCK_NAME, check_workers_see, writer_lock
+
+__all__ = ["KIND", "Store", "consolidated_v3"]
+
+KIND = "oceanlidar_dataset"
+"""Root attribute naming what a store holds: ``samples`` (a sweep), ``statistics`` or
+``detection``."""
+
+
+@contextlib.contextmanager
+def consolidated_v3():
+    """Write consolidated metadata to a zarr v3 store without zarr's standing warning.
+
+    zarr-python warns that consolidated metadata is not yet part of the v3 specification;
+    we keep it because opening a store then costs one read (it matters on object storage),
+    and zarr-python, which we pin, reads it. Consolidating lists the store, where zarr
+    notices the writer's lock (`service.store.lock.writer_lock`), which is not part of the
+    hierarchy by design.
+    """
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Consolidated metadata is currently not part")
+        warnings.filterwarnings("ignore", message=f"Object at {LOCK_NAME} is not recognized")
+        yield
+
+
+def _storage_failures() -> tuple[type[BaseException], ...]:
+    """`OSError`, and what S3 clients raise untranslated (an unreachable endpoint)."""
+    try:
+        from botocore.exceptions import BotoCoreError
+    except ImportError:  # no S3 support installed: fsspec raises OSError alone
+        return (OSError,)
+    return (OSError, BotoCoreError)
+
+
+def _shown(names: list[str]) -> str:
+    more = f" and {len(names) - 1} more" if len(names) > 1 else ""
+    return repr(names[0][:200]) + more
+
+
+@dataclass(frozen=True)
+class Store:
+    """A zarr store at a path or fsspec URL, with the options that reach it.
+
+    Built once from the command line's ``--output`` (or a store argument) and
+    ``--storage-options`` (`Store.at`), then passed down: to the dask workers as it is
+    (it pickles as its URL and options; each process makes its own file system).
+
+    Attributes
+    ----------
+    url : str
+        A path or fsspec URL (`Store.at` makes a local path absolute).
+    storage_options : dict or None
+        fsspec options (credentials, endpoint).
+    """
+
+    url: str
+    storage_options: dict | None = field(default=None, hash=False)
+
+    @classmethod
+    def at(cls, url: str, storage_options: dict | None = None) -> Store:
+        """The store at `url` as every process reads it: a local path absolute, ``~`` expanded.
+
+        ``file://`` URLs become paths. A path is resolved here, in the runner, because zarr
+        on the workers neither expands ``~`` nor shares the runner's working directory.
+
+        Raises
+        ------
+        BadOptionError
+            For storage options given with a local path (they apply to URLs only).
+        """
+        url = str(url)
+        protocol, path = fsspec.core.split_protocol(url)
+        if protocol not in (None, "file", "local"):
+            return cls(url, storage_options)
+        if storage_options:
+            raise BadOptionError(
+                f"--storage-options apply to URLs such as s3://bucket/run.zarr, not to the "
+                f"local path {shown(url)}"
+            )
+        return cls(os.path.abspath(os.path.expanduser(path)))
+
+    def __getstate__(self) -> dict:
+        """Its URL and options: the file system is made again where it is unpickled."""
+        return {"url": self.url, "storage_options": self.storage_options}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+
+    def other(self, url: str) -> Store:
+        """The store at `url` on the same storage (the same options)."""
+        return Store(url, self.storage_options)
+
+    @functools.cached_property
+    def _located(self) -> tuple:
+        try:
+            return fsspec.core.url_to_fs(self.url, **(self.storage_options or {}))
+        except (TypeError, ValueError, ImportError) as error:
+            raise BadOptionError(
+                f"{self.url}: cannot open with these storage options ({error})"
+            ) from None
+
+    @property
+    def fs(self):
+        """The fsspec file system (`BadOptionError` if the options do not fit it)."""
+        return self._located[0]
+
+    @property
+    def path(self) -> str:
+        """The store's path on `fs`."""
+        return self._located[1]
+
+    @property
+    def local(self) -> bool:
+        """Whether the store is on a local file system (renames, folders)."""
+        return "file" in self.fs.protocol
+
+    @property
+    def name(self) -> str:
+        """The store's name in its folder: the last component of its URL."""
+        return self.url.rstrip("/").rsplit("/", 1)[-1]
+
+    def sibling(self, kind: str) -> Store:
+        """The `kind` dataset of this store: beside it, ``NAME.KIND.zarr``."""
+        stem = self.url.rstrip("/")
+        if stem.endswith(".zarr"):
+            stem = stem[: -len(".zarr")]
+        return self.other(f"{stem}.{kind}.zarr")
+
+    @property
+    def stats(self) -> Store:
+        """Where the statistics of this store live (beside it)."""
+        return self.sibling("stats")
+
+    def partial(self, suffix: str) -> Store:
+        """A fresh store beside this one, to write into before it is moved here."""
+        return self.other(f"{self.url.rstrip('/')}.partial-{suffix}")
+
+    @contextlib.contextmanager
+    def errors(self):
+        """Turn a failure to reach or write storage into an `UnusableOutputError`.
+
+        ``FileExistsError`` passes through: the writer's lock tells it from a failure.
+        """
+        try:
+            yield
+        except FileExistsError:
+            raise
+        except _storage_failures() as error:
+            reason = getattr(error, "strerror", None) or str(error) or type(error).__name__
+            raise UnusableOutputError(
+                f"{shown(self.url)} cannot be written: {reason[:200]}"
+            ) from None
+
+    def exists(self) -> bool:
+        """Whether anything is stored at the URL."""
+        return self.fs.exists(self.path)
+
+    def files(self, folder: str = "") -> list[str]:
+        """Every file of the store (or of a `folder` in it), relative to it or to `folder`.
+
+        A file at the URL (or at `folder`) itself is named '.'.
+        """
+        path = f"{self.path}/{folder}" if folder else self.path
+        if self.fs.isfile(path):
+            return ["."]
+        root = path.rstrip("/") + "/"
+        return sorted(name[len(root) :] for name in self.fs.find(path) if name.startswith(root))
+
+    def occupied(self) -> bool:
+        """Whether the store holds anything besides a writer's lock."""
+        return any(name != LOCK_NAME for name in self.files())
+
+    def _metadata(self) -> dict | None:
+        """The root group's ``zarr.json``; None if there is no readable group."""
+        try:
+            metadata = json.loads(self.fs.cat_file(f"{self.path}/zarr.json"))
+        except (OSError, ValueError):
+            return None
+        if not isinstance(metadata, dict) or metadata.get("node_type") != "group":
+            return None
+        return metadata
+
+    def attributes(self) -> dict | None:
+        """The attributes of the zarr group; None if there is no readable group."""
+        attributes = (self._metadata() or {}).get("attributes")
+        return attributes if isinstance(attributes, dict) else None
+
+    def kind(self) -> str | None:
+        """What the store holds (its `KIND` attribute): ``samples``, ``statistics``..."""
+        return (self.attributes() or {}).get(KIND)
+
+    def removable(self, kind: str) -> list[str]:
+        """The files of the `kind` dataset here, which may be deleted to replace it.
+
+        Only what the store's own metadata lists may go: its group and array metadata, and
+        chunk keys of the arrays that its consolidated metadata names. Anything else in the
+        folder (a user's file, a store of another kind) refuses the whole deletion, before
+        anything is deleted.
+
+        Parameters
+        ----------
+        kind : {'samples', 'statistics', 'detection'}
+            What the store must hold (its `KIND` attribute).
+
+        Returns
+        -------
+        list of str
+            Paths relative to the store, the writer's lock excluded; empty if nothing is
+            there.
+
+        Raises
+        ------
+        UnusableOutputError
+            If something is there that is not such a store, or holds files it does not list.
+        """
+        files = [name for name in self.files() if name != LOCK_NAME]
+        if not files:
+            return []
+        attributes = self.attributes() or {}
+        if KIND not in attributes and "oceanlidar_version" in attributes:
+            raise UnusableOutputError(
+                f"{self.url} was written by oceanlidar {shown(attributes['oceanlidar_version'])}, "
+                "which did not record what a store holds; refusing to delete it (delete it by "
+                "hand if it is yours to replace)"
+            )
+        if attributes.get(KIND) != kind:
+            raise UnusableOutputError(
+                f"{self.url} exists and is not an oceanlidar {kind} store; refusing to delete it"
+            )
+        arrays = (self._metadata().get("consolidated_metadata") or {}).get("metadata") or {}
+        listed = re.compile(
+            r"zarr\.json|(?:"
+            + "|".join(re.escape(name) for name in arrays)
+            + r")/(?:zarr\.json|c(?:[./]\d+)*)"
+        )
+        strangers = [name for name in files if not listed.fullmatch(name)]
+        if strangers:
+            raise UnusableOutputError(
+                f"{self.url} holds {_shown(strangers)}, which the store's metadata does not "
+                "list; refusing to delete it (move those files away first)"
+            )
+        return files
+
+    def remove(self, files: list[str]) -> None:
+        """Delete `files` (from `removable`) of the store, and the folders they empty."""
+        if not files:
+            return
+        self.fs.rm([f"{self.path}/{name}" for name in files])
+        if self.local:
+            folders = {os.path.dirname(f"{self.path}/{name}") for name in files}
+            for folder in sorted(folders, key=len, reverse=True):
+                with contextlib.suppress(OSError):  # not empty: the lock, or a folder above
+                    os.rmdir(folder)
+
+    def move_to(self, target: Store) -> None:
+        """Move the store to `target` (same file system; nothing may be there).
+
+        On a file system this is one rename. Object storage has no rename: objects are
+        copied, the group's metadata last (until it lands, nothing reads as a store at
+        `target`), then deleted here.
+        """
+        if self.local:
+            os.rename(self.path, target.path)
+            return
+        names = sorted(self.files(), key=lambda name: name == "zarr.json")
+        self.fs.copy(
+            [f"{self.path}/{name}" for name in names], [f"{target.path}/{name}" for name in names]
+        )
+        self.fs.rm([f"{self.path}/{name}" for name in names])
+
+    def group(self, mode: str = "r") -> zarr.Group:
+        """The store's zarr group: the one way the service opens it.
+
+        ``r`` reads it from its consolidated metadata; ``r+`` writes whole chunks into the
+        arrays the template created (their own metadata: region writes never touch it).
+        """
+        return zarr.open_group(
+            store=self.url,
+            mode=mode,
+            zarr_format=3,
+            use_consolidated=mode == "r",
+            storage_options=self.storage_options,
+        )
+
+    def dataset(self, samples_per_chunk: int | None = None) -> xr.Dataset:
+        """The store as an xarray dataset, lazily (dask; one sample per chunk unless told)."""
+        if samples_per_chunk is None:
+            return xr.open_zarr(self.url, consolidated=True, storage_options=self.storage_options)
+        with warnings.catch_warnings():
+            # labels are stored in one chunk per array: splitting them for reading is intended
+            warnings.filterwarnings("ignore", message="The specified chunks separate")
+            return xr.open_zarr(
+                self.url,
+                consolidated=True,
+                storage_options=self.storage_options,
+                chunks={"sample": samples_per_chunk},
+            )
+
+    def write(self, ds: xr.Dataset, *, mode: str, compute: bool = True, encoding=None) -> None:
+        """Write `ds` as a zarr v3 store here, its metadata consolidated."""
+        with consolidated_v3():
+            ds.to_zarr(
+                self.url,
+                mode=mode,
+                compute=compute,
+                consolidated=True,
+                zarr_format=3,
+                encoding=encoding,
+                storage_options=self.storage_options,
+            )
+
+    def lock(self, *, claim: str | None = None):
+        """Hold the store's writer lock (`service.store.lock.writer_lock`); yields its token."""
+        return writer_lock(self, claim=claim)
+
+    def check_workers_see(self, token: str) -> None:
+        """Check, on a worker, that it sees the lock (`service.store.lock.check_workers_see`)."""
+        check_workers_see(self, token)
+
+    def completed(self) -> np.ndarray:
+        """Boolean array: which samples are written.
+
+        The flags have one chunk per shard: one read per shard, whatever its samples.
+        """
+        return self.group()["completed"][:].astype(bool)
+
+    def mark_incomplete(self, samples: list[int]) -> None:
+        """Clear the completion flags of `samples`, so that a resumed run renders them again."""
+        if samples:
+            self.group("r+")["completed"].set_orthogonal_selection((samples,), 0)
