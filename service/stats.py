@@ -2,8 +2,10 @@
 
 The statistics dataset sits beside the store (`service.store.location.Store.stats`). One
 dask task per group of parameter points reads those points' samples (never the whole
-store), reduces them over realisations and frames with numpy, and writes its points' whole
-chunks of the statistics store. Samples not yet written are ignored. The noise-free
+store), checks each against its checksum (`service.store.shards.read_verified`: a damaged
+or lost sample stops the statistics, the previous ones kept), reduces them over realisations
+and frames with numpy, and writes its points' whole chunks of the statistics store. Samples
+not yet written are ignored. The noise-free
 signals come from the per-sample means the render task computed (``target_signal``,
 ``background_signal``, the target's effect against its target-free twin
 ``target_effect_relative``), so the store need not keep the noise-free images. After a
@@ -42,7 +44,7 @@ from service import package_version
 from service.errors import UnusableOutputError
 from service.store.layout import CODECS, CONVENTIONS, lazy_array, one_per_chunk
 from service.store.location import KIND, Store
-from service.store.shards import read_samples
+from service.store.shards import read_verified
 from workers.labels import signal_means
 from workers.variables import Visibility
 
@@ -175,16 +177,9 @@ def _reduce_points(source: Store, target: Store, points, done, realisations):
     picks = (starts + np.arange(realisations))[done]
     if picks.size == 0:
         return len(points)
-    # all the points' samples at once: consecutive points are one slice of the store
-    names = (
-        "image",
-        "target_signal",
-        "background_signal",
-        "target_mask",
-        "target_effect_relative",
-        "target_visibility",
-    )
-    read = {name: read_samples(samples[name], picks.tolist()) for name in names}
+    # all the points' samples at once (consecutive points are one slice of the store),
+    # every rendered array, to check each sample against its checksum
+    read = read_verified(samples, picks.tolist())
     owner = np.repeat(np.arange(len(points)), done.sum(axis=1))
     for index, point in enumerate(points):
         mine = owner == index
@@ -226,6 +221,8 @@ def write_statistics(store: Store, *, points: np.ndarray | None = None) -> Store
         If the statistics path holds something other than oceanlidar statistics, or the
         statistics of another store (`check_owner`), or the store predates the target's
         effect.
+    DamagedStoreError
+        Naming a sample marked complete that cannot be read back as its checksum says.
     """
     check_owner(store)
     ds = store.dataset()

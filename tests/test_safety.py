@@ -236,6 +236,35 @@ def test_failed_statistics_keep_the_previous_ones(work, capsys):
     assert str(work / "one.stats.zarr") in capsys.readouterr().out
 
 
+@pytest.mark.parametrize(
+    ("attack", "sample"),
+    [
+        (lambda work: next((work / "one.zarr" / "image").glob("c.2.*")).unlink(), 4),
+        (lambda work: swap_chunks(work, "image", 0, 1), 0),
+        (
+            lambda work: shutil.copyfile(
+                next((work / "one.zarr" / "image").glob("c.0.*")),
+                next((work / "one.zarr" / "image").glob("c.1.*")),
+            ),
+            2,
+        ),
+    ],
+    ids=["shard-lost", "chunks-swapped", "shard-copied-over-another"],
+)
+def test_statistics_refuse_samples_not_theirs_and_keep_the_previous_ones(
+    work, capsys, attack, sample
+):
+    # every chunk's CRC32C holds: only the samples' checksums tell (issue #26 item 1)
+    before = snapshot(work / "one.stats.zarr")
+    attack(work)
+    assert main(["stats", str(work / "one.zarr")]) == 1
+    err = capsys.readouterr().err
+    assert f"sample {sample}: its chunks do not match its checksum" in err
+    assert "Traceback" not in err
+    assert snapshot(work / "one.stats.zarr") == before
+    assert sorted(p.name for p in work.iterdir()) == ["one.stats.zarr", "one.yaml", "one.zarr"]
+
+
 def test_verify_finds_damaged_missing_and_swapped_samples_and_resume_redoes_them(work, capsys):
     # layout: shards [0, 1], [2, 3], [4]; a repair rewrites a shard with the samples in it
     # that are intact (sample 2 beside the damaged 3) to the same bytes

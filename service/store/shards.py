@@ -24,6 +24,7 @@ __all__ = [
     "ZERO_WHEN_ABSENT",
     "ShardReader",
     "read_samples",
+    "read_verified",
     "sample_checksum",
     "write_shard",
 ]
@@ -74,6 +75,45 @@ def read_samples(array, samples: list[int]) -> np.ndarray:
                     "--resume --verify to recompute it"
                 ) from None
         raise
+
+
+def read_verified(group, samples: list[int]) -> dict[str, np.ndarray]:
+    """Every rendered array of `samples` (ascending, marked complete), checked.
+
+    Each sample's arrays are compared with the checksum its task recorded, as
+    `service.store.integrity.verify` compares them: a shard file lost (read back as the
+    fill value), copied over another, or with chunks swapped inside it fails as a chunk
+    that cannot be decoded does.
+
+    Parameters
+    ----------
+    group : zarr.Group
+        The store's (`service.store.location.Store.group`).
+    samples : list of int
+        Samples marked complete, ascending.
+
+    Returns
+    -------
+    dict
+        Name: array of the samples' values, for every rendered variable the store holds,
+        in `workers.variables.rendered_order`.
+
+    Raises
+    ------
+    DamagedStoreError
+        Naming the first sample whose chunk cannot be read or whose arrays do not match its
+        checksum.
+    """
+    names = [name for name in rendered_order() if name in group]
+    read = {name: read_samples(group[name], samples) for name in names}
+    recorded = read_samples(group["checksum"], samples)
+    for i, sample in enumerate(samples):
+        if sample_checksum([read[name][i] for name in names]) != int(recorded[i]):
+            raise DamagedStoreError(
+                f"sample {sample}: its chunks do not match its checksum (a shard lost, or "
+                "another's); run the sweep again with --resume --verify to recompute it"
+            )
+    return read
 
 
 def write_shard(group, samples: dict[int, dict[str, np.ndarray]]) -> None:
