@@ -148,9 +148,11 @@ class RunResult:
     ``damaged`` holds ``(sample, reason)`` for samples that ``verify`` found damaged and
     recomputed; ``relabelled`` names the labels and coordinates it found wrong and wrote again;
     ``stuck`` holds ``(start, count)`` for tasks given up `task_timeout` seconds after
-    their submission; ``stopped`` says why a run stopped early (a storage failure no retry
-    cures); ``points`` holds the parameter points whose samples a resumed run (re)wrote
-    (None: all).
+    their submission; ``unwritten`` holds ``(sample, reason)`` for samples not marked
+    complete when the run ends without another failure (a fault of the runner: no
+    statistics are written over them); ``stopped`` says why a run stopped early (a storage
+    failure no retry cures); ``points`` holds the parameter points whose samples a resumed
+    run (re)wrote (None: all).
     """
 
     total: int
@@ -163,6 +165,7 @@ class RunResult:
     damaged: list = field(default_factory=list)
     relabelled: list = field(default_factory=list)
     stuck: list = field(default_factory=list)
+    unwritten: list = field(default_factory=list)
     stopped: str | None = None
     seconds: float = 0.0
     interrupted: bool = False
@@ -178,16 +181,18 @@ class RunResult:
             or self.refused
             or self.rejected
             or self.stuck
+            or self.unwritten
             or self.stopped
         )
 
     def problems(self) -> dict[str, list[tuple[int, str]]]:
         """The samples not written, ``(sample, reason)``, by what happened to them.
 
-        Four kinds, in this order: refused (a scene that cannot be rendered), not stored
+        Five kinds, in this order: refused (a scene that cannot be rendered), not stored
         (invalid values), failed (a task that raised or lost its worker), stuck (a task
-        given up); a kind with no sample is left out. A run that `stopped` or was
-        interrupted may have left samples unwritten that are none of these.
+        given up), unwritten (not marked complete, with no failure to say why); a kind with
+        no sample is left out. A run that `stopped` or was interrupted may have left samples
+        unwritten that are none of these.
         """
         stuck = f"no result {self.task_timeout:g} s after submission (a frozen worker?); given up"
         kinds = {
@@ -203,5 +208,6 @@ class RunResult:
                 for start, count in self.stuck
                 for sample in range(start, start + count)
             ],
+            "unwritten": self.unwritten,
         }
         return {kind: samples for kind, samples in kinds.items() if samples}

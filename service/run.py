@@ -209,6 +209,25 @@ def run_plan(
     return result
 
 
+def unwritten(store: Store) -> list[tuple[int, str]]:
+    """The samples of `store` not marked complete.
+
+    Checked after a run that reports every sample written, before its statistics: such a
+    run leaves its store complete, and a fault of the runner that skipped a sample (a
+    resume that left one out) is then a failure naming it, never statistics over an
+    incomplete store.
+
+    Returns
+    -------
+    list of tuple
+        ``(sample, reason)``, by sample index.
+    """
+    return [
+        (int(sample), "not marked complete after the run (no task reported it failed)")
+        for sample in np.flatnonzero(~store.completed())
+    ]
+
+
 def _store_key(store: Store) -> str:
     """The part of the task keys that names `store`."""
     return hashlib.sha256(store.url.encode()).hexdigest()[:16]
@@ -341,8 +360,10 @@ def execute(
     per shard (and task) of a new store (by default `service.store.layout.shard_size`'s
     choice); a resumed store keeps its own. With `resume` and `verify`, every completed
     sample is read back first (`service.store.integrity.verify`) and the
-    damaged ones are rendered again with the missing ones. After a resumed run, only the
-    statistics of the points it wrote are recomputed (`service.stats.write_statistics`).
+    damaged ones are rendered again with the missing ones. A run that reports nothing
+    failed must leave every sample marked complete: those it did not are reported in
+    ``unwritten`` (`unwritten`) and no statistics are written. After a resumed run, only
+    the statistics of the points it wrote are recomputed (`service.stats.write_statistics`).
     `dashboard` and `verbose` go to `service.cluster.dask_client`.
 
     Everything is checked before anything is deleted or written, once before taking the
@@ -405,6 +426,9 @@ def execute(
                 on_progress=on_progress,
             )
             result.damaged, result.relabelled = damaged, relabelled
+            if result.ok:
+                with store.errors():
+                    result.unwritten = unwritten(store)
             if result.ok:
                 write_statistics(store, points=result.points)
         if result.interrupted:  # tasks in flight at the interrupt may have written since

@@ -265,6 +265,24 @@ def test_statistics_refuse_samples_not_theirs_and_keep_the_previous_ones(
     assert sorted(p.name for p in work.iterdir()) == ["one.stats.zarr", "one.yaml", "one.zarr"]
 
 
+def test_a_resume_that_skips_a_sample_writes_no_statistics(work, capsys, monkeypatch):
+    import service.run
+
+    def skipping(plan, todo, samples_per_shard):  # a planted fault of the runner
+        return real(plan, [s for s in todo if s != 1], samples_per_shard)
+
+    real = service.run.task_batches
+    monkeypatch.setattr(service.run, "task_batches", skipping)
+    Store.at("one.zarr").mark_incomplete([1, 3])
+    before = snapshot(work / "one.stats.zarr")
+    assert main(["run", "one.yaml", "--resume", "--workers", "1"]) == 1
+    err = capsys.readouterr().err
+    assert "1 sample unwritten: not marked complete after the run (no task" in err, err
+    assert "\n  sample 1 (point 0" in err and "sample 3" not in err
+    assert "statistics not written" in err
+    assert snapshot(work / "one.stats.zarr") == before
+
+
 def test_verify_finds_damaged_missing_and_swapped_samples_and_resume_redoes_them(work, capsys):
     # layout: shards [0, 1], [2, 3], [4]; a repair rewrites a shard with the samples in it
     # that are intact (sample 2 beside the damaged 3) to the same bytes
