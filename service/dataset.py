@@ -5,10 +5,11 @@ parameters, completion flags, signal means) loaded eagerly, so that boolean sele
 ``groupby`` work without ``.compute()``, and CF attributes typed like their variable.
 `SampleDataset` is a map-style dataset in PyTorch's protocol (``__len__``,
 ``__getitem__``, and ``__getitems__`` for whole batches) returning numpy arrays, without
-depending on torch: it reads a sample's chunk straight from its shard file (one ranged
-read, the shard's index read once), checks its CRC32C and decompresses it, and opens the
-store once per process (so it can be handed to a ``torch.utils.data.DataLoader`` with
-worker processes). README, "The dataset".
+depending on torch: it reads a sample's chunks straight from their shard files (one ranged
+read each, the shard's index read once), checks their CRC32C, decompresses them, and checks
+the sample as ``info --verify`` does (marked complete, its arrays matching the CRC-32 its
+task recorded); it opens the store once per process (so it can be handed to a
+``torch.utils.data.DataLoader`` with worker processes). README, "The dataset".
 """
 
 from __future__ import annotations
@@ -18,8 +19,11 @@ import os
 import numpy as np
 import xarray as xr
 
+from service.errors import DamagedStoreError
+from service.store.integrity import unflagged
 from service.store.location import Store
-from service.store.shards import ShardReader
+from service.store.shards import ShardReader, sample_checksum, verified_by
+from workers.variables import rendered_order
 
 __all__ = ["SampleDataset", "open_dataset"]
 
@@ -84,8 +88,18 @@ class SampleDataset:
     -----
     Item ``i`` is the ``i``-th written sample, `sample_index` maps it to the store's
     ``sample``. An item is a dict of numpy arrays (one per name, without the ``sample``
-    dimension) plus ``sample``. Arrays are read-only views of the decompressed chunk. A
-    chunk whose CRC32C fails raises `service.errors.DamagedStoreError` naming it.
+    dimension) plus ``sample``. Arrays are read-only views of the decompressed chunk.
+
+    Each sample returned is checked as ``oceanlidar info --verify`` checks it: every chunk's
+    CRC32C, and every rendered array the store holds (those not asked for too: the
+    checksum covers them all) against the checksum its task recorded (CRC32C, or CRC-32 in a
+    store written before issue #26: `service.store.shards.verified_by`), which finds a shard
+    file lost (read as fill values), copied over another's, or with chunks swapped inside
+    it. A sample that fails, or is no longer marked complete, raises
+    `service.errors.DamagedStoreError` naming it; so does opening a store that has lost
+    the completion flags of samples it holds (`service.store.integrity.unflagged`), which
+    would otherwise drop out of the index. With ``completed_only=False`` the samples not
+    marked complete are returned unchecked (fill values, or a partial write's).
     """
 
     def __init__(
@@ -104,6 +118,15 @@ class SampleDataset:
         if missing:
             known = ", ".join(sorted(group.array_keys()))
             raise KeyError(f"{url} has no {', '.join(missing)}; it has {known}")
+        if lost := unflagged(self.store):
+            raise DamagedStoreError(
+                f"{url}: samples {_listed(lost)} hold checksums but their completion flags are "
+                "lost (or a run stopped while writing them); run the sweep again with --resume "
+                "--verify to recompute them"
+            )
+        self.checked = tuple(name for name in rendered_order() if name in group)
+        self.checksum = verified_by(group)
+        self.completed_only = completed_only
         completed = group["completed"][:].astype(bool)
         self.sample_index = (
             np.flatnonzero(completed) if completed_only else np.arange(completed.size)
@@ -115,7 +138,8 @@ class SampleDataset:
         """The arrays' shard readers, made once per process (a forked worker remakes them)."""
         if self._shards is None or self._pid != os.getpid():
             store = self.store.other(self.store.url)  # its file system made in this process
-            self._shards = {name: ShardReader(store, name) for name in self.arrays}
+            names = {*self.arrays, *self.checked, self.checksum, "completed"}
+            self._shards = {name: ShardReader(store, name) for name in names}
             self._pid = os.getpid()
         return self._shards
 
@@ -133,12 +157,35 @@ class SampleDataset:
     def __getitems__(self, indices) -> list[dict[str, np.ndarray]]:
         """A batch of items (what a ``DataLoader`` with automatic batching asks for)."""
         samples = self.sample_index[np.asarray(indices, dtype=np.int64)]
-        readers = self._readers()
         return [
             {
                 "sample": np.int64(sample),
-                **{name: reader.read(sample) for name, reader in readers.items()},
+                **self._arrays(int(sample)),
                 **{name: values[sample] for name, values in self.labels.items()},
             }
             for sample in samples
         ]
+
+    def _arrays(self, sample: int) -> dict[str, np.ndarray]:
+        """The sample's arrays asked for, checked (`DamagedStoreError` naming it)."""
+        readers = self._readers()
+        read = {name: readers[name].read(sample) for name in {*self.checked, *self.arrays}}
+        flagged = bool(readers["completed"].read(sample))
+        if self.completed_only and not flagged:
+            raise DamagedStoreError(
+                f"sample {sample}: no longer marked complete in {self.store.url} (a run "
+                "recomputing it, or its flags lost); open the dataset again once it is"
+            )
+        checksum = sample_checksum([read[name] for name in self.checked], self.checksum)
+        if flagged and checksum != readers[self.checksum].read(sample):
+            raise DamagedStoreError(
+                f"sample {sample}: its arrays do not match its checksum (a shard file lost, "
+                "or another's); run the sweep again with --resume --verify to recompute it"
+            )
+        return {name: read[name] for name in self.arrays}
+
+
+def _listed(samples: list[int]) -> str:
+    """Samples named briefly: the first few, then a count."""
+    more = f" and {len(samples) - 3} more" if len(samples) > 3 else ""
+    return ", ".join(map(str, samples[:3])) + more

@@ -283,6 +283,73 @@ def test_a_resume_that_skips_a_sample_writes_no_statistics(work, capsys, monkeyp
     assert snapshot(work / "one.stats.zarr") == before
 
 
+def shard_file(work, variable, shard):
+    """The file of a shard of an array (``c.1.0.0``, or ``c.1`` of a 1-D array)."""
+    folder = work / "one.zarr" / variable
+    return next(p for p in folder.iterdir() if p.name.split(".")[:2] == ["c", str(shard)])
+
+
+def written_before_crc32c(work):
+    """The store as written before issue #26: its samples' CRC-32 alone, no CRC32C."""
+    shutil.rmtree(work / "one.zarr" / "checksum_crc32c")
+    for path in (work / "one.zarr" / "zarr.json",):
+        meta = json.loads(path.read_text())
+        del meta["consolidated_metadata"]["metadata"]["checksum_crc32c"]
+        path.write_text(json.dumps(meta))
+
+
+READER_ATTACKS = {
+    # every chunk's CRC32C holds in each: only the samples' checksums and flags tell
+    "shard-lost": (lambda work: shard_file(work, "image", 2).unlink(), [4]),
+    "chunks-swapped": (lambda work: swap_chunks(work, "image", 0, 1), [0, 1]),
+    "shard-copied-over-another": (
+        lambda work: shutil.copyfile(shard_file(work, "image", 0), shard_file(work, "image", 1)),
+        [2, 3],
+    ),
+}
+
+
+@pytest.mark.parametrize("old", [False, True], ids=["crc32c", "crc32-of-older-stores"])
+@pytest.mark.parametrize("attack", READER_ATTACKS)
+def test_the_training_reader_returns_no_sample_that_is_not_its_own(work, attack, old):
+    from service.dataset import SampleDataset
+    from service.errors import DamagedStoreError
+
+    intact = SampleDataset("one.zarr", arrays=("image", "target_mask", "target_signal"))
+    expected = intact.__getitems__(range(5))
+    if old:
+        written_before_crc32c(work)
+        assert SampleDataset("one.zarr").checksum == "checksum"
+    damage_it, damaged = READER_ATTACKS[attack]
+    damage_it(work)
+    reader = SampleDataset("one.zarr", arrays=("image", "target_mask", "target_signal"))
+    assert len(reader) == 5
+    for item in range(5):
+        if item in damaged:
+            with pytest.raises(DamagedStoreError, match=f"sample {item}: its arrays do not"):
+                reader[item]
+        else:
+            for name, values in reader[item].items():
+                assert values.tobytes() == expected[item][name].tobytes(), (item, name)
+
+
+def test_the_training_reader_refuses_a_store_whose_completion_flags_are_lost(work, capsys):
+    from service.dataset import SampleDataset
+    from service.errors import DamagedStoreError
+
+    # clearing flags, as --resume --verify does, is no loss: the flags' chunk is written
+    Store.at("one.zarr").mark_incomplete([0, 1])
+    assert shard_file(work, "completed", 0).exists()
+    assert SampleDataset("one.zarr").sample_index.tolist() == [2, 3, 4]
+    shard_file(work, "completed", 1).unlink()  # samples 2 and 3 would read as never written
+    with pytest.raises(DamagedStoreError, match="samples 2, 3 hold checksums but their"):
+        SampleDataset("one.zarr")
+    assert main(["info", "one.zarr", "--verify"]) == 1
+    out = capsys.readouterr().out
+    assert "  sample 2: not counted complete: its checksum is stored but its completion" in out
+    assert "--resume --verify to recompute them" in out
+
+
 def test_verify_finds_damaged_missing_and_swapped_samples_and_resume_redoes_them(work, capsys):
     # layout: shards [0, 1], [2, 3], [4]; a repair rewrites a shard with the samples in it
     # that are intact (sample 2 beside the damaged 3) to the same bytes

@@ -91,10 +91,13 @@ def cmd_info(args) -> int:
     problems = integrity.verify(store)
     print(f"  verified: {done - len(problems)} of {done} complete samples read back intact")
     _print_problems("damaged or missing", problems)
+    unflagged = integrity.unflagged(store)
+    reason = "its checksum is stored but its completion flag lost (or a run stopped writing it)"
+    _print_problems("not counted complete", [(sample, reason) for sample in unflagged])
     labels = _label_problems(store, ds)
-    if problems or "lost" in labels.values():
+    if problems or unflagged or "lost" in labels.values():
         print("  run the sweep again with --resume --verify to recompute them")
-    return EXIT_FAILURE if problems or labels else EXIT_OK
+    return EXIT_FAILURE if problems or unflagged or labels else EXIT_OK
 
 
 def _label_problems(store: Store, ds) -> dict:

@@ -14,13 +14,20 @@ import numpy as np
 from service.errors import UnusableOutputError
 from service.store.layout import shard_samples
 from service.store.location import Store
-from service.store.shards import sample_checksum
+from service.store.shards import CHECKSUMS, sample_checksum, verified_by
 from service.store.template import template
 from service.sweep import Plan
 from workers.scene import Scene
 from workers.variables import Rule, rendered, rendered_order, variables
 
-__all__ = ["invalid_values", "repair_labels", "stale_layout", "verify", "wrong_labels"]
+__all__ = [
+    "invalid_values",
+    "repair_labels",
+    "stale_layout",
+    "unflagged",
+    "verify",
+    "wrong_labels",
+]
 
 
 def _stored_shards(store: Store, name: str) -> set[int]:
@@ -42,8 +49,9 @@ def verify(store: Store) -> list[tuple[int, str]]:
 
     Every chunk of every completed sample is read back, a shard at a time (the CRC32C
     codec finds a damaged chunk, and then the shard is read sample by sample to name
-    it), and each sample's arrays are compared with the checksum its task recorded (which
-    finds a chunk deleted, or swapped with another sample's). A shard file that is absent
+    it), and each sample's arrays are compared with the checksum its task recorded
+    (`service.store.shards.verified_by`; which finds a chunk deleted, or swapped with
+    another sample's). A shard file that is absent
     reads as the fill value: zarr writes no shard whose values all equal it (the masks and
     NaN signal means of a shard of samples without a target), so only a checksum that
     does not match says a sample is damaged or lost; a shard absent then is named.
@@ -56,7 +64,8 @@ def verify(store: Store) -> list[tuple[int, str]]:
     group = store.group()
     names = _stored(group)
     size = shard_samples(group)
-    shards = {name: _stored_shards(store, name) for name in [*names, "checksum"]}
+    kind = verified_by(group)
+    shards = {name: _stored_shards(store, name) for name in [*names, kind]}
     done = np.flatnonzero(group["completed"][:])
     problems = []
     for shard in np.unique(done // size):
@@ -71,16 +80,42 @@ def verify(store: Store) -> list[tuple[int, str]]:
             arrays = [group[name].get_orthogonal_selection((samples,)) for name in names]
         except Exception:
             arrays = None  # a damaged chunk: read its samples one by one below
-        recorded = group["checksum"].get_orthogonal_selection((samples,))
+        recorded = group[kind].get_orthogonal_selection((samples,))
         for i, sample in enumerate(samples):
             try:
                 values = [a[i] for a in arrays] if arrays else [group[n][sample] for n in names]
             except Exception as error:
                 problems.append((sample, f"a chunk cannot be read ({type(error).__name__})"))
                 continue
-            if sample_checksum(values) != int(recorded[i]):
+            if sample_checksum(values, kind) != int(recorded[i]):
                 problems.append((sample, mismatch))
     return problems
+
+
+def unflagged(store: Store) -> list[int]:
+    """The samples whose checksums are stored but whose shard's completion flags are not.
+
+    A task writes a shard, then its samples' checksums, then their completion flags, and
+    every write of the flags writes their chunk (`service.store.shards.write_shard`,
+    `service.store.location.Store.mark_incomplete`): a chunk of checksums without its chunk
+    of flags is a chunk of flags lost (its samples would read as never written: a store
+    that shrinks) or a task stopped between the two writes. Either way `--resume`
+    renders them again.
+
+    Returns
+    -------
+    list of int
+        The samples with a checksum recorded in those shards, ascending.
+    """
+    group = store.group()
+    size = shard_samples(group)
+    lost = sorted(_stored_shards(store, "checksum") - _stored_shards(store, "completed"))
+    samples = []
+    for shard in lost:
+        first = shard * size
+        recorded = group["checksum"][first : first + size]
+        samples += [first + int(i) for i in np.flatnonzero(recorded)]
+    return samples
 
 
 def wrong_labels(store: Store, plan: Plan) -> dict[str, str]:
@@ -138,7 +173,7 @@ def _wrong(group, expected) -> dict[str, str]:
     """`wrong_labels` of the store `group` against its `template` dataset `expected`."""
     wrong = {}
     for name, variable in expected.variables.items():
-        if name in (*rendered_order(), "completed", "checksum"):
+        if name in (*rendered_order(), "completed", *CHECKSUMS):
             continue
         try:
             array = group[name]

@@ -353,6 +353,12 @@ class Store:
         return self.group()["completed"][:].astype(bool)
 
     def mark_incomplete(self, samples: list[int]) -> None:
-        """Clear the completion flags of `samples`, so that a resumed run renders them again."""
+        """Clear the completion flags of `samples`, so that a resumed run renders them again.
+
+        Their chunk is written even if every flag in it is cleared: a chunk of flags is
+        absent only where no sample of its shard was ever written
+        (`service.store.integrity.unflagged`).
+        """
         if samples:
-            self.group("r+")["completed"].set_orthogonal_selection((samples,), 0)
+            flags = self.group("r+")["completed"].with_config({"write_empty_chunks": True})
+            flags.set_orthogonal_selection((samples,), 0)

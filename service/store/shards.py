@@ -3,8 +3,9 @@
 A task writes a whole shard (`write_shard`): the shard's complete samples read back and
 written again with its new ones, then their CRC-32 checksums (`sample_checksum`), then
 their completion flags. `read_samples` reads samples back and names the one whose chunk is
-damaged; `ShardReader` reads one sample's chunk straight from its shard file (one ranged
-read, the shard's index read once), for training readers (`service.dataset`).
+damaged, `read_verified` checks them against their checksums too; `ShardReader` reads one
+sample's chunk straight from its shard file (one ranged read, the shard's index read once),
+for training readers (`service.dataset`).
 """
 
 from __future__ import annotations
@@ -21,11 +22,13 @@ from service.store.location import Store
 from workers.variables import rendered_order
 
 __all__ = [
+    "CHECKSUMS",
     "ZERO_WHEN_ABSENT",
     "ShardReader",
     "read_samples",
     "read_verified",
     "sample_checksum",
+    "verified_by",
     "write_shard",
 ]
 
@@ -39,12 +42,26 @@ A sweep that varies ``transport.method`` stores ``expected_stderr`` for every sa
 its error 0."""
 
 
-def sample_checksum(arrays: list[np.ndarray]) -> int:
-    """CRC-32 of a sample's rendered arrays, in `workers.variables.rendered_order`."""
-    crc = 0
+CHECKSUMS = {
+    "checksum": lambda crc, values: zlib.crc32(values, crc),
+    "checksum_crc32c": google_crc32c.extend,
+}
+"""A sample's checksums over its rendered arrays, by the array that records them: CRC-32
+(every store) and CRC32C (stores written since issue #26: the same check, computed in
+hardware, 12 times faster here, 2.3 against 28 GB/s; what `verified_by` chooses)."""
+
+
+def sample_checksum(arrays: list[np.ndarray], kind: str = "checksum") -> int:
+    """The `kind` checksum (`CHECKSUMS`) of a sample's arrays (`rendered_order`'s order)."""
+    extend, crc = CHECKSUMS[kind], 0
     for values in arrays:
-        crc = zlib.crc32(np.ascontiguousarray(values), crc)
+        crc = extend(crc, np.ascontiguousarray(values))
     return crc
+
+
+def verified_by(group) -> str:
+    """The checksum a store's samples are checked against: CRC32C where it records one."""
+    return "checksum_crc32c" if "checksum_crc32c" in group else "checksum"
 
 
 def read_samples(array, samples: list[int]) -> np.ndarray:
@@ -106,9 +123,10 @@ def read_verified(group, samples: list[int]) -> dict[str, np.ndarray]:
     """
     names = [name for name in rendered_order() if name in group]
     read = {name: read_samples(group[name], samples) for name in names}
-    recorded = read_samples(group["checksum"], samples)
+    kind = verified_by(group)
+    recorded = read_samples(group[kind], samples)
     for i, sample in enumerate(samples):
-        if sample_checksum([read[name][i] for name in names]) != int(recorded[i]):
+        if sample_checksum([read[name][i] for name in names], kind) != int(recorded[i]):
             raise DamagedStoreError(
                 f"sample {sample}: its chunks do not match its checksum (a shard lost, or "
                 "another's); run the sweep again with --resume --verify to recompute it"
@@ -132,13 +150,14 @@ def write_shard(group, samples: dict[int, dict[str, np.ndarray]]) -> None:
     chunk, and the whole shard, with the fill value first: about 0.3 ms a 128-pixel
     sample); the values read back are the same either way.
     """
-    names = (*rendered_order(), "checksum", "completed")
+    names = (*rendered_order(), *CHECKSUMS, "completed")
     arrays = {
         name: array.with_config({"write_empty_chunks": True})
         for name in names
         if (array := group.get(name)) is not None
     }
-    completed, stored = arrays.pop("completed"), arrays.pop("checksum")
+    completed = arrays.pop("completed")
+    stored = {kind: arrays.pop(kind) for kind in CHECKSUMS if kind in arrays}  # CRC32C: new
     size = int(completed.chunks[0])
     first = min(samples) // size * size
     region = slice(first, min(first + size, completed.shape[0]))
@@ -153,12 +172,15 @@ def write_shard(group, samples: dict[int, dict[str, np.ndarray]]) -> None:
             zero = name in ZERO_WHEN_ABSENT
             block[sample - first] = rendered.get(name, 0) if zero else rendered[name]
         blocks[name] = block
-    checksums = stored[region]
+    checksums = {kind: array[region] for kind, array in stored.items()}
     for sample in samples:
-        checksums[sample - first] = sample_checksum([b[sample - first] for b in blocks.values()])
+        values = [block[sample - first] for block in blocks.values()]
+        for kind, recorded in checksums.items():
+            recorded[sample - first] = sample_checksum(values, kind)
     for name, block in blocks.items():
         arrays[name][region] = block
-    stored[region] = checksums
+    for kind, array in stored.items():
+        array[region] = checksums[kind]
     done[[s - first for s in samples]] = True
     completed[region] = done.astype(np.uint8)
 
@@ -174,14 +196,15 @@ def _endian(codec: dict) -> str:
 
 
 class ShardReader:
-    """One sharded array of a store, read straight from its shard files.
+    """One per-sample array of a store, read straight from its files.
 
-    The layout is `service.store.layout`'s: shards of consecutive samples along the first
-    axis, one sample per inner chunk, inner codecs bytes (little-endian), zstd or Blosc
-    (whose frames carry their own settings) and CRC32C, and the shard's index at its end
-    (two little-endian uint64 per chunk, then its CRC32C), chunk files named
-    ``c.4.0.0.0.0``. Any other layout, which zarr would read but this reader would
-    misread, is refused.
+    The layouts are `service.store.layout`'s, samples along the first axis: a sharded array
+    (shards of consecutive samples, one sample per inner chunk, the shard's index at its
+    end: two little-endian uint64 per chunk, then its CRC32C), or a small array with one
+    chunk per shard (the completion flags, checksums, signal means), read whole once and
+    kept. Codecs: bytes (little-endian), zstd or Blosc (whose frames carry their own
+    settings), CRC32C; chunk files named ``c.4.0.0.0.0``. Any other layout, which zarr
+    would read but this reader would misread, is refused.
 
     Parameters
     ----------
@@ -194,28 +217,30 @@ class ShardReader:
     def __init__(self, store: Store, name: str) -> None:
         fs, root = store.fs, store.path
         meta = json.loads(fs.cat_file(f"{root}/{name}/zarr.json"))
-        sharding = meta["codecs"][0]
-        config = sharding.get("configuration", {})
-        codecs = config.get("codecs", [])
-        index = config.get("index_codecs", [])
+        outer = meta["codecs"][0]
+        self.sharded = outer["name"] == "sharding_indexed"
+        config = outer.get("configuration", {}) if self.sharded else {}
+        codecs = config.get("codecs", []) if self.sharded else meta["codecs"]
+        index = config.get("index_codecs", []) if self.sharded else []
         names = [codec["name"] for codec in (*codecs, *index)]
         keys = meta["chunk_key_encoding"]
+        tail = ["bytes", "crc32c", "bytes", "crc32c"] if self.sharded else ["bytes", "crc32c"]
         if (
-            sharding["name"] != "sharding_indexed"
-            or len(codecs) != 3
+            len(codecs) != 3
             or names[1] not in DECODERS
-            or names[:1] + names[2:] != ["bytes", "crc32c", "bytes", "crc32c"]
+            or names[:1] + names[2:] != tail
             or _endian(codecs[0]) != "little"
-            or _endian(index[0]) != "little"
+            or (self.sharded and _endian(index[0]) != "little")
             or config.get("index_location", "end") != "end"
             or (keys["name"], keys.get("configuration", {}).get("separator")) != ("default", ".")
         ):
+            shards = "in shards " if self.sharded else ""
             raise ValueError(
-                f"{root}: {name} is not stored in shards as service.store.layout writes"
+                f"{root}: {name} is not stored {shards}as service.store.layout writes"
             )
         self.fs, self.name = fs, name
         self.per_shard = int(meta["chunk_grid"]["configuration"]["chunk_shape"][0])
-        self.shape = tuple(config["chunk_shape"][1:])
+        self.shape = tuple(config["chunk_shape"][1:] if self.sharded else meta["shape"][1:])
         self.dtype = np.dtype(meta["data_type"]).newbyteorder("<")
         self.fill = np.asarray(meta["fill_value"]).astype(self.dtype)
         self.key = f"{root}/{name}/c.{{}}" + ".0" * (len(meta["shape"]) - 1)
@@ -223,16 +248,27 @@ class ShardReader:
         self.codec = DECODERS[names[1]]()
 
     def _index(self, shard: int) -> np.ndarray | None:
-        """The shard's (offset, length) per sample; None if it holds nothing."""
+        """What is kept of a shard, read once: None if its file is absent.
+
+        A sharded array's (offset, length) per sample; a small array's values.
+        """
         if shard not in self.indexes:
             size = 16 * self.per_shard + 4
             try:
-                tail = self.fs.cat_file(self.key.format(shard), start=-size)
+                if self.sharded:
+                    data = self.fs.cat_file(self.key.format(shard), start=-size)
+                else:
+                    data = self.fs.cat_file(self.key.format(shard))
             except FileNotFoundError:
                 self.indexes[shard] = None
                 return None
-            self._check(tail, f"shard {shard}'s index")
-            self.indexes[shard] = np.frombuffer(tail[:-4], "<u8").reshape(-1, 2)
+            if self.sharded:
+                self._check(data, f"shard {shard}'s index")
+                self.indexes[shard] = np.frombuffer(data[:-4], "<u8").reshape(-1, 2)
+            else:
+                self._check(data, f"samples {shard * self.per_shard}+: their chunk")
+                values = np.frombuffer(self.codec.decode(data[:-4]), self.dtype)
+                self.indexes[shard] = values.reshape(-1, *self.shape)
         return self.indexes[shard]
 
     def _check(self, data: bytes, what: str) -> None:
@@ -246,8 +282,10 @@ class ShardReader:
         """The sample's array (the fill value where it was never written)."""
         shard, position = divmod(int(sample), self.per_shard)
         index = self._index(shard)
-        if index is None or index[position, 0] == EMPTY:
+        if index is None or (self.sharded and index[position, 0] == EMPTY):
             return np.full(self.shape, self.fill, self.dtype)
+        if not self.sharded:
+            return index[position]
         offset, length = (int(v) for v in index[position])
         data = self.fs.cat_file(self.key.format(shard), start=offset, end=offset + length)
         self._check(data, f"sample {sample}: its chunk")

@@ -227,7 +227,12 @@ def template(plan: Plan, samples_per_shard: int | None = None) -> tuple[xr.Datas
         lazy_array((n,), 0, np.uint32, multiple=shard),
         {"long_name": "CRC-32 of the sample's rendered arrays", "units": "1"},
     )
-    for name in ("completed", "checksum"):
+    data_vars["checksum_crc32c"] = (
+        ("sample",),
+        lazy_array((n,), 0, np.uint32, multiple=shard),
+        {"long_name": "CRC32C of the sample's rendered arrays", "units": "1"},
+    )
+    for name in ("completed", "checksum", "checksum_crc32c"):
         encoding[name] = per_shard((), shard)
     # labels and the platform track follow from each point's scene: written once, here
     track = [name for name, v in table.items() if v.role is Role.TRACK]
