@@ -113,9 +113,15 @@ def check_output(
     ------
     UnusableOutputError
         If the output or the statistics path holds something this run may not replace
-        (the statistics of another store among them: `service.stats.check_owner`).
+        (the statistics of another store among them: `service.stats.check_owner`), or
+        the output is neither a folder nor a regular file (``/dev/null``).
     """
     name = name or store.url
+    if store.special():
+        raise UnusableOutputError(
+            f"{name} exists and is neither a folder nor a regular file (a device, a pipe, a "
+            "socket?); choose another output"
+        )
     check_owner(store)
     stats_files = store.stats.removable("statistics")
     if not store.occupied():

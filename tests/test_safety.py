@@ -561,8 +561,18 @@ def test_a_sample_with_non_finite_values_is_reported_and_never_marked_complete(
         ("x" * 300 + ".zarr", [], "cannot be written: File name too long"),
         ("o.zarr", ["--storage-options", '{"anon": true}'], "apply to URLs such as s3://"),
         ("o.zarr", ["--scheduler", "tls://127.0.0.1:9"], "a tls:// scheduler needs"),
+        ("/dev/null", [], "/dev/null exists and is neither a folder nor a regular file"),
+        ("/dev/null", ["--overwrite"], "/dev/null exists and is neither a folder nor a"),
     ],
-    ids=["memory", "read-only", "long-component", "options-for-a-path", "tls-without-tls"],
+    ids=[
+        "memory",
+        "read-only",
+        "long-component",
+        "options-for-a-path",
+        "tls-without-tls",
+        "device",
+        "device-overwritten",
+    ],
 )
 def test_outputs_that_cannot_be_written_are_refused_before_rendering(
     tmp_path, output, options, message
@@ -572,6 +582,31 @@ def test_outputs_that_cannot_be_written_are_refused_before_rendering(
     assert result.returncode == 2 and message in result.stderr, result.stderr
     assert "Traceback" not in result.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["one.yaml"]
+
+
+@pytest.mark.parametrize("options", [[], ["--overwrite"]], ids=["run", "overwrite"])
+def test_a_large_folder_as_output_is_refused_at_its_first_file(tmp_path, monkeypatch, options):
+    # output: / walked the whole file system before refusing (issue #26 item 6)
+    from fsspec.implementations.local import LocalFileSystem
+
+    big = tmp_path / "big"
+    for folder in range(40):
+        (big / f"d{folder:02}").mkdir(parents=True)
+        (big / f"d{folder:02}" / "f").write_text("a user's file")
+    listed = []
+    ls = LocalFileSystem.ls
+
+    def counted(self, path, *args, **kwargs):
+        listed.append(path)
+        return ls(self, path, *args, **kwargs)
+
+    sweep = sweep_file(tmp_path)
+    before = snapshot(tmp_path)
+    monkeypatch.setattr(LocalFileSystem, "ls", counted)
+    assert main(["run", str(sweep), "--output", str(big), *options]) == 2
+    inside = [path for path in listed if path.startswith(str(big / "d"))]
+    assert 1 <= len(inside) <= 2, inside  # the first folder with a file decides
+    assert snapshot(tmp_path) == before
 
 
 def test_home_and_file_urls_reach_the_workers_as_paths(tmp_path):

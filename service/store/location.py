@@ -17,6 +17,7 @@ import json
 import os
 import re
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import fsspec
@@ -58,11 +59,6 @@ def _storage_failures() -> tuple[type[BaseException], ...]:
     except ImportError:  # no S3 support installed: fsspec raises OSError alone
         return (OSError,)
     return (OSError, BotoCoreError)
-
-
-def _shown(names: list[str]) -> str:
-    more = f" and {len(names) - 1} more" if len(names) > 1 else ""
-    return repr(names[0][:200]) + more
 
 
 @dataclass(frozen=True)
@@ -188,15 +184,34 @@ class Store:
 
         A file at the URL (or at `folder`) itself is named '.'.
         """
-        path = f"{self.path}/{folder}" if folder else self.path
-        if self.fs.isfile(path):
-            return ["."]
+        return sorted(self._walk(f"{self.path}/{folder}" if folder else self.path))
+
+    def _walk(self, path: str) -> Iterator[str]:
+        """The files under `path`, relative to it, one folder listed at a time.
+
+        A caller that stops early stops the walk: `occupied` and `removable` look no
+        further than the first file that decides (``output: /`` is not listed whole).
+        """
+        if not self.fs.isdir(path):
+            if self.fs.exists(path):  # a file, or a device, a pipe...
+                yield "."
+            return
         root = path.rstrip("/") + "/"
-        return sorted(name[len(root) :] for name in self.fs.find(path) if name.startswith(root))
+        for folder, _, names in self.fs.walk(path):
+            for name in names:
+                full = f"{folder.rstrip('/')}/{name}"
+                if full.startswith(root):
+                    yield full[len(root) :]
 
     def occupied(self) -> bool:
-        """Whether the store holds anything besides a writer's lock."""
-        return any(name != LOCK_NAME for name in self.files())
+        """Whether the store holds anything besides a writer's lock (the first file tells)."""
+        return any(name != LOCK_NAME for name in self._walk(self.path))
+
+    def special(self) -> bool:
+        """Whether something that is neither a folder nor a regular file is at the URL."""
+        if not self.local or not self.exists():
+            return False
+        return self.fs.info(self.path)["type"] not in ("directory", "file")
 
     def _metadata(self) -> dict | None:
         """The root group's ``zarr.json``; None if there is no readable group."""
@@ -241,8 +256,7 @@ class Store:
         UnusableOutputError
             If something is there that is not such a store, or holds files it does not list.
         """
-        files = [name for name in self.files() if name != LOCK_NAME]
-        if not files:
+        if not self.occupied():
             return []
         attributes = self.attributes() or {}
         if KIND not in attributes and "oceanlidar_version" in attributes:
@@ -261,13 +275,16 @@ class Store:
             + "|".join(re.escape(name) for name in arrays)
             + r")/(?:zarr\.json|c(?:[./]\d+)*)"
         )
-        strangers = [name for name in files if not listed.fullmatch(name)]
-        if strangers:
-            raise UnusableOutputError(
-                f"{self.url} holds {_shown(strangers)}, which the store's metadata does not "
-                "list; refusing to delete it (move those files away first)"
-            )
-        return files
+        files = []
+        for name in self._walk(self.path):  # stopped at the first file not listed
+            if not listed.fullmatch(name) and name != LOCK_NAME:
+                raise UnusableOutputError(
+                    f"{self.url} holds {shown(name)}, which the store's metadata does "
+                    "not list; refusing to delete it (move that file away first)"
+                )
+            if name != LOCK_NAME:
+                files.append(name)
+        return sorted(files)
 
     def remove(self, files: list[str]) -> None:
         """Delete `files` (from `removable`) of the store, and the folders they empty."""
