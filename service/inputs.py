@@ -206,13 +206,15 @@ def read_text(path, *, place: str) -> str:
         descriptor = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
     except OSError as error:
         raise BadFileError(f"{place}: {error.strerror}") from None
-    with os.fdopen(descriptor, "rb") as handle:
+    try:  # checked before a file object is made: Python refuses one of a folder
         if not stat.S_ISREG(os.fstat(descriptor).st_mode):
             raise BadFileError(f"{place}: not a regular file")
-        try:
+        with os.fdopen(descriptor, "rb", closefd=False) as handle:
             data = handle.read(MAX_FILE_BYTES + 1)
-        except OSError as error:
-            raise BadFileError(f"{place}: {error.strerror}") from None
+    except OSError as error:
+        raise BadFileError(f"{place}: {error.strerror}") from None
+    finally:
+        os.close(descriptor)
     if len(data) > MAX_FILE_BYTES:
         raise BadFileError(f"{place}: the file is larger than {MAX_FILE_BYTES:,} bytes")
     try:

@@ -59,7 +59,22 @@ def test_preview_bad_arguments_exit_2(tmp_path, capsys, args, message):
     assert message in capsys.readouterr().err
 
 
-def test_plot_draws_contrast_and_cnr_against_each_swept_parameter(tmp_path):
+def test_a_preview_that_cannot_be_written_is_refused_before_rendering(
+    tmp_path, capsys, monkeypatch
+):
+    # a missing folder raised FileNotFoundError after rendering (issue #26 item 11)
+    import service.plots
+
+    monkeypatch.setattr(service.plots, "render_preview", lambda *a: pytest.fail("rendered"))
+    monkeypatch.chdir(tmp_path)
+    sweep = str(PAPER / "example3.yaml")
+    for output, reason in [("missing/p.png", "no folder"), (".", "a folder")]:
+        assert main(["preview", sweep, "--output", output]) == 2
+        assert f"--output '{output}': {reason}" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_plot_draws_contrast_and_cnr_against_each_swept_parameter(tmp_path, capsys, monkeypatch):
     text = (PAPER / "example3.yaml").read_text()
     text = text.replace("grid_size: 256, spacing: 0.016", "grid_size: 64, spacing: 0.064")
     text = text.replace("pixels: 128", "pixels: 32").replace("realisations: 4", "realisations: 2")
@@ -76,6 +91,10 @@ def test_plot_draws_contrast_and_cnr_against_each_swept_parameter(tmp_path):
         picture.verify()
     with Image.open(target) as picture:
         assert picture.size == (round(3.2 * 2 * DPI), round(5.0 * DPI))
+    # a folder that is not there: bad input, no traceback (issue #26 item 11)
+    monkeypatch.chdir(tmp_path)
+    assert main(["plot", url, "--output", "missing/stats.png"]) == 2
+    assert "--output 'missing/stats.png': no folder" in capsys.readouterr().err
 
 
 def expected_pair(config):

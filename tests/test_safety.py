@@ -507,6 +507,27 @@ def test_a_locked_store_is_refused_and_a_dead_holders_lock_taken_over(work, caps
     assert not (work / "one.zarr" / LOCK_NAME).exists()
 
 
+def test_a_stale_lock_on_a_read_only_file_system_is_refused_cleanly(work, capsys, monkeypatch):
+    # the takeover's guard file raised OSError: a traceback (issue #26 item 11)
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    write_lock(work, pid=dead.pid)
+    before = snapshot(work)
+
+    def read_only(fs, path, data):  # O_CREAT | O_EXCL: an existing file says so first
+        if os.path.exists(path):
+            raise FileExistsError(errno.EEXIST, "File exists", path)
+        raise OSError(errno.EROFS, "Read-only file system", path)
+
+    monkeypatch.setattr(lock, "_create_exclusive", read_only)
+    for command in (["run", "one.yaml", "--resume"], ["stats", "one.zarr"]):
+        assert main(command) == 2
+        err = capsys.readouterr().err
+        assert "cannot be written: Read-only file system" in err, err
+        assert "Traceback" not in err
+    assert snapshot(work) == before
+
+
 def test_two_fresh_runs_racing_for_one_output(tmp_path):
     sweep = sweep_file(tmp_path)
     runs = [
@@ -607,6 +628,14 @@ def test_a_large_folder_as_output_is_refused_at_its_first_file(tmp_path, monkeyp
     inside = [path for path in listed if path.startswith(str(big / "d"))]
     assert 1 <= len(inside) <= 2, inside  # the first folder with a file decides
     assert snapshot(tmp_path) == before
+
+
+def test_empty_storage_options_with_a_local_store_are_no_options(work, capsys):
+    # zarr refused them unused, exit 1 (issue #26 item 11; holds since Store.at, issue #25)
+    assert Store.at("one.zarr", {}).storage_options is None
+    for command in (["info", "one.zarr"], ["stats", "one.zarr"]):
+        assert main([*command, "--storage-options", "{}"]) == 0
+    assert "Traceback" not in capsys.readouterr().err
 
 
 def test_home_and_file_urls_reach_the_workers_as_paths(tmp_path):

@@ -306,6 +306,16 @@ def test_inputs_must_be_regular_files(tmp_path, role):
         assert result.returncode == 2 and "not a regular file" in result.stderr, result.stderr
 
 
+@pytest.mark.parametrize("role", ["sweep", "measurements"])
+def test_a_folder_is_no_input_file(tmp_path, role):
+    # os.fdopen of a folder raised IsADirectoryError: a traceback (issue #26 item 11)
+    (tmp_path / "folder.yaml").mkdir()
+    sweep = conditioned(tmp_path, "folder.yaml") if role == "measurements" else tmp_path
+    sweep = sweep / "folder.yaml" if role == "sweep" else sweep
+    with pytest.raises(InputError, match=r"(folder\.yaml|file: .*): not a regular file"):
+        load_sweep(sweep)
+
+
 def test_a_huge_file_is_refused_after_reading_the_limit(tmp_path):
     huge = tmp_path / "huge.yaml"
     huge.touch()

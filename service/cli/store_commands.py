@@ -8,6 +8,7 @@ store's `service.store.location.Store` once from its arguments (`_store`).
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 
@@ -163,10 +164,37 @@ def _stored_sample(store: Store, sample: int):
     return one, f"{name}, sample {sample} ({where}; realisation {int(one['realisation'])})"
 
 
+def _check_picture(path: str) -> None:
+    """Refuse a picture's ``--output`` that cannot be written, before any work is done.
+
+    Raises
+    ------
+    BadOptionError
+        If its folder is missing or not writable, or it is a folder itself.
+    """
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise BadOptionError(f"--output {shown(path)}: no folder {shown(folder)}")
+    if os.path.isdir(path) or not os.access(folder, os.W_OK):
+        what = "a folder" if os.path.isdir(path) else f"{shown(folder)} is not writable"
+        raise BadOptionError(f"--output {shown(path)}: {what}")
+
+
+@contextlib.contextmanager
+def _saving(path: str):
+    """Report a picture that cannot be written (`_check_picture` passed) as bad input."""
+    try:
+        yield
+    except OSError as error:
+        reason = error.strerror or type(error).__name__
+        raise BadOptionError(f"--output {shown(path)}: {reason}") from None
+
+
 def cmd_preview(args) -> int:
     """Draw a sample: rendered now from a sweep file, or read from a store."""
     from service.plots import render_preview, save_preview
 
+    _check_picture(args.output)
     if os.path.isfile(args.source):
         plan = load_sweep(args.source)
         address = plan.sample(args.sample)
@@ -176,14 +204,15 @@ def cmd_preview(args) -> int:
     else:
         ds, title = _stored_sample(_store(args, args.source), args.sample)
         measurements = None
-    frames = save_preview(
-        ds,
-        args.output,
-        frame=args.frame,
-        shared_scale=args.shared_scale,
-        title=title,
-        measurements=measurements,
-    )
+    with _saving(args.output):
+        frames = save_preview(
+            ds,
+            args.output,
+            frame=args.frame,
+            shared_scale=args.shared_scale,
+            title=title,
+            measurements=measurements,
+        )
     log.info("%s: %d frame(s)", args.output, frames)
     return EXIT_OK
 
@@ -193,9 +222,12 @@ def cmd_plot(args) -> int:
     from service.detect import DATASET_KIND
     from service.plots import plot_detection, plot_statistics
 
+    _check_picture(args.output)
     store = _store(args, args.store)
     if store.kind() == DATASET_KIND:
-        plot_detection(store.dataset(), args.output)
+        detection = store.dataset()
+        with _saving(args.output):
+            plot_detection(detection, args.output)
         log.info("%s", args.output)
         return EXIT_OK
     _open(store)
@@ -209,6 +241,7 @@ def cmd_plot(args) -> int:
             f"{statistics.url}: a chunk cannot be read ({type(error).__name__}); run "
             f"`oceanlidar stats {store.url}` to write the statistics again"
         ) from None
-    plot_statistics(stats, args.output)
+    with _saving(args.output):
+        plot_statistics(stats, args.output)
     log.info("%s", args.output)
     return EXIT_OK

@@ -198,7 +198,8 @@ def writer_lock(store, *, claim: str | None = None):
         except FileExistsError:
             holder = _holder(fs, lock)
             if attempt == 0 and _is_stale(holder, claim):
-                _remove_stale(fs, lock, holder, record)
+                with store.errors():  # a read-only file system refuses the takeover's guard
+                    _remove_stale(fs, lock, holder, record)
                 continue
             raise LockedError(
                 f"{store.url} is locked by another run (host {holder.get('host', '?')}, process "
