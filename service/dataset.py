@@ -7,7 +7,7 @@ parameters, completion flags, signal means) loaded eagerly, so that boolean sele
 ``__getitem__``, and ``__getitems__`` for whole batches) returning numpy arrays, without
 depending on torch: it reads a sample's chunks straight from their shard files (one ranged
 read each, the shard's index read once), checks their CRC32C, decompresses them, and checks
-the sample as ``info --verify`` does (marked complete, its arrays matching the CRC-32 its
+the sample as ``info --verify`` does (marked complete, its arrays matching the checksum its
 task recorded); it opens the store once per process (so it can be handed to a
 ``torch.utils.data.DataLoader`` with worker processes). README, "The dataset".
 """
