@@ -29,7 +29,7 @@ import numpy as np
 from distributed import Client, wait
 
 from service.admission import check_output
-from service.cluster import ClusterError, dask_client
+from service.cluster import ClusterError, dask_client, hold
 from service.progress import Progress
 from service.records import RunResult
 from service.stats import write_statistics
@@ -99,6 +99,7 @@ def render_shard(store: Store, jobs):
             rejected.append((sample, reason, False))
     if valid:
         shards.write_shard(group, valid)
+    hold(jobs[0][0])  # tests only
     return rejected
 
 

@@ -59,7 +59,7 @@ def test_preview_bad_arguments_exit_2(tmp_path, capsys, args, message):
     assert message in capsys.readouterr().err
 
 
-def test_plot_draws_contrast_and_cnr_against_each_swept_parameter(tmp_path):
+def test_plot_draws_contrast_and_cnr_against_each_swept_parameter(tmp_path, shared_cluster):
     text = (PAPER / "example3.yaml").read_text()
     text = text.replace("grid_size: 256, spacing: 0.016", "grid_size: 64, spacing: 0.064")
     text = text.replace("pixels: 128", "pixels: 32").replace("realisations: 4", "realisations: 2")

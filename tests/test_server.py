@@ -17,7 +17,7 @@ import urllib.parse
 import urllib.request
 
 import pytest
-from conftest import TINY_SWEEP, assert_same_samples, cli_command, free_port, run_cli
+from conftest import TINY_SWEEP, assert_same_samples, cli_command, free_port, on_cluster
 
 from service.cli import main
 from service.store.location import KIND, Store
@@ -134,12 +134,13 @@ def finished(job):
 
 
 @pytest.fixture(scope="module")
-def reference(tmp_path_factory):
+def reference(tmp_path_factory, session_cluster):
     """The sweep run by `oceanlidar run`."""
     folder = tmp_path_factory.mktemp("reference")
     (folder / "sweep.yaml").write_text(sweep("reference.zarr"))
-    result = run_cli("run", "sweep.yaml", "--workers", "1", cwd=folder)
-    assert result.returncode == 0, result.stderr
+    with on_cluster(session_cluster), pytest.MonkeyPatch.context() as patch:
+        patch.chdir(folder)
+        assert main(["run", "sweep.yaml", "--workers", "1"]) == 0
     return folder / "reference.zarr"
 
 
