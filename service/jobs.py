@@ -54,10 +54,12 @@ class ForbiddenError(RuntimeError):
 class JobTable:
     """Jobs in an SQLite file, safe to use from several threads, owned by one service.
 
-    The service holds an exclusive lock on ``PATH.lock`` (``flock``) while the table is
-    open, released by the system when its process ends however it ends: a job found
-    ``running`` at start was left by a service that has died, whose store locks (they
-    name the job) may then be taken over (`service.store.lock.writer_lock`).
+    The service holds an exclusive lock (``flock``) on the database file itself while the
+    table is open: a second service is refused whatever path reaches the file (a symbolic
+    or hard link too), and the system releases the lock when the process ends however it
+    ends, so a job found ``running`` at start was left by a service that has died, whose
+    store locks (they name the job) may then be taken over
+    (`service.store.lock.writer_lock`).
 
     Parameters
     ----------
@@ -71,11 +73,12 @@ class JobTable:
     """
 
     def __init__(self, path: str):
-        self._owner = open(f"{path}.lock", "a")  # held while the table lives
+        self.path = path
+        self._owner = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)  # held while the table lives
         try:
             fcntl.flock(self._owner, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            self._owner.close()
+            os.close(self._owner)
             raise LockedError(
                 f"--db {path}: another oceanlidar serve uses this job table (one service a table)"
             ) from None
@@ -84,6 +87,21 @@ class JobTable:
         self._lock = threading.Lock()
         self._query("PRAGMA journal_mode=WAL")
         self._query(_SCHEMA)
+
+    def lost(self) -> str | None:
+        """Why the table is no longer the file at its path (deleted, replaced); None if it is.
+
+        A service whose table was lost would forget every job and owner at its next start:
+        it must not go on (the server answers ``503``, `service.server`).
+        """
+        held = os.fstat(self._owner)
+        try:
+            there = os.stat(self.path)
+        except OSError as error:
+            return f"the job table --db {self.path} is gone ({error.strerror})"
+        if (there.st_dev, there.st_ino) != (held.st_dev, held.st_ino):
+            return f"the job table --db {self.path} was replaced by another file"
+        return None
 
     def _query(self, sql: str, parameters=()) -> list[dict]:
         with self._lock:

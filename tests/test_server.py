@@ -538,3 +538,17 @@ def test_one_service_a_table_and_no_store_inside_another(tmp_path):
             runner.submit(sweep(output), owner="bob")
     assert len(table.list()) == 1
     assert runner.submit(sweep("runs/b.zarr"), owner="bob").state == "queued"
+
+
+@pytest.mark.parametrize("link", [os.symlink, os.link], ids=["symbolic", "hard"])
+def test_one_service_a_table_whatever_path_reaches_it(tmp_path, link):
+    from service.errors import InputError
+    from service.jobs import JobTable
+
+    table = JobTable(str(tmp_path / "jobs.sqlite"))
+    link(tmp_path / "jobs.sqlite", tmp_path / "linked.sqlite")
+    with pytest.raises(InputError, match="another oceanlidar serve uses this job table"):
+        JobTable(str(tmp_path / "linked.sqlite"))
+    assert table.lost() is None
+    (tmp_path / "jobs.sqlite").unlink()  # a table lost while served is noticed
+    assert "is gone" in table.lost()
