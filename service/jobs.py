@@ -25,6 +25,7 @@ from service.errors import InputError, LockedError, UnusableOutputError
 from service.inputs import shown
 from service.records import ACTIVE, Job, JobState
 from service.run import execute
+from service.store.template import OWNER
 from service.sweep import parse_sweep
 
 __all__ = ["ForbiddenError", "JobTable", "QueueFullError", "Runner"]
@@ -227,18 +228,23 @@ class Runner:
             For a bad sweep or mode, or an output this job may not write (another
             unfinished job writes it: `UnusableOutputError`).
         ForbiddenError
-            If a resume or an overwrite names a store another owner's job wrote.
+            If a resume or an overwrite names a store another owner wrote: the store's
+            own record (`service.store.template.OWNER`) says who, else the job table's
+            newest job into it; a store that records no owner is nobody's to replace.
         QueueFullError
             If `queue_limit` jobs are unfinished.
         """
         plan, url = admit_job(text, mode, data_root=self.data_root)
         with self._admit:
-            previous = self.table.latest(url)
-            if mode != "new" and previous is not None and previous.owner != owner:
-                raise ForbiddenError(
-                    f"output: {shown(plan.sweep.output)} was written by job {previous.id} "
-                    f"of {previous.owner}; only its owner may {mode} it"
-                )
+            attributes = self.data_root.other(url).attributes() if mode != "new" else None
+            if attributes is not None:  # a store is there
+                previous = self.table.latest(url)
+                wrote = attributes.get(OWNER, previous.owner if previous else None)
+                if wrote != owner:
+                    who = f"was written by {wrote}" if wrote else "records no owner"
+                    raise ForbiddenError(
+                        f"output: {shown(plan.sweep.output)} {who}; only its owner may {mode} it"
+                    )
             if self.table.active() >= self.queue_limit:
                 raise QueueFullError(f"{self.queue_limit} jobs are queued or running; try later")
             for job in self.table.list(JobState.QUEUED) + self.table.list(JobState.RUNNING):
@@ -276,6 +282,8 @@ class Runner:
 
     def _dispatch(self) -> None:
         while not self._stop.wait(DISPATCH_TICK):
+            if self.table.lost():  # nothing starts that the next start would not know of
+                continue
             for job_id, (thread, _) in list(self._running.items()):
                 if not thread.is_alive():
                     del self._running[job_id]
@@ -319,6 +327,7 @@ class Runner:
                     cancel=cancel,
                     on_progress=progress,
                     claim=f"oceanlidar service job {job.id}",
+                    owner=job.owner,
                 )
         except Exception as error:  # a job's failure must not take the service down
             message = str(error) if isinstance(error, InputError) else repr(error)

@@ -334,6 +334,7 @@ def execute(
     cancel=None,
     on_progress=None,
     claim: str | None = None,
+    owner: str | None = None,
 ) -> RunResult:
     """Create (or reopen) the store, run the missing samples and write the statistics.
 
@@ -353,7 +354,8 @@ def execute(
 
     `client` runs the samples on a cluster already connected (`workers`, `scheduler` and
     `security` are then unused); `cancel` and `on_progress` are passed to `run_plan`;
-    `claim` to `service.store.lock.writer_lock`.
+    `claim` to `service.store.lock.writer_lock`; `owner` (the job service's submitter) is
+    recorded in a new store (`service.store.template.create_store`).
     """
     options = {"resume": resume, "overwrite": overwrite}
     with store.errors():
@@ -389,7 +391,7 @@ def execute(
                 store.stats.remove(old_stats)
                 store.remove(old_files)
                 if not resuming:
-                    create_store(plan, store, samples_per_shard=batch_size)
+                    create_store(plan, store, samples_per_shard=batch_size, owner=owner)
             checked = resuming and verify
             relabelled = integrity.repair_labels(store, plan) if checked else []
             damaged = integrity.verify(store) if checked else []

@@ -3,7 +3,13 @@
 The API is JSON under ``/v1`` (see README, "Running the service"); the page at ``/`` lists
 the jobs with their progress and shows one job's sweep, statistics plot and preview strip.
 Every route but ``/v1/health`` and ``/login`` needs the service's token: an
-``Authorization: Bearer TOKEN`` header, or the cookie that ``/login`` sets for browsers.
+``Authorization: Bearer TOKEN`` header, or, for reading (``GET``) alone, the cookie that
+``/login`` sets for browsers: a request that changes something (a submission, a cancel)
+needs the header, which another site's page cannot make a browser send (no cross-site
+request forgery through the cookie). Every answer forbids framing, sniffing and anything
+the pages do not load from the service itself (`SECURITY_HEADERS`). A service whose job
+table was lost (the file deleted or replaced while it serves) answers ``503`` everywhere,
+health included.
 """
 
 from __future__ import annotations
@@ -48,6 +54,19 @@ EVENT_TICK = 0.5
 """Seconds between looks at a job for its event stream."""
 LOGIN_BYTES = 4096
 """Longest login form accepted, bytes."""
+SAFE_METHODS = ("GET", "HEAD")
+"""Requests the login cookie may authenticate: they read, never change anything."""
+SECURITY_HEADERS = [
+    (
+        b"content-security-policy",
+        b"default-src 'none'; img-src 'self'; style-src 'unsafe-inline'; "
+        b"form-action 'self'; frame-ancestors 'none'; base-uri 'none'",
+    ),
+    (b"x-frame-options", b"DENY"),
+    (b"x-content-type-options", b"nosniff"),
+    (b"referrer-policy", b"no-referrer"),
+]
+"""Sent with every answer: the pages load nothing but their own pictures, in no frame."""
 PREVIEW_SAMPLES = 3
 """Samples drawn in a finished job's preview strip."""
 _LOGIN_FORM = (
@@ -103,7 +122,8 @@ class _Service:
         if given is None:
             header = request.headers.get("authorization", "")
             given = header[7:] if header.lower().startswith("bearer ") else ""
-            given = given or request.cookies.get(COOKIE, "")
+            if request.method in SAFE_METHODS:
+                given = given or request.cookies.get(COOKIE, "")
         for owner, token in self.tokens.items():
             if given and hmac.compare_digest(given.encode(), token.encode()):
                 return owner
@@ -128,6 +148,8 @@ class _Service:
 
     def _guard(self, endpoint):
         async def guarded(request: Request):
+            if lost := self.table.lost():
+                return _error(503, f"{lost}: restart the service on its table")
             request.state.owner = self.owner(request)
             if request.state.owner is not None:
                 return await endpoint(request)
@@ -138,6 +160,8 @@ class _Service:
         return guarded
 
     async def health(self, request: Request) -> JSONResponse:
+        if lost := self.table.lost():
+            return JSONResponse({"status": "failing", "error": lost}, status_code=503)
         return JSONResponse({"status": "ok", "version": package_version()})
 
     async def login(self, request: Request) -> Response:
@@ -330,9 +354,23 @@ def _page(title: str, body: str, *, refresh: bool = False) -> str:
     )
 
 
-def create_app(runner: Runner, tokens: dict[str, str]) -> Starlette:
+def _secured(app):
+    """`app` (ASGI) with `SECURITY_HEADERS` added to every HTTP answer."""
+
+    async def secured(scope, receive, send):
+        async def send_secured(message):
+            if message["type"] == "http.response.start":
+                message = {**message, "headers": [*message["headers"], *SECURITY_HEADERS]}
+            await send(message)
+
+        await app(scope, receive, send_secured if scope["type"] == "http" else send)
+
+    return secured
+
+
+def create_app(runner: Runner, tokens: dict[str, str]):
     """The ASGI application over a started `runner`; no token: no authentication."""
-    return Starlette(routes=_Service(runner, tokens).routes())
+    return _secured(Starlette(routes=_Service(runner, tokens).routes()))
 
 
 def serve(args, security) -> int:

@@ -22,6 +22,7 @@ from conftest import TINY_SWEEP, assert_same_samples, cli_command, free_port, ru
 from service.cli import main
 from service.store.location import KIND, Store
 from service.store.lock import LOCK_NAME
+from service.store.template import OWNER
 
 TOKEN = "s3cret-token"
 LONG = 40
@@ -351,6 +352,35 @@ def test_no_token_is_401_and_serve_refuses_to_run_open(service, monkeypatch, cap
     assert "127.0.0.1 only" in capsys.readouterr().err
 
 
+def test_the_cookie_only_reads_and_pages_are_not_framed(service):
+    """A page of another site (another port of this host) cannot submit with the cookie."""
+    before = len(service.request("GET", "/v1/jobs")[1]["jobs"])
+    forged = {
+        "Cookie": f"oceanlidar_token={TOKEN}",
+        "Content-Type": "text/plain",
+        "Origin": f"http://127.0.0.1:{free_port()}",
+    }
+    connection = http.client.HTTPConnection("127.0.0.1", service.port, timeout=30)
+    for method, path, body in [
+        ("POST", "/v1/jobs?mode=overwrite", sweep("forged.zarr", realisations=1)),
+        ("DELETE", "/v1/jobs/0123456789ab", None),
+    ]:
+        connection.request(method, path, body=body, headers=forged)
+        answer = connection.getresponse()
+        assert answer.status == 401, (method, answer.read())
+        answer.read()
+    assert len(service.request("GET", "/v1/jobs")[1]["jobs"]) == before
+    for path in ("/", "/v1/jobs"):  # the cookie reads pages and the API
+        connection.request("GET", path, headers={"Cookie": f"oceanlidar_token={TOKEN}"})
+        answer = connection.getresponse()
+        answer.read()
+        assert answer.status == 200, path
+        assert answer.headers["x-frame-options"] == "DENY"
+        assert answer.headers["x-content-type-options"] == "nosniff"
+        assert "frame-ancestors 'none'" in answer.headers["content-security-policy"]
+    connection.close()
+
+
 BAD_SWEEPS = {
     "not yaml": ("name: [unclosed", None),
     "no seed": ("name: x\noutput: x.zarr\n", "seed"),
@@ -552,3 +582,31 @@ def test_one_service_a_table_whatever_path_reaches_it(tmp_path, link):
     assert table.lost() is None
     (tmp_path / "jobs.sqlite").unlink()  # a table lost while served is noticed
     assert "is gone" in table.lost()
+
+
+def test_a_lost_job_table_stops_the_service_and_stores_keep_their_owner(tmp_path):
+    (tmp_path / "tokens").write_text(f"alice {TOKEN}\nbob {OTHER_TOKEN}\n")
+    server = Server(tmp_path, "--token-file", tmp_path / "tokens")
+    text = sweep("owned.zarr", realisations=1)
+    try:
+        server.start()
+        job = server.submit(text)[1]
+        assert server.wait(job["id"], finished)["state"] == "succeeded"
+        (tmp_path / "jobs.sqlite").unlink()
+        status, answer = server.request("GET", "/v1/health")
+        assert status == 503 and "is gone" in answer["error"], answer
+        assert server.submit(sweep("more.zarr"))[0] == 503
+        server.stop()
+        server.start()  # on a new table: the jobs are forgotten, not who owns the store
+        assert server.request("GET", "/v1/jobs")[1]["jobs"] == []
+        for mode in ("resume", "overwrite"):
+            status, refused = server.request(
+                "POST", f"/v1/jobs?mode={mode}", text.encode(), token=OTHER_TOKEN
+            )
+            assert status == 403 and "written by alice" in refused["error"], refused
+        status, again = server.submit(text, mode="overwrite")
+        assert status == 201
+        assert server.wait(again["id"], finished)["state"] == "succeeded"
+        assert Store(job["url"]).attributes()[OWNER] == "alice"
+    finally:
+        server.stop()
