@@ -24,7 +24,7 @@ from service.admission import admit_job, parents
 from service.errors import InputError, LockedError, UnusableOutputError
 from service.inputs import shown
 from service.records import ACTIVE, Job, JobState
-from service.run import execute
+from service.run import Cancel, execute
 from service.store.template import OWNER
 from service.sweep import parse_sweep
 
@@ -200,7 +200,7 @@ class Runner:
     def __init__(self, table, client, *, data_root, max_running, queue_limit, batch_size):
         self.table, self.client, self.data_root = table, client, data_root
         self.max_running, self.queue_limit, self.batch_size = max_running, queue_limit, batch_size
-        self._running: dict[str, tuple[threading.Thread, threading.Event]] = {}
+        self._running: dict[str, tuple[threading.Thread, Cancel]] = {}
         self._stop = threading.Event()
         self._admit = threading.Lock()
         self._dispatcher = threading.Thread(target=self._dispatch, name="jobs", daemon=True)
@@ -269,7 +269,7 @@ class Runner:
         return job
 
     def cancel(self, job_id: str) -> bool:
-        """Cancel a queued or running job; False if it had finished."""
+        """Cancel a queued or running job; False if it had finished or writes its statistics."""
         if self.table.set_state(
             job_id, JobState.CANCELLED, when=(JobState.QUEUED,), finished=time.time()
         ):
@@ -277,8 +277,7 @@ class Runner:
         entry = self._running.get(job_id)
         if entry is None:
             return False
-        entry[1].set()
-        return True
+        return entry[1].cancel()
 
     def _dispatch(self) -> None:
         while not self._stop.wait(DISPATCH_TICK):
@@ -294,14 +293,14 @@ class Runner:
                 job.id, JobState.RUNNING, when=(JobState.QUEUED,), started=time.time()
             ):
                 continue
-            cancel = threading.Event()
+            cancel = Cancel()
             thread = threading.Thread(
                 target=self._run, args=(job, cancel), name=f"job-{job.id}", daemon=True
             )
             self._running[job.id] = (thread, cancel)
             thread.start()
 
-    def _run(self, job: Job, cancel: threading.Event) -> None:
+    def _run(self, job: Job, cancel: Cancel) -> None:
         def progress(done: int, rate: float) -> None:
             self.table.update(job.id, done=done, rate=rate)
 

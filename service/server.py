@@ -220,7 +220,11 @@ class _Service:
         if job.owner != request.state.owner:
             return _error(403, f"job {job_id} is {job.owner}'s: only its owner may cancel it")
         if not self.runner.cancel(job_id):
-            return _error(409, f"job {job_id} has finished: nothing to cancel")
+            return _error(
+                409,
+                f"job {job_id} has finished or is writing its statistics: it can no longer "
+                "be cancelled",
+            )
         return JSONResponse(self.table.get(job_id).public())
 
     async def events(self, request: Request) -> Response:

@@ -610,3 +610,42 @@ def test_a_lost_job_table_stops_the_service_and_stores_keep_their_owner(tmp_path
         assert Store(job["url"]).attributes()[OWNER] == "alice"
     finally:
         server.stop()
+
+
+def test_a_job_writing_its_statistics_can_no_longer_be_cancelled(tmp_path, threads, monkeypatch):
+    from service.cluster import dask_client
+    from service.jobs import JobTable, Runner
+
+    writing, release = threading.Event(), threading.Event()
+    write_statistics = threads.write_statistics
+
+    def held(store, **options):
+        writing.set()
+        release.wait(120)
+        return write_statistics(store, **options)
+
+    monkeypatch.setattr(threads, "write_statistics", held)
+    (tmp_path / "data").mkdir()
+    with dask_client(workers=1, scheduler=None) as cluster:
+        runner = Runner(
+            JobTable(str(tmp_path / "jobs.sqlite")),
+            cluster,
+            data_root=Store(str(tmp_path / "data")),
+            max_running=1,
+            queue_limit=10,
+            batch_size=1,
+        )
+        runner.start()
+        try:
+            job = runner.submit(sweep("late.zarr", realisations=1), owner="alice")
+            assert writing.wait(120)
+            assert not runner.cancel(job.id)  # the samples are written: too late
+            release.set()
+            deadline = time.monotonic() + 120
+            while not runner.table.get(job.id).state.final and time.monotonic() < deadline:
+                time.sleep(0.05)
+        finally:
+            release.set()
+            runner.stop()
+    assert runner.table.get(job.id).state == "succeeded"
+    assert Store(job.url).stats.attributes()[KIND] == "statistics"
