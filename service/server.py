@@ -17,7 +17,6 @@ from __future__ import annotations
 import asyncio
 import hmac
 import html
-import io
 import json
 import os
 import sys
@@ -42,9 +41,9 @@ from service.cluster import dask_client
 from service.errors import BadFileError, BadOptionError, InputError
 from service.inputs import MAX_FILE_BYTES
 from service.jobs import ForbiddenError, JobTable, QueueFullError, Runner
-from service.records import Job, JobState
+from service.pictures import KINDS, Pictures
+from service.records import JobState
 from service.store.location import Store
-from service.sweep import parse_sweep
 
 __all__ = ["LOOPBACK", "create_app", "read_tokens", "serve"]
 
@@ -67,8 +66,6 @@ SECURITY_HEADERS = [
     (b"referrer-policy", b"no-referrer"),
 ]
 """Sent with every answer: the pages load nothing but their own pictures, in no frame."""
-PREVIEW_SAMPLES = 3
-"""Samples drawn in a finished job's preview strip."""
 _LOGIN_FORM = (
     '<form method="post"><label>token <input type="password" name="token">'
     "</label> <button>log in</button></form>"
@@ -113,7 +110,7 @@ class _Service:
 
     def __init__(self, runner: Runner, tokens: dict[str, str]):
         self.runner, self.table, self.tokens = runner, runner.table, tokens
-        self.pictures: dict[tuple[str, str], bytes] = {}
+        self.pictures = Pictures(runner.data_root)
 
     def owner(self, request: Request, given: str | None = None) -> str | None:
         """Who sent `request` (by its token, or the token `given`), or None if nobody known."""
@@ -292,53 +289,13 @@ class _Service:
     async def picture(self, request: Request) -> Response:
         job_id, kind = request.path_params["id"], request.path_params["picture"]
         job = self.table.get(job_id)
-        if (
-            job is None
-            or job.state is not JobState.SUCCEEDED
-            or kind not in ("statistics", "preview")
-        ):
+        if job is None or job.state is not JobState.SUCCEEDED or kind not in KINDS:
             return _error(404, "no such picture")
-        if (job_id, kind) not in self.pictures:
-            draw = _statistics_png if kind == "statistics" else _preview_png
-            try:
-                self.pictures[job_id, kind] = await run_in_threadpool(
-                    draw, job, self.runner.data_root
-                )
-            except InputError as error:  # e.g. nothing swept: nothing to plot against
-                return _error(404, str(error))
-        return Response(self.pictures[job_id, kind], media_type="image/png")
-
-
-def _statistics_png(job: Job, data_root: Store) -> bytes:
-    from service.plots import plot_statistics
-
-    stats = data_root.other(job.url).stats.dataset().load()
-    buffer = io.BytesIO()
-    plot_statistics(stats, buffer)
-    return buffer.getvalue()
-
-
-def _preview_png(job: Job, data_root: Store) -> bytes:
-    """The gated images of the first samples, one row each (rendered again, as stored)."""
-    import matplotlib.pyplot as plt
-    from PIL import Image
-
-    from service.plots import preview_figure, render_preview
-
-    plan = parse_sweep(job.sweep, folder=data_root.url, max_memory=None)
-    rows = []
-    for sample in range(min(PREVIEW_SAMPLES, plan.samples)):
-        figure = preview_figure(render_preview(plan, sample), title=f"sample {sample}")
-        buffer = io.BytesIO()
-        figure.savefig(buffer, format="png")
-        plt.close(figure)
-        rows.append(Image.open(buffer).convert("RGB"))
-    strip = Image.new("RGB", (max(r.width for r in rows), sum(r.height for r in rows)), "white")
-    for index, row in enumerate(rows):
-        strip.paste(row, (0, sum(r.height for r in rows[:index])))
-    buffer = io.BytesIO()
-    strip.save(buffer, format="PNG")
-    return buffer.getvalue()
+        try:
+            picture = await self.pictures.get(job, kind)
+        except InputError as error:  # e.g. nothing swept: nothing to plot against
+            return _error(404, str(error))
+        return Response(picture, media_type="image/png")
 
 
 def _when(seconds: float) -> str:

@@ -649,3 +649,90 @@ def test_a_job_writing_its_statistics_can_no_longer_be_cancelled(tmp_path, threa
             runner.stop()
     assert runner.table.get(job.id).state == "succeeded"
     assert Store(job.url).stats.attributes()[KIND] == "statistics"
+
+
+def get_concurrently(url, paths, headers=None):
+    """GET every one of `paths` at once, each in its own thread: (status, type, head) each."""
+    answers = [None] * len(paths)
+
+    def get(index):
+        request = urllib.request.Request(url + paths[index], headers=headers or {})
+        with urllib.request.urlopen(request, timeout=120) as answer:
+            answers[index] = (answer.status, answer.headers["content-type"], answer.read(8))
+
+    getters = [threading.Thread(target=get, args=(index,)) for index in range(len(paths))]
+    for getter in getters:
+        getter.start()
+    for getter in getters:
+        getter.join(timeout=180)
+    return answers
+
+
+PNG = (200, "image/png", b"\x89PNG\r\n\x1a\n")
+
+
+def test_concurrent_views_of_a_picture_draw_it_once(reference, tmp_path, monkeypatch):
+    """Eight requests for one job's preview render its samples once (in this process)."""
+    import uvicorn
+
+    import service.plots
+    from service.jobs import JobTable, Runner
+    from service.records import Job, JobState
+    from service.server import create_app
+
+    renders = []
+    render_preview = service.plots.render_preview
+
+    def counted(plan, sample):
+        renders.append(sample)
+        return render_preview(plan, sample)
+
+    monkeypatch.setattr(service.plots, "render_preview", counted)
+    table = JobTable(str(tmp_path / "jobs.sqlite"))
+    text = sweep("reference.zarr")
+    table.add(
+        Job(
+            id="0123456789ab",
+            owner="anonymous",
+            name="served",
+            state=JobState.SUCCEEDED,
+            mode="new",
+            sweep=text,
+            output="reference.zarr",
+            url=str(reference),
+            submitted=time.time(),
+            total=2 * LONG,
+        )
+    )
+    root = Store(str(reference.parent))
+    runner = Runner(table, None, data_root=root, max_running=1, queue_limit=1, batch_size=1)
+    config = uvicorn.Config(
+        create_app(runner, {}), host="127.0.0.1", port=free_port(), log_level="warning"
+    )
+    server = uvicorn.Server(config)
+    serving = threading.Thread(target=server.run)
+    serving.start()
+    try:
+        while not server.started and serving.is_alive():
+            time.sleep(0.05)
+        url = f"http://127.0.0.1:{config.port}/jobs/0123456789ab"
+        assert get_concurrently(url, ["/preview.png"] * 8) == [PNG] * 8
+        assert renders == [0, 1, 2]
+        assert get_concurrently(url, ["/preview.png"]) == [PNG] and len(renders) == 3
+    finally:
+        server.should_exit = True
+        serving.join(timeout=30)
+
+
+def test_a_fresh_servers_first_views_of_both_pictures_answer(tmp_path):
+    """The first requests after a start, two for each picture at once, all draw (#27 item 2)."""
+    server = Server(tmp_path)
+    try:
+        server.start()
+        job = server.submit(sweep("viewed.zarr", realisations=1))[1]
+        assert server.wait(job["id"], finished)["state"] == "succeeded"
+        pictures = [f"/jobs/{job['id']}/{kind}.png" for kind in ("statistics", "preview") * 2]
+        token = {"Authorization": f"Bearer {TOKEN}"}
+        assert get_concurrently(server.url, pictures, token) == [PNG] * 4
+    finally:
+        server.stop()
