@@ -736,3 +736,27 @@ def test_a_fresh_servers_first_views_of_both_pictures_answer(tmp_path):
         assert get_concurrently(server.url, pictures, token) == [PNG] * 4
     finally:
         server.stop()
+
+
+def test_pictures_keep_at_most_their_bytes(monkeypatch):
+    import asyncio
+    from types import SimpleNamespace
+
+    from service import pictures
+
+    drawn = []
+
+    def draw(job, data_root):
+        drawn.append(job.id)
+        return b"x" * 10
+
+    monkeypatch.setitem(pictures.KINDS, "statistics", draw)
+    kept = pictures.Pictures(Store("/nowhere"), max_bytes=25)
+    jobs = [SimpleNamespace(id=str(n)) for n in range(3)]
+
+    async def view(order):
+        for job in order:
+            assert await kept.get(job, "statistics") == b"x" * 10
+
+    asyncio.run(view([*jobs, jobs[1], jobs[2], jobs[0]]))
+    assert drawn == ["0", "1", "2", "0"]  # two pictures fit: the oldest went
