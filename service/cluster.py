@@ -8,14 +8,17 @@ import logging
 import os
 import signal
 import threading
+import time
+from pathlib import Path
 
 import dask
-from distributed import Client, LocalCluster
+from distributed import Client, LocalCluster, get_worker
 from distributed.diagnostics.plugin import WorkerPlugin
+from distributed.worker import thread_state
 
 from service.errors import BadOptionError
 
-__all__ = ["ClusterError", "dask_client", "dask_setup"]
+__all__ = ["ClusterError", "dask_client", "dask_setup", "embedded_cluster", "hold"]
 
 CLOSE_TIMEOUT = 60.0
 """Longest wait for the embedded cluster's workers to exit, s."""
@@ -35,6 +38,11 @@ Idle, a worker then burns 6 ms of CPU a second instead of 24, the scheduler and 
 OWN_WORKERS = {"distributed.worker.preload": ["service.cluster"]}
 """dask settings of the embedded cluster's workers: each runs `dask_setup` as it starts."""
 
+HOLD = "OCEANLIDAR_TEST_HOLD"
+"""Tests only, the environment variable of `hold`: a folder (the interrupt tests)."""
+HOLD_LIMIT = 120.0
+"""Longest hold of a task by `hold`, s."""
+
 log = logging.getLogger("oceanlidar")
 
 
@@ -48,6 +56,27 @@ def dask_setup(worker) -> None:
     """
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def hold(start: int) -> None:
+    """Tests only: hold a run at a known point, for an interrupt there (not a clock race).
+
+    With `HOLD` set to a folder, a task that has written its shard (`start`, its first
+    sample) says so by a file ``shard-START`` there; then, once as many shards as the
+    folder's file ``hold`` says are written, it waits until the run lets it go (its client
+    gone, interrupted: the task is cancelled), at most `HOLD_LIMIT`.
+    """
+    folder = os.environ.get(HOLD)
+    if not folder:
+        return
+    folder = Path(folder)
+    (folder / f"shard-{start}").touch()
+    if len(list(folder.glob("shard-*"))) < int((folder / "hold").read_text()):
+        return
+    task = get_worker().state.tasks[thread_state.key]
+    deadline = time.monotonic() + HOLD_LIMIT
+    while task.state == "executing" and time.monotonic() < deadline:
+        time.sleep(0.05)
 
 
 class ClusterError(RuntimeError):
@@ -72,6 +101,28 @@ class WarningsToLogging(WorkerPlugin):
         captured = logging.getLogger("py.warnings")
         captured.handlers = [logging.StreamHandler()] if self.verbose else [logging.NullHandler()]
         captured.setLevel(logging.WARNING if self.verbose else logging.ERROR)
+
+
+def embedded_cluster(
+    *, workers: int | None, dashboard: bool = False, verbose: bool = False
+) -> LocalCluster:
+    """The embedded LocalCluster of `dask_client`: `workers` processes of one thread each.
+
+    Started on 127.0.0.1 with `QUIET` unless `dashboard`, every worker running `dask_setup`
+    (`OWN_WORKERS`); `verbose` lets the workers' logs through.
+    """
+    quiet = {} if dashboard else QUIET
+    with dask.config.set({**quiet, **OWN_WORKERS}):
+        return LocalCluster(
+            n_workers=workers or os.cpu_count() or 1,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address="127.0.0.1:0",
+            scheduler_kwargs={"dashboard": dashboard},
+            silence_logs=logging.WARNING if verbose else logging.CRITICAL,
+            config={**quiet, **OWN_WORKERS},
+        )
 
 
 @contextlib.contextmanager
@@ -109,18 +160,7 @@ def dask_client(
                 log.info("dashboard: %s", client.dashboard_link)
             yield client
         return
-    quiet = {} if dashboard else QUIET
-    with dask.config.set({**quiet, **OWN_WORKERS}):
-        cluster = LocalCluster(
-            n_workers=workers or os.cpu_count() or 1,
-            threads_per_worker=1,
-            processes=True,
-            host="127.0.0.1",
-            dashboard_address="127.0.0.1:0",
-            scheduler_kwargs={"dashboard": dashboard},
-            silence_logs=logging.WARNING if verbose else logging.CRITICAL,
-            config={**quiet, **OWN_WORKERS},
-        )
+    cluster = embedded_cluster(workers=workers, dashboard=dashboard, verbose=verbose)
     try:
         with Client(cluster) as client:
             client.register_plugin(WarningsToLogging(verbose))

@@ -24,7 +24,8 @@ from service.admission import admit_job, parents
 from service.errors import InputError, LockedError, UnusableOutputError
 from service.inputs import shown
 from service.records import ACTIVE, Job, JobState
-from service.run import execute
+from service.run import Cancel, execute
+from service.store.template import OWNER
 from service.sweep import parse_sweep
 
 __all__ = ["ForbiddenError", "JobTable", "QueueFullError", "Runner"]
@@ -54,10 +55,12 @@ class ForbiddenError(RuntimeError):
 class JobTable:
     """Jobs in an SQLite file, safe to use from several threads, owned by one service.
 
-    The service holds an exclusive lock on ``PATH.lock`` (``flock``) while the table is
-    open, released by the system when its process ends however it ends: a job found
-    ``running`` at start was left by a service that has died, whose store locks (they
-    name the job) may then be taken over (`service.store.lock.writer_lock`).
+    The service holds an exclusive lock (``flock``) on the database file itself while the
+    table is open: a second service is refused whatever path reaches the file (a symbolic
+    or hard link too), and the system releases the lock when the process ends however it
+    ends, so a job found ``running`` at start was left by a service that has died, whose
+    store locks (they name the job) may then be taken over
+    (`service.store.lock.writer_lock`).
 
     Parameters
     ----------
@@ -71,11 +74,12 @@ class JobTable:
     """
 
     def __init__(self, path: str):
-        self._owner = open(f"{path}.lock", "a")  # held while the table lives
+        self.path = path
+        self._owner = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)  # held while the table lives
         try:
             fcntl.flock(self._owner, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            self._owner.close()
+            os.close(self._owner)
             raise LockedError(
                 f"--db {path}: another oceanlidar serve uses this job table (one service a table)"
             ) from None
@@ -84,6 +88,21 @@ class JobTable:
         self._lock = threading.Lock()
         self._query("PRAGMA journal_mode=WAL")
         self._query(_SCHEMA)
+
+    def lost(self) -> str | None:
+        """Why the table is no longer the file at its path (deleted, replaced); None if it is.
+
+        A service whose table was lost would forget every job and owner at its next start:
+        it must not go on (the server answers ``503``, `service.server`).
+        """
+        held = os.fstat(self._owner)
+        try:
+            there = os.stat(self.path)
+        except OSError as error:
+            return f"the job table --db {self.path} is gone ({error.strerror})"
+        if (there.st_dev, there.st_ino) != (held.st_dev, held.st_ino):
+            return f"the job table --db {self.path} was replaced by another file"
+        return None
 
     def _query(self, sql: str, parameters=()) -> list[dict]:
         with self._lock:
@@ -181,7 +200,7 @@ class Runner:
     def __init__(self, table, client, *, data_root, max_running, queue_limit, batch_size):
         self.table, self.client, self.data_root = table, client, data_root
         self.max_running, self.queue_limit, self.batch_size = max_running, queue_limit, batch_size
-        self._running: dict[str, tuple[threading.Thread, threading.Event]] = {}
+        self._running: dict[str, tuple[threading.Thread, Cancel]] = {}
         self._stop = threading.Event()
         self._admit = threading.Lock()
         self._dispatcher = threading.Thread(target=self._dispatch, name="jobs", daemon=True)
@@ -209,18 +228,23 @@ class Runner:
             For a bad sweep or mode, or an output this job may not write (another
             unfinished job writes it: `UnusableOutputError`).
         ForbiddenError
-            If a resume or an overwrite names a store another owner's job wrote.
+            If a resume or an overwrite names a store another owner wrote: the store's
+            own record (`service.store.template.OWNER`) says who, else the job table's
+            newest job into it; a store that records no owner is nobody's to replace.
         QueueFullError
             If `queue_limit` jobs are unfinished.
         """
         plan, url = admit_job(text, mode, data_root=self.data_root)
         with self._admit:
-            previous = self.table.latest(url)
-            if mode != "new" and previous is not None and previous.owner != owner:
-                raise ForbiddenError(
-                    f"output: {shown(plan.sweep.output)} was written by job {previous.id} "
-                    f"of {previous.owner}; only its owner may {mode} it"
-                )
+            attributes = self.data_root.other(url).attributes() if mode != "new" else None
+            if attributes is not None:  # a store is there
+                previous = self.table.latest(url)
+                wrote = attributes.get(OWNER, previous.owner if previous else None)
+                if wrote != owner:
+                    who = f"was written by {wrote}" if wrote else "records no owner"
+                    raise ForbiddenError(
+                        f"output: {shown(plan.sweep.output)} {who}; only its owner may {mode} it"
+                    )
             if self.table.active() >= self.queue_limit:
                 raise QueueFullError(f"{self.queue_limit} jobs are queued or running; try later")
             for job in self.table.list(JobState.QUEUED) + self.table.list(JobState.RUNNING):
@@ -245,7 +269,7 @@ class Runner:
         return job
 
     def cancel(self, job_id: str) -> bool:
-        """Cancel a queued or running job; False if it had finished."""
+        """Cancel a queued or running job; False if it had finished or writes its statistics."""
         if self.table.set_state(
             job_id, JobState.CANCELLED, when=(JobState.QUEUED,), finished=time.time()
         ):
@@ -253,11 +277,12 @@ class Runner:
         entry = self._running.get(job_id)
         if entry is None:
             return False
-        entry[1].set()
-        return True
+        return entry[1].cancel()
 
     def _dispatch(self) -> None:
         while not self._stop.wait(DISPATCH_TICK):
+            if self.table.lost():  # nothing starts that the next start would not know of
+                continue
             for job_id, (thread, _) in list(self._running.items()):
                 if not thread.is_alive():
                     del self._running[job_id]
@@ -268,14 +293,14 @@ class Runner:
                 job.id, JobState.RUNNING, when=(JobState.QUEUED,), started=time.time()
             ):
                 continue
-            cancel = threading.Event()
+            cancel = Cancel()
             thread = threading.Thread(
                 target=self._run, args=(job, cancel), name=f"job-{job.id}", daemon=True
             )
             self._running[job.id] = (thread, cancel)
             thread.start()
 
-    def _run(self, job: Job, cancel: threading.Event) -> None:
+    def _run(self, job: Job, cancel: Cancel) -> None:
         def progress(done: int, rate: float) -> None:
             self.table.update(job.id, done=done, rate=rate)
 
@@ -301,6 +326,7 @@ class Runner:
                     cancel=cancel,
                     on_progress=progress,
                     claim=f"oceanlidar service job {job.id}",
+                    owner=job.owner,
                 )
         except Exception as error:  # a job's failure must not take the service down
             message = str(error) if isinstance(error, InputError) else repr(error)

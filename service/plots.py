@@ -25,7 +25,14 @@ from service.store.template import swept_parameters
 from service.sweep import Plan
 from workers.render import render
 
-__all__ = ["plot_detection", "plot_statistics", "preview_figure", "render_preview", "save_preview"]
+__all__ = [
+    "figure_pixels",
+    "plot_detection",
+    "plot_statistics",
+    "preview_figure",
+    "render_preview",
+    "save_preview",
+]
 
 PANEL_INCHES = 2.2
 DPI = 100
@@ -136,7 +143,8 @@ def _draw_sea(figure, sea, ds: xr.Dataset, frame: int, measurements) -> None:
     bar.set_label("elevation (m)", fontsize=6)
 
 
-def _pixels(figure) -> Image.Image:
+def figure_pixels(figure) -> Image.Image:
+    """The RGB pixels of `figure` (drawn on its Agg canvas, as `_figure` makes it)."""
     figure.canvas.draw()
     return Image.fromarray(np.asarray(figure.canvas.buffer_rgba())).convert("RGB")
 
@@ -178,11 +186,11 @@ def save_preview(
     if lower.endswith(".gif"):
         if frame is not None:
             raise BadOptionError(f"--frame {frame}: a GIF holds every frame; write a .png for one")
-        frames = [_pixels(draw(frame=index)) for index in range(count)]
+        frames = [figure_pixels(draw(frame=index)) for index in range(count)]
         frames[0].save(path, save_all=True, append_images=frames[1:], duration=200, loop=0)
         return len(frames)
     if lower.endswith(".png"):
-        _pixels(draw(frame=frame or 0)).save(path)
+        figure_pixels(draw(frame=frame or 0)).save(path)
         return 1
     raise BadOptionError(f"--output {path}: write a .png (one frame) or a .gif (all frames)")
 

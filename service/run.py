@@ -22,6 +22,7 @@ import contextlib
 import errno
 import functools
 import hashlib
+import threading
 import time
 from collections.abc import Iterator
 
@@ -29,7 +30,7 @@ import numpy as np
 from distributed import Client, wait
 
 from service.admission import check_output
-from service.cluster import ClusterError, dask_client
+from service.cluster import ClusterError, dask_client, hold
 from service.progress import Progress
 from service.records import RunResult
 from service.stats import write_statistics
@@ -43,6 +44,7 @@ from workers.render import render_arrays
 from workers.section import SceneError
 
 __all__ = [
+    "Cancel",
     "RunCancelledError",
     "execute",
     "render_shard",
@@ -99,6 +101,7 @@ def render_shard(store: Store, jobs):
             rejected.append((sample, reason, False))
     if valid:
         shards.write_shard(group, valid)
+    hold(jobs[0][0])  # tests only
     return rejected
 
 
@@ -124,6 +127,32 @@ def task_batches(plan: Plan, todo, samples_per_shard: int) -> Iterator[tuple[int
 
 class RunCancelledError(Exception):
     """A run stopped because its `cancel` event was set (`run_plan`)."""
+
+
+class Cancel(threading.Event):
+    """A run's cancel event that the run closes once its samples are written (`execute`).
+
+    From then on the run writes its statistics and ends as it is: a cancel is refused
+    rather than accepted and ignored.
+    """
+
+    def __init__(self):
+        super().__init__()
+        self._guard = threading.Lock()
+        self._closed = False
+
+    def cancel(self) -> bool:
+        """Set the event unless the run has closed it; whether it is set."""
+        with self._guard:
+            if not self._closed:
+                self.set()
+            return not self._closed
+
+    def close(self) -> bool:
+        """Refuse further cancels, unless one came first; whether it is closed."""
+        with self._guard:
+            self._closed = not self.is_set()
+            return self._closed
 
 
 def run_plan(
@@ -353,6 +382,7 @@ def execute(
     cancel=None,
     on_progress=None,
     claim: str | None = None,
+    owner: str | None = None,
 ) -> RunResult:
     """Create (or reopen) the store, run the missing samples and write the statistics.
 
@@ -373,8 +403,11 @@ def execute(
     are waited for, at most `task_timeout` (`ClusterError` if they last longer).
 
     `client` runs the samples on a cluster already connected (`workers`, `scheduler` and
-    `security` are then unused); `cancel` and `on_progress` are passed to `run_plan`;
-    `claim` to `service.store.lock.writer_lock`.
+    `security` are then unused); `cancel` (a `Cancel`) and `on_progress` are passed to
+    `run_plan`, and `cancel` is closed before the statistics (a cancel that came first ends
+    the run interrupted, its samples written, its statistics not);
+    `claim` to `service.store.lock.writer_lock`; `owner` (the job service's submitter) is
+    recorded in a new store (`service.store.template.create_store`).
     """
     options = {"resume": resume, "overwrite": overwrite}
     with store.errors():
@@ -410,7 +443,7 @@ def execute(
                 store.stats.remove(old_stats)
                 store.remove(old_files)
                 if not resuming:
-                    create_store(plan, store, samples_per_shard=batch_size)
+                    create_store(plan, store, samples_per_shard=batch_size, owner=owner)
             checked = resuming and verify
             relabelled = integrity.repair_labels(store, plan) if checked else []
             damaged = integrity.verify(store) if checked else []
@@ -429,8 +462,10 @@ def execute(
             if result.ok:
                 with store.errors():
                     result.unwritten = unwritten(store)
-            if result.ok:
+            if result.ok and (cancel is None or cancel.close()):
                 write_statistics(store, points=result.points)
+            elif result.ok:
+                result.interrupted = True
         if result.interrupted:  # tasks in flight at the interrupt may have written since
             with store.errors():
                 done = store.completed()

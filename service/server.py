@@ -3,7 +3,13 @@
 The API is JSON under ``/v1`` (see README, "Running the service"); the page at ``/`` lists
 the jobs with their progress and shows one job's sweep, statistics plot and preview strip.
 Every route but ``/v1/health`` and ``/login`` needs the service's token: an
-``Authorization: Bearer TOKEN`` header, or the cookie that ``/login`` sets for browsers.
+``Authorization: Bearer TOKEN`` header, or, for reading (``GET``) alone, the cookie that
+``/login`` sets for browsers: a request that changes something (a submission, a cancel)
+needs the header, which another site's page cannot make a browser send (no cross-site
+request forgery through the cookie). Every answer forbids framing, sniffing and anything
+the pages do not load from the service itself (`SECURITY_HEADERS`). A service whose job
+table was lost (the file deleted or replaced while it serves) answers ``503`` everywhere,
+health included.
 """
 
 from __future__ import annotations
@@ -11,7 +17,6 @@ from __future__ import annotations
 import asyncio
 import hmac
 import html
-import io
 import json
 import os
 import sys
@@ -36,9 +41,9 @@ from service.cluster import dask_client
 from service.errors import BadFileError, BadOptionError, InputError
 from service.inputs import MAX_FILE_BYTES
 from service.jobs import ForbiddenError, JobTable, QueueFullError, Runner
-from service.records import Job, JobState
+from service.pictures import KINDS, Pictures
+from service.records import JobState
 from service.store.location import Store
-from service.sweep import parse_sweep
 
 __all__ = ["LOOPBACK", "create_app", "read_tokens", "serve"]
 
@@ -48,8 +53,19 @@ EVENT_TICK = 0.5
 """Seconds between looks at a job for its event stream."""
 LOGIN_BYTES = 4096
 """Longest login form accepted, bytes."""
-PREVIEW_SAMPLES = 3
-"""Samples drawn in a finished job's preview strip."""
+SAFE_METHODS = ("GET", "HEAD")
+"""Requests the login cookie may authenticate: they read, never change anything."""
+SECURITY_HEADERS = [
+    (
+        b"content-security-policy",
+        b"default-src 'none'; img-src 'self'; style-src 'unsafe-inline'; "
+        b"form-action 'self'; frame-ancestors 'none'; base-uri 'none'",
+    ),
+    (b"x-frame-options", b"DENY"),
+    (b"x-content-type-options", b"nosniff"),
+    (b"referrer-policy", b"no-referrer"),
+]
+"""Sent with every answer: the pages load nothing but their own pictures, in no frame."""
 _LOGIN_FORM = (
     '<form method="post"><label>token <input type="password" name="token">'
     "</label> <button>log in</button></form>"
@@ -94,7 +110,7 @@ class _Service:
 
     def __init__(self, runner: Runner, tokens: dict[str, str]):
         self.runner, self.table, self.tokens = runner, runner.table, tokens
-        self.pictures: dict[tuple[str, str], bytes] = {}
+        self.pictures = Pictures(runner.data_root)
 
     def owner(self, request: Request, given: str | None = None) -> str | None:
         """Who sent `request` (by its token, or the token `given`), or None if nobody known."""
@@ -103,7 +119,8 @@ class _Service:
         if given is None:
             header = request.headers.get("authorization", "")
             given = header[7:] if header.lower().startswith("bearer ") else ""
-            given = given or request.cookies.get(COOKIE, "")
+            if request.method in SAFE_METHODS:
+                given = given or request.cookies.get(COOKIE, "")
         for owner, token in self.tokens.items():
             if given and hmac.compare_digest(given.encode(), token.encode()):
                 return owner
@@ -128,6 +145,8 @@ class _Service:
 
     def _guard(self, endpoint):
         async def guarded(request: Request):
+            if lost := self.table.lost():
+                return _error(503, f"{lost}: restart the service on its table")
             request.state.owner = self.owner(request)
             if request.state.owner is not None:
                 return await endpoint(request)
@@ -138,6 +157,8 @@ class _Service:
         return guarded
 
     async def health(self, request: Request) -> JSONResponse:
+        if lost := self.table.lost():
+            return JSONResponse({"status": "failing", "error": lost}, status_code=503)
         return JSONResponse({"status": "ok", "version": package_version()})
 
     async def login(self, request: Request) -> Response:
@@ -196,7 +217,11 @@ class _Service:
         if job.owner != request.state.owner:
             return _error(403, f"job {job_id} is {job.owner}'s: only its owner may cancel it")
         if not self.runner.cancel(job_id):
-            return _error(409, f"job {job_id} has finished: nothing to cancel")
+            return _error(
+                409,
+                f"job {job_id} has finished or is writing its statistics: it can no longer "
+                "be cancelled",
+            )
         return JSONResponse(self.table.get(job_id).public())
 
     async def events(self, request: Request) -> Response:
@@ -264,53 +289,13 @@ class _Service:
     async def picture(self, request: Request) -> Response:
         job_id, kind = request.path_params["id"], request.path_params["picture"]
         job = self.table.get(job_id)
-        if (
-            job is None
-            or job.state is not JobState.SUCCEEDED
-            or kind not in ("statistics", "preview")
-        ):
+        if job is None or job.state is not JobState.SUCCEEDED or kind not in KINDS:
             return _error(404, "no such picture")
-        if (job_id, kind) not in self.pictures:
-            draw = _statistics_png if kind == "statistics" else _preview_png
-            try:
-                self.pictures[job_id, kind] = await run_in_threadpool(
-                    draw, job, self.runner.data_root
-                )
-            except InputError as error:  # e.g. nothing swept: nothing to plot against
-                return _error(404, str(error))
-        return Response(self.pictures[job_id, kind], media_type="image/png")
-
-
-def _statistics_png(job: Job, data_root: Store) -> bytes:
-    from service.plots import plot_statistics
-
-    stats = data_root.other(job.url).stats.dataset().load()
-    buffer = io.BytesIO()
-    plot_statistics(stats, buffer)
-    return buffer.getvalue()
-
-
-def _preview_png(job: Job, data_root: Store) -> bytes:
-    """The gated images of the first samples, one row each (rendered again, as stored)."""
-    import matplotlib.pyplot as plt
-    from PIL import Image
-
-    from service.plots import preview_figure, render_preview
-
-    plan = parse_sweep(job.sweep, folder=data_root.url, max_memory=None)
-    rows = []
-    for sample in range(min(PREVIEW_SAMPLES, plan.samples)):
-        figure = preview_figure(render_preview(plan, sample), title=f"sample {sample}")
-        buffer = io.BytesIO()
-        figure.savefig(buffer, format="png")
-        plt.close(figure)
-        rows.append(Image.open(buffer).convert("RGB"))
-    strip = Image.new("RGB", (max(r.width for r in rows), sum(r.height for r in rows)), "white")
-    for index, row in enumerate(rows):
-        strip.paste(row, (0, sum(r.height for r in rows[:index])))
-    buffer = io.BytesIO()
-    strip.save(buffer, format="PNG")
-    return buffer.getvalue()
+        try:
+            picture = await self.pictures.get(job, kind)
+        except InputError as error:  # e.g. nothing swept: nothing to plot against
+            return _error(404, str(error))
+        return Response(picture, media_type="image/png")
 
 
 def _when(seconds: float) -> str:
@@ -330,9 +315,23 @@ def _page(title: str, body: str, *, refresh: bool = False) -> str:
     )
 
 
-def create_app(runner: Runner, tokens: dict[str, str]) -> Starlette:
+def _secured(app):
+    """`app` (ASGI) with `SECURITY_HEADERS` added to every HTTP answer."""
+
+    async def secured(scope, receive, send):
+        async def send_secured(message):
+            if message["type"] == "http.response.start":
+                message = {**message, "headers": [*message["headers"], *SECURITY_HEADERS]}
+            await send(message)
+
+        await app(scope, receive, send_secured if scope["type"] == "http" else send)
+
+    return secured
+
+
+def create_app(runner: Runner, tokens: dict[str, str]):
     """The ASGI application over a started `runner`; no token: no authentication."""
-    return Starlette(routes=_Service(runner, tokens).routes())
+    return _secured(Starlette(routes=_Service(runner, tokens).routes()))
 
 
 def serve(args, security) -> int:

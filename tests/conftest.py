@@ -5,6 +5,7 @@ import os
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -94,6 +95,101 @@ def start_cli(*args, cwd, env=None, **popen):
     return subprocess.Popen(command, cwd=cwd, env=env, **popen)
 
 
+def holding(folder, shards):
+    """The environment of a run whose tasks hold once `shards` shards are written.
+
+    `service.cluster.hold`: each task marks its written shard in `folder`; from the
+    `shards`-th on, they wait until the run is interrupted (the interrupt tests signal a
+    run at that point, not at a time).
+    """
+    from service.cluster import HOLD
+
+    folder.mkdir()
+    (folder / "hold").write_text(str(shards))
+    return {HOLD: str(folder)}
+
+
+def wait_for_shards(folder, shards, process, timeout=120):
+    """Wait until `shards` shards of the run `process` (held in `folder`) are written."""
+    deadline = time.monotonic() + timeout
+    while len(list(folder.glob("shard-*"))) < shards:
+        assert process.poll() is None, "the run ended before its tasks held"
+        assert time.monotonic() < deadline, f"fewer than {shards} shards in {timeout} s"
+        time.sleep(0.05)
+
+
+@pytest.fixture
+def cli(capsys, monkeypatch):
+    """`run_cli` in this process: `service.cli.main`, its output read by `capsys`.
+
+    For what needs no process of its own (bad input, `validate`, a run on the session's
+    cluster with `shared_cluster`); returns a `subprocess.CompletedProcess` as `run_cli`.
+    """
+    from service.cli import main
+
+    def run(*args, cwd, env=None):
+        capsys.readouterr()  # what came before is not this command's
+        with monkeypatch.context() as patch:
+            patch.chdir(cwd)
+            for name, value in (env or {}).items():
+                patch.setenv(name, str(value))
+            try:
+                code = main([str(arg) for arg in args])
+            except SystemExit as exit:  # argparse's own status
+                code = exit.code
+        out, err = capsys.readouterr()
+        return subprocess.CompletedProcess(list(args), code, out, err)
+
+    return run
+
+
+@pytest.fixture(scope="session")
+def session_cluster():
+    """The session's one embedded dask cluster (two workers) and its client.
+
+    Started as `oceanlidar run` starts its own (`service.cluster.embedded_cluster`), for the
+    tests that only need a cluster. Not the default client: tests reach it through
+    `on_cluster` (or `execute(client=...)`).
+    """
+    from distributed import Client
+
+    from service.cluster import WarningsToLogging, embedded_cluster
+
+    with embedded_cluster(workers=2) as cluster:
+        client = Client(cluster, set_as_default=False)
+        try:
+            client.register_plugin(WarningsToLogging(False))
+            yield client
+        finally:
+            client.close()
+
+
+@contextlib.contextmanager
+def on_cluster(client):
+    """Runs (`service.run.execute`, `oceanlidar run` in this process) on `client`.
+
+    Instead of an embedded cluster of their own: `client` is the current one for the
+    run, as the embedded cluster's is.
+    """
+    import service.run
+
+    @contextlib.contextmanager
+    def connect(**_):
+        with client.as_current():
+            yield client
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(service.run, "dask_client", connect)
+        yield client
+
+
+@pytest.fixture
+def shared_cluster(session_cluster):
+    """This test's runs on the session's cluster (`on_cluster`)."""
+    with on_cluster(session_cluster):
+        yield session_cluster
+
+
 SAMPLE_VARIABLES = (
     "image",
     "target_mask",
@@ -161,14 +257,17 @@ def dask_processes(folder, *, workers=2, protocol="tcp", options=(), env=None):
         ]
         yield address
     finally:
-        for process in processes:
-            process.terminate()
-        for process in processes:
-            try:
-                process.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait(timeout=10)
+        # the workers, then the scheduler: a worker whose scheduler has gone first takes
+        # seconds to leave
+        for group in (processes[1:], processes[:1]):
+            for process in group:
+                process.terminate()
+            for process in group:
+                try:
+                    process.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    process.kill()
+                    process.wait(timeout=10)
 
 
 @pytest.fixture

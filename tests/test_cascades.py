@@ -5,7 +5,6 @@ import math
 
 import numpy as np
 import pytest
-from conftest import run_cli
 from numpy.testing import assert_allclose
 
 from workers.cascades import K_TOP, Sea, resolved_share, subgrid_slope_covariance
@@ -246,13 +245,13 @@ def test_no_repetition_at_300_m():
             assert abs(value) < 4 * sigma, (value, sigma)
 
 
-def test_validate_states_the_resolved_shares(tmp_path):
+def test_validate_states_the_resolved_shares(tmp_path, cli):
     sweep = tmp_path / "sea.yaml"
     sweep.write_text(
         "name: sea\nseed: 1\noutput: sea.zarr\n"
         "scene:\n  platform: {altitude: 300.0}\n  receiver: {pixels: 16}\n"
     )
-    result = run_cli("validate", sweep, cwd=tmp_path)
+    result = cli("validate", sweep, cwd=tmp_path)
     assert result.returncode == 0, result.stderr
     sea = Scene.model_validate({"platform": {"altitude": 300.0}}).sea()
     elevation, slope = resolved_share(sea)

@@ -98,7 +98,7 @@ def test_validate_refuses_a_scene_that_renders_invalid_values(tmp_path, capsys, 
     assert "Traceback" not in err
 
 
-def test_quiet_runs_print_nothing_but_errors(tmp_path, capsys):
+def test_quiet_runs_print_nothing_but_errors(tmp_path, capsys, shared_cluster):
     sweep = tiny(tmp_path, realisations=1)
     assert main(["-q", "run", str(sweep), "--workers", "1", "--output", str(tmp_path / "q")]) == 0
     assert capsys.readouterr().err == ""

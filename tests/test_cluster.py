@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 import xarray as xr
-from conftest import ROOT, TINY_SWEEP, assert_same_samples, dask_processes, run_cli, start_cli
+from conftest import ROOT, TINY_SWEEP, assert_same_samples, dask_processes, start_cli
 from distributed import Client
 from distributed.diagnostics.plugin import WorkerPlugin
 
@@ -40,12 +40,12 @@ def cluster(tmp_path_factory):
         yield address
 
 
-def test_run_on_an_external_scheduler_writes_the_embedded_bytes(cluster, tmp_path):
+def test_run_on_an_external_scheduler_writes_the_embedded_bytes(cluster, tmp_path, cli):
     sweep = tmp_path / "s.yaml"
     sweep.write_text(SWEEP)
     for name, extra in (("external", ["--scheduler", cluster]), ("embedded", ["--workers", "1"])):
         output = tmp_path / f"{name}.zarr"
-        result = run_cli("run", sweep, "--output", output, "--batch", 1, *extra, cwd=tmp_path)
+        result = cli("run", sweep, "--output", output, "--batch", 1, *extra, cwd=tmp_path)
         assert result.returncode == 0, result.stderr
     assert_same_samples(tmp_path / "external.zarr", tmp_path / "embedded.zarr", names=None)
 
@@ -89,7 +89,7 @@ def test_a_sample_that_kills_its_worker_is_reported_and_the_rest_complete(cluste
         time.sleep(1)
 
 
-def test_a_worker_killed_mid_sweep_changes_no_byte(cluster, tmp_path):
+def test_a_worker_killed_mid_sweep_changes_no_byte(cluster, tmp_path, shared_cluster):
     plan = parse_sweep(sweep_text(realisations=8))
     url = str(tmp_path / "killed.zarr")
     create_store(plan, Store(url), samples_per_shard=1)
@@ -115,7 +115,7 @@ def test_a_worker_killed_mid_sweep_changes_no_byte(cluster, tmp_path):
     assert_same_samples(url, reference)
 
 
-def test_a_killed_client_resumes_to_the_same_bytes(cluster, tmp_path):
+def test_a_killed_client_resumes_to_the_same_bytes(cluster, tmp_path, cli, shared_cluster):
     sweep = tmp_path / "s.yaml"
     sweep.write_text(sweep_text(realisations=30))  # 60 tasks: most still to run at the kill
     target = tmp_path / "client.zarr"
@@ -134,7 +134,7 @@ def test_a_killed_client_resumes_to_the_same_bytes(cluster, tmp_path):
     process.send_signal(signal.SIGKILL)
     process.wait(timeout=30)
     assert 0 < xr.open_zarr(target)["completed"].values.sum() < 60
-    again = run_cli(*command, "--resume", cwd=tmp_path)
+    again = cli(*command, "--resume", cwd=tmp_path)
     assert again.returncode == 0, again.stderr
     reference = str(tmp_path / "reference.zarr")
     execute(

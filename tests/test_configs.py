@@ -10,7 +10,6 @@ import yaml
 from conftest import ROOT
 
 from service.cli import main
-from service.cluster import dask_client
 from service.sweep import load_sweep
 
 CONFIGS = sorted((ROOT / "configs").rglob("*.yaml"))
@@ -56,10 +55,9 @@ def reduced(path, folder):
 
 
 @pytest.fixture(scope="module")
-def scheduler():
-    """One embedded cluster (a worker process, on loopback) that every config's run joins."""
-    with dask_client(workers=1, scheduler=None) as client:
-        yield client.scheduler.address
+def scheduler(session_cluster):
+    """The session's cluster, that every config's run joins."""
+    return session_cluster.scheduler.address
 
 
 @pytest.mark.parametrize("path", CONFIGS, ids=[str(p.relative_to(ROOT)) for p in CONFIGS])

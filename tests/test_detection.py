@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 import xarray as xr
-from conftest import TINY_SCENE, same_values
+from conftest import TINY_SCENE, on_cluster, same_values
 from scipy.stats import multivariate_normal, norm, poisson
 
 from service.cli import main
@@ -240,13 +240,14 @@ sweep:
 
 
 @pytest.fixture(scope="module")
-def detection(tmp_path_factory):
+def detection(tmp_path_factory, session_cluster):
     folder = tmp_path_factory.mktemp("detect")
     sweep = folder / "sweep.yaml"
     sweep.write_text(
         SWEEP.format(name="small", seed=5, realisations=120, output=folder / "small.zarr")
     )
-    assert main(["run", str(sweep), "--workers", "1"]) == 0
+    with on_cluster(session_cluster):
+        assert main(["run", str(sweep), "--workers", "1"]) == 0
     assert main(["detect", str(folder / "small.zarr")]) == 0
     return folder, xr.open_zarr(folder / "small.detect.zarr").load()
 
@@ -363,7 +364,7 @@ def test_detect_refuses_to_overwrite_what_is_not_a_detection_dataset(detection, 
     assert (precious / "notes.txt").read_text() == "keep"
 
 
-def test_detect_refuses_a_target_free_sweep(tmp_path, capsys):
+def test_detect_refuses_a_target_free_sweep(tmp_path, capsys, shared_cluster):
     sweep = tmp_path / "sweep.yaml"
     text = TINY_SCENE.format(name="empty", seed=1, realisations=8, output=tmp_path / "e.zarr")
     sweep.write_text(text + "sweep:\n  parameters:\n    target.shape: {values: [none]}\n")

@@ -10,7 +10,7 @@ from pathlib import Path
 import fsspec
 import pytest
 import xarray as xr
-from conftest import TINY_SWEEP, assert_same_samples, free_port, run_cli
+from conftest import TINY_SWEEP, assert_same_samples, free_port
 
 from service.run import execute, render_shard, task_batches
 from service.store.location import Store
@@ -64,7 +64,7 @@ def s3(tmp_path_factory):
         server.wait(timeout=30)
 
 
-def test_a_sweep_to_s3_resumes_to_the_bytes_of_a_local_run(s3, tmp_path):
+def test_a_sweep_to_s3_resumes_to_the_bytes_of_a_local_run(s3, tmp_path, cli, shared_cluster):
     plan = parse_sweep(SWEEP)
     url = "s3://oceanlidar/run.zarr"
     # a first run that stopped after its first shard of two samples, as a worker leaves it
@@ -74,7 +74,7 @@ def test_a_sweep_to_s3_resumes_to_the_bytes_of_a_local_run(s3, tmp_path):
     sweep = tmp_path / "s3.yaml"
     sweep.write_text(SWEEP)
     options = json.dumps(s3)
-    result = run_cli(
+    result = cli(
         "run", sweep, "--resume", "--workers", 1, "--storage-options", options, cwd=tmp_path
     )
     assert result.returncode == 0, result.stderr

@@ -74,7 +74,9 @@ def test_a_preview_that_cannot_be_written_is_refused_before_rendering(
     assert list(tmp_path.iterdir()) == []
 
 
-def test_plot_draws_contrast_and_cnr_against_each_swept_parameter(tmp_path, capsys, monkeypatch):
+def test_plot_draws_contrast_and_cnr_against_each_swept_parameter(
+    tmp_path, shared_cluster, capsys, monkeypatch
+):
     text = (PAPER / "example3.yaml").read_text()
     text = text.replace("grid_size: 256, spacing: 0.016", "grid_size: 64, spacing: 0.064")
     text = text.replace("pixels: 128", "pixels: 32").replace("realisations: 4", "realisations: 2")

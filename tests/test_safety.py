@@ -13,7 +13,7 @@ import time
 import numpy as np
 import pytest
 import xarray as xr
-from conftest import TINY_SCENE, TINY_SWEEP, run_cli, start_cli
+from conftest import TINY_SCENE, TINY_SWEEP, on_cluster, start_cli
 
 from service.cli import main
 from service.store import integrity, lock, shards
@@ -41,21 +41,27 @@ PER_SHARD = 2
 
 
 @pytest.fixture(scope="module")
-def finished(tmp_path_factory):
+def finished(tmp_path_factory, session_cluster):
     """A folder with a complete five-sample store `one.zarr` and its statistics."""
     folder = tmp_path_factory.mktemp("finished")
     sweep = sweep_file(folder)
-    result = run_cli("run", sweep, "--workers", 1, "--batch", PER_SHARD, cwd=folder)
-    assert result.returncode == 0, result.stderr
+    with on_cluster(session_cluster), pytest.MonkeyPatch.context() as patch:
+        patch.chdir(folder)
+        assert main(["run", str(sweep), "--workers", "1", "--batch", str(PER_SHARD)]) == 0
     return folder
 
 
 @pytest.fixture
-def work(finished, tmp_path, monkeypatch):
-    """A copy of `finished` to damage, as the current directory."""
-    shutil.copytree(finished, tmp_path, dirs_exist_ok=True)
-    monkeypatch.chdir(tmp_path)
-    return tmp_path
+def work(finished, tmp_path_factory, monkeypatch):
+    """A copy of `finished` to damage, as the current directory.
+
+    Its path is short: messages cut at 500 characters quote it several times (under
+    pytest-xdist, tmp_path is longer).
+    """
+    folder = tmp_path_factory.mktemp("work")
+    shutil.copytree(finished, folder, dirs_exist_ok=True)
+    monkeypatch.chdir(folder)
+    return folder
 
 
 def test_statistics_never_replace_another_sweeps_store(work, capsys):
@@ -77,7 +83,7 @@ def test_statistics_never_replace_another_sweeps_store(work, capsys):
     assert snapshot(work) == before
 
 
-def test_two_outputs_never_share_their_statistics(work, capsys):
+def test_two_outputs_never_share_their_statistics(work, capsys, cli, shared_cluster):
     # outputs "one" and "one.zarr" have one statistics path, one.stats.zarr: sweep "two"
     # written to "one" must not replace the statistics of sweep "one" (in one.zarr)
     assert Store(str(work / "one.stats.zarr")).attributes()["samples_store"] == "one.zarr"
@@ -89,7 +95,7 @@ def test_two_outputs_never_share_their_statistics(work, capsys):
         assert refusal in capsys.readouterr().err
         assert snapshot(work) == before
     # sweep "two" run elsewhere, its store then moved to "one" (its statistics left behind)
-    result = run_cli("run", "two.yaml", "--output", "two.zarr", "--workers", 1, cwd=work)
+    result = cli("run", "two.yaml", "--output", "two.zarr", "--workers", 1, cwd=work)
     assert result.returncode == 0, result.stderr
     shutil.rmtree(work / "two.stats.zarr")
     (work / "two.zarr").rename(work / "one")
@@ -184,10 +190,10 @@ def test_overwrite_checks_everything_before_deleting_anything(work, capsys):
     assert snapshot(work) == before
 
 
-def test_overwrite_replaces_a_store_and_its_statistics(work):
+def test_overwrite_replaces_a_store_and_its_statistics(work, cli, shared_cluster):
     before = snapshot(work / "one.zarr")
     command = ["run", work / "one.yaml", "--overwrite", "--workers", 1, "--batch", PER_SHARD]
-    result = run_cli(*command, cwd=work)
+    result = cli(*command, cwd=work)
     assert result.returncode == 0, result.stderr
     assert snapshot(work / "one.zarr") == before  # same sweep, same bytes
     assert not (work / "one.zarr" / LOCK_NAME).exists()
@@ -265,7 +271,9 @@ def test_statistics_refuse_samples_not_theirs_and_keep_the_previous_ones(
     assert sorted(p.name for p in work.iterdir()) == ["one.stats.zarr", "one.yaml", "one.zarr"]
 
 
-def test_a_resume_that_skips_a_sample_writes_no_statistics(work, capsys, monkeypatch):
+def test_a_resume_that_skips_a_sample_writes_no_statistics(
+    work, capsys, monkeypatch, shared_cluster
+):
     import service.run
 
     def skipping(plan, todo, samples_per_shard):  # a planted fault of the runner
@@ -350,7 +358,9 @@ def test_the_training_reader_refuses_a_store_whose_completion_flags_are_lost(wor
     assert "--resume --verify to recompute them" in out
 
 
-def test_verify_finds_damaged_missing_and_swapped_samples_and_resume_redoes_them(work, capsys):
+def test_verify_finds_damaged_missing_and_swapped_samples_and_resume_redoes_them(
+    work, capsys, cli, shared_cluster
+):
     # layout: shards [0, 1], [2, 3], [4]; a repair rewrites a shard with the samples in it
     # that are intact (sample 2 beside the damaged 3) to the same bytes
     original = snapshot(work / "one.zarr")
@@ -367,14 +377,14 @@ def test_verify_finds_damaged_missing_and_swapped_samples_and_resume_redoes_them
     assert "sample 3: damaged or missing: a chunk cannot be read" in out
     assert "sample 4: damaged or missing: no image shard" in out
     assert "sample 2:" not in out
-    result = run_cli("run", "one.yaml", "--resume", "--verify", "--workers", 1, cwd=work)
+    result = cli("run", "one.yaml", "--resume", "--verify", "--workers", 1, cwd=work)
     assert result.returncode == 0, result.stderr
     assert "wrote 4 samples" in result.stderr and "1 already complete" in result.stderr
     assert snapshot(work / "one.zarr") == original
     assert main(["info", "one.zarr", "--verify"]) == 0
 
 
-def test_lost_or_damaged_labels_are_found_and_written_again(work, capsys):
+def test_lost_or_damaged_labels_are_found_and_written_again(work, capsys, cli, shared_cluster):
     # no sample's checksum covers the labels and coordinates the store was created with: a
     # lost chunk reads back as the fill value (every target_present 0), a damaged one fails
     from service.run import execute
@@ -412,7 +422,7 @@ def test_lost_or_damaged_labels_are_found_and_written_again(work, capsys):
     )
     assert result.relabelled == ["target_present", "platform_z", "realisation"]
     assert result.interrupted and not snapshot(work / "one.stats.zarr")  # its files deleted
-    result = run_cli("run", "one.yaml", "--resume", "--workers", 1, cwd=work)
+    result = cli("run", "one.yaml", "--resume", "--workers", 1, cwd=work)
     assert result.returncode == 0, result.stderr
     assert snapshot(work / "one.zarr") == original
     xr.testing.assert_identical(xr.open_zarr(work / "one.stats.zarr").load(), statistics)
@@ -423,13 +433,13 @@ def test_lost_or_damaged_labels_are_found_and_written_again(work, capsys):
         p for p in (work / "one.zarr" / "target_present" / "c").rglob("*") if p.is_file()
     ]:
         chunk.unlink()
-    result = run_cli("run", "one.yaml", "--resume", "--verify", "--workers", 1, cwd=work)
+    result = cli("run", "one.yaml", "--resume", "--verify", "--workers", 1, cwd=work)
     assert result.returncode == 0, result.stderr
     assert "written again from the sweep: target_present" in result.stderr
     assert snapshot(work / "one.zarr") == original
 
 
-def test_labels_computed_otherwise_here_are_refused_not_overwritten(work, capsys):
+def test_labels_computed_otherwise_here_are_refused_not_overwritten(work, capsys, cli):
     # readable labels that differ from this installation's (another scipy drawing a
     # design's points): resuming would mix them, so nothing is rewritten
     zarr_array = __import__("zarr").open_array(work / "one.zarr" / "platform_z", mode="r+")
@@ -439,7 +449,7 @@ def test_labels_computed_otherwise_here_are_refused_not_overwritten(work, capsys
     out = capsys.readouterr().out
     assert "not as this installation computes them: platform_z" in out
     assert "--resume --verify" not in out
-    result = run_cli("run", "one.yaml", "--resume", "--verify", "--workers", 1, cwd=work)
+    result = cli("run", "one.yaml", "--resume", "--verify", "--workers", 1, cwd=work)
     assert (
         result.returncode == 2 and "platform_z differ from what this installation" in result.stderr
     )
@@ -471,7 +481,9 @@ def test_shards_of_samples_without_a_target_verify_intact(tmp_path):
     assert all(reason.startswith("no image or target_mask") for _, reason in problems)
 
 
-def test_damaged_statistics_are_named_and_written_again(tmp_path, monkeypatch, capsys):
+def test_damaged_statistics_are_named_and_written_again(
+    tmp_path, monkeypatch, capsys, shared_cluster
+):
     monkeypatch.chdir(tmp_path)
     sweep = tiny_sweep(tmp_path, realisations=1)
     assert main(["run", str(sweep), "--workers", "1"]) == 0
@@ -596,10 +608,10 @@ def test_a_sample_with_non_finite_values_is_reported_and_never_marked_complete(
     ],
 )
 def test_outputs_that_cannot_be_written_are_refused_before_rendering(
-    tmp_path, output, options, message
+    tmp_path, output, options, message, cli, shared_cluster
 ):
     sweep = sweep_file(tmp_path)
-    result = run_cli("run", sweep, "--output", output, *options, cwd=tmp_path)
+    result = cli("run", sweep, "--output", output, *options, cwd=tmp_path)
     assert result.returncode == 2 and message in result.stderr, result.stderr
     assert "Traceback" not in result.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["one.yaml"]
@@ -638,11 +650,12 @@ def test_empty_storage_options_with_a_local_store_are_no_options(work, capsys):
     assert "Traceback" not in capsys.readouterr().err
 
 
-def test_home_and_file_urls_reach_the_workers_as_paths(tmp_path):
+def test_home_and_file_urls_reach_the_workers_as_paths(tmp_path, cli, shared_cluster):
+    # the session's workers keep their own HOME: a "~" must reach them expanded
     sweep = sweep_file(tmp_path)
     (tmp_path / "home").mkdir()
     for output in ("~/h.zarr", f"file://{tmp_path}/f.zarr"):
-        result = run_cli(
+        result = cli(
             "run",
             sweep,
             "--output",

@@ -3,7 +3,6 @@
 import math
 
 import pytest
-from conftest import run_cli
 from pydantic import BaseModel, ValidationError
 
 from workers.instrument import MLDC_GATES
@@ -220,14 +219,14 @@ def test_bad_coarse_patches_are_refused_with_the_field(patches, message):
     assert "coarse_patches" in str(info.value) and message in str(info.value)
 
 
-def test_cli_validate_refuses_a_repeating_sea_with_a_message(tmp_path):
+def test_cli_validate_refuses_a_repeating_sea_with_a_message(tmp_path, cli):
     sweep = tmp_path / "wide.yaml"
     sweep.write_text(
         "name: wide\nseed: 1\noutput: wide.zarr\n"
         "scene:\n  platform: {altitude: 60.0}\n  receiver: {pixels: 16}\n"
         "  surface: {coarse_patches: [], spacing: 0.016}\n"
     )
-    result = run_cli("validate", sweep, cwd=tmp_path)
+    result = cli("validate", sweep, cwd=tmp_path)
     assert result.returncode == 2
     assert "Traceback" not in result.stderr
     assert "surface.allow_repeat" in result.stderr and "platform.altitude" in result.stderr
@@ -235,7 +234,7 @@ def test_cli_validate_refuses_a_repeating_sea_with_a_message(tmp_path):
     allowed.write_text(
         sweep.read_text().replace("coarse_patches: []", "coarse_patches: [], allow_repeat: true")
     )
-    assert run_cli("validate", allowed, cwd=tmp_path).returncode == 0
+    assert cli("validate", allowed, cwd=tmp_path).returncode == 0
 
 
 def scene_leaves(model=Scene, prefix=""):

@@ -17,11 +17,12 @@ import urllib.parse
 import urllib.request
 
 import pytest
-from conftest import TINY_SWEEP, assert_same_samples, cli_command, free_port, run_cli
+from conftest import TINY_SWEEP, assert_same_samples, cli_command, free_port, on_cluster
 
 from service.cli import main
 from service.store.location import KIND, Store
 from service.store.lock import LOCK_NAME
+from service.store.template import OWNER
 
 TOKEN = "s3cret-token"
 LONG = 40
@@ -134,12 +135,13 @@ def finished(job):
 
 
 @pytest.fixture(scope="module")
-def reference(tmp_path_factory):
+def reference(tmp_path_factory, session_cluster):
     """The sweep run by `oceanlidar run`."""
     folder = tmp_path_factory.mktemp("reference")
     (folder / "sweep.yaml").write_text(sweep("reference.zarr"))
-    result = run_cli("run", "sweep.yaml", "--workers", "1", cwd=folder)
-    assert result.returncode == 0, result.stderr
+    with on_cluster(session_cluster), pytest.MonkeyPatch.context() as patch:
+        patch.chdir(folder)
+        assert main(["run", "sweep.yaml", "--workers", "1"]) == 0
     return folder / "reference.zarr"
 
 
@@ -351,6 +353,35 @@ def test_no_token_is_401_and_serve_refuses_to_run_open(service, monkeypatch, cap
     assert "127.0.0.1 only" in capsys.readouterr().err
 
 
+def test_the_cookie_only_reads_and_pages_are_not_framed(service):
+    """A page of another site (another port of this host) cannot submit with the cookie."""
+    before = len(service.request("GET", "/v1/jobs")[1]["jobs"])
+    forged = {
+        "Cookie": f"oceanlidar_token={TOKEN}",
+        "Content-Type": "text/plain",
+        "Origin": f"http://127.0.0.1:{free_port()}",
+    }
+    connection = http.client.HTTPConnection("127.0.0.1", service.port, timeout=30)
+    for method, path, body in [
+        ("POST", "/v1/jobs?mode=overwrite", sweep("forged.zarr", realisations=1)),
+        ("DELETE", "/v1/jobs/0123456789ab", None),
+    ]:
+        connection.request(method, path, body=body, headers=forged)
+        answer = connection.getresponse()
+        assert answer.status == 401, (method, answer.read())
+        answer.read()
+    assert len(service.request("GET", "/v1/jobs")[1]["jobs"]) == before
+    for path in ("/", "/v1/jobs"):  # the cookie reads pages and the API
+        connection.request("GET", path, headers={"Cookie": f"oceanlidar_token={TOKEN}"})
+        answer = connection.getresponse()
+        answer.read()
+        assert answer.status == 200, path
+        assert answer.headers["x-frame-options"] == "DENY"
+        assert answer.headers["x-content-type-options"] == "nosniff"
+        assert "frame-ancestors 'none'" in answer.headers["content-security-policy"]
+    connection.close()
+
+
 BAD_SWEEPS = {
     "not yaml": ("name: [unclosed", None),
     "no seed": ("name: x\noutput: x.zarr\n", "seed"),
@@ -538,3 +569,195 @@ def test_one_service_a_table_and_no_store_inside_another(tmp_path):
             runner.submit(sweep(output), owner="bob")
     assert len(table.list()) == 1
     assert runner.submit(sweep("runs/b.zarr"), owner="bob").state == "queued"
+
+
+@pytest.mark.parametrize("link", [os.symlink, os.link], ids=["symbolic", "hard"])
+def test_one_service_a_table_whatever_path_reaches_it(tmp_path, link):
+    from service.errors import InputError
+    from service.jobs import JobTable
+
+    table = JobTable(str(tmp_path / "jobs.sqlite"))
+    link(tmp_path / "jobs.sqlite", tmp_path / "linked.sqlite")
+    with pytest.raises(InputError, match="another oceanlidar serve uses this job table"):
+        JobTable(str(tmp_path / "linked.sqlite"))
+    assert table.lost() is None
+    (tmp_path / "jobs.sqlite").unlink()  # a table lost while served is noticed
+    assert "is gone" in table.lost()
+
+
+def test_a_lost_job_table_stops_the_service_and_stores_keep_their_owner(tmp_path):
+    (tmp_path / "tokens").write_text(f"alice {TOKEN}\nbob {OTHER_TOKEN}\n")
+    server = Server(tmp_path, "--token-file", tmp_path / "tokens")
+    text = sweep("owned.zarr", realisations=1)
+    try:
+        server.start()
+        job = server.submit(text)[1]
+        assert server.wait(job["id"], finished)["state"] == "succeeded"
+        (tmp_path / "jobs.sqlite").unlink()
+        status, answer = server.request("GET", "/v1/health")
+        assert status == 503 and "is gone" in answer["error"], answer
+        assert server.submit(sweep("more.zarr"))[0] == 503
+        server.stop()
+        server.start()  # on a new table: the jobs are forgotten, not who owns the store
+        assert server.request("GET", "/v1/jobs")[1]["jobs"] == []
+        for mode in ("resume", "overwrite"):
+            status, refused = server.request(
+                "POST", f"/v1/jobs?mode={mode}", text.encode(), token=OTHER_TOKEN
+            )
+            assert status == 403 and "written by alice" in refused["error"], refused
+        status, again = server.submit(text, mode="overwrite")
+        assert status == 201
+        assert server.wait(again["id"], finished)["state"] == "succeeded"
+        assert Store(job["url"]).attributes()[OWNER] == "alice"
+    finally:
+        server.stop()
+
+
+def test_a_job_writing_its_statistics_can_no_longer_be_cancelled(tmp_path, threads, monkeypatch):
+    from service.cluster import dask_client
+    from service.jobs import JobTable, Runner
+
+    writing, release = threading.Event(), threading.Event()
+    write_statistics = threads.write_statistics
+
+    def held(store, **options):
+        writing.set()
+        release.wait(120)
+        return write_statistics(store, **options)
+
+    monkeypatch.setattr(threads, "write_statistics", held)
+    (tmp_path / "data").mkdir()
+    with dask_client(workers=1, scheduler=None) as cluster:
+        runner = Runner(
+            JobTable(str(tmp_path / "jobs.sqlite")),
+            cluster,
+            data_root=Store(str(tmp_path / "data")),
+            max_running=1,
+            queue_limit=10,
+            batch_size=1,
+        )
+        runner.start()
+        try:
+            job = runner.submit(sweep("late.zarr", realisations=1), owner="alice")
+            assert writing.wait(120)
+            assert not runner.cancel(job.id)  # the samples are written: too late
+            release.set()
+            deadline = time.monotonic() + 120
+            while not runner.table.get(job.id).state.final and time.monotonic() < deadline:
+                time.sleep(0.05)
+        finally:
+            release.set()
+            runner.stop()
+    assert runner.table.get(job.id).state == "succeeded"
+    assert Store(job.url).stats.attributes()[KIND] == "statistics"
+
+
+def get_concurrently(url, paths, headers=None):
+    """GET every one of `paths` at once, each in its own thread: (status, type, head) each."""
+    answers = [None] * len(paths)
+
+    def get(index):
+        request = urllib.request.Request(url + paths[index], headers=headers or {})
+        with urllib.request.urlopen(request, timeout=120) as answer:
+            answers[index] = (answer.status, answer.headers["content-type"], answer.read(8))
+
+    getters = [threading.Thread(target=get, args=(index,)) for index in range(len(paths))]
+    for getter in getters:
+        getter.start()
+    for getter in getters:
+        getter.join(timeout=180)
+    return answers
+
+
+PNG = (200, "image/png", b"\x89PNG\r\n\x1a\n")
+
+
+def test_concurrent_views_of_a_picture_draw_it_once(reference, tmp_path, monkeypatch):
+    """Eight requests for one job's preview render its samples once (in this process)."""
+    import uvicorn
+
+    import service.plots
+    from service.jobs import JobTable, Runner
+    from service.records import Job, JobState
+    from service.server import create_app
+
+    renders = []
+    render_preview = service.plots.render_preview
+
+    def counted(plan, sample):
+        renders.append(sample)
+        return render_preview(plan, sample)
+
+    monkeypatch.setattr(service.plots, "render_preview", counted)
+    table = JobTable(str(tmp_path / "jobs.sqlite"))
+    text = sweep("reference.zarr")
+    table.add(
+        Job(
+            id="0123456789ab",
+            owner="anonymous",
+            name="served",
+            state=JobState.SUCCEEDED,
+            mode="new",
+            sweep=text,
+            output="reference.zarr",
+            url=str(reference),
+            submitted=time.time(),
+            total=2 * LONG,
+        )
+    )
+    root = Store(str(reference.parent))
+    runner = Runner(table, None, data_root=root, max_running=1, queue_limit=1, batch_size=1)
+    config = uvicorn.Config(
+        create_app(runner, {}), host="127.0.0.1", port=free_port(), log_level="warning"
+    )
+    server = uvicorn.Server(config)
+    serving = threading.Thread(target=server.run)
+    serving.start()
+    try:
+        while not server.started and serving.is_alive():
+            time.sleep(0.05)
+        url = f"http://127.0.0.1:{config.port}/jobs/0123456789ab"
+        assert get_concurrently(url, ["/preview.png"] * 8) == [PNG] * 8
+        assert renders == [0, 1, 2]
+        assert get_concurrently(url, ["/preview.png"]) == [PNG] and len(renders) == 3
+    finally:
+        server.should_exit = True
+        serving.join(timeout=30)
+
+
+def test_a_fresh_servers_first_views_of_both_pictures_answer(tmp_path):
+    """The first requests after a start, two for each picture at once, all draw (#27 item 2)."""
+    server = Server(tmp_path)
+    try:
+        server.start()
+        job = server.submit(sweep("viewed.zarr", realisations=1))[1]
+        assert server.wait(job["id"], finished)["state"] == "succeeded"
+        pictures = [f"/jobs/{job['id']}/{kind}.png" for kind in ("statistics", "preview") * 2]
+        token = {"Authorization": f"Bearer {TOKEN}"}
+        assert get_concurrently(server.url, pictures, token) == [PNG] * 4
+    finally:
+        server.stop()
+
+
+def test_pictures_keep_at_most_their_bytes(monkeypatch):
+    import asyncio
+    from types import SimpleNamespace
+
+    from service import pictures
+
+    drawn = []
+
+    def draw(job, data_root):
+        drawn.append(job.id)
+        return b"x" * 10
+
+    monkeypatch.setitem(pictures.KINDS, "statistics", draw)
+    kept = pictures.Pictures(Store("/nowhere"), max_bytes=25)
+    jobs = [SimpleNamespace(id=str(n)) for n in range(3)]
+
+    async def view(order):
+        for job in order:
+            assert await kept.get(job, "statistics") == b"x" * 10
+
+    asyncio.run(view([*jobs, jobs[1], jobs[2], jobs[0]]))
+    assert drawn == ["0", "1", "2", "0"]  # two pictures fit: the oldest went

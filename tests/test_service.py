@@ -1,19 +1,25 @@
 """The sweep service end to end on a dask LocalCluster: bytes, resume, CLI, README."""
 
-import contextlib
 import os
 import re
 import signal
 import subprocess
 import textwrap
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 import xarray as xr
 import yaml
-from conftest import ROOT, ring_around, run_cli, same_values, start_cli
+from conftest import (
+    ROOT,
+    holding,
+    on_cluster,
+    ring_around,
+    same_values,
+    start_cli,
+    wait_for_shards,
+)
 from numpy.testing import assert_allclose
 
 from service.cli import main
@@ -59,13 +65,15 @@ def assert_same_store(a, b):
 
 
 @pytest.fixture(scope="module")
-def two_worker_store(tmp_path_factory):
+def two_worker_store(tmp_path_factory, session_cluster):
     folder = tmp_path_factory.mktemp("two")
     plan = load_sweep(write(folder / "sweep.yaml"))
     url = str(folder / "small.zarr")
-    result = execute(
-        plan, Store.at(url), workers=2, batch_size=2, progress_stream=open(os.devnull, "w")
-    )
+    assert len(session_cluster.nthreads()) == 2
+    with on_cluster(session_cluster):
+        result = execute(
+            plan, Store.at(url), workers=2, batch_size=2, progress_stream=open(os.devnull, "w")
+        )
     assert result.written == plan.samples == 12 and not result.failed
     return plan, url
 
@@ -171,14 +179,15 @@ def test_bounded_submission_and_batches(tmp_path):
     assert result.written == 12 and result.max_in_flight <= 2
 
 
-def test_interrupted_run_resumes_to_the_same_store(tmp_path):
-    # 48 samples, one a task: interrupted after 2, dozens of tasks are still to run (with
-    # the 12 of the other tests a loaded machine could finish them before the signal)
+def test_interrupted_run_resumes_to_the_same_store(tmp_path, cli, shared_cluster):
+    # 48 samples, one a task: interrupted once 2 are written, the tasks held there (a
+    # loaded machine could finish the run before a signal sent at a time)
     sweep = write(tmp_path / "sweep.yaml", SWEEP.replace("realisations: 3", "realisations: 12"))
     plan = load_sweep(sweep)
     url = str(tmp_path / "reference.zarr")
     execute(plan, Store.at(url), workers=1, batch_size=4, progress_stream=open(os.devnull, "w"))
     target = tmp_path / "interrupted.zarr"
+    held = tmp_path / "held"
     process = start_cli(
         "run",
         sweep,
@@ -189,23 +198,17 @@ def test_interrupted_run_resumes_to_the_same_store(tmp_path):
         "--batch",
         1,
         cwd=tmp_path,
+        env=holding(held, 2),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
         start_new_session=True,  # its own process group, as a terminal's foreground job
     )
-    deadline = time.monotonic() + 120
-    done = 0
-    while time.monotonic() < deadline and process.poll() is None:
-        if (target / "completed").exists():
-            try:
-                done = int(Store(str(target)).completed().sum())
-            except Exception:  # the store is being written; look again
-                done = 0
-            if done >= 2:
-                break
-        time.sleep(0.05)
-    os.killpg(process.pid, signal.SIGINT)  # a Ctrl-C reaches the workers too
+    try:
+        wait_for_shards(held, 2, process)
+        done = int(Store(str(target)).completed().sum())
+    finally:
+        os.killpg(process.pid, signal.SIGINT)  # a Ctrl-C reaches the workers too
     _, err = process.communicate(timeout=120)
     assert 2 <= done, err
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err  # the workers' own
@@ -214,7 +217,7 @@ def test_interrupted_run_resumes_to_the_same_store(tmp_path):
     assert 0 < partial.sum() < plan.samples
     # the summary counts the tasks in flight at the signal that completed after it too
     assert f"wrote {partial.sum()} samples" in err, err
-    again = run_cli(
+    again = cli(
         "run", str(sweep), "--output", str(target), "--resume", "--workers", "1", cwd=tmp_path
     )
     assert again.returncode == 0, again.stderr
@@ -228,14 +231,14 @@ def test_a_terminated_run_stops_as_interrupted_and_releases_its_lock(tmp_path):
     sweep = write(tmp_path / "sweep.yaml", SWEEP.replace("realisations: 3", "realisations: 12"))
     target = tmp_path / "terminated.zarr"
     command = ("run", sweep, "--output", target, "--workers", 1, "--batch", 1)
-    process = start_cli(*command, cwd=tmp_path, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and process.poll() is None:
-        with contextlib.suppress(Exception):  # the store is being created
-            if Store(str(target)).completed().sum() >= 1:
-                break
-        time.sleep(0.05)
-    process.send_signal(signal.SIGTERM)
+    held = tmp_path / "held"
+    process = start_cli(
+        *command, cwd=tmp_path, env=holding(held, 1), stderr=subprocess.PIPE, text=True
+    )
+    try:
+        wait_for_shards(held, 1, process)
+    finally:
+        process.send_signal(signal.SIGTERM)
     _, err = process.communicate(timeout=120)
     assert process.returncode == 1 and "interrupted: run again with --resume" in err, err
     assert not (target / LOCK_NAME).exists()
@@ -290,10 +293,10 @@ def test_existing_output_is_refused_and_left_unchanged(two_worker_store, tmp_pat
         "duplicate-key",
     ],
 )
-def test_cli_bad_input_exits_2_with_a_message_and_writes_nothing(tmp_path, text, fragment):
+def test_cli_bad_input_exits_2_with_a_message_and_writes_nothing(tmp_path, text, fragment, cli):
     sweep = tmp_path / "bad.yaml"
     sweep.write_text(text)
-    result = run_cli("run", str(sweep), cwd=tmp_path)
+    result = cli("run", str(sweep), cwd=tmp_path)
     assert result.returncode == 2
     assert fragment in result.stderr and "Traceback" not in result.stderr
     assert not (tmp_path / "small.zarr").exists()
@@ -321,7 +324,7 @@ def test_cli_validate_info_and_stats(two_worker_store, tmp_path, capsys):
     assert "no store there" in capsys.readouterr().err
 
 
-def test_readme_training_example_runs(tmp_path, monkeypatch):
+def test_readme_training_example_runs(tmp_path, monkeypatch, shared_cluster):
     readme = (ROOT / "README.md").read_text()
     code = re.search(r"Reading a store for training:\n\n```python\n(.*?)```", readme, re.S).group(
         1
@@ -419,10 +422,10 @@ def test_list_valued_parameters_become_string_coordinates(tmp_path):
 
 
 @pytest.mark.parametrize("options", ["[1]", "not json"], ids=["array", "garbage"])
-def test_storage_options_must_be_a_json_object(tmp_path, options):
-    result = run_cli("validate", str(write(tmp_path / "s.yaml")), cwd=tmp_path)
+def test_storage_options_must_be_a_json_object(tmp_path, options, cli):
+    result = cli("validate", str(write(tmp_path / "s.yaml")), cwd=tmp_path)
     assert result.returncode == 0
-    result = run_cli("info", str(tmp_path / "x.zarr"), "--storage-options", options, cwd=tmp_path)
+    result = cli("info", str(tmp_path / "x.zarr"), "--storage-options", options, cwd=tmp_path)
     assert result.returncode == 2 and "storage-options" in result.stderr
     assert "Traceback" not in result.stderr
 
@@ -447,14 +450,14 @@ def test_the_embedded_cluster_listens_on_loopback_only():
     assert {address.ip for _, address in opened} == {"127.0.0.1"}
 
 
-def test_a_scene_that_cannot_be_rendered_is_refused_once_with_its_parameters(tmp_path):
+def test_a_scene_that_cannot_be_rendered_is_refused_once_with_its_parameters(tmp_path, cli):
     """A singular kriging system is the input's error: reported per sample, never retried."""
     near = "[[1.0, 2.0, 0.1], [1.000001, 2.0, 0.1]]"
     text = SWEEP.replace(
         "allow_repeat: true}", f"allow_repeat: true, conditioning: {{points: {near}}}}}"
     )
     sweep = write(tmp_path / "singular.yaml", text)
-    result = run_cli("run", sweep, "--workers", 1, "--batch", 3, cwd=tmp_path)
+    result = cli("run", sweep, "--workers", 1, "--batch", 3, cwd=tmp_path)
     assert result.returncode == 1, result.stderr
     err = result.stderr
     reason = "12 samples refused (bad input, not retried): surface.conditioning.points: "

@@ -6,7 +6,7 @@ import shutil
 import numpy as np
 import pytest
 import xarray as xr
-from conftest import assert_same_samples
+from conftest import assert_same_samples, on_cluster
 
 from service.cli import main
 from service.dataset import SampleDataset
@@ -51,11 +51,13 @@ def methods(ds):
 
 
 @pytest.fixture(scope="module")
-def mixed(tmp_path_factory):
+def mixed(tmp_path_factory, session_cluster):
     """The mixed sweep run on two workers (shards of two samples)."""
     plan = plan_of(MIXED, "mixed")
     url = str(tmp_path_factory.mktemp("mixed") / "mixed.zarr")
-    result = execute(plan, Store.at(url), workers=2, batch_size=2, **QUIET)
+    assert len(session_cluster.nthreads()) == 2
+    with on_cluster(session_cluster):
+        result = execute(plan, Store.at(url), workers=2, batch_size=2, **QUIET)
     assert result.written == plan.samples == 8 and not result.failed and not result.rejected
     return plan, url
 
@@ -77,7 +79,7 @@ def test_sweeps_take_the_renderer_and_its_photons_as_parameters():
         plan_of(SCENE + "    transport.photon: {{values: [5000]}}\n")
 
 
-def test_a_monte_carlo_sweep_stores_its_standard_error(tmp_path, capsys):
+def test_a_monte_carlo_sweep_stores_its_standard_error(tmp_path, capsys, shared_cluster):
     # without the noise-free images: `detect` renders them again, by Monte Carlo too
     text = MONTE_CARLO.replace("store: {{expected: true}}\n", "")
     sweep = tmp_path / "mc.yaml"

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import xarray as xr
 import zarr
-from conftest import TINY_SCENE, run_cli
+from conftest import TINY_SCENE
 
 from service.dataset import SampleDataset, open_dataset
 from service.errors import DamagedStoreError, InputError
@@ -63,7 +63,7 @@ def filled(tmp_path_factory):
     return plan, url
 
 
-def test_counts_take_the_narrowest_unsigned_type_and_overflow_is_refused(tmp_path):
+def test_counts_take_the_narrowest_unsigned_type_and_overflow_is_refused(tmp_path, cli):
     widths = {}
     for photons in (10, 2000, 1e6):
         scene = tiny_plan(**{"white_plane_photons: 100": f"white_plane_photons: {photons}"})
@@ -77,7 +77,7 @@ def test_counts_take_the_narrowest_unsigned_type_and_overflow_is_refused(tmp_pat
             "white_plane_photons: 1.0e9}\n  target: {reflectance: 1.0, depth: 0.5}",
         )
     )
-    result = run_cli("run", sweep, cwd=tmp_path)
+    result = cli("run", sweep, cwd=tmp_path)
     assert result.returncode == 2 and "Traceback" not in result.stderr
     assert "scene.radiometry: a white plane under the sea would give 1e+09" in result.stderr
     assert "unsigned 32-bit" in result.stderr
@@ -395,17 +395,17 @@ def test_the_training_reader_refuses_shards_it_would_misread(filled, tmp_path):
             reader[0]
 
 
-def test_statistics_after_resume_recompute_only_the_points_written(tmp_path):
+def test_statistics_after_resume_recompute_only_the_points_written(tmp_path, cli, shared_cluster):
     sweep = tmp_path / "s.yaml"
     sweep.write_text(SWEEP.format(name="s", seed=4, realisations=3, output="s.zarr"))
     command = ["run", sweep, "--workers", 1, "--batch", 3]
-    assert run_cli(*command, cwd=tmp_path).returncode == 0
+    assert cli(*command, cwd=tmp_path).returncode == 0
     stats = tmp_path / "s.stats.zarr"
     full = xr.open_zarr(stats).load()
     chunks = {p: p.stat().st_mtime_ns for p in stats.rglob("c.*")}
     Store.at(str(tmp_path / "s.zarr")).mark_incomplete([4, 5])  # point 1's samples
     time.sleep(0.01)
-    result = run_cli(*command, "--resume", cwd=tmp_path)
+    result = cli(*command, "--resume", cwd=tmp_path)
     assert result.returncode == 0 and "wrote 2 samples" in result.stderr, result.stderr
     after = {p: p.stat().st_mtime_ns for p in stats.rglob("c.*")}
     touched = {p.relative_to(stats).as_posix() for p in chunks if after[p] != chunks[p]}

@@ -84,13 +84,13 @@ def tls_cluster(tmp_path_factory):
         yield address, int(address.rsplit(":", 1)[1]), [str(ca), str(cert), str(key)]
 
 
-def test_a_sweep_over_tls_writes_the_embedded_bytes(tls_cluster, tmp_path):
+def test_a_sweep_over_tls_writes_the_embedded_bytes(tls_cluster, tmp_path, cli, shared_cluster):
     address, _, (ca, cert, key) = tls_cluster
     sweep = tmp_path / "s.yaml"
     sweep.write_text(SWEEP)
     tls = ["--tls-ca-file", ca, "--tls-cert", cert, "--tls-key", key]
     output = tmp_path / "tls.zarr"
-    result = run_cli("run", sweep, "--scheduler", address, *tls, "--output", output, cwd=tmp_path)
+    result = cli("run", sweep, "--scheduler", address, *tls, "--output", output, cwd=tmp_path)
     assert result.returncode == 0, result.stderr
     local = str(tmp_path / "local.zarr")
     execute(parse_sweep(SWEEP), Store.at(local), workers=1, progress_stream=open(os.devnull, "w"))
@@ -117,7 +117,7 @@ def test_a_plaintext_client_is_refused_and_nothing_is_written(tls_cluster, tmp_p
     assert not (tmp_path / "plain.zarr").exists()
 
 
-def test_the_service_runs_its_jobs_on_a_tls_cluster(tls_cluster, tmp_path):
+def test_the_service_runs_its_jobs_on_a_tls_cluster(tls_cluster, tmp_path, shared_cluster):
     from test_server import Server, finished
 
     address, _, (ca, cert, key) = tls_cluster

@@ -34,6 +34,7 @@ from workers.labels import sample_labels, surface_axis
 from workers.variables import Role, Variable, rendered_order, variables
 
 __all__ = [
+    "OWNER",
     "check_uniform",
     "create_store",
     "parameter_name",
@@ -50,6 +51,8 @@ STDERR_COMMENT = (
     "no Monte Carlo error)"
 )
 """The ``comment`` of a store's ``expected_stderr`` (`store_variables`)."""
+OWNER = "oceanlidar_owner"
+"""Root attribute naming who wrote a store: the job service's submitter (`create_store`)."""
 
 
 def parameter_name(path: str) -> str:
@@ -157,7 +160,9 @@ def _coordinate_array(values: list) -> np.ndarray:
     return np.asarray([v if isinstance(v, str) else json.dumps(v) for v in values], dtype=object)
 
 
-def create_store(plan: Plan, store: Store, *, samples_per_shard: int | None = None) -> None:
+def create_store(
+    plan: Plan, store: Store, *, samples_per_shard: int | None = None, owner: str | None = None
+) -> None:
     """Write the template of the store: metadata, coordinates, empty data arrays.
 
     Parameters
@@ -169,8 +174,13 @@ def create_store(plan: Plan, store: Store, *, samples_per_shard: int | None = No
     samples_per_shard : int, optional
         Consecutive samples per shard, the unit a task renders and writes; by default
         `service.store.layout.shard_size`'s choice.
+    owner : str, optional
+        Who writes it, recorded in its `OWNER` attribute: the job service's submitter,
+        whom the store's record names even if the job table is lost.
     """
     ds, encoding = template(plan, samples_per_shard)
+    if owner is not None:
+        ds.attrs[OWNER] = owner
     # mode "a": the folder holds the writer's lock
     store.write(ds, mode="a", compute=False, encoding=encoding)
 
