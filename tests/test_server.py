@@ -7,6 +7,7 @@ import os
 import re
 import shutil
 import signal
+import socket
 import sqlite3
 import subprocess
 import tempfile
@@ -351,6 +352,42 @@ def test_no_token_is_401_and_serve_refuses_to_run_open(service, monkeypatch, cap
     assert "no token" in capsys.readouterr().err
     assert main(["serve", "--no-auth", "--host", "0.0.0.0"]) == 2
     assert "127.0.0.1 only" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "setting, message",
+    [
+        (["--db", "nodir/x.sqlite"], r"--db nodir/x\.sqlite: cannot open the job table"),
+        (["--db", "folder"], r"--db folder: cannot open the job table"),
+        (["--db", "text.txt"], r"--db text\.txt: not an SQLite job table"),
+        (["--data-root", "text.txt"], r"--data-root text\.txt: exists and is not a folder"),
+        (["--port", "99999"], r"argument --port: 99999 is not a port \(1 to 65535\)"),
+        (["--port", "busy"], r"--host 127\.0\.0\.1 --port \d+: cannot listen there"),
+    ],
+)
+def test_bad_serve_settings_are_refused_before_anything_is_made(cli, tmp_path, setting, message):
+    """Each is exit 2 with a message naming its flag; no traceback, no data root, no table."""
+    (tmp_path / "folder").mkdir()
+    (tmp_path / "text.txt").write_text("not a database\n")
+    with contextlib.ExitStack() as stack:
+        if setting[1] == "busy":
+            taken = stack.enter_context(socket.create_server(("127.0.0.1", 0)))
+            setting = ["--port", str(taken.getsockname()[1])]
+        settings = {"--db": "jobs.sqlite", "--data-root": "data", "--port": str(free_port())}
+        flag, value = setting
+        settings[flag] = value
+        result = cli(
+            "serve",
+            *[x for pair in settings.items() for x in pair],
+            cwd=tmp_path,
+            env={"OCEANLIDAR_TOKEN": TOKEN},
+        )
+    assert result.returncode == 2, result.stderr
+    assert re.search(message, result.stderr) and "Traceback" not in result.stderr
+    assert "oceanlidar serve: http" not in result.stderr
+    made = {path.name for path in tmp_path.iterdir()}
+    assert made == {"folder", "text.txt"}, made
+    assert (tmp_path / "text.txt").read_text() == "not a database\n"
 
 
 def test_the_cookie_only_reads_and_pages_are_not_framed(service):

@@ -20,6 +20,17 @@ DEFAULT_SERVER = "http://127.0.0.1:8000"
 MAX_MEMORY_HELP = f"most memory one sample may need, GiB (default {DEFAULT_MAX_MEMORY / 2**30:g})"
 
 
+def _port(text: str) -> int:
+    """A TCP port, 1 to 65535 (argparse's type for ``--port``)."""
+    try:
+        port = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a port number: {text!r}") from None
+    if not 1 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"{port} is not a port (1 to 65535)")
+    return port
+
+
 def _storage_options(command) -> None:
     command.add_argument(
         "--storage-options", type=json_object, default=None, help="fsspec options as JSON"
@@ -104,7 +115,7 @@ def _job_commands(commands) -> None:
     serve.add_argument(
         "--host", default="127.0.0.1", help="address to listen on (default: %(default)s)"
     )
-    serve.add_argument("--port", type=int, default=8000, help="port (default: %(default)s)")
+    serve.add_argument("--port", type=_port, default=8000, help="port (default: %(default)s)")
     serve.add_argument("--db", default="oceanlidar-jobs.sqlite", help="job table, SQLite file")
     serve.add_argument(
         "--data-root",
