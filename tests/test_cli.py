@@ -192,3 +192,19 @@ def test_preview_reads_a_store_and_shares_one_scale(stored, tmp_path, monkeypatc
     assert [(options["frame"], options["scale"]) for _, options in drawn] == [(1, None)]
     shown = figure(drawn[0][0], frame=1, scale=(0.0, 7.0))
     assert all(ax.get_images()[0].get_clim() == (0.0, 7.0) for ax in shown.axes if ax.get_images())
+
+
+@pytest.mark.parametrize(
+    "flags, env, named",
+    [
+        (["--server", "not-a-url"], {}, "--server 'not-a-url'"),
+        (["--server", "http://"], {}, "--server 'http://'"),
+        ([], {"OCEANLIDAR_SERVER": "ftp://host/"}, "OCEANLIDAR_SERVER 'ftp://host/'"),
+        ([], {"OCEANLIDAR_SERVER": "http://[::1"}, "OCEANLIDAR_SERVER 'http://[::1'"),
+    ],
+)
+def test_a_server_that_is_no_http_url_is_refused(cli, tmp_path, flags, env, named):
+    result = cli("status", *flags, "x", cwd=tmp_path, env=env)
+    assert result.returncode == 2, result.stderr
+    assert f"oceanlidar status: error: {named}: not an http:// or https:// URL" in result.stderr
+    assert "Traceback" not in result.stderr
