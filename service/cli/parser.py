@@ -246,7 +246,9 @@ def parser() -> argparse.ArgumentParser:
 
     plot = commands.add_parser("plot", help="plot a store's statistics or a detection dataset")
     plot.add_argument("store", help="store path or URL")
-    plot.add_argument("--output", required=True, help="FILE.png")
+    plot.add_argument(
+        "--output", required=True, help="FILE.png (or .pdf, .svg: what matplotlib writes)"
+    )
     _storage_options(plot)
     _job_commands(commands)
     return top
