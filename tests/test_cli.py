@@ -1,7 +1,9 @@
 """Command-line conventions: --version, -v/-q logging, --dashboard, schema, validate, preview."""
 
 import json
+import os
 import socket
+import subprocess
 import warnings
 from pathlib import Path
 
@@ -11,7 +13,7 @@ import numpy as np
 import pytest
 import xarray as xr
 import yaml
-from conftest import ROOT, TINY_SWEEP, run_cli
+from conftest import ROOT, TINY_SWEEP, run_cli, start_cli
 
 from service import package_version, plots
 from service.cli import main
@@ -208,3 +210,23 @@ def test_a_server_that_is_no_http_url_is_refused(cli, tmp_path, flags, env, name
     assert result.returncode == 2, result.stderr
     assert f"oceanlidar status: error: {named}: not an http:// or https:// URL" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+@pytest.mark.parametrize("command", ["schema", "info"])
+def test_a_closed_stdout_ends_the_command_quietly(stored, tmp_path, command):
+    """``oceanlidar info STORE | head -1``: no BrokenPipeError traceback, exit 1 (Python's
+    convention for EPIPE)."""
+    reader, writer = os.pipe()
+    os.close(reader)  # the reader is gone before anything is written
+    try:
+        process = start_cli(
+            command,
+            *([stored] if command == "info" else []),
+            cwd=tmp_path,
+            stdout=writer,
+            stderr=subprocess.PIPE,
+        )
+    finally:
+        os.close(writer)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 1 and err.decode() == ""
