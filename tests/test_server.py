@@ -459,6 +459,10 @@ def test_bad_sweeps_are_400_with_the_cli_message_and_nothing_written(service, tm
     status, answer = service.submit(sweep("big.zarr", realisations=600_000))  # 2 points
     assert status == 400 and "split it into smaller sweeps" in answer["error"], answer
     assert "--no-limits" not in answer["error"]
+    # and so does the memory limit, not the CLI's --max-memory
+    status, answer = service.submit(sweep("heavy.zarr").replace("pixels: 16", "pixels: 4096"))
+    assert status == 400 and "make each sample smaller" in answer["error"], answer
+    assert "--max-memory" not in answer["error"] and "--no-limits" not in answer["error"]
     outside = tempfile.mkdtemp()
     try:
         os.symlink(outside, data / "link")
@@ -472,6 +476,24 @@ def test_bad_sweeps_are_400_with_the_cli_message_and_nothing_written(service, tm
     assert not os.path.exists("/tmp/escape.zarr")
     assert sorted(p.name for p in data.iterdir()) == before_files
     assert len(service.request("GET", "/v1/jobs")[1]["jobs"]) == before_jobs
+
+
+def test_a_measurement_file_that_is_a_folder_is_400_and_leaks_nothing(service):
+    """``conditioning.file`` naming a folder of the data root: 400 naming the field, and
+    the server's open descriptors do not grow with such requests (each one leaked one)."""
+    (service.folder / "data" / "measured").mkdir(exist_ok=True)
+    text = sweep("folder.zarr").replace("surface: {", "surface: {conditioning: {file: measured}, ")
+    descriptors = f"/proc/{service.process.pid}/fd"
+    answers = [service.submit(text)]  # the first request's one-off allocations
+    before = len(os.listdir(descriptors))
+    answers += [service.submit(text) for _ in range(10)]
+    after = len(os.listdir(descriptors))
+    for status, answer in answers:
+        assert status == 400, answer
+        assert answer["error"].startswith("scene.surface.conditioning.file"), answer
+        assert "not a regular file" in answer["error"], answer
+    assert after < before + 5, (before, after)
+    assert not (service.folder / "data" / "folder.zarr").exists()
 
 
 @pytest.fixture(scope="module")

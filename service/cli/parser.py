@@ -106,6 +106,7 @@ def _preview(commands) -> None:
         help="one colour scale for every gate and frame (default: one per panel)",
     )
     preview.add_argument("--output", required=True, help="FILE.png, or FILE.gif for a sequence")
+    _limits(preview)
     _storage_options(preview)
 
 

@@ -199,11 +199,12 @@ def _saving(path: str):
 
 def cmd_preview(args) -> int:
     """Draw a sample: rendered now from a sweep file, or read from a store."""
+    from service.cli.run_commands import memory_limit
     from service.plots import PREVIEW_FORMATS, render_preview, save_preview
 
     _check_picture(args.output, PREVIEW_FORMATS)
     if os.path.isfile(args.source):
-        plan = load_sweep(args.source)
+        plan = load_sweep(args.source, max_memory=None if args.no_limits else memory_limit(args))
         address = plan.sample(args.sample)
         ds = render_preview(plan, args.sample)
         title = f"{plan.sweep.name}, {address.describe()}"
