@@ -204,6 +204,9 @@ class _Service:
 
     async def jobs(self, request: Request) -> JSONResponse:
         state = request.query_params.get("state")
+        states = [str(known) for known in JobState]
+        if state is not None and state not in states:
+            return _error(400, f"state {state!r}: not one of {', '.join(states)}")
         return JSONResponse({"jobs": [job.public() for job in self.table.list(state)]})
 
     async def job(self, request: Request) -> JSONResponse:

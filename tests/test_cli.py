@@ -230,3 +230,10 @@ def test_a_closed_stdout_ends_the_command_quietly(stored, tmp_path, command):
         os.close(writer)
     _, err = process.communicate(timeout=120)
     assert process.returncode == 1 and err.decode() == ""
+
+
+def test_jobs_of_an_unknown_state_are_refused(cli, tmp_path):
+    result = cli("jobs", "--state", "bogus", cwd=tmp_path)
+    assert result.returncode == 2
+    assert "argument --state: invalid choice: 'bogus'" in result.stderr
+    assert "queued" in result.stderr and "Traceback" not in result.stderr

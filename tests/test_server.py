@@ -496,6 +496,12 @@ def test_a_measurement_file_that_is_a_folder_is_400_and_leaks_nothing(service):
     assert not (service.folder / "data" / "folder.zarr").exists()
 
 
+def test_jobs_of_an_unknown_state_are_400(service):
+    status, answer = service.request("GET", "/v1/jobs?state=bogus")
+    assert status == 400 and answer["error"].startswith("state 'bogus': not one of queued"), answer
+    assert service.request("GET", "/v1/jobs?state=queued")[0] == 200
+
+
 @pytest.fixture(scope="module")
 def open_service(tmp_path_factory):
     folder = tmp_path_factory.mktemp("open")

@@ -11,6 +11,7 @@ import argparse
 import sys
 
 from service.inputs import DEFAULT_MAX_MEMORY, json_object
+from service.records import JobState
 
 __all__ = ["DEFAULT_SERVER", "parser"]
 
@@ -151,7 +152,9 @@ def _job_commands(commands) -> None:
     mode.add_argument("--resume", action="store_true", help="complete an existing store")
     mode.add_argument("--overwrite", action="store_true", help="replace an existing store")
     jobs = commands.add_parser("jobs", help="list the service's jobs, newest first")
-    jobs.add_argument("--state", help="only jobs in this state")
+    jobs.add_argument(
+        "--state", choices=[str(state) for state in JobState], help="only jobs in this state"
+    )
     status = commands.add_parser("status", help="a job's state and progress")
     status.add_argument("id", help="job id")
     status.add_argument("--watch", action="store_true", help="follow it until it finishes")
