@@ -104,6 +104,12 @@ def test_quiet_runs_print_nothing_but_errors(tmp_path, capsys, shared_cluster):
     sweep = tiny(tmp_path, realisations=1)
     assert main(["-q", "run", str(sweep), "--workers", "1", "--output", str(tmp_path / "q")]) == 0
     assert capsys.readouterr().err == ""
+    # --resume with nothing to resume starts a new run, and says so
+    output = tmp_path / "r"
+    assert main(["run", str(sweep), "--workers", "1", "--output", str(output), "--resume"]) == 0
+    assert f"nothing at {output} to resume: starting a new run" in capsys.readouterr().err
+    assert main(["run", str(sweep), "--workers", "1", "--output", str(output), "--resume"]) == 0
+    assert "nothing at" not in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("verbose", [False, True], ids=["default", "verbose"])

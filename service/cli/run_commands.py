@@ -276,6 +276,10 @@ def cmd_run(args) -> int:
     for line in plan_lines(plan, args.batch, url, resume=args.resume):
         log.info(line)
     store = Store.at(url, args.storage_options)
+    if args.resume:
+        with store.errors():
+            if not store.occupied():  # README: --resume completes an interrupted run
+                log.info("nothing at %s to resume: starting a new run", url)
     try:
         with open(os.devnull, "w") as devnull, _terminate_as_interrupt():
             result = execute(
