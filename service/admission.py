@@ -23,7 +23,7 @@ from service.stats import check_owner
 from service.store import integrity
 from service.store.location import KIND, Store
 from service.store.template import check_uniform
-from service.sweep import NO_LIMITS, Plan, parse_sweep
+from service.sweep import MEMORY_REMEDY, NO_LIMITS, Plan, parse_sweep
 
 __all__ = [
     "CLI",
@@ -53,6 +53,8 @@ class Rules:
         The most memory [bytes] one sample may need (`service.sweep.memory_estimate`).
     too_big : str
         What to do about a sweep over the size limits.
+    too_heavy : str
+        What to do about a sample over `max_memory`.
     exists : str
         What to do about an output that exists, in a new run.
     """
@@ -60,6 +62,7 @@ class Rules:
     limits: bool = True
     max_memory: float = DEFAULT_MAX_MEMORY
     too_big: str = NO_LIMITS
+    too_heavy: str = MEMORY_REMEDY
     exists: str = "pass --resume to complete it or --overwrite"
 
 
@@ -67,6 +70,7 @@ CLI = Rules()
 """The command line's rules (its flags change the limits: `Rules(limits=..., ...)`)."""
 SERVICE = Rules(
     too_big="split it into smaller sweeps (the service's limit)",
+    too_heavy="make each sample smaller (the service's limit)",
     exists="submit with mode resume (oceanlidar submit --resume) to complete it or "
     "overwrite (--overwrite) to replace it",
 )
@@ -83,7 +87,12 @@ def admit(text: str, *, folder, rules: Rules = CLI) -> Plan:
     InputError
         A `BadSweepError`, `BadFileError` (a measurement file) or `TooBigError`.
     """
-    plan = parse_sweep(text, folder=folder, max_memory=rules.max_memory if rules.limits else None)
+    plan = parse_sweep(
+        text,
+        folder=folder,
+        max_memory=rules.max_memory if rules.limits else None,
+        memory_remedy=rules.too_heavy,
+    )
     if rules.limits:
         plan.check_limits(remedy=rules.too_big)
     check_uniform(plan)

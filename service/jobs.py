@@ -21,7 +21,7 @@ import time
 import uuid
 
 from service.admission import admit_job, parents
-from service.errors import InputError, LockedError, UnusableOutputError
+from service.errors import BadFileError, InputError, LockedError, UnusableOutputError
 from service.inputs import shown
 from service.records import ACTIVE, Job, JobState
 from service.run import Cancel, execute
@@ -69,13 +69,20 @@ class JobTable:
 
     Raises
     ------
+    BadFileError
+        If `path` cannot be opened (its folder missing, a folder) or is not an SQLite file.
     LockedError
         If another service has the table open.
     """
 
     def __init__(self, path: str):
         self.path = path
-        self._owner = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)  # held while the table lives
+        try:  # held while the table lives
+            self._owner = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)
+        except OSError as error:  # a missing folder, a folder, no permission
+            raise BadFileError(
+                f"--db {path}: cannot open the job table ({error.strerror})"
+            ) from None
         try:
             fcntl.flock(self._owner, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -86,8 +93,13 @@ class JobTable:
         self._db = sqlite3.connect(path, check_same_thread=False, isolation_level=None)
         self._db.row_factory = sqlite3.Row
         self._lock = threading.Lock()
-        self._query("PRAGMA journal_mode=WAL")
-        self._query(_SCHEMA)
+        try:
+            self._query("PRAGMA journal_mode=WAL")
+            self._query(_SCHEMA)
+        except sqlite3.DatabaseError as error:  # a file that is not a job table
+            self._db.close()
+            os.close(self._owner)
+            raise BadFileError(f"--db {path}: not an SQLite job table ({error})") from None
 
     def lost(self) -> str | None:
         """Why the table is no longer the file at its path (deleted, replaced); None if it is.

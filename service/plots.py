@@ -26,6 +26,8 @@ from service.sweep import Plan
 from workers.render import render
 
 __all__ = [
+    "PLOT_FORMATS",
+    "PREVIEW_FORMATS",
     "figure_pixels",
     "plot_detection",
     "plot_statistics",
@@ -34,6 +36,10 @@ __all__ = [
     "save_preview",
 ]
 
+PREVIEW_FORMATS = (".png", ".gif")
+"""The files `save_preview` writes: one frame, or all of them."""
+PLOT_FORMATS = tuple(sorted(f".{name}" for name in FigureCanvasAgg.get_supported_filetypes()))
+"""The files the statistics and detection plots are saved as (matplotlib's Agg canvas)."""
 PANEL_INCHES = 2.2
 DPI = 100
 TITLE_CHARACTERS = 28

@@ -19,6 +19,7 @@ import hmac
 import html
 import json
 import os
+import socket
 import sys
 import time
 import urllib.parse
@@ -203,6 +204,9 @@ class _Service:
 
     async def jobs(self, request: Request) -> JSONResponse:
         state = request.query_params.get("state")
+        states = [str(known) for known in JobState]
+        if state is not None and state not in states:
+            return _error(400, f"state {state!r}: not one of {', '.join(states)}")
         return JSONResponse({"jobs": [job.public() for job in self.table.list(state)]})
 
     async def job(self, request: Request) -> JSONResponse:
@@ -350,34 +354,59 @@ def serve(args, security) -> int:
         if getattr(args, flag) is not None and getattr(args, flag) < 1:
             raise BadOptionError(f"--{flag.replace('_', '-')} must be at least 1")
     root = Store.at(args.data_root, args.storage_options)
-    if "://" not in root.url:
-        os.makedirs(root.url, exist_ok=True)
-    table = JobTable(args.db)
-    with dask_client(workers=args.workers, scheduler=args.scheduler, security=security) as client:
-        runner = Runner(
-            table,
-            client,
-            data_root=root,
-            max_running=args.max_running,
-            queue_limit=args.queue_limit,
-            batch_size=args.batch,
-        )
-        config = uvicorn.Config(
-            create_app(runner, tokens),
-            host=args.host,
-            port=args.port,
-            log_level="warning",
-            access_log=False,
-        )
-        runner.start()
-        print(
-            f"oceanlidar serve: http://{args.host}:{args.port} (data root {root.url}, "
-            f"jobs {args.db})",
-            file=sys.stderr,
-            flush=True,
-        )
-        try:
-            uvicorn.Server(config).run()
-        finally:
-            runner.stop()
+    local = "://" not in root.url
+    if local and os.path.exists(root.url) and not os.path.isdir(root.url):
+        raise BadOptionError(f"--data-root {args.data_root}: exists and is not a folder")
+    with _listening(args.host, args.port) as listener:
+        table = JobTable(args.db)  # before the data root is made: every refusal comes first
+        if local:
+            try:
+                os.makedirs(root.url, exist_ok=True)
+            except OSError as error:
+                raise BadOptionError(
+                    f"--data-root {args.data_root}: cannot make the folder ({error.strerror})"
+                ) from None
+        with dask_client(
+            workers=args.workers, scheduler=args.scheduler, security=security
+        ) as client:
+            runner = Runner(
+                table,
+                client,
+                data_root=root,
+                max_running=args.max_running,
+                queue_limit=args.queue_limit,
+                batch_size=args.batch,
+            )
+            config = uvicorn.Config(
+                create_app(runner, tokens), log_level="warning", access_log=False
+            )
+            runner.start()
+            print(
+                f"oceanlidar serve: http://{args.host}:{args.port} (data root {root.url}, "
+                f"jobs {args.db})",
+                file=sys.stderr,
+                flush=True,
+            )
+            try:
+                uvicorn.Server(config).run(sockets=[listener])
+            finally:
+                runner.stop()
     return 0
+
+
+def _listening(host: str, port: int) -> socket.socket:
+    """A socket listening on `host`:`port`, bound before anything else starts.
+
+    Raises
+    ------
+    BadOptionError
+        If the address cannot be bound (the port in use, a host not of this machine).
+    """
+    try:
+        return socket.create_server(
+            (host, port), family=socket.AF_INET6 if ":" in host else socket.AF_INET
+        )
+    except OSError as error:
+        raise BadOptionError(
+            f"--host {host} --port {port}: cannot listen there ({error.strerror or error})"
+        ) from None

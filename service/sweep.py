@@ -43,6 +43,8 @@ DEFAULT_MAX_SAMPLES = 1_000_000
 DEFAULT_MAX_BYTES = 50 * 2**30
 NO_LIMITS = "pass --no-limits to run it anyway"
 """What the command line's messages about the limits advise."""
+MEMORY_REMEDY = "pass --max-memory GIB or --no-limits to run it anyway"
+"""What the command line's messages about the memory limit advise."""
 MAX_TRAVEL = 100_000.0
 """Farthest the platform may fly during a sequence [m]: beyond 100 km, float32 ray
 coordinates resolve less than a centimetre, coarser than the surface grids need."""
@@ -285,14 +287,13 @@ def _transport_memory(scene: dict, *, pixels: int, gates: int) -> int:
     return images + launch + 64 * cells + 12 * min(LOOKUP_ENTRIES, 100 * cells)
 
 
-def _check_memory(scene: dict, max_memory: float | None) -> None:
+def _check_memory(scene: dict, max_memory: float | None, remedy: str) -> None:
     estimate = memory_estimate(scene)
     if max_memory is not None and estimate > max_memory:
         raise TooBigError(
             f"scene: one sample would need about {format_bytes(estimate)} of memory to render "
             f"(surface.grid_size, receiver.pixels, sequence.frames, measurement times), over "
-            f"the limit of {format_bytes(max_memory)}; pass --max-memory GIB or --no-limits "
-            "to run it anyway"
+            f"the limit of {format_bytes(max_memory)}; {remedy}"
         )
 
 
@@ -345,7 +346,13 @@ def load_sweep(path, *, max_memory: float | None = DEFAULT_MAX_MEMORY) -> Plan:
     return parse_sweep(text, folder=Path(path).parent, max_memory=max_memory)
 
 
-def parse_sweep(text: str, *, folder=None, max_memory: float | None = DEFAULT_MAX_MEMORY) -> Plan:
+def parse_sweep(
+    text: str,
+    *,
+    folder=None,
+    max_memory: float | None = DEFAULT_MAX_MEMORY,
+    memory_remedy: str = MEMORY_REMEDY,
+) -> Plan:
     """Validate and expand sweep YAML text (see `load_sweep`).
 
     Parameters
@@ -358,6 +365,9 @@ def parse_sweep(text: str, *, folder=None, max_memory: float | None = DEFAULT_MA
         reads no measurement file.
     max_memory : float or None, optional
         The most memory [bytes] one sample may need (see `load_sweep`).
+    memory_remedy : str, optional
+        What the message of a sample over `max_memory` advises (the front end's remedy;
+        default the command line's flags).
 
     Notes
     -----
@@ -375,7 +385,7 @@ def parse_sweep(text: str, *, folder=None, max_memory: float | None = DEFAULT_MA
     except ValidationError as error:
         raise BadSweepError(_format_errors(error)) from None
     strict_numbers(data, sweep.model_dump(), "")
-    _check_memory(sweep.scene, max_memory)
+    _check_memory(sweep.scene, max_memory, memory_remedy)
     try:
         default = Scene.model_validate(sweep.scene)
     except ValidationError as error:
@@ -396,7 +406,7 @@ def parse_sweep(text: str, *, folder=None, max_memory: float | None = DEFAULT_MA
         if key not in cache:
             values = ", ".join(f"{p}={shown(v)}" for p, v in point.items())
             try:
-                _check_memory(data, max_memory)
+                _check_memory(data, max_memory, memory_remedy)
                 cache[key] = Scene.model_validate(data)
                 _check_scene(data, cache[key])
             except ValidationError as error:

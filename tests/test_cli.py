@@ -1,7 +1,9 @@
 """Command-line conventions: --version, -v/-q logging, --dashboard, schema, validate, preview."""
 
 import json
+import os
 import socket
+import subprocess
 import warnings
 from pathlib import Path
 
@@ -11,7 +13,7 @@ import numpy as np
 import pytest
 import xarray as xr
 import yaml
-from conftest import ROOT, TINY_SWEEP, run_cli
+from conftest import ROOT, TINY_SWEEP, run_cli, start_cli
 
 from service import package_version, plots
 from service.cli import main
@@ -102,6 +104,12 @@ def test_quiet_runs_print_nothing_but_errors(tmp_path, capsys, shared_cluster):
     sweep = tiny(tmp_path, realisations=1)
     assert main(["-q", "run", str(sweep), "--workers", "1", "--output", str(tmp_path / "q")]) == 0
     assert capsys.readouterr().err == ""
+    # --resume with nothing to resume starts a new run, and says so
+    output = tmp_path / "r"
+    assert main(["run", str(sweep), "--workers", "1", "--output", str(output), "--resume"]) == 0
+    assert f"nothing at {output} to resume: starting a new run" in capsys.readouterr().err
+    assert main(["run", str(sweep), "--workers", "1", "--output", str(output), "--resume"]) == 0
+    assert "nothing at" not in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("verbose", [False, True], ids=["default", "verbose"])
@@ -192,3 +200,46 @@ def test_preview_reads_a_store_and_shares_one_scale(stored, tmp_path, monkeypatc
     assert [(options["frame"], options["scale"]) for _, options in drawn] == [(1, None)]
     shown = figure(drawn[0][0], frame=1, scale=(0.0, 7.0))
     assert all(ax.get_images()[0].get_clim() == (0.0, 7.0) for ax in shown.axes if ax.get_images())
+
+
+@pytest.mark.parametrize(
+    "flags, env, named",
+    [
+        (["--server", "not-a-url"], {}, "--server 'not-a-url'"),
+        (["--server", "http://"], {}, "--server 'http://'"),
+        ([], {"OCEANLIDAR_SERVER": "ftp://host/"}, "OCEANLIDAR_SERVER 'ftp://host/'"),
+        ([], {"OCEANLIDAR_SERVER": "http://[::1"}, "OCEANLIDAR_SERVER 'http://[::1'"),
+    ],
+)
+def test_a_server_that_is_no_http_url_is_refused(cli, tmp_path, flags, env, named):
+    result = cli("status", *flags, "x", cwd=tmp_path, env=env)
+    assert result.returncode == 2, result.stderr
+    assert f"oceanlidar status: error: {named}: not an http:// or https:// URL" in result.stderr
+    assert "Traceback" not in result.stderr
+
+
+@pytest.mark.parametrize("command", ["schema", "info"])
+def test_a_closed_stdout_ends_the_command_quietly(stored, tmp_path, command):
+    """``oceanlidar info STORE | head -1``: no BrokenPipeError traceback, exit 1 (Python's
+    convention for EPIPE)."""
+    reader, writer = os.pipe()
+    os.close(reader)  # the reader is gone before anything is written
+    try:
+        process = start_cli(
+            command,
+            *([stored] if command == "info" else []),
+            cwd=tmp_path,
+            stdout=writer,
+            stderr=subprocess.PIPE,
+        )
+    finally:
+        os.close(writer)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 1 and err.decode() == ""
+
+
+def test_jobs_of_an_unknown_state_are_refused(cli, tmp_path):
+    result = cli("jobs", "--state", "bogus", cwd=tmp_path)
+    assert result.returncode == 2
+    assert "argument --state: invalid choice: 'bogus'" in result.stderr
+    assert "queued" in result.stderr and "Traceback" not in result.stderr

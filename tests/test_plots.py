@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+import service.plots
 from service.cli import main
 from service.plots import DPI, PANEL_INCHES, preview_figure, render_preview
 from service.run import execute
@@ -68,7 +69,11 @@ def test_a_preview_that_cannot_be_written_is_refused_before_rendering(
     monkeypatch.setattr(service.plots, "render_preview", lambda *a: pytest.fail("rendered"))
     monkeypatch.chdir(tmp_path)
     sweep = str(PAPER / "example3.yaml")
-    for output, reason in [("missing/p.png", "no folder"), (".", "a folder")]:
+    for output, reason in [
+        ("missing/p.png", "no folder"),
+        (".", "a folder"),
+        ("p.txt", "cannot write a .txt picture (write .png, .gif)"),
+    ]:
         assert main(["preview", sweep, "--output", output]) == 2
         assert f"--output '{output}': {reason}" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
@@ -97,6 +102,13 @@ def test_plot_draws_contrast_and_cnr_against_each_swept_parameter(
     monkeypatch.chdir(tmp_path)
     assert main(["plot", url, "--output", "missing/stats.png"]) == 2
     assert "--output 'missing/stats.png': no folder" in capsys.readouterr().err
+    # an extension matplotlib cannot write: refused before drawing, naming those it can
+    monkeypatch.setattr(service.plots, "plot_statistics", lambda *a: pytest.fail("drawn"))
+    assert main(["plot", url, "--output", "stats.txt"]) == 2
+    err = capsys.readouterr().err
+    assert "--output 'stats.txt': cannot write a .txt picture (write " in err
+    assert ".pdf" in err and ".png" in err and "Traceback" not in err
+    assert not (tmp_path / "stats.txt").exists()
 
 
 def expected_pair(config):

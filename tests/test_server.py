@@ -7,6 +7,7 @@ import os
 import re
 import shutil
 import signal
+import socket
 import sqlite3
 import subprocess
 import tempfile
@@ -353,6 +354,42 @@ def test_no_token_is_401_and_serve_refuses_to_run_open(service, monkeypatch, cap
     assert "127.0.0.1 only" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(
+    "setting, message",
+    [
+        (["--db", "nodir/x.sqlite"], r"--db nodir/x\.sqlite: cannot open the job table"),
+        (["--db", "folder"], r"--db folder: cannot open the job table"),
+        (["--db", "text.txt"], r"--db text\.txt: not an SQLite job table"),
+        (["--data-root", "text.txt"], r"--data-root text\.txt: exists and is not a folder"),
+        (["--port", "99999"], r"argument --port: 99999 is not a port \(1 to 65535\)"),
+        (["--port", "busy"], r"--host 127\.0\.0\.1 --port \d+: cannot listen there"),
+    ],
+)
+def test_bad_serve_settings_are_refused_before_anything_is_made(cli, tmp_path, setting, message):
+    """Each is exit 2 with a message naming its flag; no traceback, no data root, no table."""
+    (tmp_path / "folder").mkdir()
+    (tmp_path / "text.txt").write_text("not a database\n")
+    with contextlib.ExitStack() as stack:
+        if setting[1] == "busy":
+            taken = stack.enter_context(socket.create_server(("127.0.0.1", 0)))
+            setting = ["--port", str(taken.getsockname()[1])]
+        settings = {"--db": "jobs.sqlite", "--data-root": "data", "--port": str(free_port())}
+        flag, value = setting
+        settings[flag] = value
+        result = cli(
+            "serve",
+            *[x for pair in settings.items() for x in pair],
+            cwd=tmp_path,
+            env={"OCEANLIDAR_TOKEN": TOKEN},
+        )
+    assert result.returncode == 2, result.stderr
+    assert re.search(message, result.stderr) and "Traceback" not in result.stderr
+    assert "oceanlidar serve: http" not in result.stderr
+    made = {path.name for path in tmp_path.iterdir()}
+    assert made == {"folder", "text.txt"}, made
+    assert (tmp_path / "text.txt").read_text() == "not a database\n"
+
+
 def test_the_cookie_only_reads_and_pages_are_not_framed(service):
     """A page of another site (another port of this host) cannot submit with the cookie."""
     before = len(service.request("GET", "/v1/jobs")[1]["jobs"])
@@ -422,6 +459,10 @@ def test_bad_sweeps_are_400_with_the_cli_message_and_nothing_written(service, tm
     status, answer = service.submit(sweep("big.zarr", realisations=600_000))  # 2 points
     assert status == 400 and "split it into smaller sweeps" in answer["error"], answer
     assert "--no-limits" not in answer["error"]
+    # and so does the memory limit, not the CLI's --max-memory
+    status, answer = service.submit(sweep("heavy.zarr").replace("pixels: 16", "pixels: 4096"))
+    assert status == 400 and "make each sample smaller" in answer["error"], answer
+    assert "--max-memory" not in answer["error"] and "--no-limits" not in answer["error"]
     outside = tempfile.mkdtemp()
     try:
         os.symlink(outside, data / "link")
@@ -435,6 +476,30 @@ def test_bad_sweeps_are_400_with_the_cli_message_and_nothing_written(service, tm
     assert not os.path.exists("/tmp/escape.zarr")
     assert sorted(p.name for p in data.iterdir()) == before_files
     assert len(service.request("GET", "/v1/jobs")[1]["jobs"]) == before_jobs
+
+
+def test_a_measurement_file_that_is_a_folder_is_400_and_leaks_nothing(service):
+    """``conditioning.file`` naming a folder of the data root: 400 naming the field, and
+    the server's open descriptors do not grow with such requests (each one leaked one)."""
+    (service.folder / "data" / "measured").mkdir(exist_ok=True)
+    text = sweep("folder.zarr").replace("surface: {", "surface: {conditioning: {file: measured}, ")
+    descriptors = f"/proc/{service.process.pid}/fd"
+    answers = [service.submit(text)]  # the first request's one-off allocations
+    before = len(os.listdir(descriptors))
+    answers += [service.submit(text) for _ in range(10)]
+    after = len(os.listdir(descriptors))
+    for status, answer in answers:
+        assert status == 400, answer
+        assert answer["error"].startswith("scene.surface.conditioning.file"), answer
+        assert "not a regular file" in answer["error"], answer
+    assert after < before + 5, (before, after)
+    assert not (service.folder / "data" / "folder.zarr").exists()
+
+
+def test_jobs_of_an_unknown_state_are_400(service):
+    status, answer = service.request("GET", "/v1/jobs?state=bogus")
+    assert status == 400 and answer["error"].startswith("state 'bogus': not one of queued"), answer
+    assert service.request("GET", "/v1/jobs?state=queued")[0] == 200
 
 
 @pytest.fixture(scope="module")

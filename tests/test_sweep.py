@@ -393,6 +393,22 @@ def test_memory_is_estimated_before_anything_is_built(tmp_path, capsys):
     assert main(["validate", str(sweep)]) == 2
     assert "--max-memory" in capsys.readouterr().err
     assert main(["validate", str(sweep), "--max-memory", "400", "--no-estimate"]) == 0
+    # preview names the same remedy, and takes the flags it names
+    picture = str(tmp_path / "p.png")
+    assert main(["preview", str(sweep), "--output", picture]) == 2
+    assert "pass --max-memory GIB or --no-limits" in capsys.readouterr().err
+
+    class RenderedError(Exception):
+        pass
+
+    def rendered(plan, sample):
+        raise RenderedError
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr("service.plots.render_preview", rendered)
+        for flags in (["--max-memory", "400"], ["--no-limits"]):
+            with pytest.raises(RenderedError):  # admitted: the render was reached
+                main(["preview", str(sweep), *flags, "--output", picture])
 
 
 def _empty_worker_caches():

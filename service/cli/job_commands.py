@@ -21,7 +21,7 @@ import urllib.parse
 import urllib.request
 
 from service.cli.parser import DEFAULT_SERVER
-from service.errors import InputError
+from service.errors import BadOptionError, InputError
 from service.inputs import read_text
 from service.records import JobState
 
@@ -42,6 +42,26 @@ def _token(args) -> str:
     return lines[-1] if lines else ""
 
 
+def _server(args) -> str:
+    """The service's URL: ``--server``, else ``OCEANLIDAR_SERVER``, else `DEFAULT_SERVER`.
+
+    Raises
+    ------
+    BadOptionError
+        If it is not an http:// or https:// URL with a host (named by where it came from).
+    """
+    base = args.server or os.environ.get("OCEANLIDAR_SERVER") or DEFAULT_SERVER
+    try:
+        parts = urllib.parse.urlsplit(base)
+        usable = parts.scheme in ("http", "https") and bool(parts.hostname)
+    except ValueError:  # a malformed address ("http://[::1")
+        usable = False
+    if not usable:
+        place = "--server" if args.server else "OCEANLIDAR_SERVER"
+        raise BadOptionError(f"{place} {base!r}: not an http:// or https:// URL")
+    return base
+
+
 def _request(args, method: str, path: str, body: bytes | None = None, *, stream=False):
     """The service's JSON answer (or, with `stream`, the open response).
 
@@ -53,7 +73,7 @@ def _request(args, method: str, path: str, body: bytes | None = None, *, stream=
     UnavailableError
         If it cannot be reached, is full (429) or failed (5xx).
     """
-    base = args.server or os.environ.get("OCEANLIDAR_SERVER") or DEFAULT_SERVER
+    base = _server(args)
     request = urllib.request.Request(base.rstrip("/") + path, data=body, method=method)
     if token := _token(args):
         request.add_header("Authorization", f"Bearer {token}")

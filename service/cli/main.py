@@ -2,12 +2,13 @@
 
 Exit codes: 0 success, 2 bad input (a `service.errors.InputError`: a message, no
 traceback, nothing written; bad flags too, argparse's own status), 1 failure (a sample
-that could not be rendered, an interrupted run, an unreadable store). The arguments are in
-`service.cli.parser`; the commands, ``cmd_NAME`` each, in `service.cli.run_commands` (run,
-validate, schema), `service.cli.store_commands` (info, stats, detect, preview, plot) and
-`service.cli.job_commands` (serve, submit, jobs, status, cancel). A command's module is
-imported when the command runs: parsing the command line imports neither dask, zarr nor
-the server.
+that could not be rendered, an interrupted run, an unreadable store; quietly, a standard
+output closed by its reader as ``| head`` does: Python's convention for a broken pipe).
+The arguments are in `service.cli.parser`; the commands, ``cmd_NAME`` each, in
+`service.cli.run_commands` (run, validate, schema), `service.cli.store_commands` (info,
+stats, detect, preview, plot) and `service.cli.job_commands` (serve, submit, jobs, status,
+cancel). A command's module is imported when the command runs: parsing the command line
+imports neither dask, zarr nor the server.
 
 Messages go through `logging`: the ``oceanlidar`` logger prints them plainly on stderr
 (``-q``: errors only); dask's own messages and Python warnings, the embedded workers'
@@ -18,6 +19,7 @@ from __future__ import annotations
 
 import importlib
 import logging
+import os
 import sys
 
 from service.cli.parser import parser
@@ -91,7 +93,12 @@ def main(argv=None) -> int:
     configure_logging(args.verbose - args.quiet)
     try:
         module = importlib.import_module(COMMANDS[args.command])
-        return getattr(module, f"cmd_{args.command}")(args)
+        code = getattr(module, f"cmd_{args.command}")(args)
+        sys.stdout.flush()  # a closed pipe is found here, not at exit
+        return code
+    except BrokenPipeError:  # stdout's reader left (``| head``): stop quietly
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no error at exit
+        return EXIT_FAILURE
     except InputError as error:
         print(f"oceanlidar {args.command}: error: {_capped(str(error))}", file=sys.stderr)
         return EXIT_BAD_INPUT

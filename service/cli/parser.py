@@ -11,6 +11,7 @@ import argparse
 import sys
 
 from service.inputs import DEFAULT_MAX_MEMORY, json_object
+from service.records import JobState
 
 __all__ = ["DEFAULT_SERVER", "parser"]
 
@@ -18,6 +19,17 @@ DEFAULT_SERVER = "http://127.0.0.1:8000"
 """The job service the clients talk to without ``--server`` or ``OCEANLIDAR_SERVER``."""
 
 MAX_MEMORY_HELP = f"most memory one sample may need, GiB (default {DEFAULT_MAX_MEMORY / 2**30:g})"
+
+
+def _port(text: str) -> int:
+    """A TCP port, 1 to 65535 (argparse's type for ``--port``)."""
+    try:
+        port = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a port number: {text!r}") from None
+    if not 1 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"{port} is not a port (1 to 65535)")
+    return port
 
 
 def _storage_options(command) -> None:
@@ -95,6 +107,7 @@ def _preview(commands) -> None:
         help="one colour scale for every gate and frame (default: one per panel)",
     )
     preview.add_argument("--output", required=True, help="FILE.png, or FILE.gif for a sequence")
+    _limits(preview)
     _storage_options(preview)
 
 
@@ -104,7 +117,7 @@ def _job_commands(commands) -> None:
     serve.add_argument(
         "--host", default="127.0.0.1", help="address to listen on (default: %(default)s)"
     )
-    serve.add_argument("--port", type=int, default=8000, help="port (default: %(default)s)")
+    serve.add_argument("--port", type=_port, default=8000, help="port (default: %(default)s)")
     serve.add_argument("--db", default="oceanlidar-jobs.sqlite", help="job table, SQLite file")
     serve.add_argument(
         "--data-root",
@@ -139,7 +152,9 @@ def _job_commands(commands) -> None:
     mode.add_argument("--resume", action="store_true", help="complete an existing store")
     mode.add_argument("--overwrite", action="store_true", help="replace an existing store")
     jobs = commands.add_parser("jobs", help="list the service's jobs, newest first")
-    jobs.add_argument("--state", help="only jobs in this state")
+    jobs.add_argument(
+        "--state", choices=[str(state) for state in JobState], help="only jobs in this state"
+    )
     status = commands.add_parser("status", help="a job's state and progress")
     status.add_argument("id", help="job id")
     status.add_argument("--watch", action="store_true", help="follow it until it finishes")
@@ -235,7 +250,9 @@ def parser() -> argparse.ArgumentParser:
 
     plot = commands.add_parser("plot", help="plot a store's statistics or a detection dataset")
     plot.add_argument("store", help="store path or URL")
-    plot.add_argument("--output", required=True, help="FILE.png")
+    plot.add_argument(
+        "--output", required=True, help="FILE.png (or .pdf, .svg: what matplotlib writes)"
+    )
     _storage_options(plot)
     _job_commands(commands)
     return top

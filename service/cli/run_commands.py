@@ -35,7 +35,7 @@ from workers.cascades import describe
 from workers.render import render_arrays
 from workers.section import SceneError
 
-__all__ = ["cmd_run", "cmd_schema", "cmd_validate", "report_samples", "run_time"]
+__all__ = ["cmd_run", "cmd_schema", "cmd_validate", "memory_limit", "report_samples", "run_time"]
 
 log = logging.getLogger("oceanlidar")
 
@@ -46,12 +46,22 @@ SHOWN_PROBLEMS = 20
 """Most samples named under one reason in a report; the rest are counted."""
 
 
-def load(args) -> Plan:
-    """The plan of ``args.sweep`` admitted under the limits the flags set (`admit`)."""
+def memory_limit(args) -> float:
+    """The most memory [bytes] one sample may need, by ``--max-memory`` (GiB).
+
+    Raises
+    ------
+    BadOptionError
+        If ``--max-memory`` is not a positive number.
+    """
     if args.max_memory is not None and not args.max_memory > 0:
         raise BadOptionError("--max-memory must be a positive number of GiB")
-    memory = DEFAULT_MAX_MEMORY if args.max_memory is None else args.max_memory * 2**30
-    rules = Rules(limits=not args.no_limits, max_memory=memory)
+    return DEFAULT_MAX_MEMORY if args.max_memory is None else args.max_memory * 2**30
+
+
+def load(args) -> Plan:
+    """The plan of ``args.sweep`` admitted under the limits the flags set (`admit`)."""
+    rules = Rules(limits=not args.no_limits, max_memory=memory_limit(args))
     text = read_text(args.sweep, place=args.sweep)
     return admit(text, folder=Path(args.sweep).parent, rules=rules)
 
@@ -266,6 +276,10 @@ def cmd_run(args) -> int:
     for line in plan_lines(plan, args.batch, url, resume=args.resume):
         log.info(line)
     store = Store.at(url, args.storage_options)
+    if args.resume:
+        with store.errors():
+            if not store.occupied():  # README: --resume completes an interrupted run
+                log.info("nothing at %s to resume: starting a new run", url)
     try:
         with open(os.devnull, "w") as devnull, _terminate_as_interrupt():
             result = execute(

@@ -164,13 +164,14 @@ def _stored_sample(store: Store, sample: int):
     return one, f"{name}, sample {sample} ({where}; realisation {int(one['realisation'])})"
 
 
-def _check_picture(path: str) -> None:
+def _check_picture(path: str, formats: tuple[str, ...]) -> None:
     """Refuse a picture's ``--output`` that cannot be written, before any work is done.
 
     Raises
     ------
     BadOptionError
-        If its folder is missing or not writable, or it is a folder itself.
+        If its folder is missing or not writable, it is a folder itself, or its extension
+        is none of `formats`.
     """
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
@@ -178,6 +179,12 @@ def _check_picture(path: str) -> None:
     if os.path.isdir(path) or not os.access(folder, os.W_OK):
         what = "a folder" if os.path.isdir(path) else f"{shown(folder)} is not writable"
         raise BadOptionError(f"--output {shown(path)}: {what}")
+    extension = os.path.splitext(path)[1].lower()
+    if extension not in formats:
+        what = f"a {extension} picture" if extension else "a picture without extension"
+        raise BadOptionError(
+            f"--output {shown(path)}: cannot write {what} (write {', '.join(formats)})"
+        )
 
 
 @contextlib.contextmanager
@@ -192,11 +199,12 @@ def _saving(path: str):
 
 def cmd_preview(args) -> int:
     """Draw a sample: rendered now from a sweep file, or read from a store."""
-    from service.plots import render_preview, save_preview
+    from service.cli.run_commands import memory_limit
+    from service.plots import PREVIEW_FORMATS, render_preview, save_preview
 
-    _check_picture(args.output)
+    _check_picture(args.output, PREVIEW_FORMATS)
     if os.path.isfile(args.source):
-        plan = load_sweep(args.source)
+        plan = load_sweep(args.source, max_memory=None if args.no_limits else memory_limit(args))
         address = plan.sample(args.sample)
         ds = render_preview(plan, args.sample)
         title = f"{plan.sweep.name}, {address.describe()}"
@@ -220,9 +228,9 @@ def cmd_preview(args) -> int:
 def cmd_plot(args) -> int:
     """Plot a store's statistics, or a detection dataset."""
     from service.detect import DATASET_KIND
-    from service.plots import plot_detection, plot_statistics
+    from service.plots import PLOT_FORMATS, plot_detection, plot_statistics
 
-    _check_picture(args.output)
+    _check_picture(args.output, PLOT_FORMATS)
     store = _store(args, args.store)
     if store.kind() == DATASET_KIND:
         detection = store.dataset()
