@@ -327,7 +327,8 @@ def _submit_bounded(
         fill(window)
         while running:
             try:
-                done = wait(list(running), timeout=TICK, return_when="FIRST_COMPLETED").done
+                with client.as_current():  # `wait` asks for the current client
+                    done = wait(list(running), timeout=TICK, return_when="FIRST_COMPLETED").done
             except TimeoutError:
                 done = set()
             if cancel is not None and cancel.is_set():

@@ -179,6 +179,23 @@ def test_bounded_submission_and_batches(tmp_path):
     assert result.written == 12 and result.max_in_flight <= 2
 
 
+def test_a_run_on_a_client_that_is_not_the_default_one(tmp_path, shared_cluster):
+    # execute(client=...) for a library user's own client: dask's `wait` looked up the
+    # default client ("No clients found" when the given one is not the default)
+    from distributed import default_client
+
+    with pytest.raises(ValueError, match="No clients found"):
+        default_client()
+    plan = parse_sweep(SWEEP)
+    result = execute(
+        plan,
+        Store.at(str(tmp_path / "own.zarr")),
+        client=shared_cluster,
+        progress_stream=open(os.devnull, "w"),
+    )
+    assert result.ok and result.written == plan.samples
+
+
 def test_interrupted_run_resumes_to_the_same_store(tmp_path, cli, shared_cluster):
     # 48 samples, one a task: interrupted once 2 are written, the tasks held there (a
     # loaded machine could finish the run before a signal sent at a time)
