@@ -178,11 +178,29 @@ def write_shard(group, samples: dict[int, dict[str, np.ndarray]]) -> None:
         for kind, recorded in checksums.items():
             recorded[sample - first] = sample_checksum(values, kind)
     for name, block in blocks.items():
-        arrays[name][region] = block
+        _write_whole(arrays[name], region, block)
     for kind, array in stored.items():
         array[region] = checksums[kind]
     done[[s - first for s in samples]] = True
     completed[region] = done.astype(np.uint8)
+
+
+def _write_whole(array, region: slice, block: np.ndarray) -> None:
+    """Write `block` over the samples `region` of `array`, a whole shard (or chunk).
+
+    Zarr reads a shard's old file before writing it, even when the write covers all of
+    it; a shard whose index is damaged (a truncated or overwritten file) fails that read
+    on every attempt. `block` holds everything the shard keeps, so the damaged file is
+    removed and the shard written afresh.
+    """
+    try:
+        array[region] = block
+    except ValueError:  # the old shard's index does not decode: CRC32C or size
+        if array.shards is None:
+            raise
+        shard = (region.start // array.shards[0],) + (0,) * (array.ndim - 1)
+        (array.store_path / array.metadata.encode_chunk_key(shard)).delete_sync()
+        array[region] = block
 
 
 DECODERS = {"zstd": Zstd, "blosc": Blosc}
