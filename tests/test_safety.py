@@ -358,6 +358,16 @@ def test_the_training_reader_refuses_a_store_whose_completion_flags_are_lost(wor
     assert "--resume --verify to recompute them" in out
 
 
+def assert_repaired(work, cli, original, *, written, kept):
+    """``run --resume --verify`` rewrites `written` samples, keeps `kept`, gives `original`."""
+    result = cli("run", "one.yaml", "--resume", "--verify", "--workers", 1, cwd=work)
+    assert result.returncode == 0, result.stderr
+    assert f"wrote {written} samples" in result.stderr
+    assert f"{kept} already complete" in result.stderr
+    assert snapshot(work / "one.zarr") == original
+    assert main(["info", "one.zarr", "--verify"]) == 0
+
+
 def test_verify_finds_damaged_missing_and_swapped_samples_and_resume_redoes_them(
     work, capsys, cli, shared_cluster
 ):
@@ -377,11 +387,7 @@ def test_verify_finds_damaged_missing_and_swapped_samples_and_resume_redoes_them
     assert "sample 3: damaged or missing: a chunk cannot be read" in out
     assert "sample 4: damaged or missing: no image shard" in out
     assert "sample 2:" not in out
-    result = cli("run", "one.yaml", "--resume", "--verify", "--workers", 1, cwd=work)
-    assert result.returncode == 0, result.stderr
-    assert "wrote 4 samples" in result.stderr and "1 already complete" in result.stderr
-    assert snapshot(work / "one.zarr") == original
-    assert main(["info", "one.zarr", "--verify"]) == 0
+    assert_repaired(work, cli, original, written=4, kept=1)
 
 
 def test_a_truncated_shard_is_written_again_whole(work, capsys, cli, shared_cluster):
@@ -393,11 +399,7 @@ def test_a_truncated_shard_is_written_again_whole(work, capsys, cli, shared_clus
     assert main(["info", "one.zarr", "--verify"]) == 1
     out = capsys.readouterr().out
     assert "sample 2: damaged" in out and "sample 3: damaged" in out
-    result = cli("run", "one.yaml", "--resume", "--verify", "--workers", 1, cwd=work)
-    assert result.returncode == 0, result.stderr
-    assert "wrote 2 samples" in result.stderr and "3 already complete" in result.stderr
-    assert snapshot(work / "one.zarr") == original
-    assert main(["info", "one.zarr", "--verify"]) == 0
+    assert_repaired(work, cli, original, written=2, kept=3)
 
 
 def test_lost_or_damaged_labels_are_found_and_written_again(work, capsys, cli, shared_cluster):

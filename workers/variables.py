@@ -369,25 +369,18 @@ def variables(scene: Scene) -> dict[str, Variable]:
             {"long_name": "gate bottom depth", "units": "m"},
             Role.COORDINATE,
         ),
-        Variable(
-            "sx",
-            ("sx",),
-            f64,
-            {"long_name": f"surface {where.format('east')}", "units": "m"},
-            Role.COORDINATE,
-        )
-        if scene.save_surface
-        else None,
-        Variable(
-            "sy",
-            ("sy",),
-            f64,
-            {"long_name": f"surface {where.format('north')}", "units": "m"},
-            Role.COORDINATE,
-        )
-        if scene.save_surface
-        else None,
     ]
+    if scene.save_surface:
+        table += [
+            Variable(
+                axis,
+                (axis,),
+                f64,
+                {"long_name": f"surface {where.format(direction)}", "units": "m"},
+                Role.COORDINATE,
+            )
+            for axis, direction in (("sx", "east"), ("sy", "north"))
+        ]
     return {variable.name: variable for variable in table if variable is not None}
 
 
