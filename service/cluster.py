@@ -49,13 +49,20 @@ log = logging.getLogger("oceanlidar")
 def dask_setup(worker) -> None:
     """Start an embedded cluster's worker process (a dask preload, `OWN_WORKERS`).
 
-    A Ctrl-C at the terminal reaches every process of the run: the run's own process
-    stops the sweep and closes the cluster, so the workers ignore it (each would print
-    a traceback of its event loop's KeyboardInterrupt). A worker that is a thread of
-    another process (not its main thread) leaves that process's handling alone.
+    A Ctrl-C at the terminal reaches every process of the run, and so does a SIGTERM sent
+    to its process group (a batch system's time limit, ``kill -- -PGID``, a container's
+    whole cgroup): the run's own process (or ``serve``'s) stops the sweep and closes the
+    cluster, so the workers ignore both. On a Ctrl-C each would print a traceback of its
+    event loop's KeyboardInterrupt; on a SIGTERM each would die on the spot, its
+    multiprocessing semaphores never released (the resource tracker's "leaked semaphore"
+    warning at exit) and its connections cut mid-message (a traceback from the
+    scheduler). A worker still exits when its nanny's process does, however it ends
+    (``distributed``'s parent watch). A worker that is a thread of another process (not
+    its main thread) leaves that process's handling alone.
     """
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
 
 
 def hold(start: int) -> None:

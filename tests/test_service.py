@@ -244,20 +244,28 @@ def test_interrupted_run_resumes_to_the_same_store(tmp_path, cli, shared_cluster
 
 def test_a_terminated_run_stops_as_interrupted_and_releases_its_lock(tmp_path):
     # SIGTERM (docker stop, kill, a batch system's time limit) as a Ctrl-C: by default the
-    # process ended on the spot, silent, its writer's lock left in the store
+    # process ended on the spot, silent, its writer's lock left in the store. Sent to the
+    # process group, as a batch system does (issue #27): the workers died on it, cut off
+    # mid-message (a traceback) and leaking their semaphores (the resource tracker warned)
     sweep = write(tmp_path / "sweep.yaml", SWEEP.replace("realisations: 3", "realisations: 12"))
     target = tmp_path / "terminated.zarr"
-    command = ("run", sweep, "--output", target, "--workers", 1, "--batch", 1)
+    command = ("run", sweep, "--output", target, "--workers", 2, "--batch", 1)
     held = tmp_path / "held"
     process = start_cli(
-        *command, cwd=tmp_path, env=holding(held, 1), stderr=subprocess.PIPE, text=True
+        *command,
+        cwd=tmp_path,
+        env=holding(held, 1),
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
     )
     try:
         wait_for_shards(held, 1, process)
     finally:
-        process.send_signal(signal.SIGTERM)
+        os.killpg(process.pid, signal.SIGTERM)
     _, err = process.communicate(timeout=120)
     assert process.returncode == 1 and "interrupted: run again with --resume" in err, err
+    assert "leaked semaphore" not in err and "Traceback" not in err, err
     assert not (target / LOCK_NAME).exists()
     assert 0 < Store(str(target)).completed().sum() < 48
 
