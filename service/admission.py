@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import fsspec
 
 from service import package_version
-from service.errors import BadFileError, BadOptionError, UnusableOutputError
+from service.errors import BadFileError, BadOptionError, OutputTakenError, UnusableOutputError
 from service.inputs import DEFAULT_MAX_MEMORY, MAX_FILE_BYTES, shown
 from service.stats import check_owner
 from service.store import integrity
@@ -123,7 +123,8 @@ def check_output(
     UnusableOutputError
         If the output or the statistics path holds something this run may not replace
         (the statistics of another store among them: `service.stats.check_owner`), or
-        the output is neither a folder nor a regular file (``/dev/null``).
+        the output is neither a folder nor a regular file (``/dev/null``); an
+        `OutputTakenError` if the output is occupied and neither resumed nor overwritten.
     """
     name = name or store.url
     if store.special():
@@ -136,7 +137,7 @@ def check_output(
     if not store.occupied():
         return False, [], []
     if not resume and not overwrite:
-        raise UnusableOutputError(f"{name} already exists; {rules.exists}")
+        raise OutputTakenError(f"{name} already exists; {rules.exists}")
     if overwrite:
         return False, store.removable("samples"), stats_files
     previous = store.attributes() or {}

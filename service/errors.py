@@ -3,8 +3,7 @@
 Every error a user must fix is an `InputError`, raised before anything is written; its
 message names the field, flag or file and the reason. Its kinds tell a caller what went
 wrong without reading the message, and the job server answers each with its HTTP status
-(`InputError.status`: 400, the API's answer to every input error so far; a kind that
-needs another sets its own):
+(`InputError.status`: 400, unless a kind sets its own):
 
 - `BadSweepError`: the sweep's content (its schema, a scene that does not validate, a
   parameter path, measurements, a sample index);
@@ -13,6 +12,9 @@ needs another sets its own):
 - `BadOptionError`: a command-line flag or a service request's option;
 - `UnusableOutputError`: an output that cannot take this run (exists without ``--resume``,
   another layout, not a store, outside the data root, not writable);
+- `OutputTakenError`: an output already taken, by a store or file there (without
+  ``--resume`` or ``--overwrite``) or by another unfinished job (HTTP 409: the request
+  conflicts with what is there now, not with its own content);
 - `LockedError`: an output another writer holds (an unusable output);
 - `TooBigError`: a sweep over the size or memory limits.
 
@@ -31,6 +33,7 @@ __all__ = [
     "DamagedStoreError",
     "InputError",
     "LockedError",
+    "OutputTakenError",
     "TooBigError",
     "UnusableOutputError",
 ]
@@ -57,6 +60,12 @@ class BadOptionError(InputError):
 
 class UnusableOutputError(InputError):
     """An output that cannot take this run (exists, another layout, not a store)."""
+
+
+class OutputTakenError(UnusableOutputError):
+    """An output taken: something is there already, or another unfinished job writes it."""
+
+    status = 409
 
 
 class LockedError(UnusableOutputError):

@@ -21,7 +21,7 @@ import time
 import uuid
 
 from service.admission import admit_job, parents
-from service.errors import BadFileError, InputError, LockedError, UnusableOutputError
+from service.errors import BadFileError, InputError, LockedError, OutputTakenError
 from service.inputs import shown
 from service.records import ACTIVE, Job, JobState
 from service.run import Cancel, execute
@@ -238,7 +238,7 @@ class Runner:
         ------
         InputError
             For a bad sweep or mode, or an output this job may not write (another
-            unfinished job writes it: `UnusableOutputError`).
+            unfinished job writes it: `OutputTakenError`).
         ForbiddenError
             If a resume or an overwrite names a store another owner wrote: the store's
             own record (`service.store.template.OWNER`) says who, else the job table's
@@ -261,7 +261,7 @@ class Runner:
                 raise QueueFullError(f"{self.queue_limit} jobs are queued or running; try later")
             for job in self.table.list(JobState.QUEUED) + self.table.list(JobState.RUNNING):
                 if url in (job.url, *parents(job.url)) or job.url in parents(url):
-                    raise UnusableOutputError(
+                    raise OutputTakenError(
                         f"output: job {job.id} writes {shown(job.url)}, the same store "
                         "or one inside the other"
                     )

@@ -251,7 +251,7 @@ def test_cancel_stops_the_job_and_resume_completes_it(service, reference, monkey
     client(monkeypatch, service)
     assert main(["status", job_id]) == 1
     status, refused = service.submit(text)
-    assert status == 400 and "already exists" in refused["error"]
+    assert status == 409 and "already exists" in refused["error"]
     for mode in ("resume", "overwrite"):
         status, refused = service.request(
             "POST", f"/v1/jobs?mode={mode}", text.encode(), token=OTHER_TOKEN
@@ -638,15 +638,17 @@ def test_one_service_a_table_and_no_store_inside_another(tmp_path):
         batch_size=1,
     )
     runner.submit(sweep("runs/a.zarr"), owner="alice")
-    for output, reason in [
-        ("runs/a.zarr", "the same store or one inside the other"),
-        ("runs/a.zarr/image.zarr", "the same store or one inside the other"),
-        ("runs", "the same store or one inside the other"),
-        ("done.zarr/b/c.zarr", "lies inside the store 'done.zarr'"),
-        ('"a\\0b.zarr"', "control characters"),
+    # a conflict with another job is 409 (issue #27), a path the service refuses 400
+    for output, reason, status in [
+        ("runs/a.zarr", "the same store or one inside the other", 409),
+        ("runs/a.zarr/image.zarr", "the same store or one inside the other", 409),
+        ("runs", "the same store or one inside the other", 409),
+        ("done.zarr/b/c.zarr", "lies inside the store 'done.zarr'", 400),
+        ('"a\\0b.zarr"', "control characters", 400),
     ]:
-        with pytest.raises(InputError, match=f"^output: .*{re.escape(reason)}"):
+        with pytest.raises(InputError, match=f"^output: .*{re.escape(reason)}") as refused:
             runner.submit(sweep(output), owner="bob")
+        assert refused.value.status == status, output
     assert len(table.list()) == 1
     assert runner.submit(sweep("runs/b.zarr"), owner="bob").state == "queued"
 
