@@ -2,7 +2,9 @@
 
 `open_dataset` is `xarray.open_zarr` with the small per-sample variables (labels, swept
 parameters, completion flags, signal means) loaded eagerly, so that boolean selection and
-``groupby`` work without ``.compute()``, and CF attributes typed like their variable.
+``groupby`` work without ``.compute()``, CF attributes typed like their variable, and no
+fill value on a dimension's coordinate (CF 2.5.1; zarr keeps one for every array, and a
+netCDF export would write it).
 `SampleDataset` is a map-style dataset in PyTorch's protocol (``__len__``,
 ``__getitem__``, and ``__getitems__`` for whole batches) returning numpy arrays, without
 depending on torch: it reads a sample's chunks straight from their shard files (one ranged
@@ -57,6 +59,9 @@ def open_dataset(url: str, *, storage_options: dict | None = None) -> xr.Dataset
         for name in TYPED_ATTRIBUTES:
             if name in variable.attrs:
                 variable.attrs[name] = np.asarray(variable.attrs[name], dtype=variable.dtype)
+    for name in ds.dims:
+        if name in ds.coords:  # a coordinate has no missing values (the detection's pfa)
+            ds.variables[name].encoding["_FillValue"] = None
     return ds
 
 

@@ -326,6 +326,8 @@ def _dataset(ds, pairs, results, realisations, test) -> xr.Dataset:
     detection.attrs.update(
         title=ds.attrs.get("title", "") + " detection study",
         Conventions=CONVENTIONS,
+        source=f"oceanlidar {package_version()}",
+        history=f"oceanlidar {package_version()} detection study of {ds.attrs.get('title', '')}",
         oceanlidar_dataset=DATASET_KIND,
         sweep_sha256=ds.attrs.get("sweep_sha256", ""),
         oceanlidar_version=package_version(),

@@ -158,6 +158,8 @@ def _template(ds: xr.Dataset, source: Store) -> xr.Dataset:
     stats.attrs.update(
         title=ds.attrs.get("title", "") + " statistics",
         Conventions=CONVENTIONS,
+        source=f"oceanlidar {package_version()}",
+        history=f"oceanlidar {package_version()} statistics of {source.name}",
         sweep_sha256=ds.attrs.get("sweep_sha256", ""),
         samples_store=source.name,
         oceanlidar_version=package_version(),

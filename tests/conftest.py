@@ -68,6 +68,21 @@ sweep:
 """A sweep of tiny samples (a sphere and no target) for service tests."""
 
 
+def cf_failures(dataset, path):
+    """The CF-1.10 checks `dataset` fails once exported to netCDF at `path`: (name, messages)."""
+    from compliance_checker.runner import CheckSuite
+
+    dataset.to_netcdf(path)
+    suite = CheckSuite()
+    suite.load_all_available_checkers()
+    results = suite.run_all(suite.load_dataset(str(path)), ["cf:1.10"], skip_checks=[])
+    return [
+        (result.name, result.msgs)
+        for result in results["cf:1.10"][0]
+        if result.value[0] < result.value[1]
+    ]
+
+
 def free_port():
     """A TCP port free on 127.0.0.1 now."""
     with socket.socket() as probe:

@@ -3,10 +3,11 @@
 import numpy as np
 import pytest
 import xarray as xr
-from conftest import TINY_SCENE, on_cluster, same_values
+from conftest import TINY_SCENE, cf_failures, on_cluster, same_values
 from scipy.stats import multivariate_normal, norm, poisson
 
 from service.cli import main
+from service.dataset import open_dataset
 from service.detect import pair_points
 from service.errors import InputError
 from service.store.location import Store, consolidated_v3
@@ -279,6 +280,13 @@ def test_detection_dataset_layout(detection):
             pfa, pd = pfa[~np.isnan(pfa)], pd[~np.isnan(pd)]
             assert (pfa[0], pd[0], pfa[-1], pd[-1]) == (0, 0, 1, 1)
             assert np.trapezoid(pd, pfa) == pytest.approx(float(det["auc"][p, d]))
+
+
+def test_a_cf_checker_passes_the_detection_export(detection, tmp_path):
+    # issue #27: pfa, a coordinate, had a _FillValue (NaN), which CF forbids on one
+    folder, _ = detection
+    exported = open_dataset(str(folder / "small.detect.zarr"))
+    assert cf_failures(exported, tmp_path / "detect.nc") == []
 
 
 def test_scores_compare_the_samples_of_one_realisation(detection):

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import xarray as xr
 import zarr
-from conftest import TINY_SCENE
+from conftest import TINY_SCENE, cf_failures
 
 from service.dataset import SampleDataset, open_dataset
 from service.errors import DamagedStoreError, InputError
@@ -299,21 +299,11 @@ def test_open_dataset_selects_by_gate_and_groups_by_swept_parameters(filled):
     assert stats["target_depth"].attrs["parameter"] == "target.depth"
 
 
-def test_a_cf_checker_passes_a_small_export(filled, tmp_path):
-    from compliance_checker.runner import CheckSuite
-
+def test_a_cf_checker_passes_a_small_export_and_its_statistics(filled, tmp_path):
     _, url = filled
-    path = tmp_path / "export.nc"
-    open_dataset(url).to_netcdf(path)
-    suite = CheckSuite()
-    suite.load_all_available_checkers()
-    results = suite.run_all(suite.load_dataset(str(path)), ["cf:1.10"], skip_checks=[])
-    failed = [
-        (result.name, result.msgs)
-        for result in results["cf:1.10"][0]
-        if result.value[0] < result.value[1]
-    ]
-    assert failed == []
+    assert cf_failures(open_dataset(url), tmp_path / "export.nc") == []
+    stats = write_statistics(Store(url))  # issue #27: it had no history attribute
+    assert cf_failures(open_dataset(stats.url), tmp_path / "stats.nc") == []
 
 
 def test_the_training_reader_returns_the_stores_samples(filled, tmp_path):
