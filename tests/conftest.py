@@ -83,6 +83,13 @@ def cf_failures(dataset, path):
     ]
 
 
+def store_lock(store) -> Path:
+    """The writer's lock file of the local store at `store` (beside it)."""
+    from service.store.lock import lock_file
+
+    return Path(lock_file(str(store)))
+
+
 def free_port():
     """A TCP port free on 127.0.0.1 now."""
     with socket.socket() as probe:

@@ -86,20 +86,20 @@ def test_a_sweep_to_s3_resumes_to_the_bytes_of_a_local_run(s3, tmp_path, cli, sh
     assert stats["samples"].values.tolist() == [3, 3]
     # the run's lock is gone, and the statistics were moved into place whole
     fs = fsspec.filesystem("s3", **s3)
-    assert fs.find("oceanlidar/run.zarr/oceanlidar.lock") == []
+    assert fs.find("oceanlidar/run.zarr.lock") == []
     assert [path for path in fs.ls("oceanlidar") if "partial" in path] == []
 
 
 def test_a_second_writer_is_refused_on_object_storage(s3, tmp_path, capsys):
     from service.cli import main
-    from service.store.lock import LOCK_NAME
+    from service.store.lock import lock_file
 
     url = "s3://oceanlidar/locked.zarr"
     sweep = tmp_path / "s3.yaml"
     sweep.write_text(SWEEP)
     fs = fsspec.filesystem("s3", **s3)
     with Store(url, s3).lock():
-        assert fs.exists(f"oceanlidar/locked.zarr/{LOCK_NAME}")
+        assert fs.exists(lock_file("oceanlidar/locked.zarr"))
         command = ["run", str(sweep), "--output", url, "--storage-options", json.dumps(s3)]
         assert main(command) == 2
     err = capsys.readouterr().err

@@ -9,16 +9,16 @@ import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
 import xarray as xr
-from conftest import TINY_SCENE, TINY_SWEEP, on_cluster, start_cli
+from conftest import TINY_SCENE, TINY_SWEEP, on_cluster, start_cli, store_lock
 
 from service.cli import main
 from service.store import integrity, lock, shards
 from service.store.location import KIND, Store
-from service.store.lock import LOCK_NAME
 from service.store.template import create_store
 from workers.render import render_arrays
 
@@ -196,7 +196,7 @@ def test_overwrite_replaces_a_store_and_its_statistics(work, cli, shared_cluster
     result = cli(*command, cwd=work)
     assert result.returncode == 0, result.stderr
     assert snapshot(work / "one.zarr") == before  # same sweep, same bytes
-    assert not (work / "one.zarr" / LOCK_NAME).exists()
+    assert not store_lock(work / "one.zarr").exists()
     assert sorted(p.name for p in work.iterdir()) == ["one.stats.zarr", "one.yaml", "one.zarr"]
 
 
@@ -516,25 +516,28 @@ def test_damaged_statistics_are_named_and_written_again(
     assert main(["plot", "t.zarr", "--output", "p.png"]) == 0
 
 
-def write_lock(work, **holder):
+def write_lock(work, at=None, **holder):
     record = {"host": socket.gethostname(), "since": "2026-01-01T00:00:00+00:00", **holder}
-    (work / "one.zarr" / LOCK_NAME).write_text(json.dumps({"token": "x", **record}))
+    (at or store_lock(work / "one.zarr")).write_text(json.dumps({"token": "x", **record}))
 
 
-def test_a_locked_store_is_refused_and_a_dead_holders_lock_taken_over(work, capsys):
-    write_lock(work, host="elsewhere", pid=1)
+@pytest.mark.parametrize("legacy", [False, True], ids=["beside", "in-the-store-as-before"])
+def test_a_locked_store_is_refused_and_a_dead_holders_lock_taken_over(work, capsys, legacy):
+    # a lock an older version left in the store (issue #27 moved it beside) still counts
+    at = work / "one.zarr" / lock.LEGACY_LOCK_NAME if legacy else store_lock(work / "one.zarr")
+    write_lock(work, at, host="elsewhere", pid=1)
     before = snapshot(work)
     for command in (["run", str(work / "one.yaml"), "--overwrite"], ["stats", "one.zarr"]):
         assert main([*command[:1], *(str(work / c) for c in command[1:2]), *command[2:]]) == 2
         err = capsys.readouterr().err
         assert "locked by another run (host elsewhere" in err
-        assert str(work / "one.zarr" / LOCK_NAME) in err
+        assert str(at) in err
         assert snapshot(work) == before
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
-    write_lock(work, pid=dead.pid)
+    write_lock(work, at, pid=dead.pid)
     assert main(["stats", str(work / "one.zarr")]) == 0
-    assert not (work / "one.zarr" / LOCK_NAME).exists()
+    assert not at.exists() and not store_lock(work / "one.zarr").exists()
 
 
 def test_a_stale_lock_on_a_read_only_file_system_is_refused_cleanly(work, capsys, monkeypatch):
@@ -788,16 +791,16 @@ def test_a_lock_of_the_same_claim_is_taken_over_from_any_host(tmp_path):
     url = tmp_path / "claimed.zarr"
     url.mkdir()
     held = {"host": "an-earlier-pod", "pid": 1, "token": "gone", "since": "?", "claim": "job a"}
-    (url / LOCK_NAME).write_text(json.dumps(held))
+    store_lock(url).write_text(json.dumps(held))
     for claim in (None, "job b"):
         with pytest.raises(LockedError, match="locked by another run"):
             with Store(str(url)).lock(claim=claim):
                 pass
-        assert json.loads((url / LOCK_NAME).read_text()) == held
+        assert json.loads(store_lock(url).read_text()) == held
     with Store(str(url)).lock(claim="job a") as token:
-        holder = json.loads((url / LOCK_NAME).read_text())
+        holder = json.loads(store_lock(url).read_text())
         assert holder["token"] == token and holder["claim"] == "job a"
-    assert not (url / LOCK_NAME).exists()
+    assert not store_lock(url).exists()
 
 
 def test_a_stale_lock_is_taken_over_by_one_run_only(tmp_path, monkeypatch):
@@ -812,7 +815,7 @@ def test_a_stale_lock_is_taken_over_by_one_run_only(tmp_path, monkeypatch):
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
     dead.wait()
     stale = {"host": socket.gethostname(), "pid": dead.pid, "token": "gone", "since": "?"}
-    (url / LOCK_NAME).write_text(json.dumps(stale))
+    store_lock(url).write_text(json.dumps(stale))
     both_looked = threading.Barrier(2, timeout=10)
     is_stale = lock._is_stale
 
@@ -841,8 +844,8 @@ def test_a_stale_lock_is_taken_over_by_one_run_only(tmp_path, monkeypatch):
         run.join(timeout=30)
     assert sorted(kind for kind, _ in outcomes) == ["held", "refused"], outcomes
     assert "locked by another run" in dict(outcomes)["refused"]
-    assert not (url / LOCK_NAME).exists()
-    assert not (url / (LOCK_NAME + lock.TAKEOVER_SUFFIX)).exists()
+    assert not store_lock(url).exists()
+    assert not Path(f"{store_lock(url)}{lock.TAKEOVER_SUFFIX}").exists()
 
 
 def test_a_cluster_slow_to_shut_down_does_not_fail_a_finished_run(monkeypatch, caplog):

@@ -18,11 +18,17 @@ import urllib.parse
 import urllib.request
 
 import pytest
-from conftest import TINY_SWEEP, assert_same_samples, cli_command, free_port, on_cluster
+from conftest import (
+    TINY_SWEEP,
+    assert_same_samples,
+    cli_command,
+    free_port,
+    on_cluster,
+    store_lock,
+)
 
 from service.cli import main
 from service.store.location import KIND, Store
-from service.store.lock import LOCK_NAME
 from service.store.template import OWNER
 
 TOKEN = "s3cret-token"
@@ -247,7 +253,7 @@ def test_cancel_stops_the_job_and_resume_completes_it(service, reference, monkey
     time.sleep(2.0)  # nothing runs on after the cancel
     assert (Store(job["url"]).completed() == complete).all()
     assert 4 <= complete.sum() < 2 * LONG
-    assert not os.path.exists(f"{job['url']}/{LOCK_NAME}")
+    assert not store_lock(job["url"]).exists()
     client(monkeypatch, service)
     assert main(["status", job_id]) == 1
     status, refused = service.submit(text)
@@ -300,7 +306,7 @@ def test_sigkill_mid_job_then_restart_resumes(reference, tmp_path, monkeypatch, 
         assert 6 <= Store(url).completed().sum() < 2 * LONG
         # the server comes back as another process on another host (a restarted pod): the
         # lock its job left still names the job, and is taken over
-        lock = tmp_path / "data" / "killed.zarr" / LOCK_NAME
+        lock = store_lock(tmp_path / "data" / "killed.zarr")
         holder = json.loads(lock.read_text())
         lock.write_text(json.dumps({**holder, "host": "an-earlier-pod", "pid": 1}))
         # a job killed as it started, before its overwrite had replaced the old store

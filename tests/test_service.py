@@ -18,6 +18,7 @@ from conftest import (
     ring_around,
     same_values,
     start_cli,
+    store_lock,
     wait_for_shards,
 )
 from numpy.testing import assert_allclose
@@ -26,7 +27,6 @@ from service.cli import main
 from service.cluster import dask_client
 from service.run import execute, task_batches
 from service.store.location import Store
-from service.store.lock import LOCK_NAME
 from service.store.template import create_store
 from service.sweep import load_sweep, parse_sweep
 from workers.labels import RING_FRACTION
@@ -266,7 +266,7 @@ def test_a_terminated_run_stops_as_interrupted_and_releases_its_lock(tmp_path):
     _, err = process.communicate(timeout=120)
     assert process.returncode == 1 and "interrupted: run again with --resume" in err, err
     assert "leaked semaphore" not in err and "Traceback" not in err, err
-    assert not (target / LOCK_NAME).exists()
+    assert not store_lock(target).exists()
     assert 0 < Store(str(target)).completed().sum() < 48
 
 

@@ -8,6 +8,7 @@ import pickle
 import shutil
 import threading
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -304,6 +305,17 @@ def test_a_cf_checker_passes_a_small_export_and_its_statistics(filled, tmp_path)
     assert cf_failures(open_dataset(url), tmp_path / "export.nc") == []
     stats = write_statistics(Store(url))  # issue #27: it had no history attribute
     assert cf_failures(open_dataset(stats.url), tmp_path / "stats.nc") == []
+
+
+def test_a_store_whose_lock_is_held_is_listed_without_warnings(filled):
+    # issue #27: the lock was a file in the store, and zarr warns of every file there that
+    # is not part of the hierarchy whenever it lists the store's members
+    _, url = filled
+    with Store(url).lock(), warnings.catch_warnings():
+        warnings.simplefilter("error")
+        members = dict(zarr.open_group(url, mode="r", use_consolidated=False).members())
+        unconsolidated = xr.open_zarr(url, consolidated=False)
+    assert "image" in members and "image" in unconsolidated
 
 
 def test_the_training_reader_returns_the_stores_samples(filled, tmp_path):

@@ -27,7 +27,7 @@ import zarr
 
 from service.errors import BadOptionError, UnusableOutputError
 from service.inputs import shown
-from service.store.lock import LOCK_NAME, check_workers_see, writer_lock
+from service.store.lock import LEGACY_LOCK_NAME, check_workers_see, writer_lock
 
 __all__ = ["KIND", "Store", "consolidated_v3"]
 
@@ -42,13 +42,10 @@ def consolidated_v3():
 
     zarr-python warns that consolidated metadata is not yet part of the v3 specification;
     we keep it because opening a store then costs one read (it matters on object storage),
-    and zarr-python, which we pin, reads it. Consolidating lists the store, where zarr
-    notices the writer's lock (`service.store.lock.writer_lock`), which is not part of the
-    hierarchy by design.
+    and zarr-python, which we pin, reads it.
     """
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="Consolidated metadata is currently not part")
-        warnings.filterwarnings("ignore", message=f"Object at {LOCK_NAME} is not recognized")
         yield
 
 
@@ -204,8 +201,12 @@ class Store:
                     yield full[len(root) :]
 
     def occupied(self) -> bool:
-        """Whether the store holds anything besides a writer's lock (the first file tells)."""
-        return any(name != LOCK_NAME for name in self._walk(self.path))
+        """Whether the store holds anything besides an older version's writer's lock.
+
+        The first file tells (`service.store.lock.LEGACY_LOCK_NAME`: a run of this version
+        keeps its lock beside the store).
+        """
+        return any(name != LEGACY_LOCK_NAME for name in self._walk(self.path))
 
     def special(self) -> bool:
         """Whether something that is neither a folder nor a regular file is at the URL."""
@@ -248,8 +249,8 @@ class Store:
         Returns
         -------
         list of str
-            Paths relative to the store, the writer's lock excluded; empty if nothing is
-            there.
+            Paths relative to the store, an older version's writer's lock excluded; empty
+            if nothing is there.
 
         Raises
         ------
@@ -277,12 +278,12 @@ class Store:
         )
         files = []
         for name in self._walk(self.path):  # stopped at the first file not listed
-            if not listed.fullmatch(name) and name != LOCK_NAME:
+            if not listed.fullmatch(name) and name != LEGACY_LOCK_NAME:
                 raise UnusableOutputError(
                     f"{self.url} holds {shown(name)}, which the store's metadata does "
                     "not list; refusing to delete it (move that file away first)"
                 )
-            if name != LOCK_NAME:
+            if name != LEGACY_LOCK_NAME:
                 files.append(name)
         return sorted(files)
 
@@ -294,7 +295,7 @@ class Store:
         if self.local:
             folders = {os.path.dirname(f"{self.path}/{name}") for name in files}
             for folder in sorted(folders, key=len, reverse=True):
-                with contextlib.suppress(OSError):  # not empty: the lock, or a folder above
+                with contextlib.suppress(OSError):  # not empty: a folder above
                     os.rmdir(folder)
 
     def move_to(self, target: Store) -> None:

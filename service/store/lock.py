@@ -1,8 +1,12 @@
 """The writer's lock: one run (or ``stats``) writes a store at a time.
 
-The lock is the file `LOCK_NAME` in the store, created exclusively; the workers check that
-they see it (`check_workers_see`) before anything is rendered. Both take the
-`service.store.location.Store` (`Store.lock`, `Store.check_workers_see`).
+The lock is a file beside the store (`lock_file`: ``run.zarr.lock`` for ``run.zarr``),
+created exclusively; the workers check that they see it (`check_workers_see`) before
+anything is rendered. Both take the `service.store.location.Store` (`Store.lock`,
+`Store.check_workers_see`). It is kept out of the store because zarr lists a store's
+folder to find its members and warns of every file there that is none (``Object at
+oceanlidar.lock is not recognized``), while a run held the lock or after one died holding
+it; a lock that an older version left in the store (`LEGACY_LOCK_NAME`) is still honoured.
 """
 
 from __future__ import annotations
@@ -18,16 +22,28 @@ import uuid
 from service.errors import LockedError, UnusableOutputError
 from service.inputs import shown
 
-__all__ = ["LOCK_NAME", "check_workers_see", "writer_lock"]
+__all__ = ["LEGACY_LOCK_NAME", "LOCK_SUFFIX", "check_workers_see", "lock_file", "writer_lock"]
 
-LOCK_NAME = "oceanlidar.lock"
-"""The writer's lock, a file in the store (`writer_lock`)."""
+LOCK_SUFFIX = ".lock"
+"""The writer's lock of a store is the file named as the store with this suffix, beside it."""
+
+LEGACY_LOCK_NAME = "oceanlidar.lock"
+"""The writer's lock where earlier versions kept it: a file in the store (zarr warned of it).
+One left there is taken over if stale (`_is_stale`), else it refuses the writer."""
 
 TAKEOVER_SUFFIX = ".takeover"
 """Suffix of the guard file held while a stale lock is removed (`_remove_stale`)."""
 
 TAKEOVER_WAIT = 5.0
 """Longest wait for another run's takeover guard, s."""
+
+
+def lock_file(path: str) -> str:
+    """The writer's lock of the store at `path` (a path or an fsspec path): the file beside it.
+
+    ``/data/run.zarr`` → ``/data/run.zarr.lock``; ``bucket/run.zarr`` → ``bucket/run.zarr.lock``.
+    """
+    return path.rstrip("/") + LOCK_SUFFIX
 
 
 def check_workers_see(store, token: str) -> None:
@@ -50,7 +66,7 @@ def check_workers_see(store, token: str) -> None:
     """
     fs, path = store.fs, store.path
     with store.errors():
-        if _holder(fs, f"{path}/{LOCK_NAME}").get("token") != token:
+        if _holder(fs, lock_file(path)).get("token") != token:
             raise UnusableOutputError(
                 f"the workers do not see the store {shown(store.url)} that the runner created "
                 "(another machine's disk, or a store in one process's memory?): write to "
@@ -146,9 +162,11 @@ def _remove_stale(fs, lock: str, holder: dict, record: dict) -> None:
 def writer_lock(store, *, claim: str | None = None):
     """Hold the store's writer lock: one run (or ``stats``) writes a store at a time.
 
-    The lock is the file `LOCK_NAME` in the store, created only if absent (an exclusive
-    create: ``O_EXCL`` on a file system, a conditional ``If-None-Match`` put on object
-    storage), holding the holder's host, process id and start time. It is removed on exit.
+    The lock is the file beside the store (`lock_file`), created only if absent (an
+    exclusive create: ``O_EXCL`` on a file system, a conditional ``If-None-Match`` put on
+    object storage), holding the holder's host, process id and start time. It is removed
+    on exit. A lock an older version left in the store (`LEGACY_LOCK_NAME`) is honoured
+    as this one is, once this one is held: deleted if stale, else the writer is refused.
 
     A lock left by a process that died on this machine, or one holding the same `claim`
     (`_is_stale`), is taken over, by one run only when several find it at once
@@ -176,7 +194,7 @@ def writer_lock(store, *, claim: str | None = None):
         If the store's place cannot be written.
     """
     fs, path = store.fs, store.path
-    lock = f"{path}/{LOCK_NAME}"
+    lock = lock_file(path)
     token = uuid.uuid4().hex
     record = {
         "host": socket.gethostname(),
@@ -201,12 +219,9 @@ def writer_lock(store, *, claim: str | None = None):
                 with store.errors():  # a read-only file system refuses the takeover's guard
                     _remove_stale(fs, lock, holder, record)
                 continue
-            raise LockedError(
-                f"{store.url} is locked by another run (host {holder.get('host', '?')}, process "
-                f"{holder.get('pid', '?')}, since {holder.get('since', '?')}); wait for it, "
-                f"or, if no run is writing there any more, delete {lock} and try again"
-            ) from None
+            raise _locked(store, holder, lock) from None
     try:
+        _clear_legacy(store, claim)
         yield token
     finally:
         if _holder(fs, lock).get("token") == token:
@@ -214,3 +229,33 @@ def writer_lock(store, *, claim: str | None = None):
         if created and store.local:
             with contextlib.suppress(OSError):  # holds a store now
                 os.rmdir(path)
+
+
+def _locked(store, holder: dict, lock: str) -> LockedError:
+    """The refusal of a writer: who holds `lock` since when, and the file to delete."""
+    return LockedError(
+        f"{store.url} is locked by another run (host {holder.get('host', '?')}, process "
+        f"{holder.get('pid', '?')}, since {holder.get('since', '?')}); wait for it, "
+        f"or, if no run is writing there any more, delete {lock} and try again"
+    )
+
+
+def _clear_legacy(store, claim: str | None) -> None:
+    """Honour a lock an older version left in the store (`LEGACY_LOCK_NAME`).
+
+    Called holding the lock beside the store, so no writer of this version races for it:
+    a stale one (`_is_stale`) is deleted, any other refuses the writer.
+
+    Raises
+    ------
+    LockedError
+        If the old lock's holder may still be writing.
+    """
+    fs, legacy = store.fs, f"{store.path}/{LEGACY_LOCK_NAME}"
+    with store.errors():
+        if not fs.exists(legacy):
+            return
+        holder = _holder(fs, legacy)
+        if not _is_stale(holder, claim):
+            raise _locked(store, holder, legacy)
+        fs.rm(legacy)
