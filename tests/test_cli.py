@@ -14,6 +14,7 @@ import pytest
 import xarray as xr
 import yaml
 from conftest import ROOT, TINY_SWEEP, run_cli, start_cli
+from dask.utils import format_time
 
 from service import package_version, plots
 from service.cli import main
@@ -65,8 +66,36 @@ def test_the_schema_knows_the_scene_and_its_units():
     assert target["depth"]["units"] == "m" and target["x"]["units"] == "m"
 
 
-def test_run_time_counts_each_scene_once_and_every_sample():
-    assert run_time(samples=10, scenes=2, setup=1.0, per_sample=0.5, workers=2) == 3.5
+def test_run_time_counts_the_start_once_each_scene_once_and_every_sample():
+    times = {"setup": 1.0, "per_sample": 0.5, "workers": 2, "start": 4.0}
+    assert run_time(samples=10, scenes=2, **times) == 4.0 + 3.5
+
+
+def test_validate_counts_the_clusters_start_and_the_compilation(tmp_path, capsys, monkeypatch):
+    # issue #27: the estimate left out the cluster's start and the kernels' compilation
+    # (the first render's extra time was all counted as the scene's setup, over workers)
+    import service.cli.run_commands as commands
+
+    monkeypatch.setattr(commands, "_timed_render", lambda plan, point: (2.0, 1.0, 0.5))
+    assert main(["validate", str(tiny(tmp_path)), "--workers", "2"]) == 0
+    out = capsys.readouterr().out
+    # 4 samples of 2 scenes on 2 workers: start + compilation + (2 x 1 s + 4 x 0.5 s) / 2
+    total = format_time(commands.CLUSTER_START + 2.0 + 2.0)
+    assert f"  run time: about {total} on 2 worker(s)" in out, out
+    assert f"the cluster starts in about {format_time(commands.CLUSTER_START)}" in out, out
+    assert "the renderer compiles in 2.00 s" in out, out
+
+
+def test_the_timed_render_tells_compilation_from_setup_and_sample(tmp_path, monkeypatch):
+    # three renders of the first frame: cold, set up, caches emptied (kernels compiled)
+    import service.cli.run_commands as commands
+
+    clock = iter([0.0, 9.0, 10.0, 11.0, 20.0, 24.0])  # renders of 9, 1 and 4 s
+    monkeypatch.setattr(commands.time, "perf_counter", lambda: next(clock))
+    cleared = []
+    monkeypatch.setattr(commands, "clear_all", lambda: cleared.append(True))
+    plan = load_sweep(tiny(tmp_path))
+    assert commands._timed_render(plan, 0) == (5.0, 3.0, 1.0) and cleared == [True]
 
 
 def test_validate_estimates_the_run_and_shows_the_resolved_scene(tmp_path, capsys):

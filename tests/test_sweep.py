@@ -16,6 +16,7 @@ from service.store import template
 from service.store.location import Store
 from service.store.template import create_store
 from service.sweep import load_sweep, memory_estimate, parse_sweep
+from workers.caches import clear_all
 from workers.render import render
 from workers.scene import Scene
 
@@ -411,14 +412,6 @@ def test_memory_is_estimated_before_anything_is_built(tmp_path, capsys):
                 main(["preview", str(sweep), *flags, "--output", picture])
 
 
-def _empty_worker_caches():
-    for module in list(sys.modules.values()):
-        if getattr(module, "__name__", "").startswith("workers."):
-            for value in list(vars(module).values()):
-                if callable(getattr(value, "cache_clear", None)):
-                    value.cache_clear()
-
-
 @pytest.mark.parametrize(
     "sections",
     [
@@ -464,7 +457,7 @@ def test_the_memory_estimate_bounds_the_render_from_above(sections):
     render(Scene.model_validate({"receiver": {"pixels": 8}}), seed=0)  # a process's once
     scene = Scene.model_validate(sections)
     estimate = memory_estimate(scene.model_dump(mode="json"))
-    _empty_worker_caches()
+    clear_all()
     tracemalloc.start()
     try:
         render(scene, seed=1)

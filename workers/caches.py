@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import sys
 import threading
 from collections import OrderedDict
 from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["held_bytes", "lru_bytes"]
+__all__ = ["clear_all", "held_bytes", "lru_bytes"]
 
 
 class CacheInfo(NamedTuple):
@@ -109,3 +110,17 @@ def lru_bytes(limit: int):
         return cached
 
     return decorate
+
+
+def clear_all() -> None:
+    """Empty every cache of the renderer: the next render sets its scene up from scratch.
+
+    Every function of a loaded ``workers.*`` module that has ``cache_clear``
+    (`functools.lru_cache`, `functools.cache`, `lru_bytes`). numba's compiled kernels are
+    no such cache: they stay compiled.
+    """
+    for module in list(sys.modules.values()):
+        if getattr(module, "__name__", "").startswith("workers."):
+            for value in list(vars(module).values()):
+                if callable(getattr(value, "cache_clear", None)):
+                    value.cache_clear()

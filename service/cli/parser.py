@@ -224,7 +224,7 @@ def parser() -> argparse.ArgumentParser:
     validate.add_argument(
         "--no-estimate",
         action="store_true",
-        help="skip the timed render of sample 0's first frame (and the run-time estimate)",
+        help="skip the timed renders of sample 0's first frame (and the run-time estimate)",
     )
     _limits(validate)
 

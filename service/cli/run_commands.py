@@ -31,6 +31,7 @@ from service.store.integrity import invalid_values
 from service.store.layout import shard_size
 from service.store.location import Store
 from service.sweep import Plan
+from workers.caches import clear_all
 from workers.cascades import describe
 from workers.render import render_arrays
 from workers.section import SceneError
@@ -44,6 +45,11 @@ SHOWN_SEAS = 3
 """Most distinct seas whose resolved shares `validate` prints."""
 SHOWN_PROBLEMS = 20
 """Most samples named under one reason in a report; the rest are counted."""
+CLUSTER_START = 4.0
+"""Seconds an embedded cluster takes before its workers can render: the scheduler and the
+worker processes started, each importing the renderer (numpy, scipy, numba) for its first
+task. ``benchmarks/cluster_start.py``: medians 3.4 s with 1 worker, 4.1 s with 2, on the
+shared 2-core machine under load (2026-11-25); `validate`'s estimate counts it once."""
 
 
 def memory_limit(args) -> float:
@@ -87,8 +93,10 @@ def plan_lines(
     ]
 
 
-def run_time(*, samples: int, scenes: int, setup: float, per_sample: float, workers: int):
-    """Estimated seconds of a run: every scene's setup once, then every sample, over workers.
+def run_time(
+    *, samples: int, scenes: int, setup: float, per_sample: float, workers: int, start: float
+):
+    """Estimated seconds of a run: its start once, every scene's setup, every sample.
 
     Parameters
     ----------
@@ -99,17 +107,23 @@ def run_time(*, samples: int, scenes: int, setup: float, per_sample: float, work
         Seconds of one scene's setup (its frames' geometry, kriging system) and of one
         sample once set up.
     workers : int
-        Worker processes rendering in parallel.
+        Worker processes rendering in parallel (the setups and samples are shared out).
+    start : float
+        Seconds paid once before any sample, by every worker at the same time: the
+        cluster's start (`CLUSTER_START`) and the compilation of the renderer's kernels
+        (numba; loaded from its cache once compiled).
     """
-    return (scenes * setup + samples * per_sample) / max(workers, 1)
+    return start + (scenes * setup + samples * per_sample) / max(workers, 1)
 
 
-def _timed_render(plan: Plan, point: int = 0) -> tuple[float, float]:
-    """Seconds of a scene's setup and of one sample, from renders of `point`'s first frame.
+def _timed_render(plan: Plan, point: int = 0) -> tuple[float, float, float]:
+    """Seconds of the renderer's compilation, a scene's setup and one sample.
 
-    The first frame of the point's first sample is rendered twice (the second time set up)
-    and both times are scaled by the number of frames: each frame has its own geometry and
-    its own light.
+    The first frame of `point`'s first sample is rendered three times: first as a fresh
+    worker renders it (its kernels compiled, or loaded from numba's cache, the scene set
+    up), then set up, then with every cache of the renderer emptied (set up again, the
+    kernels still compiled). The setup and the sample are scaled by the number of frames
+    (each frame has its own geometry and its own light), the compilation is not.
     """
     sample = plan.sample(point * plan.realisations)
     sequence = sample.scene.sequence
@@ -117,19 +131,22 @@ def _timed_render(plan: Plan, point: int = 0) -> tuple[float, float]:
         update={"sequence": sequence.model_copy(update={"frames": 1})}
     )
     timings = []
-    for _ in range(2):
+    for cleared in (False, False, True):
+        if cleared:
+            clear_all()
         started = time.perf_counter()
         try:
             rendered = render_arrays(first_frame, seed=sample.seed)
         except SceneError as error:
             raise BadSweepError(f"{sample.describe()}: {error}") from None
-        timings.append(sequence.frames * (time.perf_counter() - started))
+        timings.append(time.perf_counter() - started)
         # what `run` would refuse to write (every sample of the scene alike, as a rule)
         reason = invalid_values(rendered, first_frame)
         if reason is not None:
             raise BadSweepError(f"{sample.describe()}: renders invalid values: {reason}")
-    first, second = timings
-    return max(first - second, 0.0), second
+    first, set_up, again = timings
+    frames = sequence.frames
+    return max(first - again, 0.0), frames * max(again - set_up, 0.0), frames * set_up
 
 
 def _sea_lines(plan: Plan) -> list[str]:
@@ -162,9 +179,10 @@ def cmd_validate(args) -> int:
     for point, scene in enumerate(plan.scenes):
         points.setdefault(scene.transport.method, []).append(point)
     timed = {method: _timed_render(plan, where[0]) for method, where in points.items()}
+    compiled = sum(compile_time for compile_time, _, _ in timed.values())  # kernels apart
     setup, per_sample = (
         sum(timed[method][i] * len(where) for method, where in points.items()) / len(plan.scenes)
-        for i in (0, 1)
+        for i in (1, 2)
     )
     workers = args.workers or os.cpu_count() or 1
     seconds = run_time(
@@ -173,14 +191,17 @@ def cmd_validate(args) -> int:
         setup=setup,
         per_sample=per_sample,
         workers=workers,
+        start=CLUSTER_START + compiled,
     )
     renders = " and ".join(
         f"{format_time(sample)}{f' with {method}' if len(timed) > 1 else ''}"
-        for method, (_, sample) in timed.items()
+        for method, (_, _, sample) in timed.items()
     )
     print(
-        f"  run time: about {format_time(seconds)} on {workers} worker(s) (a sample renders "
-        f"in {renders}, a scene's setup takes {format_time(setup)})"
+        f"  run time: about {format_time(seconds)} on {workers} worker(s) (the cluster "
+        f"starts in about {format_time(CLUSTER_START)}, the renderer compiles in "
+        f"{format_time(compiled)}, a scene's setup takes {format_time(setup)}, a sample "
+        f"renders in {renders})"
     )
     return EXIT_OK
 
