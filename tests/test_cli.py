@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import xarray as xr
 import yaml
-from conftest import ROOT, TINY_SWEEP, run_cli, start_cli
+from conftest import ROOT, TINY_SWEEP, cli_command, run_cli, start_cli
 from dask.utils import format_time
 
 from service import package_version, plots
@@ -45,6 +45,23 @@ def test_version(capsys):
         main(["--version"])
     assert stop.value.code == 0
     assert capsys.readouterr().out == f"oceanlidar {package_version()}\n"
+
+
+@pytest.mark.parametrize("argv", ["--version", "--help", "run --help"])
+def test_version_and_help_import_nothing_heavy(argv):
+    # issue #27: `--version` took 2 s, the command line importing dask, xarray, zarr and
+    # the renderer before it parsed anything; a command's module loads only when it runs
+    heavy = ("dask", "distributed", "numba", "numpy", "pydantic", "xarray", "zarr", "workers")
+    code = (
+        "import sys\nfrom service.cli import main\n"
+        f"try:\n    main({argv.split()!r})\nexcept SystemExit:\n    pass\n"
+        f"print(sorted(set({heavy!r}) & set(sys.modules)), file=sys.stderr)"
+    )
+    command, env = cli_command()
+    result = subprocess.run(
+        [command[0], "-c", code], cwd=ROOT, env=env, capture_output=True, text=True, timeout=60
+    )
+    assert result.returncode == 0 and result.stderr.splitlines()[-1] == "[]", result.stderr
 
 
 @pytest.mark.parametrize("path", CONFIGS, ids=[p.name for p in CONFIGS])
