@@ -137,21 +137,6 @@ def running(folder, *args, token=TOKEN):
         server.stop()
 
 
-def test_a_terminated_service_closes_its_cluster_and_exits_0(tmp_path):
-    # issue #27: uvicorn raised the SIGTERM it had caught again under the system's default
-    # handler, which ended the process before its cluster closed: killed by the signal,
-    # the workers' semaphores leaked (the resource tracker's warning)
-    server = Server(tmp_path).start()
-    try:
-        server.process.send_signal(signal.SIGTERM)
-        code = server.process.wait(timeout=60)
-    finally:
-        server.stop()
-    log = (tmp_path / "server.log").read_text()
-    assert code == 0, log
-    assert "leaked semaphore" not in log and "Traceback" not in log, log
-
-
 def finished(job):
     return job["state"] in ("succeeded", "failed", "cancelled")
 
@@ -333,6 +318,21 @@ def test_sigkill_mid_job_then_restart_resumes(reference, tmp_path, monkeypatch, 
         assert not (tmp_path / "data" / "dropped.zarr").exists()
     finally:
         server.stop()
+
+
+def test_a_terminated_service_closes_its_cluster_and_exits_0(tmp_path):
+    # issue #27: uvicorn raised the SIGTERM it had caught again under the system's default
+    # handler, which ended the process before its cluster closed: killed by the signal,
+    # the workers' semaphores leaked (the resource tracker's warning)
+    server = Server(tmp_path).start()
+    try:
+        server.process.send_signal(signal.SIGTERM)
+        code = server.process.wait(timeout=60)
+    finally:
+        server.stop()
+    log = (tmp_path / "server.log").read_text()
+    assert code == 0, log
+    assert "leaked semaphore" not in log and "Traceback" not in log, log
 
 
 def test_no_token_is_401_and_serve_refuses_to_run_open(service, monkeypatch, capsys):
