@@ -14,7 +14,9 @@ needs another sets its own):
 - `UnusableOutputError`: an output that cannot take this run (exists without ``--resume``,
   another layout, not a store, outside the data root, not writable);
 - `LockedError`: an output another writer holds (an unusable output);
-- `TooBigError`: a sweep over the size or memory limits.
+- `TooBigError`: a sweep over the size or memory limits;
+- `SubmissionConflictError`: a submission id the submitter already gave another sweep
+  (409).
 
 Failures (exit 1) are apart: a store found damaged (`DamagedStoreError`, here so that the
 command line catches it without importing zarr),
@@ -31,6 +33,7 @@ __all__ = [
     "DamagedStoreError",
     "InputError",
     "LockedError",
+    "SubmissionConflictError",
     "TooBigError",
     "UnusableOutputError",
 ]
@@ -65,6 +68,12 @@ class LockedError(UnusableOutputError):
 
 class TooBigError(InputError):
     """A sweep over the size or memory limits (lift them with ``--no-limits``)."""
+
+
+class SubmissionConflictError(InputError):
+    """A submission id that already names the submitter's job of another sweep or mode."""
+
+    status = 409
 
 
 class DamagedStoreError(RuntimeError):
