@@ -178,7 +178,9 @@ class Runner:
                         f"output: {shown(sweep.output)} {who}; only its owner may {mode} it"
                     )
             if self.table.active() >= self.queue_limit:
-                raise QueueFullError(f"{self.queue_limit} jobs are queued or running; try later")
+                raise QueueFullError(
+                    f"{self.queue_limit} jobs are validating, queued or running; try later"
+                )
             for job in (job for state in ACTIVE for job in self.table.list(state)):
                 if url in (job.url, *parents(job.url)) or job.url in parents(url):
                     raise UnusableOutputError(

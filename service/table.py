@@ -191,7 +191,7 @@ class JobTable:
             return cursor.rowcount == 1
 
     def active(self) -> int:
-        """How many jobs are queued or running."""
+        """How many jobs are unfinished (`service.records.ACTIVE`)."""
         marks = ", ".join("?" for _ in ACTIVE)
         rows = self._query(
             f"SELECT COUNT(*) AS n FROM jobs WHERE state IN ({marks})", tuple(map(str, ACTIVE))

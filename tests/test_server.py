@@ -502,7 +502,9 @@ def test_a_measurement_file_that_is_a_folder_is_400_and_leaks_nothing(service):
 
 def test_jobs_of_an_unknown_state_are_400(service):
     status, answer = service.request("GET", "/v1/jobs?state=bogus")
-    assert status == 400 and answer["error"].startswith("state 'bogus': not one of queued"), answer
+    assert status == 400 and answer["error"].startswith(
+        "state 'bogus': not one of validating, queued"
+    ), answer
     assert service.request("GET", "/v1/jobs?state=queued")[0] == 200
 
 
