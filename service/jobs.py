@@ -1,14 +1,14 @@
-"""The batch service's job table (SQLite) and the runner that works it off on one cluster.
+"""The batch service's runner: submissions accepted, validated, and worked off on one cluster.
 
 A job is a submitted sweep: its YAML text (never credentials), its owner, its state, its
-progress and its log (`service.table.JobTable.lines`). A submission is answered at once:
-its quick checks (`service.admission.admit_header`, the owner of the store it resumes or
-replaces, the queue limit, no other unfinished job on its output) pass and it is accepted
-``validating``; one
-validator thread then checks the whole sweep (`service.admission.admit_job`: every point,
-the size limits, what is at the output), oldest first, and queues or rejects it. A
-submission may carry the submitter's id (`SUBMISSION_ID`): the same id from the same owner
-answers the same job again, so a client may retry a submission whose answer it lost.
+progress and its log, rows of the job table (`service.table.JobTable`). A submission is
+answered at once: its quick checks (`service.admission.admit_header`, the owner of the
+store it resumes or replaces, the queue limit, no other unfinished job on its output) pass
+and it is accepted ``validating``; one validator thread then checks the whole sweep
+(`service.admission.admit_job`: every point, the size limits, what is at the output),
+oldest first, and queues or rejects it. A submission may carry the submitter's id
+(`SUBMISSION_ID`): the same id from the same owner answers the same job again, so a client
+may retry a submission whose answer it lost.
 
 The table is the service's memory across restarts: a job found ``running`` when the service
 starts was interrupted (a crash, a kill) and is run again with resume, so it completes from

@@ -287,3 +287,21 @@ def test_an_old_job_table_gains_submission_ids_and_logs(tmp_path):
         status, job = served.submit(sweep("new.zarr"), query="?submission_id=after-1")
         assert status == 201 and job["submission_id"] == "after-1", job
         assert served.submit(sweep("new.zarr"), query="?submission_id=after-1")[0] == 200
+
+
+def test_a_job_left_validating_is_validated_at_the_next_start(tmp_path):
+    """A service that stopped before validating a job (it was not started here) validates
+    it when it starts: queued, its samples counted."""
+    served = Service(tmp_path, max_running=0)
+    job, new = served.runner.submit(sweep("later.zarr"), owner="alice")
+    assert new and job.state == "validating"
+    served.runner.start()
+    try:
+        deadline = time.monotonic() + 60
+        while served.table.get(job.id).state == "validating" and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        served.runner.stop()
+        served.listener.close()
+    job = served.table.get(job.id)
+    assert job.state == "queued" and job.total == 2, job
