@@ -27,7 +27,6 @@ from dask.base import tokenize
 
 from service.errors import DamagedStoreError
 from service.store.integrity import unflagged
-from service.store.layout import shard_samples
 from service.store.location import Store
 from service.store.shards import ShardReader, sample_checksum, verified_by
 from workers.variables import rendered_order
@@ -65,14 +64,14 @@ def open_dataset(url: str, *, storage_options: dict | None = None) -> xr.Dataset
     """
     store = Store(url, storage_options)
     group = store.group()
-    sharded = "completed" in group and "sample" in group["completed"].metadata.dimension_names
-    ds = store.dataset(shard_samples(group) if sharded else None)
+    ds = store.dataset(dask=False)
     small = [name for name, v in ds.variables.items() if set(v.dims) <= SMALL_DIMENSIONS]
     loaded = ds[small].load()
     ds = ds.assign(loaded.data_vars).assign_coords(loaded.coords)
-    if sharded:
-        arrays = _shard_arrays(store, group, ds)
-        ds = ds.assign(arrays).set_index(sample=["point", "realisation"])
+    large = {name: _lazy(store, group, v) for name, v in ds.data_vars.items() if name not in small}
+    ds = ds.assign(large)
+    if "sample" in ds.dims and {"point", "realisation"} <= set(ds.coords):
+        ds = ds.set_index(sample=["point", "realisation"])
     for name in ds.dims:
         if name in ds.variables:  # CF: a coordinate variable has no _FillValue (netCDF's)
             ds.variables[name].encoding["_FillValue"] = None
@@ -83,35 +82,36 @@ def open_dataset(url: str, *, storage_options: dict | None = None) -> xr.Dataset
     return ds
 
 
-def _shard_arrays(store: Store, group, ds: xr.Dataset) -> dict[str, xr.DataArray]:
-    """The store's sharded arrays of `ds` as dask arrays of one task per shard.
+def _lazy(store: Store, group, variable: xr.DataArray) -> xr.DataArray:
+    """A large variable as a dask array: a sharded one in chunks of one shard each.
 
-    An array in a layout `service.store.shards.ShardReader` does not read stays as xarray
-    opened it (zarr, in chunks of a shard).
+    Read whole by `service.store.shards.ShardReader.read_shard`, one task per shard; an
+    array in a layout that reader does not know by zarr, in chunks of a shard; an array
+    without shards (the statistics' images) in its zarr chunks.
     """
-    arrays = {}
-    for name, variable in ds.data_vars.items():
-        if group[name].shards is None:
-            continue
-        try:
-            reader = ShardReader(store, name)
-        except ValueError:  # not service.store.layout's: zarr reads it
-            continue
-        samples = variable.shape[0]
-        blocks = tuple(
-            min(reader.per_shard, samples - first) for first in range(0, samples, reader.per_shard)
-        )
-        data = da.map_blocks(
-            _read_block,
-            chunks=(blocks, *((size,) for size in variable.shape[1:])),
-            dtype=reader.dtype,
-            meta=np.empty((0,) * variable.ndim, reader.dtype),
-            name=f"read-{name}-{tokenize(store.url, name, variable.shape)}",
-            reader=reader,
-            blocks=blocks,
-        )
-        arrays[name] = variable.copy(data=data)
-    return arrays
+    name = str(variable.name)
+    chunks = dict(variable.encoding["preferred_chunks"])
+    shards = group[name].shards
+    if shards is None:
+        return variable.chunk(chunks)
+    try:
+        reader = ShardReader(store, name)
+    except ValueError:  # not service.store.layout's: zarr reads it
+        return variable.chunk({**chunks, "sample": shards[0]})
+    samples = variable.shape[0]
+    blocks = tuple(
+        min(reader.per_shard, samples - first) for first in range(0, samples, reader.per_shard)
+    )
+    data = da.map_blocks(
+        _read_block,
+        chunks=(blocks, *((size,) for size in variable.shape[1:])),
+        dtype=reader.dtype,
+        meta=np.empty((0,) * variable.ndim, reader.dtype),
+        name=f"read-{name}-{tokenize(store.url, name, variable.shape)}",
+        reader=reader,
+        blocks=blocks,
+    )
+    return variable.copy(data=data)
 
 
 def _read_block(*, reader: ShardReader, blocks: tuple[int, ...], block_id) -> np.ndarray:
