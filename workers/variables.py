@@ -376,10 +376,10 @@ def variables(scene: Scene) -> dict[str, Variable]:
             axis,
             (axis,),
             f64,
-            {"long_name": f"pixel centre on mean sea level, {direction}", "units": "m"},
+            {"long_name": f"pixel centre {direction} on the sea", "units": "m"},
             Role.COORDINATE,
         )
-        for axis, direction in (("y", "up the image"), ("x", "to the image's right"))
+        for axis, direction in (("y", "up the image"), ("x", "across the image"))
     ]
     if scene.save_surface:
         table += [
