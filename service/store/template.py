@@ -2,12 +2,12 @@
 
 Dimensions ``sample, frame, gate, y, x`` (README, "The dataset"; ``y`` and ``x`` the
 pixels' places on the sea, `workers.labels.image_axes`, unless the sweep varies the
-footprint). The template (metadata
-and everything that does not depend on rendering: labels, platform track, coordinates,
-swept parameters under identifier names) is written once with ``compute=False``, laid out
-as `service.store.layout` says; tasks then write whole shards, and only after that set
-their samples' ``completed`` flags, so an interrupted run never marks a sample complete
-that is not written (`service.store.shards.write_shard`). The variables are the union of
+footprint). The template (metadata and everything that does not depend on rendering:
+labels, platform track, coordinates, swept parameters under identifier names) is written
+once with ``compute=False``, laid out as `service.store.layout` says; tasks then write
+whole shards, and only after that set their samples' ``completed`` flags, so an
+interrupted run never marks a sample complete that is not written
+(`service.store.shards.write_shard`). The variables are the union of
 every point's table (`store_variables`, from `workers.variables`).
 """
 
