@@ -2,9 +2,10 @@
 
 One path for both front ends: ``oceanlidar run`` and ``validate`` (`service.cli`) admit the
 sweep file with `admit`, and `service.run.execute` checks the output with `check_output`;
-the job service (``POST /v1/jobs``, `service.jobs.Runner.submit`) admits the submitted
-text with `admit_job`, which calls both, and confines the output under its data root
-(`confine_output`). What differs between them is a `Rules`: the limits, and the remedy
+the job service (``POST /v1/jobs``, `service.jobs.Runner.submit`) checks the submitted
+text's quick part at once with `admit_header` (its output confined under the data root,
+`confine_output`) and the whole of it in the background with `admit_job`, which calls
+`admit` and `check_output`. What differs between them is a `Rules`: the limits, and the remedy
 their messages name (the command line's flags, the service's modes). Every refusal is an
 `service.errors.InputError` of its kind.
 """
@@ -23,7 +24,7 @@ from service.stats import check_owner
 from service.store import integrity
 from service.store.location import KIND, Store
 from service.store.template import check_uniform
-from service.sweep import MEMORY_REMEDY, NO_LIMITS, Plan, parse_sweep
+from service.sweep import MEMORY_REMEDY, NO_LIMITS, Plan, parse_sweep, read_header
 
 __all__ = [
     "CLI",
@@ -31,6 +32,7 @@ __all__ = [
     "SERVICE",
     "Rules",
     "admit",
+    "admit_header",
     "admit_job",
     "check_output",
     "confine_output",
@@ -207,24 +209,50 @@ def parents(url: str) -> list[str]:
     return ["/".join(parts[:depth]) for depth in range(len(parts) - 1, 0, -1)]
 
 
+def admit_header(text: str, mode: str, *, data_root: Store) -> tuple:
+    """The quick checks of a submitted sweep, those the service answers at once.
+
+    `mode` (one of `MODES`), the text's size, the sweep's header (`service.sweep.read_header`:
+    YAML, schema, default scene, under the `SERVICE` rules) and its output confined under
+    `data_root`: none grows with the sweep's points. `admit_job` does the rest.
+
+    Returns
+    -------
+    tuple of (Sweep, str)
+        The parsed sweep file and the store URL its output names.
+
+    Raises
+    ------
+    InputError
+        With the field path and the reason.
+    """
+    if mode not in MODES:
+        raise BadOptionError(f"mode: must be one of {', '.join(MODES)}, got {shown(mode)}")
+    if len(text.encode()) > MAX_FILE_BYTES:
+        raise BadFileError(f"the sweep is larger than {MAX_FILE_BYTES:,} bytes")
+    sweep = read_header(
+        text,
+        folder=data_root.url,
+        max_memory=SERVICE.max_memory,
+        memory_remedy=SERVICE.too_heavy,
+    )
+    return sweep, confine_output(sweep.output, data_root.url)
+
+
 def admit_job(text: str, mode: str, *, data_root: Store) -> tuple:
     """Check a submitted sweep as ``oceanlidar run`` would; its plan and store URL.
 
-    The sweep is admitted under the service's `SERVICE` rules, its output confined under
-    `data_root` (a folder or prefix with the service's storage options; never inside
-    another store) and checked for `mode` (one of `MODES`).
+    The sweep passes `admit_header`, then is admitted whole under the service's `SERVICE`
+    rules (every point), its output checked never to lie inside another store (under
+    `data_root`, a folder or prefix with the service's storage options) and for `mode`.
 
     Raises
     ------
     InputError
         With the field path and the reason; nothing is queued or written.
     """
-    if mode not in MODES:
-        raise BadOptionError(f"mode: must be one of {', '.join(MODES)}, got {shown(mode)}")
-    if len(text.encode()) > MAX_FILE_BYTES:
-        raise BadFileError(f"the sweep is larger than {MAX_FILE_BYTES:,} bytes")
+    _, url = admit_header(text, mode, data_root=data_root)
     plan = admit(text, folder=data_root.url, rules=SERVICE)
-    url = confine_output(plan.sweep.output, data_root.url)
     root = data_root.url.rstrip("/")
     for group in parents(url):
         if not group.startswith(f"{root}/"):

@@ -1,10 +1,12 @@
 """Reading a store: as an xarray dataset, and sample by sample for training.
 
-`open_dataset` is `xarray.open_zarr` with the small per-sample variables (labels, swept
-parameters, completion flags, signal means) loaded eagerly, so that boolean selection and
-``groupby`` work without ``.compute()``, CF attributes typed like their variable, and no
-fill value on a dimension's coordinate (CF 2.5.1; zarr keeps one for every array, and a
-netCDF export would write it).
+`open_dataset` is the way to analyse a store with xarray: the small per-sample variables
+(labels, swept parameters, completion flags, signal means) loaded eagerly, so that boolean
+selection and ``groupby`` work without ``.compute()``; the large arrays (images, masks)
+lazy in dask chunks of one whole shard each, read straight from the shard files
+(`service.store.shards.ShardReader.read_shard`: one task per shard, where ``xr.open_zarr``
+makes one per sample); ``sample`` indexed by (point, realisation); CF attributes typed
+like their variable.
 `SampleDataset` is a map-style dataset in PyTorch's protocol (``__len__``,
 ``__getitem__``, and ``__getitems__`` for whole batches) returning numpy arrays, without
 depending on torch: it reads a sample's chunks straight from their shard files (one ranged
@@ -18,8 +20,10 @@ from __future__ import annotations
 
 import os
 
+import dask.array as da
 import numpy as np
 import xarray as xr
+from dask.base import tokenize
 
 from service.errors import DamagedStoreError
 from service.store.integrity import unflagged
@@ -36,7 +40,7 @@ TYPED_ATTRIBUTES = ("flag_values", "valid_min", "valid_max")
 
 
 def open_dataset(url: str, *, storage_options: dict | None = None) -> xr.Dataset:
-    """Open a sweep's store (or its statistics) with the small variables in memory.
+    """Open a sweep's store (or its statistics) for analysis: the way to read it with xarray.
 
     Parameters
     ----------
@@ -48,21 +52,72 @@ def open_dataset(url: str, *, storage_options: dict | None = None) -> xr.Dataset
     Returns
     -------
     xarray.Dataset
-        Images and masks lazy (dask, one sample per chunk); every variable whose
-        dimensions are among ``sample``, ``frame`` and ``gate`` loaded.
+        Every variable whose dimensions are among ``sample``, ``frame`` and ``gate``
+        loaded (numpy). A store's sharded arrays (``image``, ``target_mask``, ...) lazy,
+        one dask chunk per shard along ``sample`` (the shard size read from the store's
+        metadata), each read whole from its file and every chunk's CRC32C checked. A
+        store's ``sample`` is indexed by (``point``, ``realisation``), a pandas MultiIndex:
+        ``ds.sel(point=3, realisation=5)`` is one sample, ``ds.sel(point=3)`` a point's
+        samples along ``realisation``, ``ds.groupby("point")`` groups by point,
+        ``ds.unstack("sample")`` lays the samples out on (point, realisation). netCDF
+        holds no MultiIndex: ``ds.reset_index("sample").to_netcdf(path)``.
     """
-    ds = Store(url, storage_options).dataset()
+    store = Store(url, storage_options)
+    group = store.group()
+    ds = store.dataset(dask=False)
     small = [name for name, v in ds.variables.items() if set(v.dims) <= SMALL_DIMENSIONS]
     loaded = ds[small].load()
     ds = ds.assign(loaded.data_vars).assign_coords(loaded.coords)
+    large = {name: _lazy(store, group, v) for name, v in ds.data_vars.items() if name not in small}
+    ds = ds.assign(large)
+    if "sample" in ds.dims and {"point", "realisation"} <= set(ds.coords):
+        ds = ds.set_index(sample=["point", "realisation"])
+    for name in ds.dims:
+        if name in ds.variables:  # CF: a coordinate variable has no _FillValue (netCDF's)
+            ds.variables[name].encoding["_FillValue"] = None
     for variable in ds.variables.values():
         for name in TYPED_ATTRIBUTES:
             if name in variable.attrs:
                 variable.attrs[name] = np.asarray(variable.attrs[name], dtype=variable.dtype)
-    for name in ds.dims:
-        if name in ds.coords:  # a coordinate has no missing values (the detection's pfa)
-            ds.variables[name].encoding["_FillValue"] = None
     return ds
+
+
+def _lazy(store: Store, group, variable: xr.DataArray) -> xr.DataArray:
+    """A large variable as a dask array: a sharded one in chunks of one shard each.
+
+    Read whole by `service.store.shards.ShardReader.read_shard`, one task per shard; an
+    array in a layout that reader does not know by zarr, in chunks of a shard; an array
+    without shards (the statistics' images) in its zarr chunks.
+    """
+    name = str(variable.name)
+    chunks = dict(variable.encoding["preferred_chunks"])
+    shards = group[name].shards
+    if shards is None:
+        return variable.chunk(chunks)
+    try:
+        reader = ShardReader(store, name)
+    except ValueError:  # not service.store.layout's: zarr reads it
+        return variable.chunk({**chunks, "sample": shards[0]})
+    samples = variable.shape[0]
+    blocks = tuple(
+        min(reader.per_shard, samples - first) for first in range(0, samples, reader.per_shard)
+    )
+    data = da.map_blocks(
+        _read_block,
+        chunks=(blocks, *((size,) for size in variable.shape[1:])),
+        dtype=reader.dtype,
+        meta=np.empty((0,) * variable.ndim, reader.dtype),
+        name=f"read-{name}-{tokenize(store.url, name, variable.shape)}",
+        reader=reader,
+        blocks=blocks,
+    )
+    return variable.copy(data=data)
+
+
+def _read_block(*, reader: ShardReader, blocks: tuple[int, ...], block_id) -> np.ndarray:
+    """Dask chunk `block_id` of `reader`'s array: its whole shard."""
+    shard = block_id[0]
+    return reader.read_shard(shard, blocks[shard])
 
 
 class SampleDataset:

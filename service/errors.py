@@ -16,7 +16,9 @@ wrong without reading the message, and the job server answers each with its HTTP
   ``--resume`` or ``--overwrite``) or by another unfinished job (HTTP 409: the request
   conflicts with what is there now, not with its own content);
 - `LockedError`: an output another writer holds (an unusable output);
-- `TooBigError`: a sweep over the size or memory limits.
+- `TooBigError`: a sweep over the size or memory limits;
+- `SubmissionConflictError`: a submission id the submitter already gave another sweep
+  (409).
 
 Failures (exit 1) are apart: a store found damaged (`DamagedStoreError`, here so that the
 command line catches it without importing zarr),
@@ -34,6 +36,7 @@ __all__ = [
     "InputError",
     "LockedError",
     "OutputTakenError",
+    "SubmissionConflictError",
     "TooBigError",
     "UnusableOutputError",
 ]
@@ -74,6 +77,12 @@ class LockedError(UnusableOutputError):
 
 class TooBigError(InputError):
     """A sweep over the size or memory limits (lift them with ``--no-limits``)."""
+
+
+class SubmissionConflictError(InputError):
+    """A submission id that already names the submitter's job of another sweep or mode."""
+
+    status = 409
 
 
 class DamagedStoreError(RuntimeError):

@@ -1,10 +1,19 @@
-"""The batch service's job table (SQLite) and the runner that works it off on one cluster.
+"""The batch service's runner: submissions accepted, validated, and worked off on one cluster.
 
-A job is a submitted sweep: its YAML text (never credentials), its owner, its state and its
-progress. The table is the service's memory across restarts: a job found ``running`` when
-the service starts was interrupted (a crash, a kill) and is run again with resume, so it
-completes from its store with the same bytes as an undisturbed run; queued jobs stay
-queued.
+A job is a submitted sweep: its YAML text (never credentials), its owner, its state, its
+progress and its log, rows of the job table (`service.table.JobTable`). A submission is
+answered at once: its quick checks (`service.admission.admit_header`, the owner of the
+store it resumes or replaces, the queue limit, no other unfinished job on its output) pass
+and it is accepted ``validating``; one validator thread then checks the whole sweep
+(`service.admission.admit_job`: every point, the size limits, what is at the output),
+oldest first, and queues or rejects it. A submission may carry the submitter's id
+(`SUBMISSION_ID`): the same id from the same owner answers the same job again, so a client
+may retry a submission whose answer it lost.
+
+The table is the service's memory across restarts: a job found ``running`` when the service
+starts was interrupted (a crash, a kill) and is run again with resume, so it completes from
+its store with the same bytes as an undisturbed run; queued jobs stay queued and
+``validating`` ones are validated again.
 
 Several jobs run at once on the one dask client. Each keeps a bounded window of tasks in
 flight (`service.run.run_plan`) and the scheduler starts tasks in submission order, so the
@@ -13,35 +22,38 @@ jobs running take turns on the workers: none starves another.
 
 from __future__ import annotations
 
-import fcntl
 import os
-import sqlite3
+import re
 import threading
 import time
 import uuid
 
-from service.admission import admit_job, parents
-from service.errors import BadFileError, InputError, LockedError, OutputTakenError
+from service.admission import admit_header, admit_job, parents
+from service.errors import (
+    BadOptionError,
+    InputError,
+    OutputTakenError,
+    SubmissionConflictError,
+)
 from service.inputs import shown
 from service.records import ACTIVE, Job, JobState
 from service.run import Cancel, execute
 from service.store.template import OWNER
 from service.sweep import parse_sweep
 
-__all__ = ["ForbiddenError", "JobTable", "QueueFullError", "Runner"]
+__all__ = [
+    "SUBMISSION_ID",
+    "ForbiddenError",
+    "QueueFullError",
+    "Runner",
+]
 
 DISPATCH_TICK = 0.2
-"""Seconds between looks for queued jobs to start."""
-
-_SCHEMA = """
-CREATE TABLE IF NOT EXISTS jobs (
-    id TEXT PRIMARY KEY, owner TEXT NOT NULL, name TEXT NOT NULL, state TEXT NOT NULL,
-    mode TEXT NOT NULL, sweep TEXT NOT NULL, output TEXT NOT NULL, url TEXT NOT NULL,
-    submitted REAL NOT NULL, started REAL, finished REAL, total INTEGER NOT NULL,
-    done INTEGER NOT NULL DEFAULT 0, rate REAL NOT NULL DEFAULT 0, message TEXT,
-    errors TEXT NOT NULL DEFAULT '{}', interrupted INTEGER NOT NULL DEFAULT 0
-)
-"""
+"""Seconds between looks for queued jobs to start (and for jobs to validate)."""
+MILESTONES = 10
+"""Progress lines a job's log holds (one each tenth of its samples)."""
+SUBMISSION_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,63}")
+"""A submission id: 1 to 64 letters, digits, ``.``, ``_`` or ``-``, the first a letter or digit."""
 
 
 class QueueFullError(RuntimeError):
@@ -50,142 +62,6 @@ class QueueFullError(RuntimeError):
 
 class ForbiddenError(RuntimeError):
     """A submitter acts on another owner's job or store."""
-
-
-class JobTable:
-    """Jobs in an SQLite file, safe to use from several threads, owned by one service.
-
-    The service holds an exclusive lock (``flock``) on the database file itself while the
-    table is open: a second service is refused whatever path reaches the file (a symbolic
-    or hard link too), and the system releases the lock when the process ends however it
-    ends, so a job found ``running`` at start was left by a service that has died, whose
-    store locks (they name the job) may then be taken over
-    (`service.store.lock.writer_lock`).
-
-    Parameters
-    ----------
-    path : str
-        The database file (created if absent).
-
-    Raises
-    ------
-    BadFileError
-        If `path` cannot be opened (its folder missing, a folder) or is not an SQLite file.
-    LockedError
-        If another service has the table open.
-    """
-
-    def __init__(self, path: str):
-        self.path = path
-        try:  # held while the table lives
-            self._owner = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)
-        except OSError as error:  # a missing folder, a folder, no permission
-            raise BadFileError(
-                f"--db {path}: cannot open the job table ({error.strerror})"
-            ) from None
-        try:
-            fcntl.flock(self._owner, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(self._owner)
-            raise LockedError(
-                f"--db {path}: another oceanlidar serve uses this job table (one service a table)"
-            ) from None
-        self._db = sqlite3.connect(path, check_same_thread=False, isolation_level=None)
-        self._db.row_factory = sqlite3.Row
-        self._lock = threading.Lock()
-        try:
-            self._query("PRAGMA journal_mode=WAL")
-            self._query(_SCHEMA)
-        except sqlite3.DatabaseError as error:  # a file that is not a job table
-            self._db.close()
-            os.close(self._owner)
-            raise BadFileError(f"--db {path}: not an SQLite job table ({error})") from None
-
-    def lost(self) -> str | None:
-        """Why the table is no longer the file at its path (deleted, replaced); None if it is.
-
-        A service whose table was lost would forget every job and owner at its next start:
-        it must not go on (the server answers ``503``, `service.server`).
-        """
-        held = os.fstat(self._owner)
-        try:
-            there = os.stat(self.path)
-        except OSError as error:
-            return f"the job table --db {self.path} is gone ({error.strerror})"
-        if (there.st_dev, there.st_ino) != (held.st_dev, held.st_ino):
-            return f"the job table --db {self.path} was replaced by another file"
-        return None
-
-    def _query(self, sql: str, parameters=()) -> list[dict]:
-        with self._lock:
-            return [dict(row) for row in self._db.execute(sql, parameters)]
-
-    def _jobs(self, sql: str, parameters=()) -> list[Job]:
-        return [Job.from_row(row) for row in self._query(f"SELECT * FROM jobs {sql}", parameters)]
-
-    def add(self, job: Job) -> None:
-        """Insert one job."""
-        row = job.row()
-        names, marks = ", ".join(row), ", ".join("?" for _ in row)
-        self._query(f"INSERT INTO jobs ({names}) VALUES ({marks})", tuple(row.values()))
-
-    def get(self, job_id: str) -> Job | None:
-        """The job `job_id`, or None."""
-        jobs = self._jobs("WHERE id = ?", (job_id,))
-        return jobs[0] if jobs else None
-
-    def list(self, state: str | None = None) -> list[Job]:
-        """Jobs, newest first, of one state if `state` is given."""
-        if state is None:
-            return self._jobs("ORDER BY submitted DESC, rowid DESC")
-        return self._jobs("WHERE state = ? ORDER BY submitted DESC, rowid DESC", (state,))
-
-    def latest(self, url: str) -> Job | None:
-        """The newest job that writes (or wrote) the store `url`, or None."""
-        jobs = self._jobs("WHERE url = ? ORDER BY submitted DESC, rowid DESC LIMIT 1", (url,))
-        return jobs[0] if jobs else None
-
-    def update(self, job_id: str, **values) -> None:
-        """Set fields of one job (`Job`'s, by name)."""
-        columns = Job.columns(**values)
-        names = ", ".join(f"{name} = ?" for name in columns)
-        self._query(f"UPDATE jobs SET {names} WHERE id = ?", (*columns.values(), job_id))
-
-    def set_state(self, job_id: str, state: JobState, *, when: tuple = ACTIVE, **values) -> bool:
-        """Move a job to `state` if it is in one of `when`; whether it moved."""
-        columns = Job.columns(**values)
-        names = "".join(f", {name} = ?" for name in columns)
-        marks = ", ".join("?" for _ in when)
-        with self._lock:
-            cursor = self._db.execute(
-                f"UPDATE jobs SET state = ?{names} WHERE id = ? AND state IN ({marks})",
-                (str(state), *columns.values(), job_id, *map(str, when)),
-            )
-            return cursor.rowcount == 1
-
-    def active(self) -> int:
-        """How many jobs are queued or running."""
-        marks = ", ".join("?" for _ in ACTIVE)
-        rows = self._query(
-            f"SELECT COUNT(*) AS n FROM jobs WHERE state IN ({marks})", tuple(map(str, ACTIVE))
-        )
-        return rows[0]["n"]
-
-    def next_queued(self) -> Job | None:
-        """The job to start next: interrupted ones first, then the oldest."""
-        jobs = self._jobs(
-            "WHERE state = ? ORDER BY interrupted DESC, submitted, rowid LIMIT 1",
-            (str(JobState.QUEUED),),
-        )
-        return jobs[0] if jobs else None
-
-    def recover(self) -> int:
-        """Queue again, to resume, the jobs a previous service left running; how many."""
-        with self._lock:
-            return self._db.execute(
-                "UPDATE jobs SET state = ?, interrupted = 1 WHERE state = ?",
-                (str(JobState.QUEUED), str(JobState.RUNNING)),
-            ).rowcount
 
 
 class Runner:
@@ -215,30 +91,61 @@ class Runner:
         self._running: dict[str, tuple[threading.Thread, Cancel]] = {}
         self._stop = threading.Event()
         self._admit = threading.Lock()
+        self._wake = threading.Event()
         self._dispatcher = threading.Thread(target=self._dispatch, name="jobs", daemon=True)
+        self._validator = threading.Thread(target=self._validate, name="validate", daemon=True)
 
     def start(self) -> None:
-        """Requeue interrupted jobs and start working the queue."""
+        """Requeue interrupted jobs and start validating and working the queue."""
         self.table.recover()
+        self._validator.start()
         self._dispatcher.start()
 
     def stop(self) -> None:
         """Stop running jobs resumably (they stay ``running`` and resume at the next start)."""
         self._stop.set()
+        self._wake.set()
         for _, cancel in list(self._running.values()):
             cancel.set()
         for thread, _ in list(self._running.values()):
             thread.join(timeout=30)
         self._dispatcher.join(timeout=5)
+        self._validator.join(timeout=5)
 
-    def submit(self, text: str, *, owner: str, mode: str = "new") -> Job:
-        """Queue a sweep admitted as ``oceanlidar run`` admits it (`admit_job`); the job.
+    def submit(
+        self, text: str, *, owner: str, mode: str = "new", submission_id: str | None = None
+    ) -> tuple[Job, bool]:
+        """Accept a sweep to validate in the background (``validating``), after its quick checks.
+
+        The quick checks are `admit_header`'s (the sweep's file, its output under the data
+        root), the owner of a store it resumes or overwrites, the queue limit and the
+        outputs of the unfinished jobs; `admit_job`'s, which grow with the sweep, follow in
+        the validator thread, which queues the job or rejects it (`JobState`).
+
+        Parameters
+        ----------
+        text : str
+            The sweep's YAML text.
+        owner : str
+            Who submits it.
+        mode : str, optional
+            ``new``, ``resume`` or ``overwrite`` (`service.admission.MODES`).
+        submission_id : str or None, optional
+            The submitter's id of this submission (`SUBMISSION_ID`): a job `owner`
+            submitted with it before is answered again, not a second one.
+
+        Returns
+        -------
+        tuple of (Job, bool)
+            The job, and whether it is new (False: the submission id's earlier job).
 
         Raises
         ------
         InputError
-            For a bad sweep or mode, or an output this job may not write (another
-            unfinished job writes it: `OutputTakenError`).
+            For a bad submission id, sweep or mode, or an output this job may not write
+            (another unfinished job writes it: `OutputTakenError`); one of them:
+        SubmissionConflictError
+            If `submission_id` names a job of `owner` with another sweep text or mode.
         ForbiddenError
             If a resume or an overwrite names a store another owner wrote: the store's
             own record (`service.store.template.OWNER`) says who, else the job table's
@@ -246,8 +153,21 @@ class Runner:
         QueueFullError
             If `queue_limit` jobs are unfinished.
         """
-        plan, url = admit_job(text, mode, data_root=self.data_root)
+        if submission_id is not None and not SUBMISSION_ID.fullmatch(submission_id):
+            raise BadOptionError(
+                "submission_id: 1 to 64 letters, digits, '.', '_' or '-', the first a letter "
+                f"or digit, got {shown(submission_id)}"
+            )
         with self._admit:
+            if submission_id is not None:
+                if known := self.table.submission(owner, submission_id):
+                    if (known.sweep, known.mode) != (text, mode):
+                        raise SubmissionConflictError(
+                            f"submission_id {submission_id}: already names job {known.id}, "
+                            "of another sweep or mode; choose a new id"
+                        )
+                    return known, False
+            sweep, url = admit_header(text, mode, data_root=self.data_root)
             attributes = self.data_root.other(url).attributes() if mode != "new" else None
             if attributes is not None:  # a store is there
                 previous = self.table.latest(url)
@@ -255,11 +175,13 @@ class Runner:
                 if wrote != owner:
                     who = f"was written by {wrote}" if wrote else "records no owner"
                     raise ForbiddenError(
-                        f"output: {shown(plan.sweep.output)} {who}; only its owner may {mode} it"
+                        f"output: {shown(sweep.output)} {who}; only its owner may {mode} it"
                     )
             if self.table.active() >= self.queue_limit:
-                raise QueueFullError(f"{self.queue_limit} jobs are queued or running; try later")
-            for job in self.table.list(JobState.QUEUED) + self.table.list(JobState.RUNNING):
+                raise QueueFullError(
+                    f"{self.queue_limit} jobs are validating, queued or running; try later"
+                )
+            for job in (job for state in ACTIVE for job in self.table.list(state)):
                 if url in (job.url, *parents(job.url)) or job.url in parents(url):
                     raise OutputTakenError(
                         f"output: job {job.id} writes {shown(job.url)}, the same store "
@@ -268,28 +190,69 @@ class Runner:
             job = Job(
                 id=uuid.uuid4().hex[:12],
                 owner=owner,
-                name=plan.sweep.name,
-                state=JobState.QUEUED,
+                name=sweep.name,
+                state=JobState.VALIDATING,
                 mode=mode,
                 sweep=text,
-                output=plan.sweep.output,
+                output=sweep.output,
                 url=url,
                 submitted=time.time(),
-                total=plan.samples,
+                total=0,
+                submission_id=submission_id,
             )
             self.table.add(job)
-        return job
+            given = f", submission id {submission_id}" if submission_id else ""
+            self.table.log(job.id, f"accepted from {owner} (mode {mode}{given})")
+        self._wake.set()
+        return job, True
 
     def cancel(self, job_id: str) -> bool:
-        """Cancel a queued or running job; False if it had finished or writes its statistics."""
+        """Cancel a job not yet finished; False if it had finished or writes its statistics."""
         if self.table.set_state(
-            job_id, JobState.CANCELLED, when=(JobState.QUEUED,), finished=time.time()
+            job_id,
+            JobState.CANCELLED,
+            when=(JobState.VALIDATING, JobState.QUEUED),
+            finished=time.time(),
+            log="cancelled before it started",
         ):
             return True
         entry = self._running.get(job_id)
-        if entry is None:
+        if entry is None or not entry[1].cancel():
             return False
-        return entry[1].cancel()
+        self.table.log(job_id, "cancel asked: the running tasks stop")
+        return True
+
+    def _validate(self) -> None:
+        """Check the ``validating`` jobs whole, oldest first, one at a time (`admit_job`)."""
+        while not self._stop.is_set():
+            job = None if self.table.lost() else self.table.next_validating()
+            if job is None:
+                self._wake.wait(DISPATCH_TICK)
+                self._wake.clear()
+                continue
+            self.table.log(job.id, "validating: every parameter point, the limits, the output")
+            try:
+                plan, _ = admit_job(job.sweep, job.mode, data_root=self.data_root)
+            except Exception as error:  # a job's failure must not take the service down
+                bad = isinstance(error, InputError)
+                self.table.set_state(
+                    job.id,
+                    JobState.REJECTED if bad else JobState.FAILED,
+                    when=(JobState.VALIDATING,),
+                    finished=time.time(),
+                    message=str(error) if bad else repr(error),
+                    log=f"{'rejected' if bad else 'failed to validate'}: {error}",
+                    level="error",
+                )
+                continue
+            self.table.set_state(
+                job.id,
+                JobState.QUEUED,
+                when=(JobState.VALIDATING,),
+                total=plan.samples,
+                log=f"queued: {len(plan.points)} parameter points x {plan.realisations} "
+                f"realisations = {plan.samples} samples",
+            )
 
     def _dispatch(self) -> None:
         while not self._stop.wait(DISPATCH_TICK):
@@ -301,8 +264,15 @@ class Runner:
             if len(self._running) >= self.max_running:
                 continue
             job = self.table.next_queued()
-            if job is None or not self.table.set_state(
-                job.id, JobState.RUNNING, when=(JobState.QUEUED,), started=time.time()
+            if job is None:
+                continue
+            again = " again, resuming its store (the service had stopped)" * job.interrupted
+            if not self.table.set_state(
+                job.id,
+                JobState.RUNNING,
+                when=(JobState.QUEUED,),
+                started=time.time(),
+                log=f"started{again}",
             ):
                 continue
             cancel = Cancel()
@@ -313,8 +283,13 @@ class Runner:
             thread.start()
 
     def _run(self, job: Job, cancel: Cancel) -> None:
+        milestone = [0]  # the last tenth of the samples the log has told
+
         def progress(done: int, rate: float) -> None:
             self.table.update(job.id, done=done, rate=rate)
+            if job.total and (tenth := done * MILESTONES // job.total) > milestone[0]:
+                milestone[0] = tenth
+                self.table.log(job.id, f"{done}/{job.total} samples written, {rate:.2f}/s")
 
         try:
             plan = parse_sweep(job.sweep, folder=self.data_root.url, max_memory=None)
@@ -342,7 +317,14 @@ class Runner:
                 )
         except Exception as error:  # a job's failure must not take the service down
             message = str(error) if isinstance(error, InputError) else repr(error)
-            self.table.set_state(job.id, JobState.FAILED, finished=time.time(), message=message)
+            self.table.set_state(
+                job.id,
+                JobState.FAILED,
+                finished=time.time(),
+                message=message,
+                log=f"failed: {message}",
+                level="error",
+            )
             return
         errors = {
             str(sample): reason
@@ -350,18 +332,40 @@ class Runner:
             for sample, reason in samples
         }
         finished = {"errors": errors, "finished": time.time()}
+        for kind, samples in result.problems().items():
+            sample, reason = samples[0]
+            self.table.log(
+                job.id,
+                f"{len(samples)} samples {kind}; sample {sample}: {reason}",
+                level="warning",
+            )
         if result.interrupted:
             if self._stop.is_set():  # the service stops: resume at its next start
                 self.table.update(job.id, interrupted=True)
+                self.table.log(job.id, "the service stops: it resumes at its next start")
                 return
             done = int(store.completed().sum())
             message = "cancelled; submit it again with resume to complete it"
             self.table.set_state(
-                job.id, JobState.CANCELLED, message=message, done=done, **finished
+                job.id,
+                JobState.CANCELLED,
+                message=message,
+                done=done,
+                log=f"{message} ({done}/{plan.samples} samples written)",
+                level="warning",
+                **finished,
             )
         elif errors or result.stopped:
             problems = [plan.sample(int(s)).describe() for s in list(errors)[:3]]
             message = result.stopped or "failed: " + "; ".join(problems)
-            self.table.set_state(job.id, JobState.FAILED, message=message, **finished)
+            self.table.set_state(
+                job.id, JobState.FAILED, message=message, log=message, level="error", **finished
+            )
         else:
-            self.table.set_state(job.id, JobState.SUCCEEDED, done=plan.samples, **finished)
+            self.table.set_state(
+                job.id,
+                JobState.SUCCEEDED,
+                done=plan.samples,
+                log=f"succeeded: {plan.samples} samples and their statistics written",
+                **finished,
+            )

@@ -1,6 +1,6 @@
 """The service's records: a job of the job service (`Job`, `JobState`) and a run (`RunResult`).
 
-A job is a row of the job table (`service.jobs.JobTable`) read into a `Job`; what the API
+A job is a row of the job table (`service.table.JobTable`) read into a `Job`; what the API
 shows of it is `Job.public` (the JSON of ``/v1/jobs``). A run's outcome is a `RunResult`
 (`service.run.execute`); its `RunResult.problems` is the one report of the samples it could
 not write, printed by ``oceanlidar run`` and stored as a job's ``errors``.
@@ -20,16 +20,21 @@ __all__ = ["ACTIVE", "Job", "JobState", "RunResult"]
 
 
 class JobState(StrEnum):
-    """Where a job is: waiting, running, or finished one of three ways.
+    """Where a job is: checked, waiting, running, or finished one of four ways.
 
-    The values are the API's state strings and the job table's.
+    A submission is accepted ``validating`` (its quick checks passed) and its whole sweep
+    checked in the background: then ``queued``, or ``rejected`` (bad input, the reason in
+    its message; nothing written). The values are the API's state strings and the job
+    table's.
     """
 
+    VALIDATING = "validating"
     QUEUED = "queued"
     RUNNING = "running"
     SUCCEEDED = "succeeded"
     FAILED = "failed"
     CANCELLED = "cancelled"
+    REJECTED = "rejected"
 
     @property
     def final(self) -> bool:
@@ -37,8 +42,8 @@ class JobState(StrEnum):
         return self not in ACTIVE
 
 
-ACTIVE = (JobState.QUEUED, JobState.RUNNING)
-"""The states of unfinished jobs."""
+ACTIVE = (JobState.VALIDATING, JobState.QUEUED, JobState.RUNNING)
+"""The states of unfinished jobs (each holds its output: no other job may write it)."""
 
 
 @dataclass
@@ -59,15 +64,18 @@ class Job:
     submitted, started, finished : float or None
         Seconds since the epoch.
     total, done : int
-        Samples of the sweep, and samples complete.
+        Samples of the sweep (0 until it is validated), and samples complete.
     rate : float
         Samples a second of the run.
     message : str or None
-        Why it failed or was cancelled.
+        Why it was rejected, failed or was cancelled.
     errors : dict
         The reason of each sample not written, by sample (`RunResult.problems`).
     interrupted : bool
         Whether a service stopped while it ran (it resumes at the next start).
+    submission_id : str or None
+        The submitter's id of the submission (`service.jobs.SUBMISSION_ID`): the same id
+        from the same owner answers this job again.
     """
 
     id: str
@@ -87,6 +95,7 @@ class Job:
     message: str | None = None
     errors: dict[str, str] = field(default_factory=dict)
     interrupted: bool = False
+    submission_id: str | None = None
 
     @classmethod
     def from_row(cls, row: dict) -> Job:
@@ -133,6 +142,7 @@ class Job:
             "message": self.message,
             "resumed": self.interrupted,
             "errors": self.errors,
+            "submission_id": self.submission_id,
         }
 
 

@@ -44,10 +44,11 @@ from service import package_version
 from service.cluster import dask_client
 from service.errors import BadFileError, BadOptionError, InputError
 from service.inputs import MAX_FILE_BYTES
-from service.jobs import ForbiddenError, JobTable, QueueFullError, Runner
+from service.jobs import ForbiddenError, QueueFullError, Runner
 from service.pictures import KINDS, Pictures
 from service.records import JobState
 from service.store.location import Store
+from service.table import JobTable
 
 __all__ = ["LOOPBACK", "create_app", "read_tokens", "serve"]
 
@@ -137,6 +138,7 @@ class _Service:
             ("/v1/jobs/{id}", self.job, "GET"),
             ("/v1/jobs/{id}", self.cancel, "DELETE"),
             ("/v1/jobs/{id}/events", self.events, "GET"),
+            ("/v1/jobs/{id}/logs", self.logs, "GET"),
             ("/", self.page_list, "GET"),
             ("/jobs/{id}", self.page_job, "GET"),
             ("/jobs/{id}/{picture}.png", self.picture, "GET"),
@@ -193,9 +195,14 @@ class _Service:
         except UnicodeDecodeError:
             return _error(400, "the sweep is not UTF-8 text")
         mode = request.query_params.get("mode", "new")
+        submission_id = request.query_params.get("submission_id")
         try:
-            job = await run_in_threadpool(
-                self.runner.submit, text, owner=request.state.owner, mode=mode
+            job, new = await run_in_threadpool(
+                self.runner.submit,
+                text,
+                owner=request.state.owner,
+                mode=mode,
+                submission_id=submission_id,
             )
         except InputError as error:
             return _error(error.status, str(error))
@@ -203,7 +210,7 @@ class _Service:
             return _error(403, str(error))
         except QueueFullError as error:
             return _error(429, str(error))
-        return JSONResponse(job.public(), status_code=201)
+        return JSONResponse(job.public(), status_code=201 if new else 200)
 
     async def jobs(self, request: Request) -> JSONResponse:
         state = request.query_params.get("state")
@@ -249,6 +256,17 @@ class _Service:
                 await asyncio.sleep(EVENT_TICK)
 
         return StreamingResponse(stream(), media_type="text/event-stream")
+
+    async def logs(self, request: Request) -> JSONResponse:
+        """A job's log (`service.table.JobTable.lines`) and state, for its owner alone."""
+        job_id = request.path_params["id"]
+        job = self.table.get(job_id)
+        if job is None:
+            return _error(404, "no such job")
+        if job.owner != request.state.owner:
+            return _error(403, f"job {job_id} is {job.owner}'s: only its owner may read its log")
+        lines = self.table.lines(job_id)
+        return JSONResponse({"id": job_id, "state": job.state.value, "lines": lines})
 
     async def page_list(self, request: Request) -> HTMLResponse:
         jobs = self.table.list()

@@ -36,7 +36,7 @@ from workers.seeds import SampleSeed
 from workers.spread import MAX_COARSE
 from workers.variables import count_dtype
 
-__all__ = ["Plan", "Sample", "load_sweep", "memory_estimate", "parse_sweep"]
+__all__ = ["Plan", "Sample", "load_sweep", "memory_estimate", "parse_sweep", "read_header"]
 
 MAX_POINTS = 10_000_000
 DEFAULT_MAX_SAMPLES = 1_000_000
@@ -346,6 +346,44 @@ def load_sweep(path, *, max_memory: float | None = DEFAULT_MAX_MEMORY) -> Plan:
     return parse_sweep(text, folder=Path(path).parent, max_memory=max_memory)
 
 
+def read_header(
+    text: str,
+    *,
+    folder=None,
+    max_memory: float | None = DEFAULT_MAX_MEMORY,
+    memory_remedy: str = MEMORY_REMEDY,
+) -> Sweep:
+    """The sweep's file checked without expanding its points: the quick part of `parse_sweep`.
+
+    The YAML, the measurement files, the schema, the default scene (its memory estimate
+    too) and the swept fields' paths; parameters as `parse_sweep`'s. What it leaves to
+    `parse_sweep` grows with the sweep: the points' expansion and each point's scene.
+
+    Raises
+    ------
+    InputError
+        As `parse_sweep`.
+    """
+    data = read_yaml(text)
+    if not isinstance(data, dict):
+        raise BadSweepError("the file must be a YAML mapping with name, seed, output and scene")
+    inline_measurements(data, folder if folder is not None else Path())
+    try:
+        sweep = Sweep.model_validate(data)
+    except ValidationError as error:
+        raise BadSweepError(_format_errors(error)) from None
+    strict_numbers(data, sweep.model_dump(), "")
+    _check_memory(sweep.scene, max_memory, memory_remedy)
+    try:
+        default = Scene.model_validate(sweep.scene)
+    except ValidationError as error:
+        raise BadSweepError(_format_errors(error, "scene")) from None
+    _check_scene(sweep.scene, default)
+    for path in sweep.sweep.parameters:
+        scene_field(path)
+    return sweep
+
+
 def parse_sweep(
     text: str,
     *,
@@ -376,23 +414,7 @@ def parse_sweep(
     the workers see inline points only and the sweep's digest covers the measured values,
     not just the file name.
     """
-    data = read_yaml(text)
-    if not isinstance(data, dict):
-        raise BadSweepError("the file must be a YAML mapping with name, seed, output and scene")
-    inline_measurements(data, folder if folder is not None else Path())
-    try:
-        sweep = Sweep.model_validate(data)
-    except ValidationError as error:
-        raise BadSweepError(_format_errors(error)) from None
-    strict_numbers(data, sweep.model_dump(), "")
-    _check_memory(sweep.scene, max_memory, memory_remedy)
-    try:
-        default = Scene.model_validate(sweep.scene)
-    except ValidationError as error:
-        raise BadSweepError(_format_errors(error, "scene")) from None
-    _check_scene(sweep.scene, default)
-    for path in sweep.sweep.parameters:
-        scene_field(path)
+    sweep = read_header(text, folder=folder, max_memory=max_memory, memory_remedy=memory_remedy)
     points = _expand(sweep)
     if not points:
         raise BadSweepError("sweep: the sweep expands to no parameter point")

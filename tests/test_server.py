@@ -138,7 +138,7 @@ def running(folder, *args, token=TOKEN):
 
 
 def finished(job):
-    return job["state"] in ("succeeded", "failed", "cancelled")
+    return job["state"] in ("succeeded", "failed", "cancelled", "rejected")
 
 
 @pytest.fixture(scope="module")
@@ -241,8 +241,10 @@ def test_cancel_stops_the_job_and_resume_completes_it(service, reference, monkey
     assert not store_lock(job["url"]).exists()
     client(monkeypatch, service)
     assert main(["status", job_id]) == 1
-    status, refused = service.submit(text)
-    assert status == 409 and "already exists" in refused["error"]
+    status, refused = service.submit(text)  # accepted, then refused by the validator
+    assert status == 201 and refused["state"] == "validating", refused
+    refused = service.wait(refused["id"], finished)
+    assert refused["state"] == "rejected" and "already exists" in refused["message"], refused
     for mode in ("resume", "overwrite"):
         status, refused = service.request(
             "POST", f"/v1/jobs?mode={mode}", text.encode(), token=OTHER_TOKEN
@@ -476,10 +478,12 @@ def test_bad_sweeps_are_400_with_the_cli_message_and_nothing_written(service, tm
         assert main(["validate", str(tmp_path / "bad.yaml")]) == 2
         assert answer["error"] in capsys.readouterr().err, label
         assert field is None or answer["error"].startswith(field), (label, answer)
-    # the size limits name what a submitter can do, not the CLI's --no-limits
+    # the size limits (checked in the background: the job is rejected) name what a
+    # submitter can do, not the CLI's --no-limits
     status, answer = service.submit(sweep("big.zarr", realisations=600_000))  # 2 points
-    assert status == 400 and "split it into smaller sweeps" in answer["error"], answer
-    assert "--no-limits" not in answer["error"]
+    assert status == 201, answer
+    message = service.wait(answer["id"], finished)["message"]
+    assert "split it into smaller sweeps" in message and "--no-limits" not in message
     # and so does the memory limit, not the CLI's --max-memory
     status, answer = service.submit(sweep("heavy.zarr").replace("pixels: 16", "pixels: 4096"))
     assert status == 400 and "make each sample smaller" in answer["error"], answer
@@ -496,7 +500,7 @@ def test_bad_sweeps_are_400_with_the_cli_message_and_nothing_written(service, tm
         shutil.rmtree(outside)
     assert not os.path.exists("/tmp/escape.zarr")
     assert sorted(p.name for p in data.iterdir()) == before_files
-    assert len(service.request("GET", "/v1/jobs")[1]["jobs"]) == before_jobs
+    assert len(service.request("GET", "/v1/jobs")[1]["jobs"]) == before_jobs + 1  # big.zarr
 
 
 def test_a_measurement_file_that_is_a_folder_is_400_and_leaks_nothing(service):
@@ -519,7 +523,9 @@ def test_a_measurement_file_that_is_a_folder_is_400_and_leaks_nothing(service):
 
 def test_jobs_of_an_unknown_state_are_400(service):
     status, answer = service.request("GET", "/v1/jobs?state=bogus")
-    assert status == 400 and answer["error"].startswith("state 'bogus': not one of queued"), answer
+    assert status == 400 and answer["error"].startswith(
+        "state 'bogus': not one of validating, queued"
+    ), answer
     assert service.request("GET", "/v1/jobs?state=queued")[0] == 200
 
 
@@ -532,7 +538,7 @@ def open_service(tmp_path_factory):
 
 def test_queue_limit_is_429(open_service):
     status, job = open_service.submit(sweep("first.zarr"))
-    assert status == 201 and job["state"] == "queued" and job["owner"] == "anonymous"
+    assert status == 201 and job["state"] == "validating" and job["owner"] == "anonymous"
     status, answer = open_service.submit(sweep("second.zarr"))
     assert status == 429, answer
     assert [j["id"] for j in open_service.request("GET", "/v1/jobs")[1]["jobs"]] == [job["id"]]
@@ -627,7 +633,8 @@ def test_an_object_storage_data_root_reads_no_measurement_file():
 
 def test_one_service_a_table_and_no_store_inside_another(tmp_path):
     from service.errors import InputError
-    from service.jobs import JobTable, Runner
+    from service.jobs import Runner
+    from service.table import JobTable
 
     table = JobTable(str(tmp_path / "jobs.sqlite"))
     with pytest.raises(InputError, match="another oceanlidar serve uses this job table"):
@@ -637,32 +644,44 @@ def test_one_service_a_table_and_no_store_inside_another(tmp_path):
     (tmp_path / "data" / "done.zarr" / "zarr.json").write_text(json.dumps(group))
     runner = Runner(
         table,
-        None,  # nothing runs: the queue is not worked
+        None,
         data_root=Store(str(tmp_path / "data")),
-        max_running=1,
+        max_running=0,  # nothing runs: jobs are validated, not started
         queue_limit=10,
         batch_size=1,
     )
-    runner.submit(sweep("runs/a.zarr"), owner="alice")
-    # a conflict with another job is 409 (issue #27), a path the service refuses 400
-    for output, reason, status in [
-        ("runs/a.zarr", "the same store or one inside the other", 409),
-        ("runs/a.zarr/image.zarr", "the same store or one inside the other", 409),
-        ("runs", "the same store or one inside the other", 409),
-        ("done.zarr/b/c.zarr", "lies inside the store 'done.zarr'", 400),
-        ('"a\\0b.zarr"', "control characters", 400),
-    ]:
-        with pytest.raises(InputError, match=f"^output: .*{re.escape(reason)}") as refused:
-            runner.submit(sweep(output), owner="bob")
-        assert refused.value.status == status, output
-    assert len(table.list()) == 1
-    assert runner.submit(sweep("runs/b.zarr"), owner="bob").state == "queued"
+    runner.start()
+    try:
+        runner.submit(sweep("runs/a.zarr"), owner="alice")
+        # a conflict with another job is 409 (issue #27), a path the service refuses 400
+        for output, reason, status in [
+            ("runs/a.zarr", "the same store or one inside the other", 409),
+            ("runs/a.zarr/image.zarr", "the same store or one inside the other", 409),
+            ("runs", "the same store or one inside the other", 409),
+            ('"a\\0b.zarr"', "control characters", 400),
+        ]:
+            with pytest.raises(InputError, match=f"^output: .*{re.escape(reason)}") as refused:
+                runner.submit(sweep(output), owner="bob")
+            assert refused.value.status == status, output
+        assert len(table.list()) == 1
+        inside, _ = runner.submit(sweep("done.zarr/b/c.zarr"), owner="bob")  # found later
+        job, _ = runner.submit(sweep("runs/b.zarr"), owner="bob")
+        assert job.state == "validating"
+        deadline = time.monotonic() + 60
+        while table.get(job.id).state == "validating" and time.monotonic() < deadline:
+            time.sleep(0.05)
+    finally:
+        runner.stop()
+    assert table.get(job.id).state == "queued"
+    inside = table.get(inside.id)
+    assert inside.state == "rejected", inside
+    assert re.match(r"^output: .*lies inside the store 'done.zarr'", inside.message), inside
 
 
 @pytest.mark.parametrize("link", [os.symlink, os.link], ids=["symbolic", "hard"])
 def test_one_service_a_table_whatever_path_reaches_it(tmp_path, link):
     from service.errors import InputError
-    from service.jobs import JobTable
+    from service.table import JobTable
 
     table = JobTable(str(tmp_path / "jobs.sqlite"))
     link(tmp_path / "jobs.sqlite", tmp_path / "linked.sqlite")
@@ -703,7 +722,8 @@ def test_a_lost_job_table_stops_the_service_and_stores_keep_their_owner(tmp_path
 
 def test_a_job_writing_its_statistics_can_no_longer_be_cancelled(tmp_path, threads, monkeypatch):
     from service.cluster import dask_client
-    from service.jobs import JobTable, Runner
+    from service.jobs import Runner
+    from service.table import JobTable
 
     writing, release = threading.Event(), threading.Event()
     write_statistics = threads.write_statistics
@@ -726,7 +746,7 @@ def test_a_job_writing_its_statistics_can_no_longer_be_cancelled(tmp_path, threa
         )
         runner.start()
         try:
-            job = runner.submit(sweep("late.zarr", realisations=1), owner="alice")
+            job, _ = runner.submit(sweep("late.zarr", realisations=1), owner="alice")
             assert writing.wait(120)
             assert not runner.cancel(job.id)  # the samples are written: too late
             release.set()
@@ -765,9 +785,10 @@ def test_concurrent_views_of_a_picture_draw_it_once(reference, tmp_path, monkeyp
     import uvicorn
 
     import service.plots
-    from service.jobs import JobTable, Runner
+    from service.jobs import Runner
     from service.records import Job, JobState
     from service.server import create_app
+    from service.table import JobTable
 
     renders = []
     render_preview = service.plots.render_preview

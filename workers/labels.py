@@ -21,6 +21,7 @@ from workers.variables import Role, Visibility, variables
 
 __all__ = [
     "RING_FRACTION",
+    "image_axes",
     "labelled_dataset",
     "rendered_arrays",
     "sample_labels",
@@ -183,7 +184,8 @@ def sample_labels(scene: Scene) -> xr.Dataset:
     -------
     xarray.Dataset
         ``target_present`` () and the coordinates ``gate`` and ``frame`` (indices),
-        ``gate_top``, ``gate_bottom`` (gate), ``time`` and ``platform_x/y/z`` (frame).
+        ``gate_top``, ``gate_bottom`` (gate), ``time`` and ``platform_x/y/z`` (frame),
+        the pixels' ``y`` and ``x`` (`image_axes`).
         The target's visibility per gate is rendered (`rendered_arrays`).
     """
     return xr.Dataset(*_label_variables(scene))
@@ -210,6 +212,7 @@ def _label_variables(scene: Scene) -> tuple[dict, dict]:
         "platform_y": position[:, 1],
         "platform_z": position[:, 2],
     }
+    values["y"], values["x"] = image_axes(scene)
     table = variables(scene)
     data_vars, coords = {}, {}
     for name, data in values.items():
@@ -305,6 +308,34 @@ def labelled_dataset(scene: Scene, arrays: dict[str, np.ndarray]) -> xr.Dataset:
         for name in ("sx", "sy"):
             coords[name] = (name, axis, table[name].attrs)
     return xr.Dataset(data_vars, coords=coords)
+
+
+def image_axes(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """Where the pixel centres' lines of sight meet mean sea level, in the first frame [m].
+
+    Offsets from the boresight's sea point on the image's axes: ``x`` to the image's
+    right, ``y`` up the image (row 0, the far edge, has the largest ``y``), so that an
+    image plotted against them stands as `service.plots.preview_figure` shows it. Looking
+    straight down (``platform.nadir_deg`` 0) these are exact, and east and north when
+    ``platform.azimuth_deg`` is 0 (the frame of ``sx``, ``sy``); an oblique view's are
+    on the plane across the boresight at its sea point, where its footprint is a
+    trapezium on the sea.
+
+    Parameters
+    ----------
+    scene : Scene
+        The sample's parameters.
+
+    Returns
+    -------
+    y, x : numpy.ndarray
+        The rows' and the columns' positions, ``receiver.pixels`` each, float64 [m].
+    """
+    p, r = scene.platform, scene.receiver
+    boresight = p.altitude / np.cos(np.radians(p.nadir_deg))
+    pitch = 2.0 * np.tan(0.5 * np.radians(r.field_of_view_deg)) / r.pixels
+    offsets = (np.arange(r.pixels) + 0.5 - 0.5 * r.pixels) * pitch * boresight
+    return -offsets, offsets
 
 
 def surface_axis(scene: Scene) -> np.ndarray:

@@ -214,10 +214,11 @@ def variables(scene: Scene) -> dict[str, Variable]:
     dict
         ``name -> Variable``: the rendered variables (``expected_stderr`` only when
         ``transport.method`` is ``monte_carlo``, ``surface_elevation`` only when the scene
-        saves its surface), the labels, the platform track and the coordinates (``sx``,
-        ``sy`` with the surface). Units are CF's: photoelectron counts, ICCD output counts
-        and signals in units of a white plane under the sea are all ``1``, and the
-        ``long_name`` says which. Photoelectron counts are unsigned integers
+        saves its surface), the labels, the platform track and the coordinates (``y``,
+        ``x`` of the pixels, `workers.labels.image_axes`; ``sx``, ``sy`` with the
+        surface). Units are CF's: photoelectron counts, ICCD output counts and signals
+        in units of a white plane under the sea are all ``1``, and the ``long_name``
+        says which. Photoelectron counts are unsigned integers
         (`count_dtype`, with ``valid_max``); everything else rendered is float32.
     """
     photoelectrons = scene.radiometry.photoelectrons
@@ -369,6 +370,16 @@ def variables(scene: Scene) -> dict[str, Variable]:
             {"long_name": "gate bottom depth", "units": "m"},
             Role.COORDINATE,
         ),
+    ]
+    table += [
+        Variable(
+            axis,
+            (axis,),
+            f64,
+            {"long_name": f"pixel centre {direction} on the sea", "units": "m"},
+            Role.COORDINATE,
+        )
+        for axis, direction in (("y", "up the image"), ("x", "across the image"))
     ]
     if scene.save_surface:
         table += [

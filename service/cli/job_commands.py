@@ -1,7 +1,9 @@
 """The job service's commands: ``serve`` and its clients.
 
-The clients are ``submit``, ``jobs``, ``status`` and ``cancel`` (their arguments are in
-`service.cli.parser`).
+The clients are ``submit``, ``jobs``, ``status``, ``logs`` and ``cancel`` (their arguments
+are in `service.cli.parser`). ``submit`` sends a submission id (``--submission-id``, else a
+random one) and, if the service's answer is lost (a timeout, a connection reset), sends the
+same submission again with it: the service answers the job it accepted, never a second.
 
 The clients find the service at ``--server`` or ``OCEANLIDAR_SERVER`` and send the token of
 ``--token-file`` or ``OCEANLIDAR_TOKEN``. Exit codes as the rest of the CLI: 0 success, 2
@@ -19,20 +21,29 @@ import time
 import urllib.error
 import urllib.parse
 import urllib.request
+import uuid
 
 from service.cli.parser import DEFAULT_SERVER
 from service.errors import BadOptionError, InputError
 from service.inputs import read_text
 from service.records import JobState
 
-__all__ = ["cmd_cancel", "cmd_jobs", "cmd_serve", "cmd_status", "cmd_submit"]
+__all__ = ["cmd_cancel", "cmd_jobs", "cmd_logs", "cmd_serve", "cmd_status", "cmd_submit"]
 
 TIMEOUT = 30.0
 """Seconds to wait for the service's answer to a request."""
+SUBMIT_TRIES = 3
+"""Times ``submit`` sends a submission whose answer is lost (the same submission id)."""
+FOLLOW_TICK = 1.0
+"""Seconds between looks at a job's log for ``logs --follow``."""
 
 
 class UnavailableError(RuntimeError):
     """The service cannot be reached, or cannot take the request now."""
+
+
+class LostAnswerError(UnavailableError):
+    """The request went out but its answer did not come back (a timeout, a reset)."""
 
 
 def _token(args) -> str:
@@ -71,7 +82,8 @@ def _request(args, method: str, path: str, body: bytes | None = None, *, stream=
         If the service refused the request as bad (4xx but 429): its message (the
         service's answer names no kind).
     UnavailableError
-        If it cannot be reached, is full (429) or failed (5xx).
+        If it cannot be reached, is full (429) or failed (5xx); a `LostAnswerError` if
+        it did not answer in `TIMEOUT` seconds or dropped the connection.
     """
     base = _server(args)
     request = urllib.request.Request(base.rstrip("/") + path, data=body, method=method)
@@ -89,7 +101,9 @@ def _request(args, method: str, path: str, body: bytes | None = None, *, stream=
         raise UnavailableError(f"{base}: {error.code} {message}") from None
     except (urllib.error.URLError, OSError) as error:
         reason = getattr(error, "reason", error)
-        raise UnavailableError(f"cannot reach the service at {base}: {reason}") from None
+        lost = isinstance(reason, TimeoutError | ConnectionResetError)
+        kind = LostAnswerError if lost else UnavailableError
+        raise kind(f"cannot reach the service at {base}: {reason}") from None
     if stream:
         return response
     with response:
@@ -110,6 +124,8 @@ def _final(job: dict) -> int:
         print(f"  sample {sample}: {reason}", file=sys.stderr)
     if job["message"]:
         print(f"  {job['message']}", file=sys.stderr)
+    if job["state"] == JobState.REJECTED:  # bad input, found in the background
+        return 2
     return 1 if job["state"] in (JobState.FAILED, JobState.CANCELLED) else 0
 
 
@@ -129,10 +145,23 @@ def _client(command):
 
 @_client
 def cmd_submit(args) -> int:
-    """Submit a sweep file; print the job's id."""
+    """Submit a sweep file; print the job's id (a lost answer: the same submission again)."""
     text = read_text(args.sweep, place=args.sweep).encode()
     mode = "resume" if args.resume else "overwrite" if args.overwrite else "new"
-    job = _request(args, "POST", f"/v1/jobs?mode={mode}", text)
+    submission_id = args.submission_id or uuid.uuid4().hex
+    query = urllib.parse.urlencode({"mode": mode, "submission_id": submission_id})
+    for attempt in range(1, SUBMIT_TRIES + 1):
+        try:
+            job = _request(args, "POST", f"/v1/jobs?{query}", text)
+            break
+        except LostAnswerError as error:
+            if attempt == SUBMIT_TRIES:
+                raise
+            print(
+                f"oceanlidar submit: {error}; sending it again (submission id {submission_id})",
+                file=sys.stderr,
+            )
+            time.sleep(attempt)
     print(job["id"])
     print(_line(job), file=sys.stderr)
     return 0
@@ -165,6 +194,23 @@ def cmd_status(args) -> int:
     if job is None or not JobState(job["state"]).final:
         raise UnavailableError("the event stream ended before the job finished")
     return _final(job)
+
+
+@_client
+def cmd_logs(args) -> int:
+    """A job's log, a line each with its UTC time; ``--follow`` until the job finishes."""
+    path = f"/v1/jobs/{urllib.parse.quote(args.id, safe='')}/logs"
+    printed = 0
+    while True:
+        answer = _request(args, "GET", path)
+        for line in answer["lines"]:
+            if line["seq"] > printed:
+                when = time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime(line["time"]))
+                print(f"{when} UTC  {line['level']:<7}  {line['message']}", flush=True)
+                printed = line["seq"]
+        if not args.follow or JobState(answer["state"]).final:
+            return 0
+        time.sleep(FOLLOW_TICK)
 
 
 @_client

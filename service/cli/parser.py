@@ -112,7 +112,7 @@ def _preview(commands) -> None:
 
 
 def _job_commands(commands) -> None:
-    """``serve`` (the job service) and its clients ``submit``, ``jobs``, ``status``, ``cancel``."""
+    """``serve`` (the job service) and its clients (``submit``, ``logs``, ...)."""
     serve = commands.add_parser("serve", help="run the batch service (HTTP API and web page)")
     serve.add_argument(
         "--host", default="127.0.0.1", help="address to listen on (default: %(default)s)"
@@ -151,6 +151,11 @@ def _job_commands(commands) -> None:
     mode = submit.add_mutually_exclusive_group()
     mode.add_argument("--resume", action="store_true", help="complete an existing store")
     mode.add_argument("--overwrite", action="store_true", help="replace an existing store")
+    submit.add_argument(
+        "--submission-id",
+        help="this submission's id (1-64 of A-Z a-z 0-9 . _ -): the same id again answers "
+        "the same job (default: a new random one, kept for the client's own retries)",
+    )
     jobs = commands.add_parser("jobs", help="list the service's jobs, newest first")
     jobs.add_argument(
         "--state", choices=[str(state) for state in JobState], help="only jobs in this state"
@@ -158,9 +163,12 @@ def _job_commands(commands) -> None:
     status = commands.add_parser("status", help="a job's state and progress")
     status.add_argument("id", help="job id")
     status.add_argument("--watch", action="store_true", help="follow it until it finishes")
+    logs = commands.add_parser("logs", help="a job's log: accepted, validated, run, finished")
+    logs.add_argument("id", help="job id")
+    logs.add_argument("--follow", action="store_true", help="print new lines until it finishes")
     cancel = commands.add_parser("cancel", help="cancel a job (its store stays resumable)")
     cancel.add_argument("id", help="job id")
-    for parser in (submit, jobs, status, cancel):
+    for parser in (submit, jobs, status, logs, cancel):
         parser.add_argument(
             "--server", help=f"service URL (else OCEANLIDAR_SERVER, {DEFAULT_SERVER})"
         )

@@ -328,19 +328,19 @@ class Store:
             storage_options=self.storage_options,
         )
 
-    def dataset(self, samples_per_chunk: int | None = None) -> xr.Dataset:
-        """The store as an xarray dataset, lazily (dask; one sample per chunk unless told)."""
-        if samples_per_chunk is None:
-            return xr.open_zarr(self.url, consolidated=True, storage_options=self.storage_options)
-        with warnings.catch_warnings():
-            # labels are stored in one chunk per array: splitting them for reading is intended
-            warnings.filterwarnings("ignore", message="The specified chunks separate")
-            return xr.open_zarr(
-                self.url,
-                consolidated=True,
-                storage_options=self.storage_options,
-                chunks={"sample": samples_per_chunk},
-            )
+    def dataset(self, *, dask: bool = True) -> xr.Dataset:
+        """The store as an xarray dataset, lazily.
+
+        Dask, one chunk per zarr chunk; with ``dask=False``, xarray's lazily indexed
+        arrays (one zarr call reads a whole array: what `service.dataset.open_dataset`
+        loads its small arrays from and chunks its large ones by).
+        """
+        return xr.open_zarr(
+            self.url,
+            consolidated=True,
+            storage_options=self.storage_options,
+            **({} if dask else {"chunks": None}),
+        )
 
     def write(self, ds: xr.Dataset, *, mode: str, compute: bool = True, encoding=None) -> None:
         """Write `ds` as a zarr v3 store here, its metadata consolidated."""

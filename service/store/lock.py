@@ -93,7 +93,7 @@ def _is_stale(holder: dict, claim: str | None) -> bool:
     store with the job's id (`service.jobs`), and a job is run again only once the service
     that ran it has died, on whatever machine (a container restarted as process 1, a pod
     with a new host name): a service owns its job table exclusively
-    (`service.jobs.JobTable`), so no live service still runs the job.
+    (`service.table.JobTable`), so no live service still runs the job.
     """
     if claim is not None and holder.get("claim") == claim:
         return True

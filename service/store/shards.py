@@ -5,7 +5,7 @@ written again with its new ones, then their CRC-32 checksums (`sample_checksum`)
 their completion flags. `read_samples` reads samples back and names the one whose chunk is
 damaged, `read_verified` checks them against their checksums too; `ShardReader` reads one
 sample's chunk straight from its shard file (one ranged read, the shard's index read once),
-for training readers (`service.dataset`).
+for training readers, or a whole shard at once, for xarray's (`service.dataset`).
 """
 
 from __future__ import annotations
@@ -306,6 +306,31 @@ class ShardReader:
             return index[position]
         offset, length = (int(v) for v in index[position])
         data = self.fs.cat_file(self.key.format(shard), start=offset, end=offset + length)
+        return self._decoded(data, sample)
+
+    def read_shard(self, shard: int, samples: int) -> np.ndarray:
+        """The first `samples` samples of a sharded array's shard `shard`, decoded.
+
+        The shard file is read whole, once (its index not kept); fill values where a sample
+        was never written: what a dask chunk of a shard reads
+        (`service.dataset.open_dataset`).
+        """
+        values = np.full((samples, *self.shape), self.fill, self.dtype)
+        try:
+            data = self.fs.cat_file(self.key.format(shard))
+        except FileNotFoundError:
+            return values
+        tail = data[-(16 * self.per_shard + 4) :]
+        self._check(tail, f"shard {shard}'s index")
+        index = np.frombuffer(tail[:-4], "<u8").reshape(-1, 2)
+        for position, (offset, length) in enumerate(index[:samples].tolist()):
+            if offset != EMPTY:
+                sample = shard * self.per_shard + position
+                values[position] = self._decoded(data[offset : offset + length], sample)
+        return values
+
+    def _decoded(self, data: bytes, sample: int) -> np.ndarray:
+        """A sample's chunk (its bytes with their CRC32C) checked and decompressed."""
         self._check(data, f"sample {sample}: its chunk")
         values = np.frombuffer(self.codec.decode(data[:-4]), self.dtype)
         return values.reshape(self.shape)

@@ -1,11 +1,13 @@
 """The store's template: its variables, metadata and coordinates, written before any sample.
 
-Dimensions ``sample, frame, gate, y, x`` (README, "The dataset"). The template (metadata
-and everything that does not depend on rendering: labels, platform track, coordinates,
-swept parameters under identifier names) is written once with ``compute=False``, laid out
-as `service.store.layout` says; tasks then write whole shards, and only after that set
-their samples' ``completed`` flags, so an interrupted run never marks a sample complete
-that is not written (`service.store.shards.write_shard`). The variables are the union of
+Dimensions ``sample, frame, gate, y, x`` (README, "The dataset"; ``y`` and ``x`` the
+pixels' places on the sea, `workers.labels.image_axes`, unless the sweep varies the
+footprint). The template (metadata and everything that does not depend on rendering:
+labels, platform track, coordinates, swept parameters under identifier names) is written
+once with ``compute=False``, laid out as `service.store.layout` says; tasks then write
+whole shards, and only after that set their samples' ``completed`` flags, so an
+interrupted run never marks a sample complete that is not written
+(`service.store.shards.write_shard`). The variables are the union of
 every point's table (`store_variables`, from `workers.variables`).
 """
 
@@ -246,11 +248,13 @@ def template(plan: Plan, samples_per_shard: int | None = None) -> tuple[xr.Datas
         encoding[name] = per_shard((), shard)
     # labels and the platform track follow from each point's scene: written once, here
     track = [name for name, v in table.items() if v.role is Role.TRACK]
-    labels = xr.concat(
-        [sample_labels(scene).reset_coords(track) for scene in plan.scenes],
-        dim="sample",
-        data_vars="all",
-    )
+    per_point = [sample_labels(scene).reset_coords(track) for scene in plan.scenes]
+    first_labels = per_point[0]
+    if not all(labels.y.equals(first_labels.y) for labels in per_point):
+        # the footprint varies (altitude, field of view, nadir): the pixels have no common
+        # place on the sea, and the store no y and x coordinates
+        per_point = [labels.drop_vars(["y", "x"]) for labels in per_point]
+    labels = xr.concat(per_point, dim="sample", data_vars="all")
     for name in (name for name, v in table.items() if v.role in (Role.LABEL, Role.TRACK)):
         variable = labels[name]
         data_vars[name] = (
