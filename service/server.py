@@ -15,15 +15,12 @@ health included.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import hmac
 import html
 import json
 import os
-import signal
 import socket
 import sys
-import threading
 import time
 import urllib.parse
 
@@ -409,31 +406,10 @@ def serve(args, security) -> int:
                 flush=True,
             )
             try:
-                with _sigterm_returns():
-                    uvicorn.Server(config).run(sockets=[listener])
+                uvicorn.Server(config).run(sockets=[listener])
             finally:
                 runner.stop()
     return 0
-
-
-@contextlib.contextmanager
-def _sigterm_returns():
-    """SIGTERM stops the service as a request to stop: `serve` returns, its cluster closed.
-
-    uvicorn catches SIGTERM, stops serving, then raises it again with the handler it found;
-    the system's default ends the process there, before the runner stops and the embedded
-    cluster closes (its workers killed, their semaphores leaked: the resource tracker's
-    warning at exit). Here that handler does nothing, so `serve` goes on to stop cleanly.
-    Only from the main thread, where signals are handled.
-    """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.signal(signal.SIGTERM, lambda signum, frame: None)
-    try:
-        yield
-    finally:  # None: a handler not set from Python, the system's default
-        signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
 
 
 def _listening(host: str, port: int) -> socket.socket:

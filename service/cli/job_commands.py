@@ -226,8 +226,9 @@ def cmd_cancel(args) -> int:
 
 
 def cmd_serve(args) -> int:
-    """Run the job service until interrupted."""
-    from service.cli.run_commands import security
+    """Run the job service until interrupted or terminated (SIGTERM: exit 0)."""
+    from service.cli.run_commands import security, sigterm_raises
     from service.server import serve
 
-    return serve(args, security(args))
+    with sigterm_raises(SystemExit):
+        return serve(args, security(args))

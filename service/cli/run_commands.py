@@ -36,7 +36,15 @@ from workers.cascades import describe
 from workers.render import render_arrays
 from workers.section import SceneError
 
-__all__ = ["cmd_run", "cmd_schema", "cmd_validate", "memory_limit", "report_samples", "run_time"]
+__all__ = [
+    "cmd_run",
+    "cmd_schema",
+    "cmd_validate",
+    "memory_limit",
+    "report_samples",
+    "run_time",
+    "sigterm_raises",
+]
 
 log = logging.getLogger("oceanlidar")
 
@@ -265,19 +273,24 @@ def _check_run_flags(args) -> None:
 
 
 @contextlib.contextmanager
-def _terminate_as_interrupt():
-    """SIGTERM (``docker stop``, ``kill``, a batch system's time limit) acts as a Ctrl-C.
+def sigterm_raises(stop: type[BaseException]):
+    """SIGTERM (``docker stop``, ``kill``, a batch system's time limit) raises `stop`.
 
-    The run then stops as interrupted: the writer's lock released, the cluster closed,
-    the summary and ``--resume`` hint printed (the default SIGTERM ends the process on the
-    spot, lock left behind). Only from the main thread, where signals are handled.
+    The system's default ends the process on the spot, nothing cleaned up: the writer's
+    lock left behind, the embedded cluster's workers killed (their semaphores leaked, the
+    resource tracker's warning). Raised, `stop` unwinds the command: `run` takes
+    ``KeyboardInterrupt`` and stops as interrupted (lock released, cluster closed, the
+    summary and the ``--resume`` hint printed); ``serve`` takes ``SystemExit`` and exits
+    0 once its jobs are stopped resumably and its cluster closed (uvicorn, which stops
+    serving on SIGTERM first, raises the signal again with this handler). Only from the
+    main thread, where signals are handled.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
     def interrupt(signum, frame):
-        raise KeyboardInterrupt
+        raise stop
 
     previous = signal.signal(signal.SIGTERM, interrupt)
     try:
@@ -302,7 +315,7 @@ def cmd_run(args) -> int:
             if not store.occupied():  # README: --resume completes an interrupted run
                 log.info("nothing at %s to resume: starting a new run", url)
     try:
-        with open(os.devnull, "w") as devnull, _terminate_as_interrupt():
+        with open(os.devnull, "w") as devnull, sigterm_raises(KeyboardInterrupt):
             result = execute(
                 plan,
                 store,
