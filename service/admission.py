@@ -22,7 +22,7 @@ from service.errors import BadFileError, BadOptionError, OutputTakenError, Unusa
 from service.inputs import DEFAULT_MAX_MEMORY, MAX_FILE_BYTES, shown
 from service.stats import check_owner
 from service.store import integrity
-from service.store.location import KIND, Store
+from service.store.location import KIND, Store, old_gate_numbering
 from service.store.template import check_uniform
 from service.sweep import MEMORY_REMEDY, NO_LIMITS, Plan, parse_sweep, read_header
 
@@ -158,6 +158,9 @@ def check_output(
             f"{package_version()}: samples would differ; resume with that version "
             "or start again with --overwrite"
         )
+    gates = store.group().get("gate")
+    if gates is not None and (problem := old_gate_numbering(gates[:], name)):
+        raise UnusableOutputError(problem)
     if stale := integrity.stale_layout(store, plan):
         raise UnusableOutputError(
             f"{name} was written with another layout of its samples ({', '.join(stale)} "

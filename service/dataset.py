@@ -143,12 +143,19 @@ class SampleDataset:
         not written read as fill values.
     storage_options : dict, optional
         fsspec options.
+    image_dtype : numpy dtype, optional
+        The type ``image`` is returned in, converted after the sample is checked (e.g.
+        ``np.float32``: exact for counts up to 2²⁴; torch's ``mean`` and ``max`` refuse the
+        ``uint32`` of 128-pixel ML(DC) stores). Default: as stored (``valid_max`` says its
+        range), the narrowest unsigned type holding the counts, or float32.
 
     Notes
     -----
     Item ``i`` is the ``i``-th written sample, `sample_index` maps it to the store's
     ``sample``. An item is a dict of numpy arrays (one per name, without the ``sample``
-    dimension) plus ``sample``. Arrays are read-only views of the decompressed chunk.
+    dimension) plus ``sample``. Every array is writable and the item's own (the chunk
+    decompressed into it, a label copied), so a ``DataLoader``'s default collate takes it
+    without a warning and changing it changes nothing else.
 
     Each sample returned is checked as ``oceanlidar info --verify`` checks it: every chunk's
     CRC32C, and every rendered array the store holds (those not asked for too: the
@@ -170,9 +177,11 @@ class SampleDataset:
         labels=("target_present", "target_visibility"),
         completed_only: bool = True,
         storage_options: dict | None = None,
+        image_dtype=None,
     ) -> None:
         self.store = Store(url, storage_options)
         self.arrays = tuple(arrays)
+        self.image_dtype = None if image_dtype is None else np.dtype(image_dtype)
         group = self.store.group()
         missing = [name for name in (*self.arrays, *labels) if name not in group]
         if missing:
@@ -221,7 +230,7 @@ class SampleDataset:
             {
                 "sample": np.int64(sample),
                 **self._arrays(int(sample)),
-                **{name: values[sample] for name, values in self.labels.items()},
+                **{name: _own(values[sample]) for name, values in self.labels.items()},
             }
             for sample in samples
         ]
@@ -242,7 +251,14 @@ class SampleDataset:
                 f"sample {sample}: its arrays do not match its checksum (a shard file lost, "
                 "or another's); run the sweep again with --resume --verify to recompute it"
             )
+        if self.image_dtype is not None and "image" in self.arrays:
+            read["image"] = read["image"].astype(self.image_dtype)
         return {name: read[name] for name in self.arrays}
+
+
+def _own(value):
+    """A label's value for an item: a copy of an array (not a view of the labels held)."""
+    return value.copy() if isinstance(value, np.ndarray) else value
 
 
 def _listed(samples: list[int]) -> str:

@@ -106,7 +106,8 @@ def preview_figure(
         )
         if mask.any():
             axes[g].contour(mask, levels=[0.5], colors="tab:red", linewidths=0.5, alpha=0.5)
-        axes[g].set_title(f"gate {g + 1}: {top:.1f}–{bottom:.1f} m", fontsize=8)
+        number = int(ds["gate"][g])
+        axes[g].set_title(f"gate {number}: {top:.1f}–{bottom:.1f} m", fontsize=8)
         axes[g].set_xticks([])
         axes[g].set_yticks([])
         bar = figure.colorbar(shown, ax=axes[g], fraction=0.046, pad=0.02)
@@ -217,11 +218,12 @@ def plot_statistics(stats: xr.Dataset, path: str) -> None:
             data = stats[quantity].values
             for g in range(stats.sizes["gate"]):
                 top, bottom = float(stats.gate_top[g]), float(stats.gate_bottom[g])
+                gate = f"{int(stats['gate'][g])}: {top:.1f}–{bottom:.1f} m"
                 if numeric:
                     order = np.argsort(labels, kind="stable")
-                    ax.plot(labels[order], data[order, g], ".", label=f"{top:.1f}–{bottom:.1f} m")
+                    ax.plot(labels[order], data[order, g], ".", label=gate)
                 else:
-                    ax.plot(labels, data[:, g], "o", label=f"{top:.1f}–{bottom:.1f} m")
+                    ax.plot(labels, data[:, g], "o", label=gate)
             units = stats[name].attrs.get("units", "1")
             ax.set_xlabel(f"{stats[name].attrs['parameter']} ({units})", fontsize=8)
             ax.set_ylabel("target contrast" if row == 0 else "CNR", fontsize=8)

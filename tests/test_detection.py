@@ -258,6 +258,8 @@ def test_detection_dataset_layout(detection):
     assert det["detector"].values.tolist() == list(DETECTORS)
     assert det["point"].values.tolist() == [0, 2, 4, 6]
     assert det["negative_point"].values.tolist() == [1, 3, 5, 7]
+    assert det["gate"].values.tolist() == [1]  # numbered from 1, as the samples' (issue #27)
+    assert det["gate_auc"].dims == ("point", "gate")
     for name, variable in det.variables.items():
         assert "long_name" in variable.attrs, name
         if variable.dtype.kind in "biuf":

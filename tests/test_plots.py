@@ -33,6 +33,10 @@ def test_preview_png_has_one_panel_per_gate_and_the_sea(tmp_path, capsys):
     assert len(image_axes(figure)) == 7
     titles = [ax.get_title() for ax in image_axes(figure)]
     assert titles[0] == "gate 1: 3.7–9.8 m" and titles[-1].startswith("sea")
+    # a gate's label is its coordinate, the ML(DC) camera number (issue #27), not its place
+    assert ds["gate"].values.tolist() == [1, 2, 3, 4, 5, 6]
+    titles = [ax.get_title() for ax in image_axes(preview_figure(ds.isel(gate=[2, 4])))]
+    assert titles[:2] == ["gate 3: 6.1–12.2 m", "gate 5: 10.7–13.7 m"]
 
 
 def test_preview_gif_animates_every_frame(tmp_path):
@@ -93,7 +97,25 @@ def test_plot_draws_contrast_and_cnr_against_each_swept_parameter(
     url = str(tmp_path / "s.zarr")
     execute(plan, Store.at(url), workers=1, progress_stream=open(os.devnull, "w"))
     target = tmp_path / "stats.png"
+    figures, figure = [], service.plots._figure
+
+    def kept(**size):
+        figures.append(figure(**size))
+        return figures[-1]
+
+    monkeypatch.setattr(service.plots, "_figure", kept)
     assert main(["plot", url, "--output", str(target)]) == 0
+    # each gate named by its coordinate, numbered from 1 as in the store (issue #27)
+    stats = Store(url).stats.dataset()
+    assert stats["gate"].values.tolist() == list(range(1, stats.sizes["gate"] + 1))
+    legend = figures[0].axes[0].get_legend()
+    assert legend.get_title().get_text() == "gate"
+    assert [text.get_text() for text in legend.get_texts()] == [
+        f"{g}: {top:.1f}–{bottom:.1f} m"
+        for g, top, bottom in zip(
+            stats["gate"].values, stats.gate_top.values, stats.gate_bottom.values, strict=True
+        )
+    ]
     with Image.open(target) as picture:
         picture.verify()
     with Image.open(target) as picture:

@@ -128,6 +128,8 @@ def test_store_metadata_and_statistics(two_worker_store):
     stats = xr.open_zarr(Store(url).stats.url)
     assert stats.sizes["point"] == 4 and stats.sizes["gate"] == 2
     assert stats["gate_top"].values.tolist() == [2.0, 5.0]
+    # gates numbered from 1 in the samples and their statistics (issue #27)
+    assert ds["gate"].values.tolist() == stats["gate"].values.tolist() == [1, 2]
     assert stats["samples"].values.tolist() == [3, 3, 3, 3]
     # the statistics equal a direct computation on the loaded store
     image = ds["image"].values

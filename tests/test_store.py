@@ -280,7 +280,8 @@ def test_a_shard_whose_task_is_given_up_goes_to_no_other_task(tmp_path, monkeypa
 def test_open_dataset_selects_by_gate_and_groups_by_swept_parameters(filled):
     _, url = filled
     ds = open_dataset(url)
-    assert ds.sel(gate=0).image.dims == ("sample", "frame", "y", "x")
+    assert ds["gate"].values.tolist() == [1]  # numbered as every picture counts (issue #27)
+    assert ds.sel(gate=1).image.dims == ("sample", "frame", "y", "x")
     assert ds["frame"].values.tolist() == [0]
     depth = ds["target_depth"]
     assert isinstance(depth.data, np.ndarray)  # loaded: no .compute() needed
@@ -296,7 +297,8 @@ def test_open_dataset_selects_by_gate_and_groups_by_swept_parameters(filled):
     assert ds["image"].attrs["valid_max"].dtype == ds["image"].dtype
     write_statistics(Store(url))
     stats = open_dataset(Store(url).stats.url)
-    assert stats.sel(gate=0)["target_contrast"].dims == ("point",)
+    assert stats["gate"].values.tolist() == [1]
+    assert stats.sel(gate=1)["target_contrast"].dims == ("point",)
     assert stats["target_depth"].attrs["parameter"] == "target.depth"
 
 
@@ -355,6 +357,63 @@ def test_the_training_reader_returns_the_stores_samples(filled, tmp_path):
     assert damaged[1]["image"].tobytes() == ds["image"].values[3].tobytes()
     with pytest.raises(DamagedStoreError, match="sample 2: its chunk of target_mask"):
         damaged[0]
+
+
+def test_the_training_reader_returns_writable_arrays_of_their_own(filled):
+    # issue #27 item 9: a DataLoader's default collate warns of read-only arrays (torch's
+    # as_tensor), and changing an item's label must not change the labels held
+    _, url = filled
+    reader = SampleDataset(url, labels=("target_present", "target_visibility"))
+    batch = reader.__getitems__([0, 3])  # a sphere, then no target
+    for item in (*batch, reader[3]):
+        for name in ("image", "target_mask", "target_visibility"):
+            assert item[name].flags.writeable and item[name].flags.owndata, name
+    stored = xr.open_zarr(url)["target_visibility"].values[0]
+    batch[0]["target_visibility"][...] = 99
+    batch[0]["image"][...] = 0
+    assert reader[0]["target_visibility"].tolist() == stored.tolist()
+    # what default_collate does with numpy items: one array per key, stacked
+    collated = {name: np.stack([item[name] for item in batch]) for name in batch[0]}
+    assert collated["image"].shape == (2, *reader[3]["image"].shape)
+    assert collated["target_present"].tolist() == [1, 0]
+
+
+def test_the_training_reader_converts_images_to_the_type_asked_for(filled):
+    # uint32 counts, on which torch's mean and max fail, as float32 on request
+    _, url = filled
+    counts = SampleDataset(url)[3]
+    floats = SampleDataset(url, image_dtype=np.float32)
+    item = floats[3]
+    assert counts["image"].dtype.kind == "u" and item["image"].dtype == np.float32
+    assert np.array_equal(item["image"], counts["image"])
+    assert item["target_mask"].dtype == np.uint8  # the mask as stored
+    assert floats.__getitems__([3])[0]["image"].dtype == np.float32
+
+
+def test_a_store_numbering_its_gates_from_0_is_refused_until_renumbered(filled, tmp_path, cli):
+    # issue #27 item 4: stores written before it number their gates 0..N-1; read, resumed,
+    # reduced or evaluated now they would mix the two numberings: refused with the remedy
+    _, url = filled
+    old = tmp_path / "t.zarr"
+    shutil.copytree(url, old)
+    gate = zarr.open_group(str(old), mode="r+")["gate"]
+    gate[:] = gate[:] - 1
+    sweep = tmp_path / "t.yaml"
+    sweep.write_text(SWEEP.format(name="t", seed=4, realisations=3, output="t.zarr"))
+    with pytest.raises(InputError, match=r"numbers its gates from 0.*renumber it in place"):
+        open_dataset(str(old))
+    for command in (["stats", old], ["detect", old], ["info", old], ["run", sweep, "--resume"]):
+        result = cli(*command, cwd=tmp_path)
+        assert result.returncode == 2, command
+        assert "numbers its gates from 0" in result.stderr and "Traceback" not in result.stderr
+        assert "not an oceanlidar" not in result.stderr, command
+    assert not Store(str(old)).stats.occupied()  # nothing written beside it
+    # the remedy the message points to (README, "The dataset")
+    group = zarr.open_group(str(old), mode="r+")
+    group["gate"][:] = group["gate"][:] + 1
+    assert open_dataset(str(old))["gate"].values.tolist() == [1]
+    assert cli("stats", old, cwd=tmp_path).returncode == 0
+    assert open_dataset(Store(str(old)).stats.url)["gate"].values.tolist() == [1]
 
 
 def test_the_training_reader_reads_stores_of_zstd_shards(tmp_path, monkeypatch):

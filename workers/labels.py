@@ -183,7 +183,8 @@ def sample_labels(scene: Scene) -> xr.Dataset:
     Returns
     -------
     xarray.Dataset
-        ``target_present`` () and the coordinates ``gate`` and ``frame`` (indices),
+        ``target_present`` () and the coordinates ``gate`` (numbers from 1, the
+        shallowest: the ML(DC) cameras 1–6) and ``frame`` (indices from 0),
         ``gate_top``, ``gate_bottom`` (gate), ``time`` and ``platform_x/y/z`` (frame),
         the pixels' ``y`` and ``x`` (`image_axes`).
         The target's visibility per gate is rendered (`rendered_arrays`).
@@ -203,7 +204,7 @@ def _label_variables(scene: Scene) -> tuple[dict, dict]:
     position = np.stack([platform_position(scene, t) for t in times])
     values = {
         "target_present": scene.target.shape != "none",
-        "gate": np.arange(len(gates)),
+        "gate": np.arange(1, len(gates) + 1),
         "frame": np.arange(len(times)),
         "gate_top": gates[:, 0],
         "gate_bottom": gates[:, 1],

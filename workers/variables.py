@@ -354,7 +354,13 @@ def variables(scene: Scene) -> dict[str, Variable]:
             {"long_name": "platform height", "units": "m"},
             Role.TRACK,
         ),
-        Variable("gate", ("gate",), i32, {"long_name": "gate index", **one}, Role.COORDINATE),
+        Variable(
+            "gate",
+            ("gate",),
+            i32,
+            {"long_name": "gate number (from 1, the shallowest; ML(DC): camera 1-6)", **one},
+            Role.COORDINATE,
+        ),
         Variable("frame", ("frame",), i32, {"long_name": "frame index", **one}, Role.COORDINATE),
         Variable(
             "gate_top",

@@ -56,6 +56,8 @@ def _open(store: Store):
         raise UnusableOutputError(f"{url}: not an oceanlidar samples store")
     try:
         return store.dataset()
+    except InputError:  # a store, refused as it is (gates numbered from 0)
+        raise
     except Exception as error:
         raise UnusableOutputError(f"{url}: not an oceanlidar store ({error})") from None
 

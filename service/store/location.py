@@ -25,15 +25,34 @@ import numpy as np
 import xarray as xr
 import zarr
 
-from service.errors import BadOptionError, UnusableOutputError
+from service.errors import BadFileError, BadOptionError, UnusableOutputError
 from service.inputs import shown
 from service.store.lock import LEGACY_LOCK_NAME, check_workers_see, writer_lock
 
-__all__ = ["KIND", "Store", "consolidated_v3"]
+__all__ = ["KIND", "Store", "consolidated_v3", "old_gate_numbering"]
 
 KIND = "oceanlidar_dataset"
 """Root attribute naming what a store holds: ``samples`` (a sweep), ``statistics`` or
 ``detection``."""
+
+
+def old_gate_numbering(gates: np.ndarray, url: str) -> str | None:
+    """Why a dataset whose ``gate`` coordinate is `gates` cannot be read or resumed, or None.
+
+    Until issue #27 the ``gate`` coordinate held positions from 0 where every picture and
+    the README count gates from 1 (the ML(DC) cameras 1–6); a store written then would mix
+    the two numberings with the statistics or detection datasets written now. It is
+    refused, never renumbered behind the user's back: the message gives the remedy (README,
+    "The dataset").
+    """
+    if gates.size == 0 or int(gates[0]) != 0:
+        return None
+    return (
+        f"{url} numbers its gates from 0, as oceanlidar did before issue #27; gates are now "
+        "numbered from 1 (the ML(DC) cameras 1–6): renumber it in place (add 1 to its "
+        "'gate' array and to those of its statistics and detection datasets: README, 'The "
+        "dataset') or write the sweep again with --overwrite"
+    )
 
 
 @contextlib.contextmanager
@@ -334,13 +353,21 @@ class Store:
         Dask, one chunk per zarr chunk; with ``dask=False``, xarray's lazily indexed
         arrays (one zarr call reads a whole array: what `service.dataset.open_dataset`
         loads its small arrays from and chunks its large ones by).
+
+        Raises
+        ------
+        BadFileError
+            If its gates are numbered from 0 (`old_gate_numbering`).
         """
-        return xr.open_zarr(
+        ds = xr.open_zarr(
             self.url,
             consolidated=True,
             storage_options=self.storage_options,
             **({} if dask else {"chunks": None}),
         )
+        if "gate" in ds.coords and (problem := old_gate_numbering(ds["gate"].values, self.url)):
+            raise BadFileError(problem)
+        return ds
 
     def write(self, ds: xr.Dataset, *, mode: str, compute: bool = True, encoding=None) -> None:
         """Write `ds` as a zarr v3 store here, its metadata consolidated."""

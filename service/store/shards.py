@@ -297,13 +297,17 @@ class ShardReader:
             )
 
     def read(self, sample: int) -> np.ndarray:
-        """The sample's array (the fill value where it was never written)."""
+        """The sample's array (the fill value where it was never written), writable, its own.
+
+        A chunk is decompressed into a new array (no read-only view of the decompressed
+        bytes); a small array's values are copied from what is kept of its shard.
+        """
         shard, position = divmod(int(sample), self.per_shard)
         index = self._index(shard)
         if index is None or (self.sharded and index[position, 0] == EMPTY):
             return np.full(self.shape, self.fill, self.dtype)
         if not self.sharded:
-            return index[position]
+            return index[position].copy()
         offset, length = (int(v) for v in index[position])
         data = self.fs.cat_file(self.key.format(shard), start=offset, end=offset + length)
         return self._decoded(data, sample)
@@ -332,5 +336,6 @@ class ShardReader:
     def _decoded(self, data: bytes, sample: int) -> np.ndarray:
         """A sample's chunk (its bytes with their CRC32C) checked and decompressed."""
         self._check(data, f"sample {sample}: its chunk")
-        values = np.frombuffer(self.codec.decode(data[:-4]), self.dtype)
-        return values.reshape(self.shape)
+        values = np.empty(self.shape, self.dtype)
+        self.codec.decode(data[:-4], out=values)
+        return values
