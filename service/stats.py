@@ -60,6 +60,7 @@ from workers.labels import signal_means
 from workers.variables import Visibility
 
 __all__ = [
+    "check_computable",
     "check_owner",
     "completeness",
     "point_statistics",
@@ -360,13 +361,7 @@ def write_statistics(store: Store, *, points: np.ndarray | None = None) -> Store
     DamagedStoreError
         Naming a sample marked complete that cannot be read back as its checksum says.
     """
-    check_owner(store)
-    ds = store.dataset()
-    if "target_effect_relative" not in ds:
-        raise UnusableOutputError(
-            f"{store.url} has no target_effect_relative (written before it was stored, issue "
-            "#24): its statistics cannot be computed; run the sweep again with --overwrite"
-        )
+    ds = check_computable(store)
     target = store.stats
     done = store.completed()
     recorded = None if points is None else _recorded(ds, store)
@@ -390,6 +385,24 @@ def write_statistics(store: Store, *, points: np.ndarray | None = None) -> Store
     target.remove(old)
     partial.move_to(target)
     return target
+
+
+def check_computable(store: Store) -> xr.Dataset:
+    """The samples store `store`, opened, if statistics can be written beside it.
+
+    Raises
+    ------
+    UnusableOutputError
+        As `check_owner` does, or if the store predates the target's effect.
+    """
+    check_owner(store)
+    ds = store.dataset()
+    if "target_effect_relative" not in ds:
+        raise UnusableOutputError(
+            f"{store.url} has no target_effect_relative (written before it was stored, issue "
+            "#24): its statistics cannot be computed; run the sweep again with --overwrite"
+        )
+    return ds
 
 
 def check_owner(store: Store) -> None:

@@ -280,3 +280,9 @@ def test_statistics_of_an_incomplete_store_are_refused_unless_partial(
     assert np.isfinite(expected).all()
     assert np.isnan(stats["cnr_without_target"][1]).all()  # no target: nothing to read
     assert (np.abs(stats["cnr"][0] - expected) > 0).any()
+    # a resumed run completes the statistics in place, and their record with them
+    execute(plan, store, workers=1, resume=True, progress_stream=open(os.devnull, "w"))
+    stats = store.stats.dataset().load()
+    assert (stats.attrs["samples_complete"], stats.attrs["samples_total"]) == (6, 6)
+    assert stats["samples"].values.tolist() == [3, 3]
+    assert service.plots.statistics_title(stats) == "s.zarr: statistics of 6 of 6 samples (100 %)"

@@ -128,12 +128,12 @@ def cmd_stats(args) -> int:
     An incomplete store is refused (exit 2) unless ``--partial`` asks for the statistics of
     the samples written; those record how complete they are and say it.
     """
-    from service.stats import completeness, write_statistics
+    from service.stats import check_computable, completeness, write_statistics
 
     store = _store(args, args.store)
-    ds = _open(store)
-    total = ds.sizes["sample"]
+    total = _open(store).sizes["sample"]
     with store.lock():
+        check_computable(store)  # what cannot be computed at all is said first
         done = int(store.completed().sum())
         if done < total and not args.partial:
             raise BadOptionError(
