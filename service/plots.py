@@ -273,32 +273,45 @@ def statistics_title(stats: xr.Dataset) -> str:
 def plot_statistics(stats: xr.Dataset, path: str) -> None:
     """Target contrast and contrast-to-noise ratio against each swept parameter, per gate.
 
-    Titled by `statistics_title`: the store and how many of its samples the statistics hold.
+    The CNR of a point with a target is drawn filled, its ``cnr_without_target`` hollow
+    beside it. Titled by `statistics_title`: the store and how many of its samples the
+    statistics hold.
     """
     swept = list(swept_parameters(stats))
     if not swept:
         raise BadSweepError("the store sweeps no parameter: nothing to plot against")
     figure = _figure(figsize=(3.2 * len(swept), 5.0))
     axes = figure.subplots(2, len(swept), squeeze=False)
+    twin = stats["cnr_without_target"].values if "cnr_without_target" in stats else None
     for column, name in enumerate(swept):
         values = stats[name].values
-        numeric = values.dtype.kind in "biuf"
-        labels = values if numeric else np.asarray([str(v) for v in values])
+        labels = values if values.dtype.kind in "biuf" else np.asarray([str(v) for v in values])
+        order = np.argsort(labels, kind="stable")
         for row, quantity in enumerate(("target_contrast", "cnr")):
             ax = axes[row, column]
             data = stats[quantity].values
             for g in range(stats.sizes["gate"]):
                 top, bottom = float(stats.gate_top[g]), float(stats.gate_bottom[g])
-                if numeric:
-                    order = np.argsort(labels, kind="stable")
-                    ax.plot(labels[order], data[order, g], ".", label=f"{top:.1f}–{bottom:.1f} m")
-                else:
-                    ax.plot(labels, data[:, g], "o", label=f"{top:.1f}–{bottom:.1f} m")
+                shown = ax.plot(
+                    labels[order], data[order, g], "o", ms=4, label=f"{top:.1f}–{bottom:.1f} m"
+                )
+                if row == 1 and twin is not None:  # the same reading without the target
+                    ax.plot(
+                        labels[order],
+                        twin[order, g],
+                        "o",
+                        ms=4,
+                        mfc="none",
+                        c=shown[0].get_color(),
+                    )
             units = stats[name].attrs.get("units", "1")
             ax.set_xlabel(f"{stats[name].attrs['parameter']} ({units})", fontsize=8)
             ax.set_ylabel("target contrast" if row == 0 else "CNR", fontsize=8)
             ax.axhline(0.0, color="0.7", linewidth=0.5)
             ax.tick_params(labelsize=7)
+    if twin is not None:
+        axes[1, 0].plot([], [], "o", ms=4, mfc="none", c="0.3", label="without the target")
+        axes[1, 0].legend(fontsize=6)
     axes[0, 0].legend(fontsize=6, title="gate", title_fontsize=6)
     figure.suptitle(textwrap.fill(statistics_title(stats), 48 * len(swept)), fontsize=9)
     figure.tight_layout()

@@ -280,6 +280,9 @@ def test_statistics_of_an_incomplete_store_are_refused_unless_partial(
     assert np.isfinite(expected).all()
     assert np.isnan(stats["cnr_without_target"][1]).all()  # no target: nothing to read
     assert (np.abs(stats["cnr"][0] - expected) > 0).any()
+    # ... and the plot draws it beside the CNR, hollow
+    hollow = [line for line in drawn[0].axes[1].lines if line.get_markerfacecolor() == "none"]
+    assert np.nanmax(hollow[0].get_ydata()) == pytest.approx(float(expected[0]), rel=1e-5)
     # a resumed run completes the statistics in place, and their record with them
     execute(plan, store, workers=1, resume=True, progress_stream=open(os.devnull, "w"))
     stats = store.stats.dataset().load()
