@@ -14,6 +14,7 @@ from __future__ import annotations
 import hashlib
 import hmac
 import html
+import json
 import time
 
 from service.records import Job, JobState
@@ -32,11 +33,11 @@ STYLE = (
     "table{border-collapse:collapse;max-width:100%}.facts th{font-weight:normal;color:#555}"
 )
 """Nothing wider than the window: text wraps, pictures shrink."""
-SCRIPT = """\
+_SCRIPT = """\
 "use strict";
 // A job's page follows the job's event stream (GET /v1/jobs/ID/events), no reloads.
 const page = document.querySelector("[data-job]");
-const FINAL = ["succeeded", "failed", "cancelled"];
+const FINAL = __FINAL__;
 let job = null;
 
 function duration(seconds) {
@@ -82,7 +83,10 @@ if (page && !FINAL.includes(page.dataset.state)) {
   setInterval(() => job && show(), 1000);  // the elapsed time runs between events
 }
 """
-"""The job page's live view (served at ``/job.js``)."""
+SCRIPT = _SCRIPT.replace(
+    "__FINAL__", json.dumps([state.value for state in JobState if state.final])
+)
+"""The job page's live view (served at ``/job.js``); it stops at the final states."""
 
 
 def csrf_token(secret: bytes, credential: str) -> str:
