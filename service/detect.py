@@ -30,6 +30,7 @@ import xarray as xr
 
 from service import package_version
 from service.errors import BadOptionError, BadSweepError, InputError
+from service.stats import twin_points
 from service.store.layout import CONVENTIONS
 from service.store.location import Store
 from service.store.template import swept_parameters
@@ -54,23 +55,10 @@ def detection_store(store: Store) -> Store:
     return store.sibling("detect")
 
 
-def _point_values(ds: xr.Dataset) -> tuple[list[str], list[dict]]:
-    """The swept parameters and each point's values of them."""
-    realisations = int(ds.attrs["realisations"])
-    first = np.arange(int(ds.attrs["points"])) * realisations
-    names = swept_parameters(ds)
-    swept = list(names.values())
-    columns = {path: ds[name].values[first].tolist() for name, path in names.items()}
-    return swept, [{name: columns[name][p] for name in swept} for p in range(len(first))]
-
-
 def pair_points(ds: xr.Dataset) -> tuple[list[tuple[int, int]], list[int]]:
     """Pair each point with a target with the target-free point of the same scene.
 
-    A point without a target matches a point with one when every swept parameter outside
-    ``target.`` is equal (without a target, the target's parameters change nothing); of
-    several matches, one equal in every parameter but ``target.shape`` is preferred, then
-    the first.
+    The twins are `service.stats.twin_points`'s (also those the statistics read).
 
     Returns
     -------
@@ -93,20 +81,10 @@ def pair_points(ds: xr.Dataset) -> tuple[list[tuple[int, int]], list[int]]:
             "no parameter point is target-free, so there are no negatives to evaluate "
             "detectors against; sweep target.shape: [sphere, none] (or disk) to pair them"
         )
-    swept, values = _point_values(ds)
-    scene_keys = [name for name in swept if not name.startswith("target.")]
-    near_keys = [name for name in swept if name != "target.shape"]
-    negatives = np.flatnonzero(~present)
-    pairs, unpaired = [], []
-    for point in np.flatnonzero(present):
-        matches = [
-            int(q) for q in negatives if all(values[q][k] == values[point][k] for k in scene_keys)
-        ]
-        exact = [q for q in matches if all(values[q][k] == values[point][k] for k in near_keys)]
-        if matches:
-            pairs.append((int(point), (exact or matches)[0]))
-        else:
-            unpaired.append(int(point))
+    twins = twin_points(ds)
+    positives = np.flatnonzero(present).tolist()
+    pairs = [(point, int(twins[point])) for point in positives if twins[point] >= 0]
+    unpaired = [point for point in positives if twins[point] < 0]
     if not pairs:
         raise BadSweepError(
             "no point with a target has a target-free twin (equal in every swept parameter "

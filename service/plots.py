@@ -21,19 +21,26 @@ from matplotlib.figure import Figure
 from PIL import Image
 
 from service.errors import BadOptionError, BadSweepError
+from service.stats import statistics_completeness
 from service.store.template import swept_parameters
 from service.sweep import Plan
 from workers.render import render
+from workers.variables import Visibility
 
 __all__ = [
+    "CLIP_PERCENTILE",
     "PLOT_FORMATS",
     "PREVIEW_FORMATS",
+    "colour_scales",
     "figure_pixels",
+    "image_label",
     "plot_detection",
     "plot_statistics",
     "preview_figure",
     "render_preview",
+    "rounded",
     "save_preview",
+    "statistics_title",
 ]
 
 PREVIEW_FORMATS = (".png", ".gif")
@@ -44,6 +51,8 @@ PANEL_INCHES = 2.2
 DPI = 100
 TITLE_CHARACTERS = 28
 """Characters of a title a panel's width holds at 9 points (longer titles wrap)."""
+CLIP_PERCENTILE = 99.5
+"""Percentile of a gate's pixels its colour scale tops at (`colour_scales`)."""
 
 
 def render_preview(plan: Plan, sample: int) -> xr.Dataset:
@@ -62,8 +71,51 @@ def _figure(*, figsize: tuple[float, float]) -> Figure:
     return figure
 
 
+def colour_scales(images, *, clip: float | None = CLIP_PERCENTILE, shared: bool = False):
+    """Each gate's colour scale over `images`, robust to a few hot pixels.
+
+    Parameters
+    ----------
+    images : array_like, shape (frames, gates, y, x)
+        The images the scale covers: one frame for a PNG, every frame for a GIF (one scale
+        per gate across frames, so that brightness compares from frame to frame).
+    clip : float or None
+        Percentile of a gate's pixels the scale tops at (a few bright caustic pixels then
+        saturate instead of turning the rest black); None: the greatest value.
+    shared : bool
+        One scale for every gate (the least and the clipped top over them all).
+
+    Returns
+    -------
+    ndarray, shape (gates, 2)
+        (low, high) of each gate, in the image's units; high > low.
+    """
+    images = np.asarray(images, dtype=np.float64)
+    axes = (0, 1, 2, 3) if shared else (0, 2, 3)
+    low = images.min(axis=axes)
+    high = images.max(axis=axes) if clip is None else np.percentile(images, clip, axis=axes)
+    high = np.where(high > low, high, low + 1.0)  # a uniform gate: any span will do
+    gates = images.shape[1]
+    return np.broadcast_to(np.stack([low, high], axis=-1), (gates, 2)).copy()
+
+
+def image_label(image: xr.DataArray) -> str:
+    """The colour bar's label of a sample's ``image``: what its values count."""
+    kind = image.attrs.get("long_name", "")
+    if kind.startswith("photoelectron"):
+        return "photoelectrons"
+    return "ICCD counts" if kind.startswith("ICCD") else "white-plane units"
+
+
+def rounded(value) -> str:
+    """`value` for a title: numbers to 4 significant digits, anything else as it is."""
+    if isinstance(value, float | np.floating):
+        return f"{value:.4g}"
+    return str(value)
+
+
 def preview_figure(
-    ds: xr.Dataset, *, frame: int = 0, title: str = "", measurements=None, scale=None
+    ds: xr.Dataset, *, frame: int = 0, title: str = "", measurements=None, scales=None
 ):
     """The gated images of one frame side by side, deeper to the right, and the sea.
 
@@ -79,40 +131,46 @@ def preview_figure(
     measurements : array_like or None
         Points the surface was conditioned on, one [x, y, ...] row each (m); drawn as
         red dots on the sea.
-    scale : tuple of float or None
-        (low, high) of every gate's colour scale, in the image's units; None: each panel
-        its own.
+    scales : array_like, shape (gates, 2), or None
+        (low, high) of each gate's colour scale, in the image's units (`colour_scales`);
+        None: each gate's over this frame, clipped at `CLIP_PERCENTILE`.
 
     Returns
     -------
     matplotlib.figure.Figure
-        One panel per gate (colour bar in the image's units) and one for the surface
-        elevation (m), with the platform's position, the measured points and the
-        target's mask outline.
+        One panel per gate, titled by its ``gate`` coordinate and depths (m), its colour bar
+        in photoelectrons (or the image's other units; an arrow where pixels are brighter
+        than the scale), the target's mask outlined where ``target_visibility`` says it is
+        seen in the gate; and one for the surface elevation (m) on x and y (m), with the
+        platform's position and the measured points.
     """
     gates = ds.sizes["gate"]
     panels = gates + ("surface_elevation" in ds)
-    low, high = scale if scale is not None else (None, None)
     figure = _figure(figsize=(PANEL_INCHES * panels, PANEL_INCHES + 0.6))
     axes = figure.subplots(1, panels, squeeze=False)
     axes = axes[0]
     images = ds["image"].isel(frame=frame).values
-    units = ds["image"].attrs.get("units", "1")
+    if scales is None:
+        scales = colour_scales(images[np.newaxis])
+    label = image_label(ds["image"])
     mask = ds["target_mask"].isel(frame=frame).values
+    seen = ds["target_visibility"].isel(frame=frame).values == Visibility.in_gate
     for g in range(gates):
         top, bottom = float(ds.gate_top[g]), float(ds.gate_bottom[g])
+        low, high = scales[g]
         shown = axes[g].imshow(
             images[g], cmap="gray", interpolation="nearest", vmin=low, vmax=high
         )
-        if mask.any():
+        if mask.any() and seen[g]:
             axes[g].contour(mask, levels=[0.5], colors="tab:red", linewidths=0.5, alpha=0.5)
-        number = int(ds["gate"][g])
-        axes[g].set_title(f"gate {number}: {top:.1f}–{bottom:.1f} m", fontsize=8)
+        name = rounded(ds["gate"].values[g].item())
+        axes[g].set_title(f"gate {name}: {top:.1f}–{bottom:.1f} m", fontsize=8)
         axes[g].set_xticks([])
         axes[g].set_yticks([])
-        bar = figure.colorbar(shown, ax=axes[g], fraction=0.046, pad=0.02)
+        extend = "max" if images[g].max() > high else "neither"
+        bar = figure.colorbar(shown, ax=axes[g], fraction=0.046, pad=0.02, extend=extend)
         bar.ax.tick_params(labelsize=6)
-        bar.set_label(units, fontsize=6)
+        bar.set_label(label, fontsize=6)
     if panels > gates:
         _draw_sea(figure, axes[gates], ds, frame, measurements)
     if title:
@@ -144,6 +202,8 @@ def _draw_sea(figure, sea, ds: xr.Dataset, frame: int, measurements) -> None:
         f"sea, t = {float(ds.time[frame]):.1f} s, platform {float(ds.platform_z[frame]):.0f} m",
         fontsize=8,
     )
+    sea.set_xlabel("x (m)", fontsize=6)
+    sea.set_ylabel("y (m)", fontsize=6)
     sea.tick_params(labelsize=6)
     bar = figure.colorbar(shown, ax=sea, fraction=0.046, pad=0.02)
     bar.ax.tick_params(labelsize=6)
@@ -162,14 +222,17 @@ def save_preview(
     *,
     frame: int | None = None,
     shared_scale: bool = False,
+    full_range: bool = False,
     title: str = "",
     measurements=None,
 ) -> int:
     """Write a PNG of one frame (`frame`, default 0), or an animated GIF of every frame.
 
-    With `shared_scale`, every gate of every frame is drawn on one colour scale (the
-    image's least and greatest values over the sample), so brightness compares across
-    gates and frames. ``title`` and ``measurements`` are passed to `preview_figure`.
+    Each gate has its colour scale (`colour_scales`): over the frame drawn in a PNG, over
+    every frame in a GIF, from the least value to the `CLIP_PERCENTILE` th percentile (the
+    greatest with `full_range`). With `shared_scale`, one scale for every gate (and every
+    frame of a GIF), so brightness compares across gates too. ``title`` and
+    ``measurements`` are passed to `preview_figure`.
 
     Returns
     -------
@@ -185,51 +248,71 @@ def save_preview(
     count = ds.sizes["frame"]
     if frame is not None and not 0 <= frame < count:
         raise BadOptionError(f"--frame {frame}: the sample has frames 0..{count - 1}")
-    image = ds["image"].values
-    scale = (float(image.min()), float(image.max())) if shared_scale else None
+    if not lower.endswith(PREVIEW_FORMATS):
+        raise BadOptionError(f"--output {path}: write a .png (one frame) or a .gif (all frames)")
+    gif = lower.endswith(".gif")
+    if gif and frame is not None:
+        raise BadOptionError(f"--frame {frame}: a GIF holds every frame; write a .png for one")
+    drawn = range(count) if gif or shared_scale else [frame or 0]
+    clip = None if full_range else CLIP_PERCENTILE
+    scales = colour_scales(ds["image"].values[list(drawn)], clip=clip, shared=shared_scale)
     draw = functools.partial(
-        preview_figure, ds, title=title, measurements=measurements, scale=scale
+        preview_figure, ds, title=title, measurements=measurements, scales=scales
     )
-    if lower.endswith(".gif"):
-        if frame is not None:
-            raise BadOptionError(f"--frame {frame}: a GIF holds every frame; write a .png for one")
-        frames = [figure_pixels(draw(frame=index)) for index in range(count)]
-        frames[0].save(path, save_all=True, append_images=frames[1:], duration=200, loop=0)
-        return len(frames)
-    if lower.endswith(".png"):
-        figure_pixels(draw(frame=frame or 0)).save(path)
-        return 1
-    raise BadOptionError(f"--output {path}: write a .png (one frame) or a .gif (all frames)")
+    frames = [figure_pixels(draw(frame=index)) for index in (drawn if gif else [frame or 0])]
+    frames[0].save(path, save_all=gif, append_images=frames[1:], duration=200, loop=0)
+    return len(frames)
+
+
+def statistics_title(stats: xr.Dataset) -> str:
+    """The statistics plot's title: the samples store and how complete its statistics are."""
+    store = stats.attrs.get("samples_store") or stats.attrs.get("title", "")
+    return f"{store}: statistics of {statistics_completeness(stats)}"
 
 
 def plot_statistics(stats: xr.Dataset, path: str) -> None:
-    """Target contrast and contrast-to-noise ratio against each swept parameter, per gate."""
+    """Target contrast and contrast-to-noise ratio against each swept parameter, per gate.
+
+    The CNR of a point with a target is drawn filled, its ``cnr_without_target`` hollow
+    beside it. Titled by `statistics_title`: the store and how many of its samples the
+    statistics hold.
+    """
     swept = list(swept_parameters(stats))
     if not swept:
         raise BadSweepError("the store sweeps no parameter: nothing to plot against")
     figure = _figure(figsize=(3.2 * len(swept), 5.0))
     axes = figure.subplots(2, len(swept), squeeze=False)
+    twin = stats["cnr_without_target"].values if "cnr_without_target" in stats else None
     for column, name in enumerate(swept):
         values = stats[name].values
-        numeric = values.dtype.kind in "biuf"
-        labels = values if numeric else np.asarray([str(v) for v in values])
+        labels = values if values.dtype.kind in "biuf" else np.asarray([str(v) for v in values])
+        order = np.argsort(labels, kind="stable")
         for row, quantity in enumerate(("target_contrast", "cnr")):
             ax = axes[row, column]
             data = stats[quantity].values
             for g in range(stats.sizes["gate"]):
                 top, bottom = float(stats.gate_top[g]), float(stats.gate_bottom[g])
                 gate = f"{int(stats['gate'][g])}: {top:.1f}–{bottom:.1f} m"
-                if numeric:
-                    order = np.argsort(labels, kind="stable")
-                    ax.plot(labels[order], data[order, g], ".", label=gate)
-                else:
-                    ax.plot(labels, data[:, g], "o", label=gate)
+                shown = ax.plot(labels[order], data[order, g], "o", ms=4, label=gate)
+                if row == 1 and twin is not None:  # the same reading without the target
+                    ax.plot(
+                        labels[order],
+                        twin[order, g],
+                        "o",
+                        ms=4,
+                        mfc="none",
+                        c=shown[0].get_color(),
+                    )
             units = stats[name].attrs.get("units", "1")
             ax.set_xlabel(f"{stats[name].attrs['parameter']} ({units})", fontsize=8)
             ax.set_ylabel("target contrast" if row == 0 else "CNR", fontsize=8)
             ax.axhline(0.0, color="0.7", linewidth=0.5)
             ax.tick_params(labelsize=7)
+    if twin is not None:
+        axes[1, 0].plot([], [], "o", ms=4, mfc="none", c="0.3", label="without the target")
+        axes[1, 0].legend(fontsize=6)
     axes[0, 0].legend(fontsize=6, title="gate", title_fontsize=6)
+    figure.suptitle(textwrap.fill(statistics_title(stats), 48 * len(swept)), fontsize=9)
     figure.tight_layout()
     figure.savefig(path, dpi=DPI)
 

@@ -1,12 +1,15 @@
 """``oceanlidar serve``: the batch service's HTTP API and web page (Starlette on uvicorn).
 
 The API is JSON under ``/v1`` (see README, "Running the service"); the page at ``/`` lists
-the jobs with their progress and shows one job's sweep, statistics plot and preview strip.
-Every route but ``/v1/health`` and ``/login`` needs the service's token: an
-``Authorization: Bearer TOKEN`` header, or, for reading (``GET``) alone, the cookie that
-``/login`` sets for browsers: a request that changes something (a submission, a cancel)
-needs the header, which another site's page cannot make a browser send (no cross-site
-request forgery through the cookie). Every answer forbids framing, sniffing and anything
+the jobs with their progress and shows one job's sweep, statistics plot and preview strip
+(`service.pages`). Every route but ``/v1/health``, ``/login`` and the pages' script needs
+the service's token: an ``Authorization: Bearer TOKEN`` header, or, for reading (``GET``)
+alone, the cookie that ``/login`` sets for browsers: a request that changes something (a
+submission, a cancel) needs the header, which another site's page cannot make a browser
+send (no cross-site request forgery through the cookie). The one exception, a job page's
+cancel form (``POST /jobs/ID/cancel``), carries a token derived from the cookie that only
+the service's own pages hold (`service.pages.csrf_token`), and is refused from another
+origin. Every answer forbids framing, sniffing and anything
 the pages do not load from the service itself (`SECURITY_HEADERS`). A service whose job
 table was lost (the file deleted or replaced while it serves) answers ``503`` everywhere,
 health included.
@@ -19,9 +22,9 @@ import hmac
 import html
 import json
 import os
+import secrets
 import socket
 import sys
-import time
 import urllib.parse
 
 import uvicorn
@@ -42,6 +45,7 @@ from service.cluster import dask_client
 from service.errors import BadFileError, BadOptionError, InputError
 from service.inputs import MAX_FILE_BYTES
 from service.jobs import ForbiddenError, QueueFullError, Runner
+from service.pages import LOGIN_FORM, SCRIPT, csrf_token, job_page, list_page, page
 from service.pictures import KINDS, Pictures
 from service.records import JobState
 from service.store.location import Store
@@ -61,17 +65,15 @@ SECURITY_HEADERS = [
     (
         b"content-security-policy",
         b"default-src 'none'; img-src 'self'; style-src 'unsafe-inline'; "
-        b"form-action 'self'; frame-ancestors 'none'; base-uri 'none'",
+        b"script-src 'self'; connect-src 'self'; form-action 'self'; "
+        b"frame-ancestors 'none'; base-uri 'none'",
     ),
     (b"x-frame-options", b"DENY"),
     (b"x-content-type-options", b"nosniff"),
     (b"referrer-policy", b"no-referrer"),
 ]
-"""Sent with every answer: the pages load nothing but their own pictures, in no frame."""
-_LOGIN_FORM = (
-    '<form method="post"><label>token <input type="password" name="token">'
-    "</label> <button>log in</button></form>"
-)
+"""Sent with every answer: the pages load nothing but their own pictures, script and event
+streams, in no frame."""
 
 
 def read_tokens(path: str | None) -> dict[str, str]:
@@ -113,6 +115,8 @@ class _Service:
     def __init__(self, runner: Runner, tokens: dict[str, str]):
         self.runner, self.table, self.tokens = runner, runner.table, tokens
         self.pictures = Pictures(runner.data_root)
+        self.secret = secrets.token_bytes(32)
+        """The key of the pages' cancel forms (`service.pages.csrf_token`)."""
 
     def owner(self, request: Request, given: str | None = None) -> str | None:
         """Who sent `request` (by its token, or the token `given`), or None if nobody known."""
@@ -143,6 +147,8 @@ class _Service:
         return [
             Route("/v1/health", self.health, methods=["GET"]),
             Route("/login", self.login, methods=["GET", "POST"]),
+            Route("/job.js", self.script, methods=["GET"]),
+            Route("/jobs/{id}/cancel", self.page_cancel, methods=["POST"]),
             *[Route(path, self._guard(fn), methods=[method]) for path, fn, method in guarded],
         ]
 
@@ -166,20 +172,20 @@ class _Service:
 
     async def login(self, request: Request) -> Response:
         if request.method == "POST":
-            length = request.headers.get("content-length", "")
-            if not length.isdigit():
-                return _error(400, "a login form needs its Content-Length")
-            if int(length) > LOGIN_BYTES:
-                return _error(413, f"a login form has at most {LOGIN_BYTES} bytes")
-            form = urllib.parse.parse_qs((await request.body()).decode(errors="replace"))
-            token = (form.get("token") or [""])[0]
+            form = await _form(request)
+            if isinstance(form, Response):
+                return form
+            token = form.get("token", "")
             if self.owner(request, given=token) is None:
-                return HTMLResponse(_page("oceanlidar: log in", _LOGIN_FORM), status_code=401)
+                return HTMLResponse(page("oceanlidar: log in", LOGIN_FORM), status_code=401)
             response = RedirectResponse("/", status_code=303)
             secure = request.headers.get("x-forwarded-proto", request.url.scheme) == "https"
             response.set_cookie(COOKIE, token, httponly=True, samesite="strict", secure=secure)
             return response
-        return HTMLResponse(_page("oceanlidar: log in", _LOGIN_FORM))
+        return HTMLResponse(page("oceanlidar: log in", LOGIN_FORM))
+
+    async def script(self, request: Request) -> Response:
+        return Response(SCRIPT, media_type="text/javascript")
 
     async def submit(self, request: Request) -> JSONResponse:
         body = b""
@@ -220,20 +226,48 @@ class _Service:
         job = self.table.get(request.path_params["id"])
         return JSONResponse(job.public()) if job else _error(404, "no such job")
 
-    async def cancel(self, request: Request) -> JSONResponse:
-        job_id = request.path_params["id"]
+    def _cancel(self, job_id: str, owner: str) -> tuple[int, str]:
+        """Cancel `job_id` for `owner`: (200, "") or the refusal's (status, reason)."""
         job = self.table.get(job_id)
         if job is None:
-            return _error(404, "no such job")
-        if job.owner != request.state.owner:
-            return _error(403, f"job {job_id} is {job.owner}'s: only its owner may cancel it")
+            return 404, "no such job"
+        if job.owner != owner:
+            return 403, f"job {job_id} is {job.owner}'s: only its owner may cancel it"
         if not self.runner.cancel(job_id):
-            return _error(
-                409,
+            return 409, (
                 f"job {job_id} has finished or is writing its statistics: it can no longer "
-                "be cancelled",
+                "be cancelled"
             )
+        return 200, ""
+
+    async def cancel(self, request: Request) -> JSONResponse:
+        job_id = request.path_params["id"]
+        status, reason = self._cancel(job_id, request.state.owner)
+        if reason:
+            return _error(status, reason)
         return JSONResponse(self.table.get(job_id).public())
+
+    async def page_cancel(self, request: Request) -> Response:
+        """A job page's cancel form: the cookie's owner, the form's token, this origin only."""
+        job_id = request.path_params["id"]
+        if lost := self.table.lost():
+            return _error(503, f"{lost}: restart the service on its table")
+        if not _same_origin(request):
+            return _refused(403, "a cancel from another site's page is refused")
+        credential = request.cookies.get(COOKIE, "")
+        owner = self.owner(request, given=credential)
+        if owner is None:
+            return RedirectResponse("/login", status_code=303)
+        form = await _form(request)
+        if isinstance(form, Response):
+            return form
+        expected = csrf_token(self.secret, credential)
+        if not hmac.compare_digest(form.get("csrf", "").encode(), expected.encode()):
+            return _refused(403, "the form is not this service's page's: reload the job page")
+        status, reason = self._cancel(job_id, owner)
+        if reason:
+            return _refused(status, reason)
+        return RedirectResponse(f"/jobs/{job_id}", status_code=303)
 
     async def events(self, request: Request) -> Response:
         job_id = request.path_params["id"]
@@ -266,47 +300,14 @@ class _Service:
         return JSONResponse({"id": job_id, "state": job.state.value, "lines": lines})
 
     async def page_list(self, request: Request) -> HTMLResponse:
-        jobs = self.table.list()
-        rows = "".join(
-            f"<tr><td><a href='/jobs/{j.id}'>{j.id}</a></td><td>{html.escape(j.name)}"
-            f"</td><td>{html.escape(j.owner)}</td><td class='state'>{j.state}</td>"
-            f"<td><progress value='{j.done}' max='{j.total}'></progress> "
-            f"{j.done}/{j.total}</td><td>{_when(j.submitted)}</td></tr>"
-            for j in jobs
-        )
-        table = (
-            "<table><tr><th>job</th><th>sweep</th><th>owner</th><th>state</th>"
-            f"<th>samples</th><th>submitted</th></tr>{rows}</table>"
-        )
-        refresh = any(not j.state.final for j in jobs)
-        return HTMLResponse(_page("oceanlidar jobs", table, refresh=refresh))
+        return HTMLResponse(list_page(self.table.list()))
 
     async def page_job(self, request: Request) -> HTMLResponse:
         job = self.table.get(request.path_params["id"])
         if job is None:
-            return HTMLResponse(_page("no such job", "<p>no such job</p>"), status_code=404)
-        parts = [
-            f"<p class='state'>{job.state} <progress value='{job.done}' "
-            f"max='{job.total}'></progress> {job.done}/{job.total} samples</p>",
-            f"<p>owner {html.escape(job.owner)}, output <code>{html.escape(job.url)}</code></p>",
-        ]
-        if job.message:
-            parts.append(f"<p class='message'>{html.escape(job.message)}</p>")
-        if job.errors:
-            errors = "".join(
-                f"<li>sample {s}: {html.escape(r)}</li>" for s, r in job.errors.items()
-            )
-            parts.append(f"<ul class='errors'>{errors}</ul>")
-        if job.state is JobState.SUCCEEDED:
-            parts += [
-                f"<h2>statistics</h2><img id='statistics' src='/jobs/{job.id}/statistics.png'"
-                " alt='statistics plot'>",
-                f"<h2>first samples</h2><img id='preview' src='/jobs/{job.id}/preview.png'"
-                " alt='preview strip'>",
-            ]
-        parts.append(f"<h2>sweep</h2><pre class='sweep'>{html.escape(job.sweep)}</pre>")
-        title = f"oceanlidar job {job.id}: {html.escape(job.name)}"
-        return HTMLResponse(_page(title, "".join(parts), refresh=not job.state.final))
+            return HTMLResponse(page("no such job", "<p>no such job</p>"), status_code=404)
+        csrf = csrf_token(self.secret, request.cookies.get(COOKIE, ""))
+        return HTMLResponse(job_page(job, viewer=request.state.owner, csrf=csrf))
 
     async def picture(self, request: Request) -> Response:
         job_id, kind = request.path_params["id"], request.path_params["picture"]
@@ -320,21 +321,32 @@ class _Service:
         return Response(picture, media_type="image/png")
 
 
-def _when(seconds: float) -> str:
-    return time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime(seconds)) + " UTC"
+async def _form(request: Request) -> dict[str, str] | Response:
+    """A page's form (`LOGIN_BYTES` at most), each field's first value; or the refusal."""
+    length = request.headers.get("content-length", "")
+    if not length.isdigit():
+        return _error(400, "a form needs its Content-Length")
+    if int(length) > LOGIN_BYTES:
+        return _error(413, f"a form has at most {LOGIN_BYTES} bytes")
+    fields = urllib.parse.parse_qs((await request.body()).decode(errors="replace"))
+    return {name: values[0] for name, values in fields.items()}
 
 
-def _page(title: str, body: str, *, refresh: bool = False) -> str:
-    meta = '<meta http-equiv="refresh" content="3">' if refresh else ""
-    style = (
-        "body{font-family:sans-serif;margin:2em}td,th{padding:0.2em 0.8em;text-align:left}"
-        "pre{background:#f4f4f4;padding:1em}progress{width:10em}"
-    )
-    return (
-        f"<!doctype html><html><head><meta charset='utf-8'>{meta}<title>{title}</title>"
-        f"<style>{style}</style></head><body><h1><a href='/'>oceanlidar</a></h1>"
-        f"<h2>{title}</h2>{body}</body></html>"
-    )
+def _same_origin(request: Request) -> bool:
+    """Whether a form comes from this service's own pages (by ``Origin`` and ``Sec-Fetch-Site``).
+
+    Browsers send ``Origin`` with every ``POST``; one that names another host (or ``null``)
+    is another site's, as is a ``Sec-Fetch-Site`` other than ``same-origin``.
+    """
+    origin = request.headers.get("origin")
+    if origin is not None and urllib.parse.urlsplit(origin).netloc != request.headers.get("host"):
+        return False
+    return request.headers.get("sec-fetch-site", "same-origin") in ("same-origin", "none")
+
+
+def _refused(status: int, reason: str) -> HTMLResponse:
+    """A page's refusal, as a page."""
+    return HTMLResponse(page("refused", f"<p>{html.escape(reason)}</p>"), status_code=status)
 
 
 def _secured(app):

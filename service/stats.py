@@ -1,15 +1,16 @@
 """Statistics of a sweep, per parameter point and gate.
 
 The statistics dataset sits beside the store (`service.store.location.Store.stats`). One
-dask task per group of parameter points reads those points' samples (never the whole
-store), checks each against its checksum (`service.store.shards.read_verified`: a damaged
-or lost sample stops the statistics, the previous ones kept), reduces them over realisations
-and frames with numpy, and writes its points' whole chunks of the statistics store. Samples
-not yet written are ignored. The noise-free
-signals come from the per-sample means the render task computed (``target_signal``,
+dask task per group of parameter points reads those points' samples and their
+target-free twins' (never the whole store), checks each against its checksum
+(`service.store.shards.read_verified`: a damaged or lost sample stops the statistics, the
+previous ones kept), reduces them over realisations and frames with numpy, and writes its
+points' whole chunks of the statistics store. Samples not yet written are ignored. The
+noise-free signals come from the per-sample means the render task computed (``target_signal``,
 ``background_signal``, the target's effect against its target-free twin
 ``target_effect_relative``), so the store need not keep the noise-free images. After a
-resumed run only the points it wrote are recomputed, in place. Variables:
+resumed run only the points it wrote (and those whose twins it wrote) are recomputed, in
+place. Variables:
 
 - ``image_mean``, ``image_std`` (point, gate, y, x): mean and standard deviation images;
 - ``target_signal``, ``background_signal`` (point, gate): mean expected (noise-free)
@@ -24,10 +25,19 @@ resumed run only the points it wrote are recomputed, in place. Variables:
   sample's and frame's (target − background) over the standard deviation of its background
   ring (shot noise and clutter); a local contrast, so it holds the beam's fall-off between
   mask and ring too;
+- ``cnr_without_target`` (point, gate): for a point with a target, the same reading of
+  its target-free twin point's noisy images (`twin_points`; realisation by realisation, on
+  the same sea) over this point's masks and rings: the CNR that the beam's fall-off, the
+  clutter and the noise alone give, to compare ``cnr`` with; NaN for a point without a
+  target or without a twin;
 - ``visible_fraction`` (point, gate): fraction of samples and frames in which the target
   shows in the gate (``target_visibility`` ``in_gate``: it brightens its mask by at least
   ``target.visibility_threshold``);
 - ``samples`` (point): realisations written.
+
+Its attributes ``samples_complete`` and ``samples_total`` say how many samples of the store
+the statistics hold (``oceanlidar stats`` refuses an incomplete store without ``--partial``;
+`completeness` reads them back for titles).
 """
 
 from __future__ import annotations
@@ -45,10 +55,19 @@ from service.errors import UnusableOutputError
 from service.store.layout import CODECS, CONVENTIONS, lazy_array, one_per_chunk
 from service.store.location import KIND, Store
 from service.store.shards import read_verified
+from service.store.template import swept_parameters
 from workers.labels import signal_means
 from workers.variables import Visibility
 
-__all__ = ["check_owner", "point_statistics", "write_statistics"]
+__all__ = [
+    "check_computable",
+    "check_owner",
+    "completeness",
+    "point_statistics",
+    "statistics_completeness",
+    "twin_points",
+    "write_statistics",
+]
 
 POINTS_PER_TASK = 8
 
@@ -58,8 +77,33 @@ _PER_GATE = {
     "target_contrast": "mean over samples and frames of (T - T0) / T0 of the expected images, "
     "T0 the target-free twin's over the same mask",
     "cnr": "mean over samples and frames of (T - B) / sd(B) of the noisy images",
+    "cnr_without_target": "cnr of the target-free twin point's noisy images read over this "
+    "point's masks, realisation by realisation",
     "visible_fraction": "fraction of samples and frames with the target in_gate",
 }
+
+
+def contrast_to_noise(image, mask):
+    """(T − B) / sd(B) of each noisy image: its mask's mean T against its ring's B.
+
+    Parameters
+    ----------
+    image : ndarray, shape (samples, frames, gates, y, x)
+        Noisy images.
+    mask : ndarray of bool, shape (samples, frames, y, x)
+        The regions read (`workers.labels.signal_means`: the mask and its ring).
+
+    Returns
+    -------
+    ndarray, shape (samples, frames, gates)
+        NaN where the mask is empty or the ring uniform.
+    """
+    inside, ring = signal_means(image, mask)
+    square = signal_means(image.astype(np.float64) ** 2, mask)[1]
+    spread = np.sqrt(np.maximum(square - ring**2, 0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # NaN where nothing is read
+        return (inside - ring) / np.where(spread > 0, spread, np.nan)
 
 
 def point_statistics(image, target, background, mask, relative, visibility):
@@ -84,7 +128,8 @@ def point_statistics(image, target, background, mask, relative, visibility):
     -------
     dict of ndarray
         ``image_mean``, ``image_std`` (gates, y, x) and the (gates,) entries of
-        `_PER_GATE`, float32; NaN where undefined (no target, fewer than two samples).
+        `_PER_GATE` but ``cnr_without_target`` (`twin_cnr`), float32; NaN where undefined
+        (no target, fewer than two samples).
     """
     n = image.shape[0] * image.shape[1]
     flat = image.reshape(n, *image.shape[2:]).astype(np.float64)
@@ -94,9 +139,6 @@ def point_statistics(image, target, background, mask, relative, visibility):
     }
     target = target.astype(np.float64)
     background = background.astype(np.float64)
-    inside, ring = signal_means(image, mask)
-    square = signal_means(image.astype(np.float64) ** 2, mask)[1]
-    spread = np.sqrt(np.maximum(square - ring**2, 0))
     with warnings.catch_warnings():
         # no target, or no background ring: those entries are NaN by design
         warnings.simplefilter("ignore", RuntimeWarning)
@@ -104,14 +146,95 @@ def point_statistics(image, target, background, mask, relative, visibility):
             "target_signal": np.nanmean(target, axis=(0, 1)),
             "background_signal": np.nanmean(background, axis=(0, 1)),
             "target_contrast": np.nanmean(relative.astype(np.float64), axis=(0, 1)),
-            "cnr": np.nanmean((inside - ring) / np.where(spread > 0, spread, np.nan), axis=(0, 1)),
+            "cnr": np.nanmean(contrast_to_noise(image, mask), axis=(0, 1)),
             "visible_fraction": (visibility == Visibility.in_gate).mean(axis=(0, 1)),
         }
     stats.update(per_gate)
     return {name: np.asarray(value, dtype=np.float32) for name, value in stats.items()}
 
 
-def _template(ds: xr.Dataset, source: Store) -> xr.Dataset:
+def completeness(done: int, total: int) -> str:
+    """``"96 of 2400 samples (4 %)"``: how complete a store, or its statistics, is.
+
+    The percentage is rounded, but never to 0 % with a sample written nor to 100 % with one
+    missing.
+    """
+    percent = 100 * done / total if total else 0.0
+    shown = f"{percent:.0f}"
+    if 0 < percent < 1:
+        shown = "< 1"
+    elif 99 < percent < 100:
+        shown = "> 99"
+    return f"{done} of {total} samples ({shown} %)"
+
+
+def statistics_completeness(stats: xr.Dataset) -> str:
+    """How complete the statistics dataset `stats` is (`completeness`), from its record.
+
+    Statistics written before their attributes recorded it say how many samples they hold.
+    """
+    done = int(stats["samples"].sum())
+    total = stats.attrs.get("samples_total")
+    return completeness(done, int(total)) if total else f"{done} samples"
+
+
+def twin_cnr(twin, mask) -> np.ndarray:
+    """``cnr_without_target``: the mean `contrast_to_noise` of a twin's images over `mask`.
+
+    Parameters
+    ----------
+    twin : ndarray, shape (pairs, frames, gates, y, x)
+        Noisy images of a point's target-free twin, realisation by realisation.
+    mask : ndarray of bool, shape (pairs, frames, y, x)
+        The point's masks in the same realisations.
+
+    Returns
+    -------
+    ndarray of float32, shape (gates,)
+        NaN where nothing is read (no pair, an empty mask).
+    """
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # no pair: NaN by design
+        return np.nanmean(contrast_to_noise(twin, mask), axis=(0, 1)).astype(np.float32)
+
+
+def twin_points(ds: xr.Dataset) -> np.ndarray:
+    """Each point's target-free twin: the point of the same scene without a target.
+
+    A point without a target matches a point with one when every swept parameter outside
+    ``target.`` is equal (without a target, the target's parameters change nothing); of
+    several matches, one equal in every parameter but ``target.shape`` is preferred, then
+    the first. Their samples of one realisation share the sea.
+
+    Parameters
+    ----------
+    ds : xarray.Dataset
+        A samples store (its ``target_present`` label and swept coordinates).
+
+    Returns
+    -------
+    ndarray of int, shape (points,)
+        The twin of each point with a target; -1 for a point without a target or twin.
+    """
+    realisations = int(ds.attrs["realisations"])
+    present = ds["target_present"].values[::realisations].astype(bool)
+    first = np.arange(present.size) * realisations
+    values = {path: ds[name].values[first].tolist() for name, path in swept_parameters(ds).items()}
+    scene_keys = [path for path in values if not path.startswith("target.")]
+    near_keys = [path for path in values if path != "target.shape"]
+    negatives = np.flatnonzero(~present)
+    twins = np.full(present.size, -1)
+    for point in np.flatnonzero(present):
+        matches = [
+            int(q) for q in negatives if all(values[k][q] == values[k][point] for k in scene_keys)
+        ]
+        exact = [q for q in matches if all(values[k][q] == values[k][point] for k in near_keys)]
+        if matches:
+            twins[point] = (exact or matches)[0]
+    return twins
+
+
+def _template(ds: xr.Dataset, source: Store, done: int) -> xr.Dataset:
     points = int(ds.attrs["points"])
     realisations = int(ds.attrs["realisations"])
     gates, ny, nx = ds.sizes["gate"], ds.sizes["y"], ds.sizes["x"]
@@ -162,19 +285,23 @@ def _template(ds: xr.Dataset, source: Store) -> xr.Dataset:
         history=f"oceanlidar {package_version()} statistics of {source.name}",
         sweep_sha256=ds.attrs.get("sweep_sha256", ""),
         samples_store=source.name,
+        samples_complete=done,
+        samples_total=points * realisations,
         oceanlidar_version=package_version(),
         **{KIND: "statistics"},
     )
     return stats
 
 
-def _reduce_points(source: Store, target: Store, points, done, realisations):
-    """Read the samples of `points`, reduce them, write their statistics chunks.
+def _reduce_points(source: Store, target: Store, points, flags, twins):
+    """Read the samples of `points` (and their twins'), reduce them, write their chunks.
 
-    `done` holds the completion flags of those points' samples, in order.
+    `flags` holds the completion flags of every point's samples (points, realisations);
+    `twins` every point's target-free twin (`twin_points`).
     """
     samples, sink = source.group(), target.group("r+")
-    done = np.asarray(done, dtype=bool).reshape(len(points), realisations)
+    realisations = flags.shape[1]
+    done = flags[points]
     starts = np.asarray(points)[:, np.newaxis] * realisations
     picks = (starts + np.arange(realisations))[done]
     if picks.size == 0:
@@ -195,6 +322,16 @@ def _reduce_points(source: Store, target: Store, points, done, realisations):
             relative=read["target_effect_relative"][mine],
             visibility=read["target_visibility"][mine],
         )
+        twin, shape = twins[point], read["image"].shape[1:]
+        both = flags[point] & flags[twin] if twin >= 0 else np.zeros(realisations, bool)
+        paired = both[flags[point]]  # the point's samples read whose twin sample is written
+        twin_image = np.zeros((0, *shape), read["image"].dtype)
+        if both.any():
+            twin_image = read_verified(
+                samples, (twin * realisations + np.flatnonzero(both)).tolist()
+            )["image"]
+        mask = read["target_mask"][mine][paired].astype(bool)
+        stats["cnr_without_target"] = twin_cnr(twin_image, mask)
         for name, value in stats.items():
             sink[name][point] = value
         sink["samples"][point] = int(mine.sum())
@@ -226,25 +363,23 @@ def write_statistics(store: Store, *, points: np.ndarray | None = None) -> Store
     DamagedStoreError
         Naming a sample marked complete that cannot be read back as its checksum says.
     """
-    check_owner(store)
-    ds = store.dataset()
-    if "target_effect_relative" not in ds:
-        raise UnusableOutputError(
-            f"{store.url} has no target_effect_relative (written before it was stored, issue "
-            "#24): its statistics cannot be computed; run the sweep again with --overwrite"
-        )
+    ds = check_computable(store)
     target = store.stats
+    done = store.completed()
     recorded = None if points is None else _recorded(ds, store)
     if recorded is not None:
         # the run's points, and any whose statistics count other samples than are written
-        stale = recorded != store.completed().reshape(recorded.size, -1).sum(axis=1)
+        stale = recorded != done.reshape(recorded.size, -1).sum(axis=1)
         update = np.union1d(np.asarray(points, dtype=int), np.flatnonzero(stale))
+        twins = twin_points(ds)  # a point's cnr_without_target reads its twin's samples
+        update = np.union1d(update, np.flatnonzero(np.isin(twins, update) & (twins >= 0)))
         _reduce_all(ds, store, target, update.tolist())
+        target.update_attributes(samples_complete=int(done.sum()))
         return target
     old = target.removable("statistics")
     partial = target.partial(uuid.uuid4().hex[:12])
     try:
-        _compute(ds, store, partial)
+        _compute(ds, store, partial, int(done.sum()))
     except BaseException:
         with contextlib.suppress(UnusableOutputError, OSError):  # best effort: not in place
             partial.remove(partial.removable("statistics"))
@@ -252,6 +387,24 @@ def write_statistics(store: Store, *, points: np.ndarray | None = None) -> Store
     target.remove(old)
     partial.move_to(target)
     return target
+
+
+def check_computable(store: Store) -> xr.Dataset:
+    """The samples store `store`, opened, if statistics can be written beside it.
+
+    Raises
+    ------
+    UnusableOutputError
+        As `check_owner` does, or if the store predates the target's effect.
+    """
+    check_owner(store)
+    ds = store.dataset()
+    if "target_effect_relative" not in ds:
+        raise UnusableOutputError(
+            f"{store.url} has no target_effect_relative (written before it was stored, issue "
+            "#24): its statistics cannot be computed; run the sweep again with --overwrite"
+        )
+    return ds
 
 
 def check_owner(store: Store) -> None:
@@ -316,9 +469,9 @@ def _recorded(ds: xr.Dataset, store: Store):
     return counts if counts.shape == (int(ds.attrs["points"]),) else None
 
 
-def _compute(ds: xr.Dataset, source: Store, target: Store) -> None:
-    """Write the statistics of `ds` (the store `source`) into a new store at `target`."""
-    template = _template(ds, source)
+def _compute(ds: xr.Dataset, source: Store, target: Store, done: int) -> None:
+    """Write the statistics of `ds` (the store `source`, `done` samples written) at `target`."""
+    template = _template(ds, source, done)
     encoding = {
         **{name: {"compressors": CODECS} for name in template.coords},
         **{name: one_per_chunk(template[name].shape[1:]) for name in template},
@@ -329,15 +482,11 @@ def _compute(ds: xr.Dataset, source: Store, target: Store) -> None:
 
 def _reduce_all(ds: xr.Dataset, source: Store, target: Store, points: list[int]):
     """Compute the statistics of `points` into the statistics store at `target`."""
-    realisations = int(ds.attrs["realisations"])
-    flags = source.completed().reshape(-1, realisations)
+    flags = source.completed().reshape(-1, int(ds.attrs["realisations"]))
+    twins = twin_points(ds)
     tasks = [
         dask.delayed(_reduce_points)(
-            source,
-            target,
-            points[start : start + POINTS_PER_TASK],
-            flags[points[start : start + POINTS_PER_TASK]].ravel(),
-            realisations,
+            source, target, points[start : start + POINTS_PER_TASK], flags, twins
         )
         for start in range(0, len(points), POINTS_PER_TASK)
     ]

@@ -225,8 +225,12 @@ def test_preview_reads_a_store_and_shares_one_scale(stored, tmp_path, monkeypatc
     assert [options["frame"] for _, options in drawn] == [0, 1]
     for ds, options in drawn:
         assert ds["image"].values.tobytes() == image.tobytes()
-        assert options["scale"] == (float(image.min()), float(image.max()))
-        assert "point 1: target.shape='none'; realisation 1" in options["title"]
+        # one scale for every gate and frame, clipped at the 99.5th percentile (issue #27)
+        scales = np.asarray(options["scales"])
+        assert (scales == scales[0]).all()
+        assert scales[0, 0] == image.min()
+        assert scales[0, 1] == pytest.approx(np.percentile(image.astype(float), 99.5))
+        assert "point 1: target.shape=none; realisation 1" in options["title"]
     drawn.clear()
     assert (
         main(
@@ -243,8 +247,10 @@ def test_preview_reads_a_store_and_shares_one_scale(stored, tmp_path, monkeypatc
         )
         == 0
     )
-    assert [(options["frame"], options["scale"]) for _, options in drawn] == [(1, None)]
-    shown = figure(drawn[0][0], frame=1, scale=(0.0, 7.0))
+    assert [options["frame"] for _, options in drawn] == [1]
+    own = np.percentile(image[1].astype(float), 99.5, axis=(1, 2))  # each gate's, this frame
+    np.testing.assert_allclose(np.asarray(drawn[0][1]["scales"])[:, 1], own)
+    shown = figure(drawn[0][0], frame=1, scales=[(0.0, 7.0)] * image.shape[1])
     assert all(ax.get_images()[0].get_clim() == (0.0, 7.0) for ax in shown.axes if ax.get_images())
 
 

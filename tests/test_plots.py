@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import xarray as xr
 from PIL import Image
 
 import service.plots
@@ -37,6 +38,88 @@ def test_preview_png_has_one_panel_per_gate_and_the_sea(tmp_path, capsys):
     assert ds["gate"].values.tolist() == [1, 2, 3, 4, 5, 6]
     titles = [ax.get_title() for ax in image_axes(preview_figure(ds.isel(gate=[2, 4])))]
     assert titles[:2] == ["gate 3: 6.1–12.2 m", "gate 5: 10.7–13.7 m"]
+    # the colour bars say what the images count; the sea's axes carry their units
+    bars = [ax for ax in figure.axes if ax not in image_axes(figure)]
+    assert [bar.get_ylabel() for bar in bars[:6]] == ["photoelectrons"] * 6
+    sea = image_axes(figure)[-1]
+    assert (sea.get_xlabel(), sea.get_ylabel()) == ("x (m)", "y (m)")
+
+
+def synthetic_sample(*, frames=1, gates=3, pixels=40, seed=0):
+    """A sample with Poisson images (mean 100), a target mask, in gate 1 only."""
+    rng = np.random.default_rng(seed)
+    image = rng.poisson(100.0, size=(frames, gates, pixels, pixels)).astype(np.uint16)
+    mask = np.zeros((frames, pixels, pixels), dtype=np.uint8)
+    mask[:, 15:25, 15:25] = 1
+    visibility = np.tile(np.array([1, 3, 0][:gates], dtype=np.uint8), (frames, 1))
+    return xr.Dataset(
+        {
+            "image": (
+                ("frame", "gate", "y", "x"),
+                image,
+                {"long_name": "photoelectron count with shot noise", "units": "1"},
+            ),
+            "target_mask": (("frame", "y", "x"), mask),
+            "target_visibility": (("frame", "gate"), visibility),
+        },
+        coords={
+            "gate": np.arange(1, gates + 1),
+            "gate_top": ("gate", np.arange(gates) * 2.0),
+            "gate_bottom": ("gate", np.arange(gates) * 2.0 + 3.0),
+        },
+    )
+
+
+def test_a_few_hot_pixels_do_not_set_the_colour_scale():
+    # issue #27 item 8: a caustic's few bright pixels set the top of the scale and drew
+    # the rest of the gate black
+    ds = synthetic_sample()
+    ds["image"][0, 0, 3, 3:6] = 60000
+    figure = preview_figure(ds)
+    low, high = image_axes(figure)[0].get_images()[0].get_clim()
+    assert 100 < high < 200  # Poisson(100)'s 99.5th percentile, not the hot pixels
+    assert low == ds["image"][0, 0].values.min()
+    # the full range is an option
+    full = service.plots.colour_scales(ds["image"].values, clip=None)
+    assert full[0, 1] == 60000
+
+
+def test_the_mask_is_outlined_only_where_the_target_is_seen():
+    # issue #27 item 8: the outline was drawn on every gate, also those the target is not in
+    figure = preview_figure(synthetic_sample())
+    outlined = [bool(ax.collections) for ax in image_axes(figure)]
+    assert outlined == [True, False, False]  # visibility in_gate, unseen, none
+
+
+def test_a_gif_has_one_scale_per_gate_shared_by_its_frames(tmp_path, monkeypatch):
+    # issue #27 item 8: each frame of a GIF had each panel's own scale, so a climb's
+    # frames did not compare (and the example 1 GIF showed a black disc)
+    ds = synthetic_sample(frames=3)
+    ds["image"][2] *= 4  # the last frame four times brighter
+    drawn = []
+    original = service.plots.preview_figure
+
+    def spy(ds, *, frame, scales, **kwargs):
+        drawn.append(np.array(scales))
+        return original(ds, frame=frame, scales=scales, **kwargs)
+
+    monkeypatch.setattr(service.plots, "preview_figure", spy)
+    assert service.plots.save_preview(ds, str(tmp_path / "a.gif")) == 3
+    assert len(drawn) == 3 and all(np.array_equal(s, drawn[0]) for s in drawn)
+    images = ds["image"].values.astype(float)
+    for g in range(3):
+        assert drawn[0][g, 1] == pytest.approx(np.percentile(images[:, g], 99.5))
+    assert drawn[0][0, 1] > 300  # the brighter frame's values are on the scale
+    drawn.clear()
+    service.plots.save_preview(ds, str(tmp_path / "b.gif"), shared_scale=True)
+    assert all((s == s[0]).all() for s in drawn)  # one scale for every gate too
+
+
+def test_preview_titles_round_the_swept_values():
+    from service.cli.store_commands import _sample_title
+
+    title = _sample_title("s", 3, 1, {"target.depth": 3.1415926535, "target.shape": "sphere"}, 0)
+    assert title == "s, sample 3 (point 1: target.depth=3.142, target.shape=sphere; realisation 0)"
 
 
 def test_preview_gif_animates_every_frame(tmp_path):
@@ -171,3 +254,59 @@ def test_sequence_frames_evolve_with_the_sea_and_the_platform(config):
     assert np.abs(eta).max() == pytest.approx(0.1, rel=1e-5)  # the paper's maximum elevation
     images = ds.expected.values[:, 0]
     assert not np.array_equal(images[0], images[1])
+
+
+def test_statistics_of_an_incomplete_store_are_refused_unless_partial(
+    tmp_path, shared_cluster, capsys, monkeypatch
+):
+    # issue #27 item 7: `stats` on a 4 %-complete store exited 0 without a word, and the
+    # plot looked complete
+    text = (PAPER / "example3.yaml").read_text()
+    text = text.replace("grid_size: 256, spacing: 0.016", "grid_size: 64, spacing: 0.064")
+    text = text.replace("pixels: 128", "pixels: 32").replace("realisations: 4", "realisations: 3")
+    plan = parse_sweep(text)  # point 0: a sphere, point 1: none (its twin)
+    url = str(tmp_path / "s.zarr")
+    store = Store.at(url)
+    execute(plan, store, workers=1, progress_stream=open(os.devnull, "w"))
+    store.mark_incomplete([2, 5])
+    capsys.readouterr()
+    assert main(["stats", url]) == 2
+    err = capsys.readouterr().err
+    assert "4 of 6 samples (67 %) are complete" in err and "--partial" in err
+    assert "Traceback" not in err
+    assert main(["stats", url, "--partial"]) == 0
+    out = capsys.readouterr().out
+    assert "partial: the statistics of 4 of 6 samples (67 %)" in out
+    stats = store.stats.dataset().load()
+    assert (stats.attrs["samples_complete"], stats.attrs["samples_total"]) == (4, 6)
+    assert stats["samples"].values.tolist() == [2, 2]
+    # the plot's title names the store and how complete its statistics are
+    drawn = []
+    original = service.plots._figure
+    monkeypatch.setattr(
+        service.plots, "_figure", lambda **k: drawn.append(original(**k)) or drawn[-1]
+    )
+    service.plots.plot_statistics(stats, str(tmp_path / "p.png"))
+    title = " ".join(drawn[0]._suptitle.get_text().split())  # as wrapped to the width
+    assert title == "s.zarr: statistics of 4 of 6 samples (67 %)"
+    # the README's comparison: the target point's CNR without its target, read on its
+    # twin's noisy images over the same masks, realisation by realisation (NaN before)
+    from service.dataset import open_dataset
+    from service.stats import contrast_to_noise
+
+    ds = open_dataset(url)
+    images, masks = ds["image"].values, ds["target_mask"].values.astype(bool)
+    expected = np.nanmean(contrast_to_noise(images[[3, 4]], masks[[0, 1]]), axis=(0, 1))
+    np.testing.assert_allclose(stats["cnr_without_target"][0], expected, rtol=1e-5)
+    assert np.isfinite(expected).all()
+    assert np.isnan(stats["cnr_without_target"][1]).all()  # no target: nothing to read
+    assert (np.abs(stats["cnr"][0] - expected) > 0).any()
+    # ... and the plot draws it beside the CNR, hollow
+    hollow = [line for line in drawn[0].axes[1].lines if line.get_markerfacecolor() == "none"]
+    assert np.nanmax(hollow[0].get_ydata()) == pytest.approx(float(expected[0]), rel=1e-5)
+    # a resumed run completes the statistics in place, and their record with them
+    execute(plan, store, workers=1, resume=True, progress_stream=open(os.devnull, "w"))
+    stats = store.stats.dataset().load()
+    assert (stats.attrs["samples_complete"], stats.attrs["samples_total"]) == (6, 6)
+    assert stats["samples"].values.tolist() == [3, 3]
+    assert service.plots.statistics_title(stats) == "s.zarr: statistics of 6 of 6 samples (100 %)"

@@ -442,6 +442,73 @@ def test_the_cookie_only_reads_and_pages_are_not_framed(service):
     connection.close()
 
 
+def page_request(server, method, path, *, token=None, body=None, headers=()):
+    """(status, headers, text) of a browser's request with the login cookie of `token`."""
+    sent = {"Cookie": f"oceanlidar_token={token}"} if token else {}
+    if body is not None:
+        sent["Content-Type"] = "application/x-www-form-urlencoded"
+        body = urllib.parse.urlencode(body)
+    connection = http.client.HTTPConnection("127.0.0.1", server.port, timeout=30)
+    try:
+        connection.request(method, path, body=body, headers={**sent, **dict(headers)})
+        answer = connection.getresponse()
+        return answer.status, answer.headers, answer.read().decode()
+    finally:
+        connection.close()
+
+
+def test_the_job_page_follows_its_events_and_its_owner_cancels_it(service):
+    """Issue #27 item 8: no reload every 3 s; rate, times, a cancel button safe from CSRF."""
+    job_id = service.submit(sweep("paged-cancel.zarr"))[1]["id"]
+    service.wait(job_id, lambda job: job["state"] == "running")
+    path = f"/jobs/{job_id}"
+    status, headers, text = page_request(service, "GET", path, token=TOKEN)
+    assert status == 200 and 'http-equiv="refresh"' not in text
+    for fact in ("rate", "time left", "started", "elapsed", "data-field='elapsed'"):
+        assert fact in text, fact
+    assert '<script src="/job.js" defer></script>' in text
+    assert f"<form method='post' action='{path}/cancel'>" in text
+    csrf = re.search(r"name='csrf' value='([0-9a-f]{64})'", text).group(1)
+    assert "script-src 'self'" in headers["content-security-policy"]
+    assert headers["x-frame-options"] == "DENY"
+    status, headers, script = page_request(service, "GET", "/job.js")
+    assert status == 200 and headers["content-type"].startswith("text/javascript")
+    assert "new EventSource(`/v1/jobs/${page.dataset.job}/events`)" in script
+    # another owner sees no cancel button, and cannot cancel with their own form's token
+    status, _, other = page_request(service, "GET", path, token=OTHER_TOKEN)
+    assert status == 200 and "cancel the job" not in other
+    bob = re.search(r"name='csrf' value='([0-9a-f]{64})'", other)
+    assert bob is None
+    cross = {"Origin": f"http://127.0.0.1:{free_port()}"}
+    own = {"Origin": service.url}
+    forged = [
+        (TOKEN, {"csrf": csrf}, cross, 403),  # another site's page: refused by origin
+        (TOKEN, {"csrf": csrf}, {"Sec-Fetch-Site": "cross-site"}, 403),
+        (TOKEN, {}, own, 403),  # no form token: the cookie alone is not enough
+        (TOKEN, {"csrf": "0" * 64}, own, 403),
+        (OTHER_TOKEN, {"csrf": csrf}, own, 403),  # alice's token is not bob's
+        (None, {"csrf": csrf}, own, 303),  # no cookie: to the login page
+    ]
+    for token, form, headers, expected in forged:
+        status, answer, _ = page_request(
+            service, "POST", f"{path}/cancel", token=token, body=form, headers=headers
+        )
+        assert status == expected, (token, form, headers)
+        assert answer["x-frame-options"] == "DENY"
+    assert service.job(job_id)["state"] == "running"
+    status, answer, _ = page_request(
+        service, "POST", f"{path}/cancel", token=TOKEN, body={"csrf": csrf}, headers=own
+    )
+    assert status == 303 and answer["location"] == path
+    assert service.wait(job_id, finished)["state"] == "cancelled"
+    status, _, text = page_request(service, "GET", path, token=TOKEN)
+    assert "cancel the job" not in text and "<script" not in text  # finished: nothing live
+    status, _, refused = page_request(
+        service, "POST", "/jobs/0123456789ab/cancel", token=TOKEN, body={"csrf": csrf}
+    )
+    assert status == 404 and "no such job" in refused
+
+
 BAD_SWEEPS = {
     "not yaml": ("name: [unclosed", None),
     "no seed": ("name: x\noutput: x.zarr\n", "seed"),

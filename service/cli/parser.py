@@ -104,7 +104,14 @@ def _preview(commands) -> None:
     preview.add_argument(
         "--shared-scale",
         action="store_true",
-        help="one colour scale for every gate and frame (default: one per panel)",
+        help="one colour scale for every gate and frame (default: one per gate, shared "
+        "by a GIF's frames)",
+    )
+    preview.add_argument(
+        "--full-range",
+        action="store_true",
+        help="colour scales up to the brightest pixel (default: the 99.5th percentile, so "
+        "that a few hot caustic pixels saturate instead of darkening the rest)",
     )
     preview.add_argument("--output", required=True, help="FILE.png, or FILE.gif for a sequence")
     _limits(preview)
@@ -247,6 +254,12 @@ def parser() -> argparse.ArgumentParser:
 
     stats = commands.add_parser("stats", help="(re)compute a store's statistics dataset")
     stats.add_argument("store", help="store path or URL")
+    stats.add_argument(
+        "--partial",
+        action="store_true",
+        help="compute the statistics of an incomplete store's written samples (refused "
+        "without it)",
+    )
     _storage_options(stats)
     detect = commands.add_parser(
         "detect", help="detection study of a store: ROC, AUC and Pd per parameter point"

@@ -125,13 +125,27 @@ def _label_problems(store: Store, ds) -> dict:
 
 
 def cmd_stats(args) -> int:
-    """(Re)compute a store's statistics, holding its writer lock."""
-    from service.stats import write_statistics
+    """(Re)compute a store's statistics, holding its writer lock.
+
+    An incomplete store is refused (exit 2) unless ``--partial`` asks for the statistics of
+    the samples written; those record how complete they are and say it.
+    """
+    from service.stats import check_computable, completeness, write_statistics
 
     store = _store(args, args.store)
-    _open(store)
+    total = _open(store).sizes["sample"]
     with store.lock():
+        check_computable(store)  # what cannot be computed at all is said first
+        done = int(store.completed().sum())
+        if done < total and not args.partial:
+            raise BadOptionError(
+                f"{store.url}: {completeness(done, total)} are complete; statistics of an "
+                "incomplete store are refused: complete it (`oceanlidar run SWEEP --resume`) "
+                "or give --partial for the statistics of the samples written"
+            )
         print(write_statistics(store).url)
+    if done < total:
+        print(f"  partial: the statistics of {completeness(done, total)}")
     return EXIT_OK
 
 
@@ -158,12 +172,19 @@ def _stored_sample(store: Store, sample: int):
     if not store.completed()[sample]:
         raise BadOptionError(f"--sample {sample}: not written yet in {store.url} (resume its run)")
     one = ds.isel(sample=sample).load()
-    values = ", ".join(
-        f"{path}={shown(one[name].values.item())}" for name, path in swept_parameters(ds).items()
-    )
-    where = f"point {int(one['point'])}" + (f": {values}" if values else "")
+    values = {path: one[name].values.item() for name, path in swept_parameters(ds).items()}
     name = ds.attrs.get("title", store.url)
-    return one, f"{name}, sample {sample} ({where}; realisation {int(one['realisation'])})"
+    point, realisation = int(one["point"]), int(one["realisation"])
+    return one, _sample_title(name, sample, point, values, realisation)
+
+
+def _sample_title(name: str, sample: int, point: int, values: dict, realisation: int) -> str:
+    """A preview's title: the sweep, the sample, its point's swept values (rounded)."""
+    from service.plots import rounded
+
+    shown_values = ", ".join(f"{path}={rounded(value)}" for path, value in values.items())
+    where = f"point {point}" + (f": {shown_values}" if shown_values else "")
+    return f"{name}, sample {sample} ({where}; realisation {realisation})"
 
 
 def _check_picture(path: str, formats: tuple[str, ...]) -> None:
@@ -209,7 +230,9 @@ def cmd_preview(args) -> int:
         plan = load_sweep(args.source, max_memory=None if args.no_limits else memory_limit(args))
         address = plan.sample(args.sample)
         ds = render_preview(plan, args.sample)
-        title = f"{plan.sweep.name}, {address.describe()}"
+        title = _sample_title(
+            plan.sweep.name, args.sample, address.point, address.values, address.realisation
+        )
         measurements = address.scene.surface.conditioning.points
     else:
         ds, title = _stored_sample(_store(args, args.source), args.sample)
@@ -220,6 +243,7 @@ def cmd_preview(args) -> int:
             args.output,
             frame=args.frame,
             shared_scale=args.shared_scale,
+            full_range=args.full_range,
             title=title,
             measurements=measurements,
         )

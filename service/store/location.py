@@ -382,6 +382,13 @@ class Store:
                 storage_options=self.storage_options,
             )
 
+    def update_attributes(self, **attributes) -> None:
+        """Set the group's `attributes` in place and consolidate its metadata again."""
+        group = self.group("r+")
+        group.attrs.update(attributes)
+        with consolidated_v3():
+            zarr.consolidate_metadata(group.store, zarr_format=3)
+
     def lock(self, *, claim: str | None = None):
         """Hold the store's writer lock (`service.store.lock.writer_lock`); yields its token."""
         return writer_lock(self, claim=claim)
