@@ -42,6 +42,7 @@ import xarray as xr
 
 from service import package_version
 from service.errors import UnusableOutputError
+from service.progress import Progress, compute
 from service.store.layout import CODECS, CONVENTIONS, lazy_array, one_per_chunk
 from service.store.location import KIND, Store
 from service.store.shards import read_verified
@@ -199,7 +200,7 @@ def _reduce_points(source: Store, target: Store, points, done, realisations):
     return len(points)
 
 
-def write_statistics(store: Store, *, points: np.ndarray | None = None) -> Store:
+def write_statistics(store: Store, *, points: np.ndarray | None = None, stream=None) -> Store:
     """(Re)compute the statistics of `store` and write them beside it (`Store.stats`).
 
     With `points` (after a resumed run: the points whose samples it wrote), only those
@@ -208,7 +209,8 @@ def write_statistics(store: Store, *, points: np.ndarray | None = None) -> Store
     is). Otherwise new statistics are written to a fresh store beside the old
     ones and moved into place only when complete: a failure leaves the previous statistics
     as they were. The caller holds the sample store's writer lock (`Store.lock`). Runs on
-    the dask client in use (the sweep's cluster), or on local threads.
+    the dask client in use (the sweep's cluster), or on local threads. `stream` shows the
+    points done (`service.progress.Progress`); None shows nothing.
 
     Returns
     -------
@@ -237,12 +239,12 @@ def write_statistics(store: Store, *, points: np.ndarray | None = None) -> Store
         # the run's points, and any whose statistics count other samples than are written
         stale = recorded != store.completed().reshape(recorded.size, -1).sum(axis=1)
         update = np.union1d(np.asarray(points, dtype=int), np.flatnonzero(stale))
-        _reduce_all(ds, store, target, update.tolist())
+        _reduce_all(ds, store, target, update.tolist(), stream=stream)
         return target
     old = target.removable("statistics")
     partial = target.partial(uuid.uuid4().hex[:12])
     try:
-        _compute(ds, store, partial)
+        _compute(ds, store, partial, stream=stream)
     except BaseException:
         with contextlib.suppress(UnusableOutputError, OSError):  # best effort: not in place
             partial.remove(partial.removable("statistics"))
@@ -314,7 +316,7 @@ def _recorded(ds: xr.Dataset, store: Store):
     return counts if counts.shape == (int(ds.attrs["points"]),) else None
 
 
-def _compute(ds: xr.Dataset, source: Store, target: Store) -> None:
+def _compute(ds: xr.Dataset, source: Store, target: Store, *, stream=None) -> None:
     """Write the statistics of `ds` (the store `source`) into a new store at `target`."""
     template = _template(ds, source)
     encoding = {
@@ -322,13 +324,17 @@ def _compute(ds: xr.Dataset, source: Store, target: Store) -> None:
         **{name: one_per_chunk(template[name].shape[1:]) for name in template},
     }
     target.write(template, mode="w-", compute=False, encoding=encoding)
-    _reduce_all(ds, source, target, list(range(int(ds.attrs["points"]))))
+    _reduce_all(ds, source, target, list(range(int(ds.attrs["points"]))), stream=stream)
 
 
-def _reduce_all(ds: xr.Dataset, source: Store, target: Store, points: list[int]):
-    """Compute the statistics of `points` into the statistics store at `target`."""
+def _reduce_all(ds: xr.Dataset, source: Store, target: Store, points: list[int], *, stream=None):
+    """Compute the statistics of `points` into the statistics store at `target`.
+
+    `stream` shows the points done; None shows nothing.
+    """
     realisations = int(ds.attrs["realisations"])
     flags = source.completed().reshape(-1, realisations)
+    starts = range(0, len(points), POINTS_PER_TASK)
     tasks = [
         dask.delayed(_reduce_points)(
             source,
@@ -337,6 +343,11 @@ def _reduce_all(ds: xr.Dataset, source: Store, target: Store, points: list[int])
             flags[points[start : start + POINTS_PER_TASK]].ravel(),
             realisations,
         )
-        for start in range(0, len(points), POINTS_PER_TASK)
+        for start in starts
     ]
-    dask.compute(*tasks)
+    groups = [len(points[start : start + POINTS_PER_TASK]) for start in starts]
+    progress = Progress(len(points), unit="points", stream=stream)
+    try:
+        compute(tasks, counts=groups, progress=progress)
+    finally:
+        progress.close()

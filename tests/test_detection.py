@@ -1,5 +1,7 @@
 """Detectors and detection metrics: closed forms, then a real sweep through the CLI."""
 
+import re
+
 import numpy as np
 import pytest
 import xarray as xr
@@ -323,10 +325,16 @@ def test_auc_falls_with_depth_and_turbidity(detection):
         assert area[0] > area[1] and area[2] > area[3], name
 
 
-def test_detection_is_deterministic_and_plots(detection, tmp_path):
+def test_detection_is_deterministic_and_plots(detection, tmp_path, capsys):
     folder, det = detection
     again = tmp_path / "again.detect.zarr"
+    capsys.readouterr()
     assert main(["detect", str(folder / "small.zarr"), "--output", str(again)]) == 0
+    # its set-up phases and the points scored of the total (a log's lines: no terminal)
+    err = capsys.readouterr().err.splitlines()
+    assert re.match(r"scoring the first point \(reading the expected .*\.\.\. [\d.]+ s$", err[0])
+    assert re.match(r"100%\|#+\| 4/4 \[\d\d:\d\d<00:00, +[\d.]+ points/s\]$", err[1])
+    assert re.match(r"writing the detection dataset\.\.\. [\d.]+ s$", err[2])
     other = xr.open_zarr(again).load()
     for name in det.variables:
         assert same_values(det[name].values, other[name].values), name

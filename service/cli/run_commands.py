@@ -281,7 +281,7 @@ def cmd_run(args) -> int:
             if not store.occupied():  # README: --resume completes an interrupted run
                 log.info("nothing at %s to resume: starting a new run", url)
     try:
-        with open(os.devnull, "w") as devnull, _terminate_as_interrupt():
+        with _terminate_as_interrupt():
             result = execute(
                 plan,
                 store,
@@ -295,7 +295,7 @@ def cmd_run(args) -> int:
                 overwrite=args.overwrite,
                 batch_size=args.batch,
                 task_timeout=args.task_timeout,
-                progress_stream=devnull if args.quiet else sys.stderr,
+                progress_stream=None if args.quiet else sys.stderr,
             )
     except ClusterError as error:
         log.error("oceanlidar run: error: %s", error)

@@ -9,8 +9,10 @@ store's `service.store.location.Store` once from its arguments (`_store`).
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import os
+import sys
 
 from service.errors import BadOptionError, DamagedStoreError, InputError, UnusableOutputError
 from service.inputs import shown
@@ -34,6 +36,11 @@ def _print_problems(what: str, problems: list) -> None:
         print(f"  sample {sample}: {what}: {reason}")
     if len(problems) > SHOWN_PROBLEMS:
         print(f"  ... and {len(problems) - SHOWN_PROBLEMS} more samples")
+
+
+def _progress(args):
+    """Where a command shows its progress: stderr, or nowhere with ``--quiet``."""
+    return None if args.quiet else sys.stderr
 
 
 def _store(args, url: str) -> Store:
@@ -129,7 +136,7 @@ def cmd_stats(args) -> int:
     store = _store(args, args.store)
     _open(store)
     with store.lock():
-        print(write_statistics(store).url)
+        print(write_statistics(store, stream=_progress(args)).url)
     return EXIT_OK
 
 
@@ -140,7 +147,7 @@ def cmd_detect(args) -> int:
     store = _store(args, args.store)
     _open(store)
     output = store.other(args.output) if args.output else None
-    target, unpaired = write_detection(store, output=output)
+    target, unpaired = write_detection(store, output=output, stream=_progress(args))
     if unpaired:
         log.warning("points with no target-free twin, left out: %s", unpaired)
     print(target.url)
@@ -229,12 +236,15 @@ def cmd_plot(args) -> int:
     """Plot a store's statistics, or a detection dataset."""
     from service.detect import DATASET_KIND
     from service.plots import PLOT_FORMATS, plot_detection, plot_statistics
+    from service.progress import phase
 
     _check_picture(args.output, PLOT_FORMATS)
     store = _store(args, args.store)
+    said = functools.partial(phase, stream=_progress(args))
     if store.kind() == DATASET_KIND:
-        detection = store.dataset()
-        with _saving(args.output):
+        with said("reading the detection dataset"):
+            detection = store.dataset()
+        with _saving(args.output), said(f"drawing {args.output}"):
             plot_detection(detection, args.output)
         log.info("%s", args.output)
         return EXIT_OK
@@ -243,13 +253,14 @@ def cmd_plot(args) -> int:
     if statistics is None:
         raise UnusableOutputError(f"{store.url}: no statistics yet; run `oceanlidar stats` first")
     try:
-        stats = statistics.dataset().load()  # small: per point and gate
+        with said("reading the statistics"):
+            stats = statistics.dataset().load()  # small: per point and gate
     except Exception as error:
         raise DamagedStoreError(
             f"{statistics.url}: a chunk cannot be read ({type(error).__name__}); run "
             f"`oceanlidar stats {store.url}` to write the statistics again"
         ) from None
-    with _saving(args.output):
+    with _saving(args.output), said(f"drawing {args.output}"):
         plot_statistics(stats, args.output)
     log.info("%s", args.output)
     return EXIT_OK
