@@ -35,7 +35,7 @@ def test_a_run_shows_its_phases_then_its_progress_and_its_total(tmp_path, cli, s
     template = first_index(err, r"^writing the store template" + PHASE)
     first = first_index(err, r"^rendering the first shard" + PHASE)
     # stderr is no terminal here: a log's plain line, its last with the total
-    total = first_index(err, r"^100%\|#+\| 6/6 \[\d\d:\d\d<00:00, +[\d.]+ samples/s\]$")
+    total = first_index(err, r"^100%\|#+\| 6/6 \[\d\d:\d\d<00:00, +[\d.]+(s/)? samples(/s)?\]$")
     stats = first_index(err, r"^writing the statistics" + PHASE)
     assert cluster < workers < template < first < total < stats
     assert sum("6/6" in line for line in err) == 1  # the total once, not again at the end
@@ -47,7 +47,9 @@ def test_stats_and_plot_show_their_progress_and_quiet_shows_none(tmp_path, cli, 
     assert cli("-q", "run", sweep, "--workers", "1", cwd=tmp_path).returncode == 0
     result = cli("stats", "t.zarr", cwd=tmp_path)
     assert result.returncode == 0, result.stderr
-    first_index(lines(result.stderr), r"^100%\|#+\| 2/2 \[\d\d:\d\d<00:00, +[\d.]+ points/s\]$")
+    first_index(
+        lines(result.stderr), r"^100%\|#+\| 2/2 \[\d\d:\d\d<00:00, +[\d.]+(s/)? points(/s)?\]$"
+    )
     result = cli("plot", "t.zarr", "--output", "s.png", cwd=tmp_path)
     assert result.returncode == 0, result.stderr
     err = lines(result.stderr)

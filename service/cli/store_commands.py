@@ -141,13 +141,27 @@ def cmd_stats(args) -> int:
 
 
 def cmd_detect(args) -> int:
-    """The detection study of a store (`service.detect`)."""
+    """The detection study of a store (`service.detect`); ``--workers``: on processes."""
+    from service.cluster import dask_client
     from service.detect import write_detection
+    from service.progress import phase
 
+    if args.workers is not None and args.workers < 1:
+        raise BadOptionError("--workers must be at least 1")
     store = _store(args, args.store)
     _open(store)
     output = store.other(args.output) if args.output else None
-    target, unpaired = write_detection(store, output=output, stream=_progress(args))
+    stream = _progress(args)
+    with contextlib.ExitStack() as cluster:
+        if args.workers is not None:
+            plural = "s" if args.workers > 1 else ""
+            with phase(
+                f"starting the local cluster ({args.workers} worker{plural})", stream=stream
+            ):
+                cluster.enter_context(
+                    dask_client(workers=args.workers, scheduler=None, verbose=args.verbose > 0)
+                )
+        target, unpaired = write_detection(store, output=output, stream=stream)
     if unpaired:
         log.warning("points with no target-free twin, left out: %s", unpaired)
     print(target.url)
