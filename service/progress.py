@@ -107,7 +107,7 @@ class Progress:
             if self.bar is None:
                 self.bar = tqdm(
                     total=self.total,
-                    initial=self.done - count,
+                    initial=self.already,
                     unit=f" {self.unit}",
                     file=self.stream,
                     dynamic_ncols=True,
