@@ -22,7 +22,6 @@ jobs running take turns on the workers: none starves another.
 
 from __future__ import annotations
 
-import os
 import re
 import threading
 import time
