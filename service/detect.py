@@ -30,13 +30,14 @@ import xarray as xr
 
 from service import package_version
 from service.errors import BadOptionError, BadSweepError, InputError
+from service.progress import Progress, compute, phase
 from service.stats import twin_points
 from service.store.layout import CONVENTIONS
 from service.store.location import Store
 from service.store.template import swept_parameters
 from service.sweep import parse_sweep
 from workers.detection import DETECTORS, MIN_FALSE_ALARMS, evaluate_pair, held_out, roc_curve
-from workers.render import render_images
+from workers.render import render_images, render_pair
 
 __all__ = ["PFA", "detection_store", "pair_points", "write_detection"]
 
@@ -93,21 +94,44 @@ def pair_points(ds: xr.Dataset) -> tuple[list[tuple[int, int]], list[int]]:
     return pairs, unpaired
 
 
-def _rendered_expected(plan, samples, image):
-    """Render `samples` again for their noise-free images (renders are deterministic).
+def _rendered_expected(plan, rows, both, images):
+    """Render the pair's samples again for their noise-free images (renders are deterministic).
 
-    The noisy images rendered again must be the stored ones (`image`), or the store was
-    written by another version of the physics and its expected images cannot be recovered.
-    Only the images are rendered (`workers.render.render_images`: no target-free twin).
+    `rows` maps the positive and the negative point to their samples, `both` picks the
+    realisations read, `images` their stored noisy images by point. A positive sample whose
+    point's target-free twin (`workers.scene.Scene.without_target`) is the negative point's
+    scene is rendered once with its twin (`workers.render.render_pair`: the negative
+    sample's images, on the same sea, in the same pass); otherwise each sample is rendered
+    on its own (`workers.render.render_images`: no twin). The noisy images rendered again
+    must be the stored ones, or the store was written by another version of the physics and
+    its expected images cannot be recovered.
+
+    Returns
+    -------
+    dict
+        The expected images by point, float64.
     """
-    addresses = [plan.sample(int(sample)) for sample in samples]
-    rendered = [render_images(a.scene, seed=a.seed) for a in addresses]
-    if not np.array_equal(np.stack([noisy for _, noisy in rendered]), image):
-        raise BadSweepError(
-            f"samples {samples[0]}..{samples[-1]} rendered again differ from the stored ones "
-            "(written by another oceanlidar version?): their expected images cannot be recovered"
-        )
-    return np.stack([expected for expected, _ in rendered]).astype(np.float64)
+    (positive, negative), rendered = rows, {point: [] for point in rows}
+    for p, q in zip(rows[positive][both], rows[negative][both], strict=True):
+        a, b = plan.sample(int(p)), plan.sample(int(q))
+        pair = None
+        if b.scene == a.scene.without_target():
+            pair = render_pair(a.scene, seed=a.seed, twin_seed=b.seed)
+        if pair is None:
+            pair = (*render_images(a.scene, seed=a.seed), *render_images(b.scene, seed=b.seed))
+        rendered[positive].append(pair[:2])
+        rendered[negative].append(pair[2:])
+    expected = {}
+    for point, samples in rendered.items():
+        if not np.array_equal(np.stack([noisy for _, noisy in samples]), images[point]):
+            picked = rows[point][both]
+            raise BadSweepError(
+                f"samples {picked[0]}..{picked[-1]} rendered again differ from the stored "
+                "ones (written by another oceanlidar version?): their expected images cannot "
+                "be recovered"
+            )
+        expected[point] = np.stack([mean for mean, _ in samples]).astype(np.float64)
+    return expected
 
 
 def _evaluate(store: Store, positive, negative, realisations, test, plan):
@@ -125,7 +149,7 @@ def _evaluate(store: Store, positive, negative, realisations, test, plan):
             f"points {positive} and {negative}: {both.sum()} realisations written at both, "
             f"fewer than {MIN_REALISATIONS}; complete the run with `oceanlidar run --resume`"
         )
-    read = {}
+    images, expected = {}, {}
     for p in (positive, negative):
         image = source["image"].get_orthogonal_selection((rows[p][both],))
         if not np.array_equal(image, np.round(image)):
@@ -133,17 +157,17 @@ def _evaluate(store: Store, positive, negative, realisations, test, plan):
                 f"point {p}: images are not whole photoelectron counts (an ICCD excess-noise "
                 "stage?): the ideal observer needs Poisson counts"
             )
-        read[p, "image"] = image.astype(np.float64)
+        images[p] = image
         if plan is None:
-            expected = source["expected"].get_orthogonal_selection((rows[p][both],))
-            read[p, "expected"] = expected.astype(np.float64)
-        else:
-            read[p, "expected"] = _rendered_expected(plan, rows[p][both], image)
+            expected[p] = source["expected"].get_orthogonal_selection((rows[p][both],))
+            expected[p] = expected[p].astype(np.float64)
+    if plan is not None:
+        expected = _rendered_expected(plan, rows, both, images)
     metrics = evaluate_pair(
-        positive_image=read[positive, "image"],
-        positive_expected=read[positive, "expected"],
-        negative_image=read[negative, "image"],
-        negative_expected=read[negative, "expected"],
+        positive_image=images[positive].astype(np.float64),
+        positive_expected=expected[positive],
+        negative_image=images[negative].astype(np.float64),
+        negative_expected=expected[negative],
         test=test[both],
         pfa=PFA,
     )
@@ -315,7 +339,9 @@ def _dataset(ds, pairs, results, realisations, test) -> xr.Dataset:
     return detection
 
 
-def write_detection(store: Store, *, output: Store | None = None) -> tuple[Store, list[int]]:
+def write_detection(
+    store: Store, *, output: Store | None = None, stream=None
+) -> tuple[Store, list[int]]:
     """Run the detection study of `store` and write its dataset.
 
     Runs one task per positive point on the dask client in use, or on local threads.
@@ -327,6 +353,9 @@ def write_detection(store: Store, *, output: Store | None = None) -> tuple[Store
     output : Store, optional
         Where to write (default `detection_store`); an earlier detection dataset there is
         replaced, anything else is refused.
+    stream : file, optional
+        Where to show the points scored (`service.progress.Progress`) and the set-up
+        phases; None shows nothing.
 
     Returns
     -------
@@ -355,13 +384,24 @@ def write_detection(store: Store, *, output: Store | None = None) -> tuple[Store
     test = held_out(realisations)
     plan = None if "expected" in ds else _sweep_plan(ds, url)
     tasks = [dask.delayed(_evaluate)(store, p, q, realisations, test, plan) for p, q in pairs]
-    results = dask.compute(*tasks)
-    detection = _dataset(ds, pairs, results, realisations, test)
-    detection.attrs["expected_images"] = (
-        "read from the store" if plan is None else "rendered again"
+    how = "reading" if plan is None else "rendering again"
+    progress = Progress(
+        len(pairs),
+        unit="points",
+        stream=stream,
+        first=f"scoring the first point ({how} the expected images of its samples)",
     )
-    partial = target.partial(uuid.uuid4().hex[:12])
-    partial.write(detection, mode="w-")
-    target.remove(old)
-    partial.move_to(target)
+    try:
+        results = compute(tasks, counts=[1] * len(tasks), progress=progress)
+    finally:
+        progress.close()
+    with phase("writing the detection dataset", stream=stream):
+        detection = _dataset(ds, pairs, results, realisations, test)
+        detection.attrs["expected_images"] = (
+            "read from the store" if plan is None else "rendered again"
+        )
+        partial = target.partial(uuid.uuid4().hex[:12])
+        partial.write(detection, mode="w-")
+        target.remove(old)
+        partial.move_to(target)
     return target, unpaired

@@ -22,7 +22,6 @@ jobs running take turns on the workers: none starves another.
 
 from __future__ import annotations
 
-import os
 import re
 import threading
 import time
@@ -301,20 +300,18 @@ class Runner:
             resume = job.mode == "resume" or (
                 job.interrupted and attributes.get("sweep_sha256") == plan.digest
             )
-            with open(os.devnull, "w") as quiet:
-                result = execute(
-                    plan,
-                    store,
-                    client=self.client,
-                    resume=resume,
-                    overwrite=job.mode == "overwrite" and not resume,
-                    batch_size=self.batch_size,
-                    progress_stream=quiet,
-                    cancel=cancel,
-                    on_progress=progress,
-                    claim=f"oceanlidar service job {job.id}",
-                    owner=job.owner,
-                )
+            result = execute(
+                plan,
+                store,
+                client=self.client,
+                resume=resume,
+                overwrite=job.mode == "overwrite" and not resume,
+                batch_size=self.batch_size,
+                cancel=cancel,
+                on_progress=progress,
+                claim=f"oceanlidar service job {job.id}",
+                owner=job.owner,
+            )
         except Exception as error:  # a job's failure must not take the service down
             message = str(error) if isinstance(error, InputError) else repr(error)
             self.table.set_state(

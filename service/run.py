@@ -22,6 +22,7 @@ import contextlib
 import errno
 import functools
 import hashlib
+import os
 import threading
 import time
 from collections.abc import Iterator
@@ -31,7 +32,7 @@ from distributed import Client, wait
 
 from service.admission import check_output
 from service.cluster import ClusterError, dask_client, hold
-from service.progress import Progress
+from service.progress import Progress, phase
 from service.records import RunResult
 from service.stats import write_statistics
 from service.store import integrity, shards
@@ -181,7 +182,8 @@ def run_plan(
     Setting `cancel` (a `threading.Event`) cancels the tasks in flight, waits for those
     already executing to end (at most `task_timeout`), and ends the run as interrupted,
     resumable. `on_progress(done, rate)` is called as samples complete
-    (samples, samples/s).
+    (samples, samples/s). `progress_stream` shows the progress (`service.progress.Progress`:
+    a line until the first shard is written, then the bar); None shows nothing.
     """
     size = shard_samples(store.group())
     if resume:
@@ -193,7 +195,14 @@ def run_plan(
     )
     if resume:
         result.points = np.unique(todo // plan.realisations)
-    progress = Progress(plan.samples, result.skipped, progress_stream, on_progress)
+    progress = Progress(
+        plan.samples,
+        unit="samples",
+        already=result.skipped,
+        stream=progress_stream,
+        callback=on_progress,
+        first="rendering the first shard",
+    )
     threads = sum(client.nthreads().values()) or 1
     # task keys name the store and the sweep: concurrent runs never share a task
     run_id = f"{_store_key(store)}-{plan.digest[:16]}"
@@ -364,6 +373,25 @@ def _submit_bounded(
         raise
 
 
+def _connecting(workers: int | None, scheduler: str | None) -> str:
+    """The set-up phase that gets a run its cluster, in words."""
+    if scheduler is not None:
+        return f"connecting to the scheduler at {scheduler}"
+    count = workers or os.cpu_count() or 1
+    return f"starting the local cluster ({count} worker{'s' if count > 1 else ''})"
+
+
+def _probe(client: Client, store: Store, token: str) -> None:
+    """Wait for a worker to confirm that it sees `store` and its writer lock `token`."""
+    probe = client.submit(store.check_workers_see, token, pure=False)
+    try:
+        probe.result(timeout=PROBE_TIMEOUT)
+    except TimeoutError:
+        raise ClusterError(
+            f"no worker answered within {PROBE_TIMEOUT} s (are any connected?)"
+        ) from None
+
+
 def execute(
     plan: Plan,
     store: Store,
@@ -425,29 +453,34 @@ def execute(
             dashboard=dashboard,
             verbose=verbose,
         )
-        with contextlib.nullcontext(client) if client is not None else connect() as client:
-            probe = client.submit(store.check_workers_see, token, pure=False)
-            try:
-                probe.result(timeout=PROBE_TIMEOUT)
-            except TimeoutError:
-                raise ClusterError(
-                    f"no worker answered within {PROBE_TIMEOUT} s (are any connected?)"
-                ) from None
-            # an earlier run into this store (a service killed mid-job, on a cluster that
-            # outlived it) may have tasks still executing: none may write past this point
-            if _wait_executing(client, f"oceanlidar-{_store_key(store)}", task_timeout):
-                raise ClusterError(
-                    f"tasks of an earlier run into {store.url} are still executing on the "
-                    f"cluster after {task_timeout:.0f} s; try again once they end"
-                )
+        said = functools.partial(phase, stream=progress_stream)
+        with contextlib.ExitStack() as connected:
+            if client is None:
+                with said(_connecting(workers, scheduler)):
+                    client = connected.enter_context(connect())
+            with said("waiting for the workers to start and see the store"):
+                _probe(client, store, token)
+                # an earlier run into this store (a service killed mid-job, on a cluster
+                # that outlived it) may have tasks still executing: none may write past here
+                if _wait_executing(client, f"oceanlidar-{_store_key(store)}", task_timeout):
+                    raise ClusterError(
+                        f"tasks of an earlier run into {store.url} are still executing on "
+                        f"the cluster after {task_timeout:.0f} s; try again once they end"
+                    )
             with store.errors():
-                store.stats.remove(old_stats)
-                store.remove(old_files)
+                if old_files or old_stats:
+                    with said("deleting the store it replaces"):
+                        store.stats.remove(old_stats)
+                        store.remove(old_files)
                 if not resuming:
-                    create_store(plan, store, samples_per_shard=batch_size, owner=owner)
+                    with said("writing the store template"):
+                        create_store(plan, store, samples_per_shard=batch_size, owner=owner)
             checked = resuming and verify
-            relabelled = integrity.repair_labels(store, plan) if checked else []
-            damaged = integrity.verify(store) if checked else []
+            relabelled, damaged = [], []
+            if checked:
+                with said("reading the stored samples back against their checksums"):
+                    relabelled = integrity.repair_labels(store, plan)
+                    damaged = integrity.verify(store)
             store.mark_incomplete([sample for sample, _ in damaged])
             result = run_plan(
                 plan,
@@ -464,7 +497,8 @@ def execute(
                 with store.errors():
                     result.unwritten = unwritten(store)
             if result.ok and (cancel is None or cancel.close()):
-                write_statistics(store, points=result.points)
+                with said("writing the statistics"):
+                    write_statistics(store, points=result.points)
             elif result.ok:
                 result.interrupted = True
         if result.interrupted:  # tasks in flight at the interrupt may have written since

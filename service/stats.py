@@ -52,6 +52,7 @@ import xarray as xr
 
 from service import package_version
 from service.errors import UnusableOutputError
+from service.progress import Progress, compute
 from service.store.layout import CODECS, CONVENTIONS, lazy_array, one_per_chunk
 from service.store.location import KIND, Store
 from service.store.shards import read_verified
@@ -338,7 +339,7 @@ def _reduce_points(source: Store, target: Store, points, flags, twins):
     return len(points)
 
 
-def write_statistics(store: Store, *, points: np.ndarray | None = None) -> Store:
+def write_statistics(store: Store, *, points: np.ndarray | None = None, stream=None) -> Store:
     """(Re)compute the statistics of `store` and write them beside it (`Store.stats`).
 
     With `points` (after a resumed run: the points whose samples it wrote), only those
@@ -347,7 +348,8 @@ def write_statistics(store: Store, *, points: np.ndarray | None = None) -> Store
     is). Otherwise new statistics are written to a fresh store beside the old
     ones and moved into place only when complete: a failure leaves the previous statistics
     as they were. The caller holds the sample store's writer lock (`Store.lock`). Runs on
-    the dask client in use (the sweep's cluster), or on local threads.
+    the dask client in use (the sweep's cluster), or on local threads. `stream` shows the
+    points done (`service.progress.Progress`); None shows nothing.
 
     Returns
     -------
@@ -373,13 +375,13 @@ def write_statistics(store: Store, *, points: np.ndarray | None = None) -> Store
         update = np.union1d(np.asarray(points, dtype=int), np.flatnonzero(stale))
         twins = twin_points(ds)  # a point's cnr_without_target reads its twin's samples
         update = np.union1d(update, np.flatnonzero(np.isin(twins, update) & (twins >= 0)))
-        _reduce_all(ds, store, target, update.tolist())
+        _reduce_all(ds, store, target, update.tolist(), stream=stream)
         target.update_attributes(samples_complete=int(done.sum()))
         return target
     old = target.removable("statistics")
     partial = target.partial(uuid.uuid4().hex[:12])
     try:
-        _compute(ds, store, partial, int(done.sum()))
+        _compute(ds, store, partial, int(done.sum()), stream=stream)
     except BaseException:
         with contextlib.suppress(UnusableOutputError, OSError):  # best effort: not in place
             partial.remove(partial.removable("statistics"))
@@ -469,25 +471,37 @@ def _recorded(ds: xr.Dataset, store: Store):
     return counts if counts.shape == (int(ds.attrs["points"]),) else None
 
 
-def _compute(ds: xr.Dataset, source: Store, target: Store, done: int) -> None:
-    """Write the statistics of `ds` (the store `source`, `done` samples written) at `target`."""
+def _compute(ds: xr.Dataset, source: Store, target: Store, done: int, *, stream=None) -> None:
+    """Write the statistics of `ds` (the store `source`, `done` samples written) at `target`.
+
+    `stream` shows the points done; None shows nothing.
+    """
     template = _template(ds, source, done)
     encoding = {
         **{name: {"compressors": CODECS} for name in template.coords},
         **{name: one_per_chunk(template[name].shape[1:]) for name in template},
     }
     target.write(template, mode="w-", compute=False, encoding=encoding)
-    _reduce_all(ds, source, target, list(range(int(ds.attrs["points"]))))
+    _reduce_all(ds, source, target, list(range(int(ds.attrs["points"]))), stream=stream)
 
 
-def _reduce_all(ds: xr.Dataset, source: Store, target: Store, points: list[int]):
-    """Compute the statistics of `points` into the statistics store at `target`."""
+def _reduce_all(ds: xr.Dataset, source: Store, target: Store, points: list[int], *, stream=None):
+    """Compute the statistics of `points` into the statistics store at `target`.
+
+    `stream` shows the points done; None shows nothing.
+    """
     flags = source.completed().reshape(-1, int(ds.attrs["realisations"]))
     twins = twin_points(ds)
+    starts = range(0, len(points), POINTS_PER_TASK)
     tasks = [
         dask.delayed(_reduce_points)(
             source, target, points[start : start + POINTS_PER_TASK], flags, twins
         )
-        for start in range(0, len(points), POINTS_PER_TASK)
+        for start in starts
     ]
-    dask.compute(*tasks)
+    groups = [len(points[start : start + POINTS_PER_TASK]) for start in starts]
+    progress = Progress(len(points), unit="points", stream=stream)
+    try:
+        compute(tasks, counts=groups, progress=progress)
+    finally:
+        progress.close()

@@ -1,5 +1,7 @@
 """Detectors and detection metrics: closed forms, then a real sweep through the CLI."""
 
+import re
+
 import numpy as np
 import pytest
 import xarray as xr
@@ -15,6 +17,8 @@ from service.store.template import create_store
 from service.sweep import parse_sweep
 from workers.detection import (
     DETECTORS,
+    _auc_rows,
+    _resampled_aucs,
     auc,
     bootstrap_auc,
     fit_logistic,
@@ -26,6 +30,21 @@ from workers.detection import (
 
 def rng(seed):
     return np.random.Generator(np.random.PCG64(seed))
+
+
+@pytest.mark.parametrize("decimals", [None, 1], ids=["distinct", "tied"])
+def test_the_bootstraps_aucs_are_those_of_the_ranks_to_the_bit(decimals):
+    # the bootstrap sorts the scores once and counts each resample's copies instead of
+    # ranking each resample (`scipy.stats.rankdata`): the same AUCs, bit for bit, ties too
+    r = rng(3)
+    s1, s0 = r.normal(1.0, 1.0, 150), r.normal(0.0, 1.0, 150)
+    if decimals is not None:
+        s1, s0 = np.round(s1, decimals), np.round(s0, decimals)
+    picks = r.integers(0, 150, size=(300, 150))
+    ranked = _auc_rows(s1[picks], s0[picks])
+    assert _resampled_aucs(s1, s0, picks).tobytes() == ranked.tobytes()
+    s1[7] = np.nan  # no order: NaN, as the ranks give
+    assert np.isnan(bootstrap_auc(positives=s1, negatives=s0)).all()
 
 
 def binormal_auc_se(separation, n):
@@ -333,9 +352,22 @@ def test_auc_falls_with_depth_and_turbidity(detection):
         assert area[0] > area[1] and area[2] > area[3], name
 
 
-def test_detection_is_deterministic_and_plots(detection, tmp_path):
+def test_detection_is_deterministic_and_plots(detection, tmp_path, capsys):
     folder, det = detection
     again = tmp_path / "again.detect.zarr"
+    assert main(["detect", str(folder / "small.zarr"), "--workers", "0"]) == 2
+    assert "--workers must be at least 1" in capsys.readouterr().err
+    # on processes (an embedded cluster) this time, the fixture's on threads
+    argv = ["detect", str(folder / "small.zarr"), "--output", str(again), "--workers", "1"]
+    assert main(argv) == 0
+    # its set-up phases and the points scored of the total (a log's lines: no terminal)
+    err = capsys.readouterr().err.splitlines()
+    assert re.match(r"starting the local cluster \(1 worker\)\.\.\. [\d.]+ s$", err[0])
+    assert re.match(r"scoring the first point \(reading the expected .*\.\.\. [\d.]+ s$", err[1])
+    assert re.match(r"100%\|#+\| 4/4 \[\d\d:\d\d<00:00, +[\d.]+(s/)? points(/s)?\]$", err[-2])
+    assert re.match(r"writing the detection dataset\.\.\. [\d.]+ s$", err[-1])
+    # an earlier detection dataset there is replaced (its nested chunk keys' folders went
+    # with it: they were left behind, and the new dataset could not be moved in)
     assert main(["detect", str(folder / "small.zarr"), "--output", str(again)]) == 0
     other = xr.open_zarr(again).load()
     for name in det.variables:

@@ -7,7 +7,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from workers.labels import RING_FRACTION, signal_means
 from workers.optics import fresnel_reflectance
-from workers.render import render, render_arrays, render_images
+from workers.render import render, render_arrays, render_images, render_pair
 from workers.scene import Scene
 from workers.seeds import SampleSeed
 from workers.sensor import scene_setup
@@ -224,6 +224,23 @@ def test_the_images_alone_are_those_of_the_sample():
     expected, image = render_images(s, seed=SampleSeed(root=2, point=1, realisation=3))
     assert expected.tobytes() == arrays["expected"].tobytes()
     assert_array_equal(image, arrays["image"])
+
+
+@pytest.mark.parametrize("frames", [1, 2], ids=["one-frame", "climbing-two-frames"])
+def test_a_twin_rendered_in_the_same_pass_is_the_target_free_point_rendered_apart(frames):
+    # `detect` renders a positive sample with its twin in one pass for the negative
+    # point's images (`render_pair`): they must be that point's own, to the byte
+    s = target_scene(
+        radiometry={"white_plane_photons": 50.0},
+        sequence={"frames": frames, "velocity": [0.0, 0.5, 2.0]},
+    )
+    seed, twin_seed = (SampleSeed(root=2, point=p, realisation=3) for p in (4, 5))
+    pair = render_pair(s, seed=seed, twin_seed=twin_seed)
+    own = (*render_images(s, seed=seed), *render_images(s.without_target(), seed=twin_seed))
+    assert [a.tobytes() for a in pair] == [b.tobytes() for b in own]
+    assert render_pair(s.without_target(), seed=seed, twin_seed=twin_seed) is None
+    with pytest.raises(ValueError, match="same root seed and realisation"):
+        render_pair(s, seed=seed, twin_seed=SampleSeed(root=2, point=5, realisation=4))
 
 
 def test_a_target_in_the_gate_that_changes_it_by_little_is_unseen():

@@ -325,14 +325,40 @@ def bootstrap_auc(*, positives, negatives, resamples=2000, level=0.95, seed=0):
         raise ValueError(f"paired scores must match: {s1.shape} positives, {s0.shape} negatives")
     rng = np.random.Generator(np.random.PCG64(seed))
     picks = rng.integers(0, len(s1), size=(resamples, len(s1)))
+    if np.isnan(s1).any() or np.isnan(s0).any():  # no order: as the ranks' NaN AUCs
+        return float("nan"), float("nan")
     values = np.concatenate(
         [
-            _auc_rows(s1[block], s0[block])
+            _resampled_aucs(s1, s0, block)
             for block in np.array_split(picks, -(-resamples // BOOTSTRAP_BLOCK))
         ]
     )
     low, high = np.quantile(values, [(1 - level) / 2, (1 + level) / 2])
     return float(low), float(high)
+
+
+def _resampled_aucs(s1, s0, picks):
+    """`_auc_rows` of ``s1[picks]`` against ``s0[picks]``, the scores sorted once.
+
+    Each resample (row of `picks`, realisation indices) holds every score of realisation i
+    as many times as it picks i: the scores are sorted once, and a resample's ranks (ties
+    averaged, as `scipy.stats.rankdata`'s) follow from those counts by cumulative sums,
+    instead of ranking 2n scores per resample. The rank sums are sums of half-integers,
+    exact in float64, so the AUCs are `_auc_rows`'s to the bit.
+    """
+    n, rows = len(s1), len(picks)
+    values = np.concatenate([s1, s0])
+    order = np.argsort(values, kind="stable")
+    ordered = values[order]
+    new = np.concatenate([[True], ordered[1:] != ordered[:-1]])  # first of each tie
+    group = np.cumsum(new) - 1
+    positive = order < n
+    counts = np.bincount((np.arange(rows)[:, None] * n + picks).ravel(), minlength=rows * n)
+    copies = counts.reshape(rows, n)[:, order % n].astype(np.float64)
+    ties = np.add.reduceat(copies, np.flatnonzero(new), axis=1)
+    rank = np.cumsum(ties, axis=1) - (ties - 1) / 2  # the mean rank of each tie
+    ranks = (copies[:, positive] * rank[:, group[positive]]).sum(axis=1)
+    return (ranks - n * (n + 1) / 2) / (n * len(s0))
 
 
 def pd_at_pfa(*, positives, negatives, pfa, min_false_alarms=MIN_FALSE_ALARMS):

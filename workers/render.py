@@ -56,7 +56,7 @@ from workers.scene import Scene
 from workers.seeds import SampleSeed
 from workers.sensor import Setup, scene_setup
 
-__all__ = ["render", "render_arrays", "render_images"]
+__all__ = ["render", "render_arrays", "render_images", "render_pair"]
 
 
 def render(scene: Scene, *, seed: int | SampleSeed) -> xr.Dataset:
@@ -143,19 +143,54 @@ def render_images(scene: Scene, *, seed: int | SampleSeed) -> tuple[np.ndarray, 
     return expected, image
 
 
+def render_pair(
+    scene: Scene, *, seed: SampleSeed, twin_seed: SampleSeed
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """A sample's images and those of its target-free twin at another point, in one render.
+
+    What `service.detect` renders again for a point with a target and its target-free
+    point (`Scene.without_target`) of the same realisation: the fast renderer gathers the
+    twin's light in the same pass (`render_arrays`'s target effect), on the same sea, so
+    the twin's expected images are those of the target-free point's own render; its
+    noise is drawn with `twin_seed` (the target-free point's streams).
+
+    Parameters
+    ----------
+    scene : Scene
+        All parameters of the sample, with a target.
+    seed, twin_seed : SampleSeed
+        The sample's and its twin's, of the same realisation (the same sea).
+
+    Returns
+    -------
+    tuple of ndarray or None
+        ``expected, image, twin_expected, twin_image``, each (frame, gate, y, x) as
+        `render_images`'s; None when the renderer makes no twin (no target, Monte Carlo).
+    """
+    if seed.root != twin_seed.root or seed.realisation != twin_seed.realisation:
+        raise ValueError("a twin is of the same root seed and realisation (the same sea)")
+    _, expected, _, _, free, image = _render_sample(scene, seed)
+    if free is None:
+        return None
+    return expected, image, free, _noisy(scene, free, twin_seed)
+
+
 def _render_sample(scene: Scene, seed: SampleSeed):
     """The sample's sea, expected images, masks, Monte Carlo error, twin and noisy images."""
     setup = scene_setup(scene)
     surface = setup.surface(seed, np.arange(scene.sequence.frames) * scene.sequence.interval)
     expected, masks, stderr, free = _render_frames(setup, surface, seed)
+    return surface, expected, masks, stderr, free, _noisy(scene, expected, seed)
+
+
+def _noisy(scene: Scene, expected: np.ndarray, seed: SampleSeed) -> np.ndarray:
+    """The noisy images of `expected` [photoelectrons] with the noise streams of `seed`."""
     noise = scene.noise
     if scene.radiometry.photoelectrons:
-        image = shot_noise(
+        return shot_noise(
             expected, rng=seed.noise_rng(), gain=noise.gain, excess_noise=noise.excess_noise
         )
-    else:
-        image = expected.copy()
-    return surface, expected, masks, stderr, free, image
+    return expected.copy()
 
 
 def _render_frames(setup: Setup, surface, seed: SampleSeed):

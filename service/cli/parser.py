@@ -266,6 +266,13 @@ def parser() -> argparse.ArgumentParser:
     )
     detect.add_argument("store", help="store path or URL")
     detect.add_argument("--output", help="DET.zarr (default: beside the store, .detect.zarr)")
+    detect.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="score the points on an embedded cluster of this many processes (default: "
+        "threads of this process, which share one core while they render)",
+    )
     _storage_options(detect)
     _preview(commands)
 

@@ -315,7 +315,7 @@ def cmd_run(args) -> int:
             if not store.occupied():  # README: --resume completes an interrupted run
                 log.info("nothing at %s to resume: starting a new run", url)
     try:
-        with open(os.devnull, "w") as devnull, sigterm_raises(KeyboardInterrupt):
+        with sigterm_raises(KeyboardInterrupt):
             result = execute(
                 plan,
                 store,
@@ -329,7 +329,7 @@ def cmd_run(args) -> int:
                 overwrite=args.overwrite,
                 batch_size=args.batch,
                 task_timeout=args.task_timeout,
-                progress_stream=devnull if args.quiet else sys.stderr,
+                progress_stream=None if args.quiet else sys.stderr,
             )
     except ClusterError as error:
         log.error("oceanlidar run: error: %s", error)

@@ -9,8 +9,10 @@ store's `service.store.location.Store` once from its arguments (`_store`).
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import os
+import sys
 
 from service.errors import BadOptionError, DamagedStoreError, InputError, UnusableOutputError
 from service.inputs import shown
@@ -34,6 +36,11 @@ def _print_problems(what: str, problems: list) -> None:
         print(f"  sample {sample}: {what}: {reason}")
     if len(problems) > SHOWN_PROBLEMS:
         print(f"  ... and {len(problems) - SHOWN_PROBLEMS} more samples")
+
+
+def _progress(args):
+    """Where a command shows its progress: stderr, or nowhere with ``--quiet``."""
+    return None if args.quiet else sys.stderr
 
 
 def _store(args, url: str) -> Store:
@@ -143,20 +150,34 @@ def cmd_stats(args) -> int:
                 "incomplete store are refused: complete it (`oceanlidar run SWEEP --resume`) "
                 "or give --partial for the statistics of the samples written"
             )
-        print(write_statistics(store).url)
+        print(write_statistics(store, stream=_progress(args)).url)
     if done < total:
         print(f"  partial: the statistics of {completeness(done, total)}")
     return EXIT_OK
 
 
 def cmd_detect(args) -> int:
-    """The detection study of a store (`service.detect`)."""
+    """The detection study of a store (`service.detect`); ``--workers``: on processes."""
+    from service.cluster import dask_client
     from service.detect import write_detection
+    from service.progress import phase
 
+    if args.workers is not None and args.workers < 1:
+        raise BadOptionError("--workers must be at least 1")
     store = _store(args, args.store)
     _open(store)
     output = store.other(args.output) if args.output else None
-    target, unpaired = write_detection(store, output=output)
+    stream = _progress(args)
+    with contextlib.ExitStack() as cluster:
+        if args.workers is not None:
+            plural = "s" if args.workers > 1 else ""
+            with phase(
+                f"starting the local cluster ({args.workers} worker{plural})", stream=stream
+            ):
+                cluster.enter_context(
+                    dask_client(workers=args.workers, scheduler=None, verbose=args.verbose > 0)
+                )
+        target, unpaired = write_detection(store, output=output, stream=stream)
     if unpaired:
         log.warning("points with no target-free twin, left out: %s", unpaired)
     print(target.url)
@@ -255,12 +276,15 @@ def cmd_plot(args) -> int:
     """Plot a store's statistics, or a detection dataset."""
     from service.detect import DATASET_KIND
     from service.plots import PLOT_FORMATS, plot_detection, plot_statistics
+    from service.progress import phase
 
     _check_picture(args.output, PLOT_FORMATS)
     store = _store(args, args.store)
+    said = functools.partial(phase, stream=_progress(args))
     if store.kind() == DATASET_KIND:
-        detection = store.dataset()
-        with _saving(args.output):
+        with said("reading the detection dataset"):
+            detection = store.dataset()
+        with _saving(args.output), said(f"drawing {args.output}"):
             plot_detection(detection, args.output)
         log.info("%s", args.output)
         return EXIT_OK
@@ -269,13 +293,14 @@ def cmd_plot(args) -> int:
     if statistics is None:
         raise UnusableOutputError(f"{store.url}: no statistics yet; run `oceanlidar stats` first")
     try:
-        stats = statistics.dataset().load()  # small: per point and gate
+        with said("reading the statistics"):
+            stats = statistics.dataset().load()  # small: per point and gate
     except Exception as error:
         raise DamagedStoreError(
             f"{statistics.url}: a chunk cannot be read ({type(error).__name__}); run "
             f"`oceanlidar stats {store.url}` to write the statistics again"
         ) from None
-    with _saving(args.output):
+    with _saving(args.output), said(f"drawing {args.output}"):
         plot_statistics(stats, args.output)
     log.info("%s", args.output)
     return EXIT_OK

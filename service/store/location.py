@@ -307,12 +307,19 @@ class Store:
         return sorted(files)
 
     def remove(self, files: list[str]) -> None:
-        """Delete `files` (from `removable`) of the store, and the folders they empty."""
+        """Delete `files` (from `removable`) of the store, and the folders they empty.
+
+        Those folders are every folder above a file up to the store's own: nested chunk
+        keys (``auc/c/0/1``) leave ``auc/c/0``, then ``auc/c`` and ``auc`` empty.
+        """
         if not files:
             return
         self.fs.rm([f"{self.path}/{name}" for name in files])
         if self.local:
-            folders = {os.path.dirname(f"{self.path}/{name}") for name in files}
+            folders = {self.path}
+            for name in files:
+                while name := os.path.dirname(name):
+                    folders.add(f"{self.path}/{name}")
             for folder in sorted(folders, key=len, reverse=True):
                 with contextlib.suppress(OSError):  # not empty: a folder above
                     os.rmdir(folder)
