@@ -353,9 +353,9 @@ def test_cli_validate_info_and_stats(two_worker_store, tmp_path, capsys):
 
 def test_readme_training_example_runs(tmp_path, monkeypatch, shared_cluster):
     readme = (ROOT / "README.md").read_text()
-    code = re.search(r"Reading a store for training:\n\n```python\n(.*?)```", readme, re.S).group(
-        1
-    )
+    code = re.search(
+        r"Reading a store for analysis and for training:\n\n```python\n(.*?)```", readme, re.S
+    ).group(1)
     sweep = tmp_path / "quick.yaml"
     sweep.write_text(
         SWEEP.replace("name: small", "name: quickstart")
