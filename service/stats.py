@@ -42,13 +42,13 @@ import xarray as xr
 
 from service import package_version
 from service.errors import UnusableOutputError
-from service.store.layout import CODECS, CONVENTIONS, lazy_array, one_per_chunk
+from service.store.layout import CODECS, CONVENTIONS, lazy_array, one_per_chunk, per_shard
 from service.store.location import KIND, Store
 from service.store.shards import read_verified
 from workers.labels import signal_means
 from workers.variables import Visibility
 
-__all__ = ["check_owner", "point_statistics", "write_statistics"]
+__all__ = ["check_owner", "create_statistics", "point_statistics", "write_statistics"]
 
 POINTS_PER_TASK = 8
 
@@ -166,21 +166,24 @@ def _template(ds: xr.Dataset, source: Store) -> xr.Dataset:
     return stats
 
 
-def _reduce_points(source: Store, target: Store, points, done, realisations):
+def _reduce_points(source: Store, target: Store, points, done, realisations) -> dict:
     """Read the samples of `points`, reduce them, write their statistics chunks.
 
-    `done` holds the completion flags of those points' samples, in order.
+    `done` holds the completion flags of those points' samples, in order. Returns the
+    samples each point's statistics were computed from (``point: count``, the points
+    with any), which `_reduce_all` records once every task has written.
     """
     samples, sink = source.group(), target.group("r+")
     done = np.asarray(done, dtype=bool).reshape(len(points), realisations)
     starts = np.asarray(points)[:, np.newaxis] * realisations
     picks = (starts + np.arange(realisations))[done]
     if picks.size == 0:
-        return len(points)
+        return {}
     # all the points' samples at once (consecutive points are one slice of the store),
     # every rendered array, to check each sample against its checksum
     read = read_verified(samples, picks.tolist())
     owner = np.repeat(np.arange(len(points)), done.sum(axis=1))
+    counts = {}
     for index, point in enumerate(points):
         mine = owner == index
         if not mine.any():
@@ -195,8 +198,8 @@ def _reduce_points(source: Store, target: Store, points, done, realisations):
         )
         for name, value in stats.items():
             sink[name][point] = value
-        sink["samples"][point] = int(mine.sum())
-    return len(points)
+        counts[point] = int(mine.sum())
+    return counts
 
 
 def write_statistics(store: Store, *, points: np.ndarray | None = None) -> Store:
@@ -225,24 +228,24 @@ def write_statistics(store: Store, *, points: np.ndarray | None = None) -> Store
         Naming a sample marked complete that cannot be read back as its checksum says.
     """
     check_owner(store)
-    ds = store.dataset()
-    if "target_effect_relative" not in ds:
+    if "target_effect_relative" not in store.group():
         raise UnusableOutputError(
             f"{store.url} has no target_effect_relative (written before it was stored, issue "
             "#24): its statistics cannot be computed; run the sweep again with --overwrite"
         )
+    attributes = store.attributes() or {}
     target = store.stats
-    recorded = None if points is None else _recorded(ds, store)
+    recorded = None if points is None else _recorded(attributes, store)
     if recorded is not None:
         # the run's points, and any whose statistics count other samples than are written
         stale = recorded != store.completed().reshape(recorded.size, -1).sum(axis=1)
         update = np.union1d(np.asarray(points, dtype=int), np.flatnonzero(stale))
-        _reduce_all(ds, store, target, update.tolist())
+        _reduce_all(store, target, update.tolist(), int(attributes["realisations"]))
         return target
     old = target.removable("statistics")
     partial = target.partial(uuid.uuid4().hex[:12])
     try:
-        _compute(ds, store, partial)
+        _compute(store.dataset(), store, partial)
     except BaseException:
         with contextlib.suppress(UnusableOutputError, OSError):  # best effort: not in place
             partial.remove(partial.removable("statistics"))
@@ -289,18 +292,19 @@ def check_owner(store: Store) -> None:
         )
 
 
-def _recorded(ds: xr.Dataset, store: Store):
+def _recorded(source: dict, store: Store):
     """Samples per point that the statistics beside `store` were computed from.
 
-    None unless they are statistics of the store `ds` at `store` (by its name and its
-    sweep's hash), of this version, with every variable and a readable ``samples`` array
-    (their images are not read).
+    None unless they are statistics of the store at `store` whose attributes are `source`
+    (by its name and its sweep's hash), of this version, with every variable and a
+    readable ``samples`` array (their images are not read; ``samples`` is one chunk, read
+    at once, in statistics written since issue #26 item 8, one chunk a point before).
     """
     attributes = store.stats.attributes() or {}
     if (
         attributes.get(KIND) != "statistics"
         or attributes.get("samples_store") != store.name
-        or attributes.get("sweep_sha256") != ds.attrs.get("sweep_sha256")
+        or attributes.get("sweep_sha256") != source.get("sweep_sha256")
         or attributes.get("oceanlidar_version") != package_version()
     ):
         return None
@@ -311,23 +315,39 @@ def _recorded(ds: xr.Dataset, store: Store):
         counts = group["samples"][:]
     except Exception:
         return None
-    return counts if counts.shape == (int(ds.attrs["points"]),) else None
+    return counts if counts.shape == (int(source["points"]),) else None
 
 
-def _compute(ds: xr.Dataset, source: Store, target: Store) -> None:
-    """Write the statistics of `ds` (the store `source`) into a new store at `target`."""
+def create_statistics(ds: xr.Dataset, source: Store, target: Store) -> None:
+    """Write the template of the statistics of `ds` (the store `source`) at `target`.
+
+    Nothing computed: every statistic at its fill value, ``samples`` 0. One chunk a point
+    (the tasks write their points' chunks), but ``samples`` one chunk, written once by
+    `_reduce_all` and read at once (`_recorded`).
+    """
     template = _template(ds, source)
     encoding = {
         **{name: {"compressors": CODECS} for name in template.coords},
         **{name: one_per_chunk(template[name].shape[1:]) for name in template},
+        "samples": per_shard((), template.sizes["point"]),
     }
     target.write(template, mode="w-", compute=False, encoding=encoding)
-    _reduce_all(ds, source, target, list(range(int(ds.attrs["points"]))))
 
 
-def _reduce_all(ds: xr.Dataset, source: Store, target: Store, points: list[int]):
-    """Compute the statistics of `points` into the statistics store at `target`."""
-    realisations = int(ds.attrs["realisations"])
+def _compute(ds: xr.Dataset, source: Store, target: Store) -> None:
+    """Write the statistics of `ds` (the store `source`) into a new store at `target`."""
+    create_statistics(ds, source, target)
+    points = list(range(int(ds.attrs["points"])))
+    _reduce_all(source, target, points, int(ds.attrs["realisations"]))
+
+
+def _reduce_all(source: Store, target: Store, points: list[int], realisations: int):
+    """Compute the statistics of `points` into the statistics store at `target`.
+
+    Each task writes its points' statistics; then the samples each point's count
+    (``samples``, one chunk) are written, once, here: an interrupted update leaves the old
+    counts, which the next resumed run finds stale (`write_statistics`).
+    """
     flags = source.completed().reshape(-1, realisations)
     tasks = [
         dask.delayed(_reduce_points)(
@@ -339,4 +359,7 @@ def _reduce_all(ds: xr.Dataset, source: Store, target: Store, points: list[int])
         )
         for start in range(0, len(points), POINTS_PER_TASK)
     ]
-    dask.compute(*tasks)
+    counts = {point: n for done in dask.compute(*tasks) for point, n in done.items()}
+    if counts:
+        samples = target.group("r+")["samples"]
+        samples.set_orthogonal_selection((list(counts),), list(counts.values()))

@@ -327,8 +327,17 @@ class Store:
             storage_options=self.storage_options,
         )
 
-    def dataset(self, samples_per_chunk: int | None = None) -> xr.Dataset:
-        """The store as an xarray dataset, lazily (dask; one sample per chunk unless told)."""
+    def dataset(self, samples_per_chunk: int | None = None, *, dask: bool = True) -> xr.Dataset:
+        """The store as an xarray dataset, lazily (dask; one sample per chunk unless told).
+
+        Without `dask`, xarray's own lazy arrays: nothing is read until indexed, and no
+        dask graph is built (one with a chunk per sample grows with the store: 200 000
+        samples, seconds and hundreds of MB).
+        """
+        if not dask:
+            return xr.open_zarr(
+                self.url, consolidated=True, storage_options=self.storage_options, chunks=None
+            )
         if samples_per_chunk is None:
             return xr.open_zarr(self.url, consolidated=True, storage_options=self.storage_options)
         with warnings.catch_warnings():
