@@ -101,6 +101,8 @@ def test_the_store_holds_the_widest_counts_any_point_needs(tmp_path):
     photons = "radiometry.white_plane_photons: {values: [10, 2000]}"
     plan = tiny_plan(realisations=1, **{"target.shape: {values: [sphere, none]}": photons})
     assert [count_dtype(scene) for scene in plan.scenes[:2]] == [np.uint8, np.uint16]
+    # the types parse_sweep worked out while validating, which the plan keeps, are these
+    assert plan.image_dtypes == {s: count_dtype(s) for s in plan.scenes}
     url = str(tmp_path / "w.zarr")
     fill(plan, url)
     ds = xr.open_zarr(url)
