@@ -19,9 +19,9 @@ Figures, the 2-core machine shared (load 4 to 9), 2026-11-25, defaults (200 000 
 store (its statistics' counts in one chunk, as this branch writes them: main reads a
 chunk a point of those it wrote itself, which these figures leave out): a no-op resume
 166 s and 563 MiB → 62 s and 328 MiB (what is left: validating 20 000 points, as every
-run does; 50 shards lost, 2000 samples rendered on one worker: 133 s); ``info`` 6.0 s and
-260 MiB → 8.2 s and 240 MiB (mostly imports; noise between runs 2 to 3 s). At 20 000
-samples of 2000 points: resume 36.0 → 18.8 s.
+run does); 50 shards lost, 2000 samples rendered on one worker: 253 s and 566 MiB → 133 s
+and 330 MiB; ``info`` 6.0 s and 260 MiB → 8.2 s and 240 MiB (mostly imports; runs differ
+by 2 to 5 s). At 20 000 samples of 2000 points: resume 36.0 → 18.8 s.
 """
 
 import argparse

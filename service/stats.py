@@ -344,10 +344,12 @@ def _compute(ds: xr.Dataset, source: Store, target: Store) -> None:
 def _reduce_all(source: Store, target: Store, points: list[int], realisations: int):
     """Compute the statistics of `points` into the statistics store at `target`.
 
-    Each task writes its points' statistics; then the samples each point's count
+    Each task writes its points' statistics; then the samples each point counts
     (``samples``, one chunk) are written, once, here: an interrupted update leaves the old
     counts, which the next resumed run finds stale (`write_statistics`).
     """
+    if not points:  # a resume that wrote nothing, its statistics sound: nothing to read
+        return
     flags = source.completed().reshape(-1, realisations)
     tasks = [
         dask.delayed(_reduce_points)(
