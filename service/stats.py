@@ -53,7 +53,7 @@ import xarray as xr
 from service import package_version
 from service.errors import UnusableOutputError
 from service.progress import Progress, compute
-from service.store.layout import CODECS, CONVENTIONS, lazy_array, one_per_chunk
+from service.store.layout import CODECS, CONVENTIONS, lazy_array, one_per_chunk, per_shard
 from service.store.location import KIND, Store
 from service.store.shards import read_verified
 from service.store.template import swept_parameters
@@ -64,6 +64,7 @@ __all__ = [
     "check_computable",
     "check_owner",
     "completeness",
+    "create_statistics",
     "point_statistics",
     "statistics_completeness",
     "twin_points",
@@ -223,15 +224,17 @@ def twin_points(ds: xr.Dataset) -> np.ndarray:
     values = {path: ds[name].values[first].tolist() for name, path in swept_parameters(ds).items()}
     scene_keys = [path for path in values if not path.startswith("target.")]
     near_keys = [path for path in values if path != "target.shape"]
-    negatives = np.flatnonzero(~present)
+
+    def key(point: int, paths: list[str]) -> tuple:
+        return tuple(values[path][point] for path in paths)
+
+    matches, exact = {}, {}  # the first target-free point of each scene, and of each near key
+    for point in np.flatnonzero(~present).tolist():
+        matches.setdefault(key(point, scene_keys), point)
+        exact.setdefault(key(point, near_keys), point)
     twins = np.full(present.size, -1)
-    for point in np.flatnonzero(present):
-        matches = [
-            int(q) for q in negatives if all(values[k][q] == values[k][point] for k in scene_keys)
-        ]
-        exact = [q for q in matches if all(values[k][q] == values[k][point] for k in near_keys)]
-        if matches:
-            twins[point] = (exact or matches)[0]
+    for point in np.flatnonzero(present).tolist():
+        twins[point] = exact.get(key(point, near_keys), matches.get(key(point, scene_keys), -1))
     return twins
 
 
@@ -294,23 +297,26 @@ def _template(ds: xr.Dataset, source: Store, done: int) -> xr.Dataset:
     return stats
 
 
-def _reduce_points(source: Store, target: Store, points, flags, twins):
+def _reduce_points(source: Store, target: Store, points, done, twins, twin_done) -> dict:
     """Read the samples of `points` (and their twins'), reduce them, write their chunks.
 
-    `flags` holds the completion flags of every point's samples (points, realisations);
-    `twins` every point's target-free twin (`twin_points`).
+    `done` holds the completion flags of those points' samples (points, realisations);
+    `twins` each point's target-free twin (`twin_points`, -1 for none) and `twin_done`
+    the twin's flags (all False for none). Returns the samples each point's statistics
+    were computed from (``point: count``, the points with any), which `_reduce_all`
+    records once every task has written.
     """
     samples, sink = source.group(), target.group("r+")
-    realisations = flags.shape[1]
-    done = flags[points]
+    realisations = done.shape[1]
     starts = np.asarray(points)[:, np.newaxis] * realisations
     picks = (starts + np.arange(realisations))[done]
     if picks.size == 0:
-        return len(points)
+        return {}
     # all the points' samples at once (consecutive points are one slice of the store),
     # every rendered array, to check each sample against its checksum
     read = read_verified(samples, picks.tolist())
     owner = np.repeat(np.arange(len(points)), done.sum(axis=1))
+    counts = {}
     for index, point in enumerate(points):
         mine = owner == index
         if not mine.any():
@@ -323,9 +329,9 @@ def _reduce_points(source: Store, target: Store, points, flags, twins):
             relative=read["target_effect_relative"][mine],
             visibility=read["target_visibility"][mine],
         )
-        twin, shape = twins[point], read["image"].shape[1:]
-        both = flags[point] & flags[twin] if twin >= 0 else np.zeros(realisations, bool)
-        paired = both[flags[point]]  # the point's samples read whose twin sample is written
+        twin, shape = twins[index], read["image"].shape[1:]
+        both = done[index] & twin_done[index]
+        paired = both[done[index]]  # the point's samples read whose twin sample is written
         twin_image = np.zeros((0, *shape), read["image"].dtype)
         if both.any():
             twin_image = read_verified(
@@ -335,8 +341,8 @@ def _reduce_points(source: Store, target: Store, points, flags, twins):
         stats["cnr_without_target"] = twin_cnr(twin_image, mask)
         for name, value in stats.items():
             sink[name][point] = value
-        sink["samples"][point] = int(mine.sum())
-    return len(points)
+        counts[point] = int(mine.sum())
+    return counts
 
 
 def write_statistics(store: Store, *, points: np.ndarray | None = None, stream=None) -> Store:
@@ -368,15 +374,16 @@ def write_statistics(store: Store, *, points: np.ndarray | None = None, stream=N
     ds = check_computable(store)
     target = store.stats
     done = store.completed()
-    recorded = None if points is None else _recorded(ds, store)
+    recorded = None if points is None else _recorded(ds.attrs, store)
     if recorded is not None:
         # the run's points, and any whose statistics count other samples than are written
         stale = recorded != done.reshape(recorded.size, -1).sum(axis=1)
         update = np.union1d(np.asarray(points, dtype=int), np.flatnonzero(stale))
-        twins = twin_points(ds)  # a point's cnr_without_target reads its twin's samples
-        update = np.union1d(update, np.flatnonzero(np.isin(twins, update) & (twins >= 0)))
-        _reduce_all(ds, store, target, update.tolist(), stream=stream)
-        target.update_attributes(samples_complete=int(done.sum()))
+        if update.size:
+            twins = twin_points(ds)  # a point's cnr_without_target reads its twin's samples
+            update = np.union1d(update, np.flatnonzero(np.isin(twins, update) & (twins >= 0)))
+            _reduce_all(ds, store, target, update.tolist(), stream=stream)
+            target.update_attributes(samples_complete=int(done.sum()))
         return target
     old = target.removable("statistics")
     partial = target.partial(uuid.uuid4().hex[:12])
@@ -446,18 +453,19 @@ def check_owner(store: Store) -> None:
         )
 
 
-def _recorded(ds: xr.Dataset, store: Store):
+def _recorded(source: dict, store: Store):
     """Samples per point that the statistics beside `store` were computed from.
 
-    None unless they are statistics of the store `ds` at `store` (by its name and its
-    sweep's hash), of this version, with every variable and a readable ``samples`` array
-    (their images are not read).
+    None unless they are statistics of the store at `store` whose attributes are `source`
+    (by its name and its sweep's hash), of this version, with every variable and a
+    readable ``samples`` array (their images are not read; ``samples`` is one chunk, read
+    at once, in statistics written since issue #26 item 8, one chunk a point before).
     """
     attributes = store.stats.attributes() or {}
     if (
         attributes.get(KIND) != "statistics"
         or attributes.get("samples_store") != store.name
-        or attributes.get("sweep_sha256") != ds.attrs.get("sweep_sha256")
+        or attributes.get("sweep_sha256") != source.get("sweep_sha256")
         or attributes.get("oceanlidar_version") != package_version()
     ):
         return None
@@ -468,7 +476,23 @@ def _recorded(ds: xr.Dataset, store: Store):
         counts = group["samples"][:]
     except Exception:
         return None
-    return counts if counts.shape == (int(ds.attrs["points"]),) else None
+    return counts if counts.shape == (int(source["points"]),) else None
+
+
+def create_statistics(ds: xr.Dataset, source: Store, target: Store, done: int) -> None:
+    """Write the template of the statistics of `ds` (the store `source`) at `target`.
+
+    `done` is the number of its samples written. Nothing computed: every statistic at its
+    fill value, ``samples`` 0. One chunk a point (the tasks write their points' chunks),
+    but ``samples`` one chunk, written once by `_reduce_all` and read at once (`_recorded`).
+    """
+    template = _template(ds, source, done)
+    encoding = {
+        **{name: {"compressors": CODECS} for name in template.coords},
+        **{name: one_per_chunk(template[name].shape[1:]) for name in template},
+        "samples": per_shard((), template.sizes["point"]),
+    }
+    target.write(template, mode="w-", compute=False, encoding=encoding)
 
 
 def _compute(ds: xr.Dataset, source: Store, target: Store, done: int, *, stream=None) -> None:
@@ -476,32 +500,41 @@ def _compute(ds: xr.Dataset, source: Store, target: Store, done: int, *, stream=
 
     `stream` shows the points done; None shows nothing.
     """
-    template = _template(ds, source, done)
-    encoding = {
-        **{name: {"compressors": CODECS} for name in template.coords},
-        **{name: one_per_chunk(template[name].shape[1:]) for name in template},
-    }
-    target.write(template, mode="w-", compute=False, encoding=encoding)
+    create_statistics(ds, source, target, done)
     _reduce_all(ds, source, target, list(range(int(ds.attrs["points"]))), stream=stream)
 
 
 def _reduce_all(ds: xr.Dataset, source: Store, target: Store, points: list[int], *, stream=None):
     """Compute the statistics of `points` into the statistics store at `target`.
 
-    `stream` shows the points done; None shows nothing.
+    Each task writes its points' statistics; then the samples each point counts
+    (``samples``, one chunk) are written, once, here: an interrupted update leaves the old
+    counts, which the next resumed run finds stale (`write_statistics`). `stream` shows
+    the points done; None shows nothing.
     """
+    if not points:  # a resume that wrote nothing, its statistics sound: nothing to read
+        return
     flags = source.completed().reshape(-1, int(ds.attrs["realisations"]))
     twins = twin_points(ds)
     starts = range(0, len(points), POINTS_PER_TASK)
     tasks = [
         dask.delayed(_reduce_points)(
-            source, target, points[start : start + POINTS_PER_TASK], flags, twins
+            source,
+            target,
+            group,
+            flags[group],
+            twins[group],
+            flags[np.maximum(twins[group], 0)] & (twins[group] >= 0)[:, np.newaxis],
         )
-        for start in starts
+        for group in (points[start : start + POINTS_PER_TASK] for start in starts)
     ]
     groups = [len(points[start : start + POINTS_PER_TASK]) for start in starts]
     progress = Progress(len(points), unit="points", stream=stream)
     try:
-        compute(tasks, counts=groups, progress=progress)
+        results = compute(tasks, counts=groups, progress=progress)
     finally:
         progress.close()
+    counts = {point: n for done in results for point, n in done.items()}
+    if counts:
+        samples = target.group("r+")["samples"]
+        samples.set_orthogonal_selection((list(counts),), list(counts.values()))

@@ -12,6 +12,7 @@ the space-filling ``latin_hypercube`` and ``sobol`` of `scipy.stats.qmc`).
 from __future__ import annotations
 
 import copy
+import functools
 import hashlib
 import itertools
 import json
@@ -142,6 +143,21 @@ class Plan:
             values=self.points[point],
         )
 
+    @functools.cached_property
+    def image_dtypes(self) -> dict[Scene, np.dtype]:
+        """The image type of each distinct scene, in point order, worked out once a plan.
+
+        A scene's photoelectron counts take `count_dtype` (which sets its scene up: a few
+        milliseconds), other images float32. Every stored image type (`image_dtype`), the
+        sizes (`sample_bytes`) and the store's variables
+        (`service.store.template.store_variables`) read them from here.
+        """
+        kinds: dict[Scene, np.dtype] = {}
+        for scene in self.scenes:
+            if scene not in kinds:
+                kinds[scene] = count_dtype(scene) or np.dtype(np.float32)
+        return kinds
+
     def image_dtype(self) -> np.dtype:
         """The store's image type: the widest any point needs.
 
@@ -149,8 +165,7 @@ class Plan:
         make a float type that holds every count exactly
         (`service.store.template.widest_image`).
         """
-        kinds = {count_dtype(scene) or np.dtype(np.float32) for scene in self.scenes}
-        return np.result_type(*kinds)
+        return np.result_type(*set(self.image_dtypes.values()))
 
     def float_images(self) -> int:
         """Float32 arrays of an image's shape every sample stores beside ``image``.
@@ -297,15 +312,16 @@ def _check_memory(scene: dict, max_memory: float | None, remedy: str) -> None:
         )
 
 
-def _check_scene(raw: dict, scene: Scene) -> None:
-    """Checks of a validated scene beyond its schema.
+def _check_scene(raw: dict, scene: Scene) -> np.dtype:
+    """Checks of a validated scene beyond its schema; its image type.
 
     Strict numbers, a bounded track, counts that fit the store's unsigned integers
-    (`workers.variables.count_dtype`).
+    (`workers.variables.count_dtype`; float32 images when not counts: what
+    `Plan.image_dtypes` holds).
     """
     strict_numbers(raw, scene.model_dump(), "scene")
     try:
-        count_dtype(scene)
+        image = count_dtype(scene) or np.dtype(np.float32)
     except ValueError as error:
         raise BadSweepError(f"scene.{error}") from None
     sequence = scene.sequence
@@ -315,6 +331,7 @@ def _check_scene(raw: dict, scene: Scene) -> None:
             f"scene.sequence.velocity: the platform would fly {travel:.3g} m during the "
             f"sequence, over the limit of {MAX_TRAVEL:,.0f} m"
         )
+    return image
 
 
 def _format_errors(error: ValidationError, prefix: str = "") -> str:
@@ -420,6 +437,7 @@ def parse_sweep(
         raise BadSweepError("sweep: the sweep expands to no parameter point")
     scenes = []
     cache: dict[str, Scene] = {}
+    images: dict[Scene, np.dtype] = {}
     for index, point in enumerate(points):
         data = copy.deepcopy(sweep.scene)
         for path, value in point.items():
@@ -430,7 +448,7 @@ def parse_sweep(
             try:
                 _check_memory(data, max_memory, memory_remedy)
                 cache[key] = Scene.model_validate(data)
-                _check_scene(data, cache[key])
+                images.setdefault(cache[key], _check_scene(data, cache[key]))
             except ValidationError as error:
                 raise BadSweepError(
                     f"parameter point {index} ({values}):\n" + _format_errors(error, "scene")
@@ -442,7 +460,9 @@ def parse_sweep(
     # parameters in file order: grid expansion and random draws follow it
     canonical["sweep"]["parameters"] = list(canonical["sweep"]["parameters"].items())
     digest = hashlib.sha256(json.dumps(canonical, sort_keys=True).encode()).hexdigest()
-    return Plan(sweep=sweep, text=text, digest=digest, points=tuple(points), scenes=tuple(scenes))
+    plan = Plan(sweep=sweep, text=text, digest=digest, points=tuple(points), scenes=tuple(scenes))
+    plan.__dict__["image_dtypes"] = images  # worked out above: `Plan.image_dtypes`' cache
+    return plan
 
 
 def _assign(data: dict, path: str, value: Any) -> None:

@@ -102,6 +102,8 @@ def test_the_store_holds_the_widest_counts_any_point_needs(tmp_path):
     photons = "radiometry.white_plane_photons: {values: [10, 2000]}"
     plan = tiny_plan(realisations=1, **{"target.shape: {values: [sphere, none]}": photons})
     assert [count_dtype(scene) for scene in plan.scenes[:2]] == [np.uint8, np.uint16]
+    # the types parse_sweep worked out while validating, which the plan keeps, are these
+    assert plan.image_dtypes == {s: count_dtype(s) for s in plan.scenes}
     url = str(tmp_path / "w.zarr")
     fill(plan, url)
     ds = xr.open_zarr(url)
@@ -472,7 +474,10 @@ def test_statistics_after_resume_recompute_only_the_points_written(tmp_path, cli
     after = {p: p.stat().st_mtime_ns for p in stats.rglob("c.*")}
     touched = {p.relative_to(stats).as_posix() for p in chunks if after[p] != chunks[p]}
     # the statistics store stayed in place; only point 1's chunks were written again, and
-    # point 0's, whose cnr_without_target reads its twin point 1's samples (issue #27)
+    # point 0's, whose cnr_without_target reads its twin point 1's samples (issue #27), and
+    # the one chunk of every point's sample count
+    assert "samples/c.0" in touched
+    touched.remove("samples/c.0")
     assert touched and all(name.split("/")[-1][:3] in ("c.0", "c.1") for name in touched)
     assert {"cnr_without_target/c.0.0", "image_mean/c.1.0.0.0"} <= touched
     again = xr.open_zarr(stats).load()
@@ -483,6 +488,39 @@ def test_statistics_after_resume_recompute_only_the_points_written(tmp_path, cli
     write_statistics(Store(str(tmp_path / "s.zarr")), points=np.array([1]))
     for name in full.data_vars:
         assert full[name].values.tobytes() == xr.open_zarr(stats)[name].values.tobytes()
+
+
+def test_a_complete_store_resumes_reading_per_shard_not_per_sample(
+    tmp_path, cli, shared_cluster, monkeypatch
+):
+    # two complete stores of two shards, with 4 and with 16 samples (and points) a shard:
+    # a resume that has nothing to do reads the same from either (its flags a shard at a
+    # time, the statistics' counts at once), never a chunk per sample or per point
+    reads = {}
+    for per_shard in (4, 16):
+        depths = [3.0 + 0.1 * i for i in range(2 * per_shard)]
+        sweep = tmp_path / f"d{per_shard}.yaml"
+        sweep.write_text(
+            TINY_SCENE.format(name="d", seed=2, realisations=1, output=f"d{per_shard}.zarr")
+            + f"sweep:\n  parameters:\n    target.depth: {{values: {depths}}}\n"
+        )
+        command = ["run", sweep, "--workers", 1, "--batch", per_shard]
+        assert cli(*command, cwd=tmp_path).returncode == 0
+        keys = []
+        with monkeypatch.context() as patch:
+            for method in ("get", "get_partial_values"):
+                counted = getattr(zarr.storage.LocalStore, method)
+
+                async def count(self, key, *args, _counted=counted, _keys=keys, **kwargs):
+                    _keys.append(key if isinstance(key, str) else "partial")
+                    return await _counted(self, key, *args, **kwargs)
+
+                patch.setattr(zarr.storage.LocalStore, method, count)
+            result = cli(*command, "--resume", cwd=tmp_path)
+        assert result.returncode == 0 and "wrote 0 samples" in result.stderr, result.stderr
+        reads[per_shard] = sorted(keys)
+    assert any(key.startswith("completed/c.") for key in reads[4]), reads[4]
+    assert reads[4] == reads[16], reads
 
 
 @pytest.mark.parametrize(

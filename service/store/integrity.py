@@ -15,7 +15,7 @@ from service.errors import UnusableOutputError
 from service.store.layout import shard_samples
 from service.store.location import Store
 from service.store.shards import CHECKSUMS, sample_checksum, verified_by
-from service.store.template import template
+from service.store.template import rendered_shapes, template
 from service.sweep import Plan
 from workers.scene import Scene
 from workers.variables import Rule, rendered, rendered_order, variables
@@ -165,11 +165,10 @@ def stale_layout(store: Store, plan: Plan) -> list[str]:
         plan's.
     """
     group = store.group()
-    expected, _ = template(plan, shard_samples(group))
     return [
         name
-        for name in rendered_order()
-        if name in expected and (name not in group or group[name].shape != expected[name].shape)
+        for name, shape in rendered_shapes(plan).items()
+        if name not in group or group[name].shape != (plan.samples, *shape)
     ]
 
 

@@ -33,6 +33,7 @@ from service.store.layout import (
 from service.store.location import KIND, Store
 from service.sweep import Plan
 from workers.labels import sample_labels, surface_axis
+from workers.scene import Scene
 from workers.variables import Role, Variable, rendered_order, variables
 
 __all__ = [
@@ -40,6 +41,7 @@ __all__ = [
     "check_uniform",
     "create_store",
     "parameter_name",
+    "rendered_shapes",
     "store_variables",
     "swept_parameters",
     "template",
@@ -142,7 +144,7 @@ def store_variables(plan: Plan) -> dict[str, Variable]:
     Carlo, is 0 for the small-angle points (deterministic, no Monte Carlo error:
     `service.store.shards.write_shard` writes the zeros), as its ``comment`` says.
     """
-    tables = [variables(scene) for scene in plan.scenes]
+    tables = [variables(scene) for scene in _representatives(plan)]
     union: dict = {}
     for table in tables:
         for name, variable in table.items():
@@ -153,6 +155,20 @@ def store_variables(plan: Plan) -> dict[str, Variable]:
         attrs = {**stderr.attrs, "comment": STDERR_COMMENT}
         union["expected_stderr"] = dataclasses.replace(stderr, attrs=attrs)
     return union
+
+
+def _representatives(plan: Plan) -> list[Scene]:
+    """The first scene of each kind of table among the plan's points, in point order.
+
+    A scene's variable names follow from its ``transport.method`` and ``save_surface``
+    alone, and their types from its image type (`service.sweep.Plan.image_dtypes`): a
+    later scene of the same kind adds nothing to `store_variables`' union, and tables are
+    worked out for these scenes alone (each sets its scene up: a few milliseconds).
+    """
+    kinds: dict = {}
+    for scene, image in plan.image_dtypes.items():
+        kinds.setdefault((scene.transport.method, scene.save_surface, image), scene)
+    return list(kinds.values())
 
 
 def _coordinate_array(values: list) -> np.ndarray:
@@ -187,6 +203,30 @@ def create_store(
     store.write(ds, mode="a", compute=False, encoding=encoding)
 
 
+def rendered_shapes(plan: Plan, table: dict[str, Variable] | None = None) -> dict:
+    """The rendered variables the store of `plan` holds, and a sample's shape of each.
+
+    In `workers.variables.rendered_order`; what `template` lays out and what
+    `service.store.integrity.stale_layout` compares a store with, without the labels.
+    `table`: the plan's `store_variables`, if already worked out.
+    """
+    table = store_variables(plan) if table is None else table
+    first = plan.scenes[0]
+    sizes = {
+        "frame": first.sequence.frames,
+        "gate": len(first.receiver.gate_depths),
+        "y": first.receiver.pixels,
+        "x": first.receiver.pixels,
+    }
+    if first.save_surface:
+        sizes.update(dict.fromkeys(("sy", "sx"), surface_axis(first).size))
+    return {
+        name: tuple(sizes[dim] for dim in table[name].dims)
+        for name in rendered_order()
+        if name in table and (name != "expected" or plan.sweep.store.expected)
+    }
+
+
 def template(plan: Plan, samples_per_shard: int | None = None) -> tuple[xr.Dataset, dict]:
     """The store's template (`create_store`): the dataset, rendered arrays lazy, and encoding.
 
@@ -198,25 +238,14 @@ def template(plan: Plan, samples_per_shard: int | None = None) -> tuple[xr.Datas
     first = plan.scenes[0]
     # names, dimensions, dtypes and attributes from the renderer's tables; nothing rendered
     table = store_variables(plan)
-    sizes = {
-        "frame": first.sequence.frames,
-        "gate": len(first.receiver.gate_depths),
-        "y": first.receiver.pixels,
-        "x": first.receiver.pixels,
-    }
     axis = surface_axis(first) if first.save_surface else None
-    if axis is not None:
-        sizes.update(sy=axis.size, sx=axis.size)
     n = plan.samples
     shard = min(shard_size(plan, samples_per_shard), n)
     realisations = plan.realisations
     data_vars = {}
     encoding = {}
-    for name in rendered_order():
-        if name not in table or (name == "expected" and not plan.sweep.store.expected):
-            continue
+    for name, shape in rendered_shapes(plan, table).items():
         variable = table[name]
-        shape = tuple(sizes[dim] for dim in variable.dims)
         fill = np.nan if variable.dtype.kind == "f" else 0
         array = lazy_array((n, *shape), fill, variable.dtype, multiple=shard)
         data_vars[name] = (("sample", *variable.dims), array, dict(variable.attrs))
