@@ -283,6 +283,8 @@ def plot_statistics(stats: xr.Dataset, path: str) -> None:
     figure = _figure(figsize=(3.2 * len(swept), 5.0))
     axes = figure.subplots(2, len(swept), squeeze=False)
     twin = stats["cnr_without_target"].values if "cnr_without_target" in stats else None
+    if twin is not None and not np.isfinite(twin).any():
+        twin = None  # no point has a target-free twin: nothing drawn hollow
     for column, name in enumerate(swept):
         values = stats[name].values
         labels = values if values.dtype.kind in "biuf" else np.asarray([str(v) for v in values])
