@@ -36,6 +36,7 @@ __all__ = [
     "admit_job",
     "check_output",
     "confine_output",
+    "enclosing_store",
     "parents",
 ]
 
@@ -129,6 +130,10 @@ def check_output(
         `OutputTakenError` if the output is occupied and neither resumed nor overwritten.
     """
     name = name or store.url
+    if (outer := enclosing_store(store)) is not None:
+        raise UnusableOutputError(
+            f"{name} lies inside the store {shown(outer)}; choose an output outside it"
+        )
     if store.special():
         raise UnusableOutputError(
             f"{name} exists and is neither a folder nor a regular file (a device, a pipe, a "
@@ -212,6 +217,28 @@ def parents(url: str) -> list[str]:
     return ["/".join(parts[:depth]) for depth in range(len(parts) - 1, 0, -1)]
 
 
+def enclosing_store(store: Store, *, within: str | None = None) -> str | None:
+    """The innermost zarr store or array that `store` would lie inside, if any.
+
+    Every folder above it is looked at (one metadata read each), below `within` (a folder
+    or prefix, not itself looked at) if given, else up to the file system's root or the
+    bucket (an object store's bucket itself is not looked at).
+
+    Returns
+    -------
+    str or None
+        The enclosing store's URL; None if `store` lies inside none.
+    """
+    for folder in parents(store.url):
+        if within is not None and not folder.startswith(f"{within.rstrip('/')}/"):
+            break
+        if "://" in folder and "/" not in folder.split("://", 1)[1]:
+            break  # the bucket
+        if store.other(folder).attributes() is not None:
+            return folder
+    return None
+
+
 def admit_header(text: str, mode: str, *, data_root: Store) -> tuple:
     """The quick checks of a submitted sweep, those the service answers at once.
 
@@ -257,14 +284,11 @@ def admit_job(text: str, mode: str, *, data_root: Store) -> tuple:
     _, url = admit_header(text, mode, data_root=data_root)
     plan = admit(text, folder=data_root.url, rules=SERVICE)
     root = data_root.url.rstrip("/")
-    for group in parents(url):
-        if not group.startswith(f"{root}/"):
-            break
-        if data_root.other(group).attributes() is not None:
-            inside = group[len(root) + 1 :]
-            raise UnusableOutputError(
-                f"output: {shown(plan.sweep.output)} lies inside the store {shown(inside)}"
-            )
+    if (outer := enclosing_store(data_root.other(url), within=root)) is not None:
+        raise UnusableOutputError(
+            f"output: {shown(plan.sweep.output)} lies inside the store "
+            f"{shown(outer[len(root) + 1 :])}"
+        )
     store = data_root.other(url)
     with store.errors():
         check_output(

@@ -638,6 +638,24 @@ def test_outputs_that_cannot_be_written_are_refused_before_rendering(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["one.yaml"]
 
 
+@pytest.mark.parametrize("options", [[], ["--resume"], ["--overwrite"]])
+@pytest.mark.parametrize("inner", ["a.zarr/x.zarr", "a.zarr/image/deep/x.zarr"])
+def test_an_output_inside_a_store_is_refused(tmp_path, inner, options, cli):
+    # the service refused an output inside a store; `run` wrote one there, exit 0, and the
+    # outer store could no longer be replaced (a trial of issue #27's changes)
+    outer = tmp_path / "a.zarr"
+    (outer / "image").mkdir(parents=True)
+    (outer / "zarr.json").write_text('{"zarr_format": 3, "node_type": "group", "attributes": {}}')
+    (outer / "image" / "zarr.json").write_text('{"zarr_format": 3, "node_type": "array"}')
+    before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
+    sweep = sweep_file(tmp_path)
+    result = cli("run", sweep, "--output", tmp_path / inner, *options, cwd=tmp_path)
+    assert result.returncode == 2, result.stderr
+    assert "lies inside the store '" in result.stderr and "Traceback" not in result.stderr
+    after = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
+    assert after == sorted([*before, sweep.relative_to(tmp_path)])
+
+
 @pytest.mark.parametrize("options", [[], ["--overwrite"]], ids=["run", "overwrite"])
 def test_a_large_folder_as_output_is_refused_at_its_first_file(tmp_path, monkeypatch, options):
     # output: / walked the whole file system before refusing (issue #26 item 6)
