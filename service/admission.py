@@ -13,9 +13,11 @@ their messages name (the command line's flags, the service's modes). Every refus
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import fsspec
+import numpy as np
 
 from service import package_version
 from service.errors import BadFileError, BadOptionError, OutputTakenError, UnusableOutputError
@@ -38,6 +40,7 @@ __all__ = [
     "confine_output",
     "enclosing_store",
     "parents",
+    "resumable",
 ]
 
 MODES = ("new", "resume", "overwrite")
@@ -80,10 +83,17 @@ SERVICE = Rules(
 """The job service's rules: always its limits."""
 
 
-def admit(text: str, *, folder, rules: Rules = CLI) -> Plan:
+def admit(
+    text: str, *, folder, rules: Rules = CLI, resume: Callable[[str], Store] | None = None
+) -> Plan:
     """The plan of the sweep `text`: validated, within `rules`' limits, one store's layout.
 
     `folder` is where the sweep's relative paths start (`service.sweep.parse_sweep`).
+    `resume` (a resume's), called with the sweep's output, gives the store the run would
+    complete: if that store holds this sweep written by this version (`resumable`), its
+    points were checked when it was made, and only the scenes of the samples the run
+    addresses are built (`service.sweep.Plan.stored_image`); the limits are checked all
+    the same.
 
     Raises
     ------
@@ -95,11 +105,36 @@ def admit(text: str, *, folder, rules: Rules = CLI) -> Plan:
         folder=folder,
         max_memory=rules.max_memory if rules.limits else None,
         memory_remedy=rules.too_heavy,
+        resumed=None
+        if resume is None
+        else lambda sweep, digest: resumable(resume(sweep.output), digest),
     )
     if rules.limits:
         plan.check_limits(remedy=rules.too_big)
-    check_uniform(plan)
+    if plan.stored_image is None:  # else checked when its store was made
+        check_uniform(plan)
     return plan
+
+
+def resumable(store: Store, digest: str) -> np.dtype | None:
+    """The image type of `store` if it holds the sweep `digest` written by this version.
+
+    None if it does not (or cannot be read): then the plan is checked whole, and
+    `check_output` says what is wrong with the store. `check_output` checks the store
+    again, holding its writer's lock.
+    """
+    try:
+        previous = store.attributes() or {}
+        if (
+            previous.get(KIND) != "samples"
+            or previous.get("sweep_sha256") != digest
+            or previous.get("oceanlidar_version") != package_version()
+        ):
+            return None
+        image = store.group().get("image")
+    except (OSError, ValueError):
+        return None
+    return None if image is None else image.dtype
 
 
 def check_output(
@@ -282,7 +317,8 @@ def admit_job(text: str, mode: str, *, data_root: Store) -> tuple:
         With the field path and the reason; nothing is queued or written.
     """
     _, url = admit_header(text, mode, data_root=data_root)
-    plan = admit(text, folder=data_root.url, rules=SERVICE)
+    resume = (lambda _: data_root.other(url)) if mode == "resume" else None
+    plan = admit(text, folder=data_root.url, rules=SERVICE, resume=resume)
     root = data_root.url.rstrip("/")
     if (outer := enclosing_store(data_root.other(url), within=root)) is not None:
         raise UnusableOutputError(

@@ -166,6 +166,7 @@ def run_plan(
     progress_stream=None,
     cancel=None,
     on_progress=None,
+    completed: np.ndarray | None = None,
 ) -> RunResult:
     """Render every missing sample of `plan` into `store`.
 
@@ -184,10 +185,11 @@ def run_plan(
     resumable. `on_progress(done, rate)` is called as samples complete
     (samples, samples/s). `progress_stream` shows the progress (`service.progress.Progress`:
     a line until the first shard is written, then the bar); None shows nothing.
+    `completed`: with `resume`, the store's completion flags if already read.
     """
     size = shard_samples(store.group())
     if resume:
-        todo = np.flatnonzero(~store.completed())
+        todo = np.flatnonzero(~(store.completed() if completed is None else completed))
     else:
         todo = range(plan.samples)  # lazy: the client holds no per-sample list
     result = RunResult(
@@ -247,8 +249,8 @@ def run_plan(
     return result
 
 
-def unwritten(store: Store) -> list[tuple[int, str]]:
-    """The samples of `store` not marked complete.
+def unwritten(flags: np.ndarray) -> list[tuple[int, str]]:
+    """The samples whose completion `flags` are not set (`Store.completed_after`).
 
     Checked after a run that reports every sample written, before its statistics: such a
     run leaves its store complete, and a fault of the runner that skipped a sample (a
@@ -262,7 +264,7 @@ def unwritten(store: Store) -> list[tuple[int, str]]:
     """
     return [
         (int(sample), "not marked complete after the run (no task reported it failed)")
-        for sample in np.flatnonzero(~store.completed())
+        for sample in np.flatnonzero(~flags)
     ]
 
 
@@ -482,6 +484,8 @@ def execute(
                     relabelled = integrity.repair_labels(store, plan)
                     damaged = integrity.verify(store)
             store.mark_incomplete([sample for sample, _ in damaged])
+            with store.errors():
+                before = store.completed() if resuming else None
             result = run_plan(
                 plan,
                 store,
@@ -491,14 +495,16 @@ def execute(
                 progress_stream=progress_stream,
                 cancel=cancel,
                 on_progress=on_progress,
+                completed=before,
             )
             result.damaged, result.relabelled = damaged, relabelled
             if result.ok:
                 with store.errors():
-                    result.unwritten = unwritten(store)
+                    done = store.completed() if before is None else store.completed_after(before)
+                result.unwritten = unwritten(done)
             if result.ok and (cancel is None or cancel.close()):
                 with said("writing the statistics"):
-                    write_statistics(store, points=result.points)
+                    write_statistics(store, points=result.points, completed=done)
             elif result.ok:
                 result.interrupted = True
         if result.interrupted:  # tasks in flight at the interrupt may have written since

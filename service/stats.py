@@ -345,7 +345,13 @@ def _reduce_points(source: Store, target: Store, points, done, twins, twin_done)
     return counts
 
 
-def write_statistics(store: Store, *, points: np.ndarray | None = None, stream=None) -> Store:
+def write_statistics(
+    store: Store,
+    *,
+    points: np.ndarray | None = None,
+    stream=None,
+    completed: np.ndarray | None = None,
+) -> Store:
     """(Re)compute the statistics of `store` and write them beside it (`Store.stats`).
 
     With `points` (after a resumed run: the points whose samples it wrote), only those
@@ -355,7 +361,8 @@ def write_statistics(store: Store, *, points: np.ndarray | None = None, stream=N
     ones and moved into place only when complete: a failure leaves the previous statistics
     as they were. The caller holds the sample store's writer lock (`Store.lock`). Runs on
     the dask client in use (the sweep's cluster), or on local threads. `stream` shows the
-    points done (`service.progress.Progress`); None shows nothing.
+    points done (`service.progress.Progress`); None shows nothing. `completed`: the
+    store's completion flags, if the caller has read them (`Store.completed_after`).
 
     Returns
     -------
@@ -373,7 +380,7 @@ def write_statistics(store: Store, *, points: np.ndarray | None = None, stream=N
     """
     ds = check_computable(store)
     target = store.stats
-    done = store.completed()
+    done = store.completed() if completed is None else completed
     recorded = None if points is None else _recorded(ds.attrs, store)
     if recorded is not None:
         # the run's points, and any whose statistics count other samples than are written
@@ -382,7 +389,7 @@ def write_statistics(store: Store, *, points: np.ndarray | None = None, stream=N
         if update.size:
             twins = twin_points(ds)  # a point's cnr_without_target reads its twin's samples
             update = np.union1d(update, np.flatnonzero(np.isin(twins, update) & (twins >= 0)))
-            _reduce_all(ds, store, target, update.tolist(), stream=stream)
+            _reduce_all(ds, store, target, update.tolist(), stream=stream, completed=done)
             target.update_attributes(samples_complete=int(done.sum()))
         return target
     old = target.removable("statistics")
@@ -504,17 +511,27 @@ def _compute(ds: xr.Dataset, source: Store, target: Store, done: int, *, stream=
     _reduce_all(ds, source, target, list(range(int(ds.attrs["points"]))), stream=stream)
 
 
-def _reduce_all(ds: xr.Dataset, source: Store, target: Store, points: list[int], *, stream=None):
+def _reduce_all(
+    ds: xr.Dataset,
+    source: Store,
+    target: Store,
+    points: list[int],
+    *,
+    stream=None,
+    completed: np.ndarray | None = None,
+):
     """Compute the statistics of `points` into the statistics store at `target`.
 
     Each task writes its points' statistics; then the samples each point counts
     (``samples``, one chunk) are written, once, here: an interrupted update leaves the old
     counts, which the next resumed run finds stale (`write_statistics`). `stream` shows
-    the points done; None shows nothing.
+    the points done; None shows nothing. `completed`: the source's completion flags, if
+    already read.
     """
     if not points:  # a resume that wrote nothing, its statistics sound: nothing to read
         return
-    flags = source.completed().reshape(-1, int(ds.attrs["realisations"]))
+    flags = source.completed() if completed is None else completed
+    flags = flags.reshape(-1, int(ds.attrs["realisations"]))
     twins = twin_points(ds)
     starts = range(0, len(points), POINTS_PER_TASK)
     tasks = [

@@ -11,12 +11,12 @@ the space-filling ``latin_hypercube`` and ``sobol`` of `scipy.stats.qmc`).
 
 from __future__ import annotations
 
-import copy
 import functools
 import hashlib
 import itertools
 import json
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -26,9 +26,10 @@ from dask.utils import format_bytes
 from pydantic import ValidationError
 from scipy.stats import qmc
 
-from service.errors import BadSweepError, InputError, TooBigError
+from service.errors import BadSweepError, TooBigError
 from service.inputs import DEFAULT_MAX_MEMORY, read_text, read_yaml, shown, strict_numbers
 from service.measurements import inline_measurements
+from service.points import Scenes, check_scene, format_errors, raw_value
 from service.schema import Distribution, Sweep, Value, Values, scene_field
 from workers.cascades import MAX_CASCADES
 from workers.montecarlo import LAUNCH_CHUNK, LOOKUP_ENTRIES
@@ -46,9 +47,6 @@ NO_LIMITS = "pass --no-limits to run it anyway"
 """What the command line's messages about the limits advise."""
 MEMORY_REMEDY = "pass --max-memory GIB or --no-limits to run it anyway"
 """What the command line's messages about the memory limit advise."""
-MAX_TRAVEL = 100_000.0
-"""Farthest the platform may fly during a sequence [m]: beyond 100 km, float32 ray
-coordinates resolve less than a centimetre, coarser than the surface grids need."""
 
 
 @dataclass(frozen=True)
@@ -98,15 +96,22 @@ class Plan:
         `--resume` compares.
     points : tuple of dict
         For every parameter point, the dotted-path values that define it.
-    scenes : tuple of Scene
-        The validated scene of every point.
+    scenes : sequence of Scene
+        The validated scene of every point (`service.points.Scenes`: built on first use).
+    stored_image : numpy.dtype or None
+        For the plan of a resume of a store of this sweep written by this version
+        (`parse_sweep`'s `resumed`), the store's image type: its points were checked when
+        it was made, their scenes are built only as samples are addressed, and the sizes
+        are those of the first scene of each kind (a store's points share their shapes:
+        `service.store.template.check_uniform`). None: every scene was built and checked.
     """
 
     sweep: Sweep
     text: str
     digest: str
     points: tuple[dict[str, Any], ...]
-    scenes: tuple[Scene, ...]
+    scenes: Sequence[Scene]
+    stored_image: np.dtype | None = None
 
     @property
     def realisations(self) -> int:
@@ -165,7 +170,26 @@ class Plan:
         make a float type that holds every count exactly
         (`service.store.template.widest_image`).
         """
+        if self.stored_image is not None:
+            return self.stored_image
         return np.result_type(*set(self.image_dtypes.values()))
+
+    def representatives(self) -> list[Scene]:
+        """The first scene of each kind (``transport.method``, ``save_surface``), in order.
+
+        A scene's stored variables follow from its kind alone
+        (`service.store.template.rendered_shapes`).
+        """
+        kinds = getattr(self.scenes, "kinds", None)
+        if not kinds:  # scenes built (a plan's part, `benchmarks/storage.py`)
+            kinds = {}
+            for point, scene in enumerate(self.scenes):
+                kinds.setdefault((scene.transport.method, scene.save_surface), point)
+        return [self.scenes[point] for point in sorted(kinds.values())]
+
+    def _sized(self) -> Sequence[Scene]:
+        """The scenes whose sizes are taken: every one, or each kind's first if resumed."""
+        return self.scenes if self.stored_image is None else self.representatives()
 
     def float_images(self) -> int:
         """Float32 arrays of an image's shape every sample stores beside ``image``.
@@ -174,16 +198,18 @@ class Plan:
         rendered by Monte Carlo (``transport.method``;
         `service.store.template.store_variables`).
         """
-        monte_carlo = any(s.transport.method == "monte_carlo" for s in self.scenes)
+        monte_carlo = any(s.transport.method == "monte_carlo" for s in self.representatives())
         return int(self.sweep.store.expected) + int(monte_carlo)
 
     def sample_bytes(self) -> int:
         """Estimated stored bytes of the largest sample (uncompressed)."""
         image, floats = self.image_dtype().itemsize, self.float_images()
-        return max(_sample_bytes(s, image=image, floats=floats) for s in self.scenes)
+        return max(_sample_bytes(s, image=image, floats=floats) for s in self._sized())
 
     def total_bytes(self) -> int:
         """Estimated stored bytes of the whole sweep (uncompressed)."""
+        if self.stored_image is not None:
+            return self.samples * self.sample_bytes()
         r = self.sweep.realisations
         image, floats = self.image_dtype().itemsize, self.float_images()
         return sum(_sample_bytes(s, image=image, floats=floats) * r for s in self.scenes)
@@ -223,16 +249,6 @@ def _sample_bytes(scene: Scene, *, image: int, floats: int) -> int:
     return size
 
 
-def _raw(data: dict, path: str) -> Any:
-    """The value at dotted `path` of a raw scene dict, or the schema's default."""
-    node: Any = data
-    for part in path.split("."):
-        if not isinstance(node, dict) or part not in node:
-            return scene_field(path).default
-        node = node[part]
-    return node
-
-
 def memory_estimate(scene: dict) -> int:
     """Memory [bytes] that rendering one sample of a raw scene needs: an upper estimate.
 
@@ -256,18 +272,18 @@ def memory_estimate(scene: dict) -> int:
         The estimate; 0 if the values are not numbers (validation then says why).
     """
     try:
-        grid = int(_raw(scene, "surface.grid_size"))
-        pixels = int(_raw(scene, "receiver.pixels"))
-        rays = _raw(scene, "laser.rays")
+        grid = int(raw_value(scene, "surface.grid_size"))
+        pixels = int(raw_value(scene, "receiver.pixels"))
+        rays = raw_value(scene, "laser.rays")
         if rays is None:  # the pixels' pitch over the laser's field (`Scene.laser_rays`)
-            receiver = float(_raw(scene, "receiver.field_of_view_deg"))
-            laser = _raw(scene, "laser.field_of_view_deg")
+            receiver = float(raw_value(scene, "receiver.field_of_view_deg"))
+            laser = raw_value(scene, "laser.field_of_view_deg")
             ratio = math.tan(math.radians(float(receiver if laser is None else laser) / 2))
             ratio /= math.tan(math.radians(receiver / 2))
             rays = max(8, round(pixels * ratio))
         side = max(pixels, int(rays))
-        frames = int(_raw(scene, "sequence.frames"))
-        gates = _raw(scene, "receiver.gates")
+        frames = int(raw_value(scene, "sequence.frames"))
+        gates = raw_value(scene, "receiver.gates")
         gates = 6 if gates == "mldc" else len(gates)
         points = ((scene.get("surface") or {}).get("conditioning") or {}).get("points") or []
         times = len({point[3] if len(point) > 3 else 0.0 for point in points})
@@ -290,10 +306,10 @@ def _transport_memory(scene: dict, *, pixels: int, gates: int) -> int:
     12 bytes per slab and cell, 100 slabs, at most `LOOKUP_ENTRIES` slab-cells).
     """
     try:
-        if _raw(scene, "transport.method") != "monte_carlo":
+        if raw_value(scene, "transport.method") != "monte_carlo":
             return 0
-        batches = int(_raw(scene, "transport.batches"))
-        photons = int(_raw(scene, "transport.photons"))
+        batches = int(raw_value(scene, "transport.batches"))
+        photons = int(raw_value(scene, "transport.photons"))
     except (TypeError, ValueError):
         return 0
     images = 3 * 8 * batches * gates * pixels**2
@@ -302,7 +318,7 @@ def _transport_memory(scene: dict, *, pixels: int, gates: int) -> int:
     return images + launch + 64 * cells + 12 * min(LOOKUP_ENTRIES, 100 * cells)
 
 
-def _check_memory(scene: dict, max_memory: float | None, remedy: str) -> None:
+def _check_memory(scene: dict, *, max_memory: float | None, remedy: str) -> None:
     estimate = memory_estimate(scene)
     if max_memory is not None and estimate > max_memory:
         raise TooBigError(
@@ -310,41 +326,6 @@ def _check_memory(scene: dict, max_memory: float | None, remedy: str) -> None:
             f"(surface.grid_size, receiver.pixels, sequence.frames, measurement times), over "
             f"the limit of {format_bytes(max_memory)}; {remedy}"
         )
-
-
-def _check_scene(raw: dict, scene: Scene) -> np.dtype:
-    """Checks of a validated scene beyond its schema; its image type.
-
-    Strict numbers, a bounded track, counts that fit the store's unsigned integers
-    (`workers.variables.count_dtype`; float32 images when not counts: what
-    `Plan.image_dtypes` holds).
-    """
-    strict_numbers(raw, scene.model_dump(), "scene")
-    try:
-        image = count_dtype(scene) or np.dtype(np.float32)
-    except ValueError as error:
-        raise BadSweepError(f"scene.{error}") from None
-    sequence = scene.sequence
-    travel = max(map(abs, sequence.velocity)) * ((sequence.frames - 1) * sequence.interval)
-    if travel > MAX_TRAVEL:
-        raise BadSweepError(
-            f"scene.sequence.velocity: the platform would fly {travel:.3g} m during the "
-            f"sequence, over the limit of {MAX_TRAVEL:,.0f} m"
-        )
-    return image
-
-
-def _format_errors(error: ValidationError, prefix: str = "") -> str:
-    lines = []
-    for item in error.errors():
-        location = ".".join(str(part) for part in item["loc"] if not _is_union_tag(part))
-        place = ".".join(filter(None, [prefix, location])) or "(top level)"
-        lines.append(f"{place}: {item['msg']}")
-    return "\n".join(dict.fromkeys(lines))
-
-
-def _is_union_tag(part) -> bool:
-    return part in {"list", "fixed", "random"} or str(part).startswith("function-after")
 
 
 def load_sweep(path, *, max_memory: float | None = DEFAULT_MAX_MEMORY) -> Plan:
@@ -388,14 +369,14 @@ def read_header(
     try:
         sweep = Sweep.model_validate(data)
     except ValidationError as error:
-        raise BadSweepError(_format_errors(error)) from None
+        raise BadSweepError(format_errors(error)) from None
     strict_numbers(data, sweep.model_dump(), "")
-    _check_memory(sweep.scene, max_memory, memory_remedy)
+    _check_memory(sweep.scene, max_memory=max_memory, remedy=memory_remedy)
     try:
         default = Scene.model_validate(sweep.scene)
     except ValidationError as error:
-        raise BadSweepError(_format_errors(error, "scene")) from None
-    _check_scene(sweep.scene, default)
+        raise BadSweepError(format_errors(error, "scene")) from None
+    check_scene(sweep.scene, default)
     for path in sweep.sweep.parameters:
         scene_field(path)
     return sweep
@@ -407,6 +388,7 @@ def parse_sweep(
     folder=None,
     max_memory: float | None = DEFAULT_MAX_MEMORY,
     memory_remedy: str = MEMORY_REMEDY,
+    resumed: Callable[[Sweep, str], np.dtype | None] | None = None,
 ) -> Plan:
     """Validate and expand sweep YAML text (see `load_sweep`).
 
@@ -423,6 +405,12 @@ def parse_sweep(
     memory_remedy : str, optional
         What the message of a sample over `max_memory` advises (the front end's remedy;
         default the command line's flags).
+    resumed : callable, optional
+        Called with the parsed sweep and its digest: the image type of the store a resume
+        completes if that store holds this sweep written by this version, else None
+        (`service.admission.resumable`). Given one, the points' scenes are built only as
+        samples are addressed (`Plan.stored_image`); their raw values' memory estimates
+        are still checked. Otherwise every point's scene is built and checked here.
 
     Notes
     -----
@@ -435,46 +423,21 @@ def parse_sweep(
     points = _expand(sweep)
     if not points:
         raise BadSweepError("sweep: the sweep expands to no parameter point")
-    scenes = []
-    cache: dict[str, Scene] = {}
-    images: dict[Scene, np.dtype] = {}
-    for index, point in enumerate(points):
-        data = copy.deepcopy(sweep.scene)
-        for path, value in point.items():
-            _assign(data, path, value)
-        key = json.dumps(data, sort_keys=True, default=str)
-        if key not in cache:
-            values = ", ".join(f"{p}={shown(v)}" for p, v in point.items())
-            try:
-                _check_memory(data, max_memory, memory_remedy)
-                cache[key] = Scene.model_validate(data)
-                images.setdefault(cache[key], _check_scene(data, cache[key]))
-            except ValidationError as error:
-                raise BadSweepError(
-                    f"parameter point {index} ({values}):\n" + _format_errors(error, "scene")
-                ) from None
-            except InputError as error:
-                raise type(error)(f"parameter point {index} ({values}):\n{error}") from None
-        scenes.append(cache[key])
     canonical = sweep.model_dump(mode="json", exclude={"output"})
     # parameters in file order: grid expansion and random draws follow it
     canonical["sweep"]["parameters"] = list(canonical["sweep"]["parameters"].items())
     digest = hashlib.sha256(json.dumps(canonical, sort_keys=True).encode()).hexdigest()
-    plan = Plan(sweep=sweep, text=text, digest=digest, points=tuple(points), scenes=tuple(scenes))
-    plan.__dict__["image_dtypes"] = images  # worked out above: `Plan.image_dtypes`' cache
+    check = functools.partial(_check_memory, max_memory=max_memory, remedy=memory_remedy)
+    scenes = Scenes(sweep, points, check=check)
+    stored = None if resumed is None else resumed(sweep, digest)
+    if stored is None:
+        scenes.build_all()
+    else:
+        scenes.survey()
+    plan = Plan(sweep, text, digest, tuple(points), scenes, stored_image=stored)
+    if stored is None:
+        plan.__dict__["image_dtypes"] = scenes.images  # `Plan.image_dtypes`' cache
     return plan
-
-
-def _assign(data: dict, path: str, value: Any) -> None:
-    *parents, leaf = path.split(".")
-    node = data
-    for part in parents:
-        child = node.get(part)
-        if not isinstance(child, dict):
-            child = {}
-            node[part] = child
-        node = child
-    node[leaf] = value
 
 
 def _expand(sweep: Sweep) -> list[dict[str, Any]]:

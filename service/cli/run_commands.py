@@ -74,10 +74,19 @@ def memory_limit(args) -> float:
 
 
 def load(args) -> Plan:
-    """The plan of ``args.sweep`` admitted under the limits the flags set (`admit`)."""
+    """The plan of ``args.sweep`` admitted under the limits the flags set (`admit`).
+
+    With ``--resume``, of the store at ``--output`` (or the sweep's ``output``).
+    """
     rules = Rules(limits=not args.no_limits, max_memory=memory_limit(args))
     text = read_text(args.sweep, place=args.sweep)
-    return admit(text, folder=Path(args.sweep).parent, rules=rules)
+    resume = None
+    if getattr(args, "resume", False):  # `validate` has no --resume
+
+        def resume(output: str) -> Store:
+            return Store.at(args.output or output, args.storage_options)
+
+    return admit(text, folder=Path(args.sweep).parent, rules=rules, resume=resume)
 
 
 def plan_lines(

@@ -404,12 +404,34 @@ class Store:
         """Check, on a worker, that it sees the lock (`service.store.lock.check_workers_see`)."""
         check_workers_see(self, token)
 
-    def completed(self) -> np.ndarray:
-        """Boolean array: which samples are written.
+    def completed(self, samples=None) -> np.ndarray:
+        """Boolean array: which samples are written (of `samples` alone, if given).
 
-        The flags have one chunk per shard: one read per shard, whatever its samples.
+        The flags have one chunk per shard: one read per shard, whatever its samples;
+        `samples` (indices, ascending) reads only the shards that hold them.
         """
-        return self.group()["completed"][:].astype(bool)
+        flags = self.group()["completed"]
+        if samples is None:
+            return flags[:].astype(bool)
+        samples = np.asarray(samples, dtype=int)
+        if not samples.size:
+            return np.zeros(0, bool)
+        return flags.get_orthogonal_selection((samples,)).astype(bool)
+
+    def completed_after(self, before: np.ndarray) -> np.ndarray:
+        """The completion flags after a run that found `before` (`completed`).
+
+        Only a run's tasks write flags, each those of its own shard, and the run holds the
+        store's writer lock: the flags of shards that held no missing sample are still
+        `before`'s; only the others' are read again (one read a shard).
+        """
+        size = int(self.group()["completed"].chunks[0])  # one chunk a shard
+        shards = np.unique(np.flatnonzero(~before) // size)
+        samples = (shards[:, np.newaxis] * size + np.arange(size)).ravel()
+        samples = samples[samples < before.size]
+        after = before.copy()
+        after[samples] = self.completed(samples)
+        return after
 
     def mark_incomplete(self, samples: list[int]) -> None:
         """Clear the completion flags of `samples`, so that a resumed run renders them again.

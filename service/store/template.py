@@ -208,9 +208,15 @@ def rendered_shapes(plan: Plan, table: dict[str, Variable] | None = None) -> dic
 
     In `workers.variables.rendered_order`; what `template` lays out and what
     `service.store.integrity.stale_layout` compares a store with, without the labels.
-    `table`: the plan's `store_variables`, if already worked out.
+    `table`: the plan's `store_variables`, if already worked out; else the names and dims
+    of each kind's first scene (`service.sweep.Plan.representatives`), which are those of
+    `store_variables` without working out every point's image type.
     """
-    table = store_variables(plan) if table is None else table
+    if table is None:
+        table = {}
+        for scene in plan.representatives():
+            for name, variable in variables(scene).items():
+                table.setdefault(name, variable)
     first = plan.scenes[0]
     sizes = {
         "frame": first.sequence.frames,
