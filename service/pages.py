@@ -16,10 +16,23 @@ import hmac
 import html
 import json
 import time
+import urllib.parse
+
+from starlette.requests import ClientDisconnect, Request
+from starlette.responses import JSONResponse
 
 from service.records import Job, JobState
 
-__all__ = ["LOGIN_FORM", "SCRIPT", "csrf_token", "job_page", "list_page", "page"]
+__all__ = [
+    "LOGIN_FORM",
+    "SCRIPT",
+    "csrf_token",
+    "job_page",
+    "list_page",
+    "page",
+    "read_form",
+    "same_origin",
+]
 
 LOGIN_FORM = (
     '<form method="post" action="/login"><label>token <input type="password" name="token">'
@@ -207,3 +220,42 @@ def job_page(job: Job, *, viewer: str, csrf: str) -> str:
     body = f"<div data-job='{job.id}' data-state='{job.state}'>{''.join(parts)}</div>"
     title = f"oceanlidar job {job.id}: {html.escape(job.name)}"
     return page(title, body, script=not job.state.final)
+
+
+def same_origin(headers) -> bool:
+    """Whether a form comes from this service's own pages (by ``Origin`` and ``Sec-Fetch-Site``).
+
+    Browsers send ``Origin`` with every ``POST``; one that names another host (or ``null``)
+    is another site's, as is a ``Sec-Fetch-Site`` other than ``same-origin``. A form with
+    neither header came from no browser page and is refused too (scripts cancel through the
+    API's ``DELETE`` with a token).
+
+    Parameters
+    ----------
+    headers : Mapping
+        The request's headers (lower-case names).
+    """
+    origin, site = headers.get("origin"), headers.get("sec-fetch-site")
+    if origin is None and site is None:
+        return False
+    if origin is not None and urllib.parse.urlsplit(origin).netloc != headers.get("host"):
+        return False
+    return site in (None, "same-origin", "none")
+
+
+FORM_BYTES = 4096
+"""Longest form accepted (log-in, cancel), bytes."""
+
+
+async def read_form(request: Request) -> dict[str, str] | JSONResponse:
+    """A page's form (`FORM_BYTES` at most), each field's first value; or the refusal."""
+    length = request.headers.get("content-length", "")
+    if not length.isdigit():
+        return JSONResponse({"error": "a form needs its Content-Length"}, status_code=400)
+    if int(length) > FORM_BYTES:
+        return JSONResponse({"error": f"a form has at most {FORM_BYTES} bytes"}, status_code=413)
+    try:
+        fields = urllib.parse.parse_qs((await request.body()).decode(errors="replace"))
+    except ClientDisconnect:  # nobody to answer
+        return JSONResponse({"error": "the client went away"}, status_code=400)
+    return {name: values[0] for name, values in fields.items()}

@@ -25,12 +25,11 @@ import os
 import secrets
 import socket
 import sys
-import urllib.parse
 
 import uvicorn
 from starlette.applications import Starlette
 from starlette.concurrency import run_in_threadpool
-from starlette.requests import Request
+from starlette.requests import ClientDisconnect, Request
 from starlette.responses import (
     HTMLResponse,
     JSONResponse,
@@ -45,7 +44,16 @@ from service.cluster import dask_client
 from service.errors import BadFileError, BadOptionError, InputError
 from service.inputs import MAX_FILE_BYTES
 from service.jobs import ForbiddenError, QueueFullError, Runner
-from service.pages import LOGIN_FORM, SCRIPT, csrf_token, job_page, list_page, page
+from service.pages import (
+    LOGIN_FORM,
+    SCRIPT,
+    csrf_token,
+    job_page,
+    list_page,
+    page,
+    read_form,
+    same_origin,
+)
 from service.pictures import KINDS, Pictures
 from service.records import JobState
 from service.store.location import Store
@@ -57,8 +65,6 @@ LOOPBACK = ("127.0.0.1", "localhost", "::1")
 COOKIE = "oceanlidar_token"
 EVENT_TICK = 0.5
 """Seconds between looks at a job for its event stream."""
-LOGIN_BYTES = 4096
-"""Longest login form accepted, bytes."""
 SAFE_METHODS = ("GET", "HEAD")
 """Requests the login cookie may authenticate: they read, never change anything."""
 SECURITY_HEADERS = [
@@ -172,7 +178,7 @@ class _Service:
 
     async def login(self, request: Request) -> Response:
         if request.method == "POST":
-            form = await _form(request)
+            form = await read_form(request)
             if isinstance(form, Response):
                 return form
             token = form.get("token", "")
@@ -188,11 +194,16 @@ class _Service:
         return Response(SCRIPT, media_type="text/javascript")
 
     async def submit(self, request: Request) -> JSONResponse:
+        if any(len(request.query_params.getlist(n)) > 1 for n in ("mode", "submission_id")):
+            return _error(400, "mode and submission_id: each may be given once")
         body = b""
-        async for chunk in request.stream():
-            body += chunk
-            if len(body) > MAX_FILE_BYTES:
-                return _error(413, f"the sweep is larger than {MAX_FILE_BYTES:,} bytes")
+        try:
+            async for chunk in request.stream():
+                body += chunk
+                if len(body) > MAX_FILE_BYTES:
+                    return _error(413, f"the sweep is larger than {MAX_FILE_BYTES:,} bytes")
+        except ClientDisconnect:  # nobody to answer: nothing submitted
+            return _error(400, "the client went away before the whole sweep was sent")
         try:
             text = body.decode("utf-8")
         except UnicodeDecodeError:
@@ -252,13 +263,13 @@ class _Service:
         job_id = request.path_params["id"]
         if lost := self.table.lost():
             return _error(503, f"{lost}: restart the service on its table")
-        if not _same_origin(request):
+        if not same_origin(request.headers):
             return _refused(403, "a cancel from another site's page is refused")
         credential = request.cookies.get(COOKIE, "")
         owner = self.owner(request, given=credential)
         if owner is None:
             return RedirectResponse("/login", status_code=303)
-        form = await _form(request)
+        form = await read_form(request)
         if isinstance(form, Response):
             return form
         expected = csrf_token(self.secret, credential)
@@ -319,29 +330,6 @@ class _Service:
         except InputError as error:  # e.g. nothing swept: nothing to plot against
             return _error(404, str(error))
         return Response(picture, media_type="image/png")
-
-
-async def _form(request: Request) -> dict[str, str] | Response:
-    """A page's form (`LOGIN_BYTES` at most), each field's first value; or the refusal."""
-    length = request.headers.get("content-length", "")
-    if not length.isdigit():
-        return _error(400, "a form needs its Content-Length")
-    if int(length) > LOGIN_BYTES:
-        return _error(413, f"a form has at most {LOGIN_BYTES} bytes")
-    fields = urllib.parse.parse_qs((await request.body()).decode(errors="replace"))
-    return {name: values[0] for name, values in fields.items()}
-
-
-def _same_origin(request: Request) -> bool:
-    """Whether a form comes from this service's own pages (by ``Origin`` and ``Sec-Fetch-Site``).
-
-    Browsers send ``Origin`` with every ``POST``; one that names another host (or ``null``)
-    is another site's, as is a ``Sec-Fetch-Site`` other than ``same-origin``.
-    """
-    origin = request.headers.get("origin")
-    if origin is not None and urllib.parse.urlsplit(origin).netloc != request.headers.get("host"):
-        return False
-    return request.headers.get("sec-fetch-site", "same-origin") in ("same-origin", "none")
 
 
 def _refused(status: int, reason: str) -> HTMLResponse:

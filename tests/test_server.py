@@ -484,6 +484,7 @@ def test_the_job_page_follows_its_events_and_its_owner_cancels_it(service):
     forged = [
         (TOKEN, {"csrf": csrf}, cross, 403),  # another site's page: refused by origin
         (TOKEN, {"csrf": csrf}, {"Sec-Fetch-Site": "cross-site"}, 403),
+        (TOKEN, {"csrf": csrf}, {"Referer": "http://evil.example/"}, 403),  # names no origin
         (TOKEN, {}, own, 403),  # no form token: the cookie alone is not enough
         (TOKEN, {"csrf": "0" * 64}, own, 403),
         (OTHER_TOKEN, {"csrf": csrf}, own, 403),  # alice's token is not bob's
@@ -504,7 +505,12 @@ def test_the_job_page_follows_its_events_and_its_owner_cancels_it(service):
     status, _, text = page_request(service, "GET", path, token=TOKEN)
     assert "cancel the job" not in text and "<script" not in text  # finished: nothing live
     status, _, refused = page_request(
-        service, "POST", "/jobs/0123456789ab/cancel", token=TOKEN, body={"csrf": csrf}
+        service,
+        "POST",
+        "/jobs/0123456789ab/cancel",
+        token=TOKEN,
+        body={"csrf": csrf},
+        headers=own,
     )
     assert status == 404 and "no such job" in refused
 

@@ -202,8 +202,27 @@ def test_a_submission_id_answers_its_job_again(tmp_path, held):
         for bad in ("", "-x", "a/b", "x" * 65, "a b"):
             status, answer = served.submit(text, query=f"?submission_id={bad.replace(' ', '+')}")
             assert status == 400 and answer["error"].startswith("submission_id: "), (bad, answer)
+        # one id a request: two are refused, not one of them picked (a trial of issue #27)
+        status, answer = served.submit(text, query="?submission_id=run-1.a_b&submission_id=b")
+        assert status == 400 and "each may be given once" in answer["error"], answer
         jobs = served.request("GET", "/v1/jobs")[1]["jobs"]
         assert sorted(job["id"] for job in jobs) == sorted([first["id"], other["id"]])
+
+
+def test_a_client_gone_before_its_sweep_is_sent_leaves_no_traceback(tmp_path, capfd):
+    # a trial of issue #27: starlette's ClientDisconnect went up as "Exception in ASGI
+    # application" with a traceback in the server's log
+    with serving(tmp_path) as served:
+        host, port = served.url.removeprefix("http://").split(":")
+        with socket.create_connection((host, int(port)), timeout=10) as connection:
+            connection.sendall(
+                b"POST /v1/jobs HTTP/1.1\r\nHost: x\r\nContent-Length: 5000\r\n"
+                b"Authorization: Bearer " + TOKEN.encode() + b"\r\n\r\nname: x"
+            )
+        time.sleep(0.5)
+        assert served.request("GET", "/v1/jobs")[1]["jobs"] == []
+    logged = capfd.readouterr().err
+    assert "Traceback" not in logged and "Exception" not in logged, logged
 
 
 class _Flaky(http.server.BaseHTTPRequestHandler):
