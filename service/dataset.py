@@ -25,9 +25,9 @@ import numpy as np
 import xarray as xr
 from dask.base import tokenize
 
-from service.errors import DamagedStoreError
+from service.errors import BadFileError, DamagedStoreError
 from service.store.integrity import unflagged
-from service.store.location import Store
+from service.store.location import Store, old_gate_numbering
 from service.store.shards import ShardReader, sample_checksum, verified_by
 from workers.variables import rendered_order
 
@@ -187,6 +187,8 @@ class SampleDataset:
         if missing:
             known = ", ".join(sorted(group.array_keys()))
             raise KeyError(f"{url} has no {', '.join(missing)}; it has {known}")
+        if "gate" in group and (problem := old_gate_numbering(group["gate"][:], url)):
+            raise BadFileError(problem)
         if lost := unflagged(self.store):
             raise DamagedStoreError(
                 f"{url}: samples {_listed(lost)} hold checksums but their completion flags are "

@@ -402,8 +402,9 @@ def test_a_store_numbering_its_gates_from_0_is_refused_until_renumbered(filled, 
     gate[:] = gate[:] - 1
     sweep = tmp_path / "t.yaml"
     sweep.write_text(SWEEP.format(name="t", seed=4, realisations=3, output="t.zarr"))
-    with pytest.raises(InputError, match=r"numbers its gates from 0.*renumber it in place"):
-        open_dataset(str(old))
+    for reader in (open_dataset, SampleDataset):  # the training reader too (a trial's find)
+        with pytest.raises(InputError, match=r"numbers its gates from 0.*renumber it in place"):
+            reader(str(old))
     for command in (["stats", old], ["detect", old], ["info", old], ["run", sweep, "--resume"]):
         result = cli(*command, cwd=tmp_path)
         assert result.returncode == 2, command
@@ -414,6 +415,7 @@ def test_a_store_numbering_its_gates_from_0_is_refused_until_renumbered(filled, 
     group = zarr.open_group(str(old), mode="r+")
     group["gate"][:] = group["gate"][:] + 1
     assert open_dataset(str(old))["gate"].values.tolist() == [1]
+    assert len(SampleDataset(str(old))) == Store(str(old)).completed().sum() > 0
     assert cli("stats", old, cwd=tmp_path).returncode == 0
     assert open_dataset(Store(str(old)).stats.url)["gate"].values.tolist() == [1]
 
