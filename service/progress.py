@@ -16,6 +16,7 @@ starts from the samples a resumed store already holds. `compute` is `dask.comput
 from __future__ import annotations
 
 import contextlib
+import os
 import time
 
 import dask
@@ -30,7 +31,17 @@ LOG_EVERY = 30.0
 
 
 def _terminal(stream) -> bool:
-    return stream is not None and hasattr(stream, "isatty") and stream.isatty()
+    """Whether tqdm can draw on `stream`: a terminal that says how wide it is.
+
+    A pseudo-terminal may say 0 columns (``script``, some ``docker -t`` and CI terminals),
+    on which tqdm's bar is drawn 0 wide: it gets the log's lines.
+    """
+    if stream is None or not hasattr(stream, "isatty") or not stream.isatty():
+        return False
+    try:
+        return os.get_terminal_size(stream.fileno()).columns > 0
+    except (AttributeError, OSError, ValueError):
+        return False
 
 
 def _write(stream, text: str) -> None:

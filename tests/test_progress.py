@@ -1,6 +1,8 @@
 """What long commands show on stderr: set-up phases, then the work done of its total."""
 
 import io
+import os
+import pty
 import re
 
 from conftest import TINY_SWEEP
@@ -92,6 +94,19 @@ def test_a_log_line_every_interval_and_the_count_at_an_early_close(monkeypatch):
     shown.update(1)
     shown.close()  # interrupted: the log still says how far it got
     assert lines(stream.getvalue())[-1].split("|")[2].startswith(" 3/4")
+
+
+def test_a_terminal_of_no_width_gets_the_log_lines():
+    # a trial of issue #27: a pseudo-terminal that says it has 0 columns (`script`, some
+    # `docker -t` and CI terminals) showed no progress at all: tqdm drew its bar 0 wide
+    main, secondary = pty.openpty()  # a new pseudo-terminal: 0 rows, 0 columns
+    with os.fdopen(secondary, "w") as terminal:
+        shown = Progress(3, unit="samples", stream=terminal)
+        shown.update(3)
+        shown.close()
+    written = os.read(main, 4096).decode()
+    os.close(main)
+    assert re.search(r"100%\|#+\| 3/3 \[", written), written
 
 
 def test_no_stream_writes_nothing_and_a_stopped_phase_says_so(capsys):
