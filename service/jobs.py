@@ -27,7 +27,7 @@ import threading
 import time
 import uuid
 
-from service.admission import admit_header, admit_job, parents
+from service.admission import SERVICE, admit_header, admit_job, parents
 from service.errors import (
     BadOptionError,
     InputError,
@@ -167,15 +167,20 @@ class Runner:
                         )
                     return known, False
             sweep, url = admit_header(text, mode, data_root=self.data_root)
-            attributes = self.data_root.other(url).attributes() if mode != "new" else None
-            if attributes is not None:  # a store is there
-                previous = self.table.latest(url)
-                wrote = attributes.get(OWNER, previous.owner if previous else None)
-                if wrote != owner:
-                    who = f"was written by {wrote}" if wrote else "records no owner"
-                    raise ForbiddenError(
-                        f"output: {shown(sweep.output)} {who}; only its owner may {mode} it"
-                    )
+            store = self.data_root.other(url)
+            with store.errors():
+                attributes = store.attributes()
+                taken = attributes is not None or store.occupied()
+            previous = self.table.latest(url)
+            wrote = (attributes or {}).get(OWNER, previous.owner if previous else None)
+            who = f"was written by {wrote}" if wrote else "records no owner"
+            if taken and mode == "new":  # answered now (409), with the remedy this owner has
+                remedy = SERVICE.exists if wrote == owner else f"it {who}: choose another output"
+                raise OutputTakenError(f"output: {shown(sweep.output)} already exists; {remedy}")
+            if attributes is not None and wrote != owner:  # a store is there
+                raise ForbiddenError(
+                    f"output: {shown(sweep.output)} {who}; only its owner may {mode} it"
+                )
             if self.table.active() >= self.queue_limit:
                 raise QueueFullError(
                     f"{self.queue_limit} jobs are validating, queued or running; try later"

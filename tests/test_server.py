@@ -241,10 +241,11 @@ def test_cancel_stops_the_job_and_resume_completes_it(service, reference, monkey
     assert not store_lock(job["url"]).exists()
     client(monkeypatch, service)
     assert main(["status", job_id]) == 1
-    status, refused = service.submit(text)  # accepted, then refused by the validator
-    assert status == 201 and refused["state"] == "validating", refused
-    refused = service.wait(refused["id"], finished)
-    assert refused["state"] == "rejected" and "already exists" in refused["message"], refused
+    status, refused = service.submit(text)  # an existing output: 409 at once (issue #27)
+    assert status == 409 and "already exists; submit with mode resume" in refused["error"]
+    # another owner is not told to resume what only its owner may (a trial's find)
+    status, refused = service.request("POST", "/v1/jobs", text.encode(), token=OTHER_TOKEN)
+    assert status == 409 and refused["error"].endswith("by alice: choose another output"), refused
     for mode in ("resume", "overwrite"):
         status, refused = service.request(
             "POST", f"/v1/jobs?mode={mode}", text.encode(), token=OTHER_TOKEN
