@@ -253,11 +253,13 @@ def parents(url: str) -> list[str]:
 
 
 def enclosing_store(store: Store, *, within: str | None = None) -> str | None:
-    """The innermost zarr store or array that `store` would lie inside, if any.
+    """The innermost store that `store` would lie inside, if any.
 
-    Every folder above it is looked at (one metadata read each), below `within` (a folder
-    or prefix, not itself looked at) if given, else up to the file system's root or the
-    bucket (an object store's bucket itself is not looked at).
+    Every folder above it is looked at (one metadata read each), up to the file system's
+    root or the bucket (neither looked at), or below `within` (the service's data root,
+    not itself looked at). Below `within` any zarr group or array counts; elsewhere an
+    oceanlidar dataset (its `KIND` attribute: samples, statistics, detection), so that a
+    folder above that happens to be some other zarr group refuses nothing.
 
     Returns
     -------
@@ -265,11 +267,12 @@ def enclosing_store(store: Store, *, within: str | None = None) -> str | None:
         The enclosing store's URL; None if `store` lies inside none.
     """
     for folder in parents(store.url):
-        if within is not None and not folder.startswith(f"{within.rstrip('/')}/"):
-            break
+        if not folder or (within is not None and not folder.startswith(f"{within.rstrip('/')}/")):
+            break  # the file system's root, or the data root
         if "://" in folder and "/" not in folder.split("://", 1)[1]:
             break  # the bucket
-        if store.other(folder).attributes() is not None:
+        above = store.other(folder)
+        if above.kind() is not None if within is None else above.attributes() is not None:
             return folder
     return None
 

@@ -390,6 +390,8 @@ def write_statistics(
             twins = twin_points(ds)  # a point's cnr_without_target reads its twin's samples
             update = np.union1d(update, np.flatnonzero(np.isin(twins, update) & (twins >= 0)))
             _reduce_all(ds, store, target, update.tolist(), stream=stream, completed=done)
+        if update.size or (target.attributes() or {}).get("samples_complete") != done.sum():
+            # also after an update stopped between its counts and this record
             target.update_attributes(samples_complete=int(done.sum()))
         return target
     old = target.removable("statistics")

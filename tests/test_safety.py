@@ -16,6 +16,7 @@ import pytest
 import xarray as xr
 from conftest import TINY_SCENE, TINY_SWEEP, on_cluster, start_cli, store_lock
 
+from service.admission import enclosing_store
 from service.cli import main
 from service.store import integrity, lock, shards
 from service.store.location import KIND, Store
@@ -638,6 +639,24 @@ def test_outputs_that_cannot_be_written_are_refused_before_rendering(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["one.yaml"]
 
 
+GROUP = '{"zarr_format": 3, "node_type": "group", "attributes": {}}'
+
+
+def test_only_a_store_above_an_output_refuses_it(tmp_path, monkeypatch):
+    # a review's find: the walk read the working directory ('' above an absolute path) and
+    # any zarr group above, so a run started in, or writing below, some other zarr group
+    # was refused; the service's data root bounds its own walk
+    foreign = tmp_path / "group"
+    foreign.mkdir()
+    (foreign / "zarr.json").write_text(GROUP)
+    monkeypatch.chdir(foreign)
+    assert enclosing_store(Store.at(tmp_path / "out" / "run.zarr")) is None
+    assert enclosing_store(Store.at(foreign / "run.zarr")) is None
+    (foreign / "zarr.json").write_text(GROUP.replace("{}", '{"oceanlidar_dataset": "samples"}'))
+    assert enclosing_store(Store.at(foreign / "a" / "run.zarr")) == str(foreign)
+    assert enclosing_store(Store.at(foreign / "run.zarr"), within=str(foreign)) is None
+
+
 @pytest.mark.parametrize("options", [[], ["--resume"], ["--overwrite"]])
 @pytest.mark.parametrize("inner", ["a.zarr/x.zarr", "a.zarr/image/deep/x.zarr"])
 def test_an_output_inside_a_store_is_refused(tmp_path, inner, options, cli):
@@ -645,7 +664,7 @@ def test_an_output_inside_a_store_is_refused(tmp_path, inner, options, cli):
     # outer store could no longer be replaced (a trial of issue #27's changes)
     outer = tmp_path / "a.zarr"
     (outer / "image").mkdir(parents=True)
-    (outer / "zarr.json").write_text('{"zarr_format": 3, "node_type": "group", "attributes": {}}')
+    (outer / "zarr.json").write_text(GROUP.replace("{}", '{"oceanlidar_dataset": "samples"}'))
     (outer / "image" / "zarr.json").write_text('{"zarr_format": 3, "node_type": "array"}')
     before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
     sweep = sweep_file(tmp_path)

@@ -485,6 +485,11 @@ def test_statistics_after_resume_recompute_only_the_points_written(tmp_path, cli
     again = xr.open_zarr(stats).load()
     for name in full.data_vars:
         assert full[name].values.tobytes() == again[name].values.tobytes(), name
+    # an update stopped after writing its counts, before recording how complete it is:
+    # the next one that has nothing to compute still records it (a review's find)
+    Store(str(stats)).update_attributes(samples_complete=3)
+    write_statistics(Store(str(tmp_path / "s.zarr")), points=np.array([], dtype=int))
+    assert Store(str(stats)).attributes()["samples_complete"] == full.attrs["samples_complete"]
     # statistics damaged beyond their images: recomputed whole, and equal
     (stats / "samples" / "c.0").write_bytes(b"garbage")
     write_statistics(Store(str(tmp_path / "s.zarr")), points=np.array([1]))
