@@ -281,13 +281,21 @@ class ShardReader:
                 self.indexes[shard] = None
                 return None
             if self.sharded:
-                self._check(data, f"shard {shard}'s index")
-                self.indexes[shard] = np.frombuffer(data[:-4], "<u8").reshape(-1, 2)
+                self.indexes[shard] = self._shard_index(data, shard)
             else:
                 self._check(data, f"samples {shard * self.per_shard}+: their chunk")
                 values = np.frombuffer(self.codec.decode(data[:-4]), self.dtype)
                 self.indexes[shard] = values.reshape(-1, *self.shape)
         return self.indexes[shard]
+
+    def _shard_index(self, data: bytes, shard: int) -> np.ndarray:
+        """Shard `shard`'s index, checked: (offset, length) per sample.
+
+        `data` is the shard file or its tail.
+        """
+        tail = data[-(16 * self.per_shard + 4) :]
+        self._check(tail, f"shard {shard}'s index")
+        return np.frombuffer(tail[:-4], "<u8").reshape(-1, 2)
 
     def _check(self, data: bytes, what: str) -> None:
         if google_crc32c.value(data[:-4]) != int.from_bytes(data[-4:], "little"):
@@ -324,9 +332,7 @@ class ShardReader:
             data = self.fs.cat_file(self.key.format(shard))
         except FileNotFoundError:
             return values
-        tail = data[-(16 * self.per_shard + 4) :]
-        self._check(tail, f"shard {shard}'s index")
-        index = np.frombuffer(tail[:-4], "<u8").reshape(-1, 2)
+        index = self._shard_index(data, shard)
         for position, (offset, length) in enumerate(index[:samples].tolist()):
             if offset != EMPTY:
                 sample = shard * self.per_shard + position
