@@ -48,8 +48,8 @@ def _store(args, url: str) -> Store:
     return Store.at(url, args.storage_options)
 
 
-def _open(store: Store, *, dask: bool = True):
-    """The samples store, opened lazily (with `dask` or not: `Store.dataset`).
+def _open(store: Store):
+    """The samples store, opened lazily without dask (no graph that grows with its samples).
 
     Raises
     ------
@@ -62,7 +62,7 @@ def _open(store: Store, *, dask: bool = True):
     if store.kind() != "samples":
         raise UnusableOutputError(f"{url}: not an oceanlidar samples store")
     try:
-        return store.dataset(dask=dask)
+        return store.dataset(dask=False)
     except InputError:  # a store, refused as it is (gates numbered from 0)
         raise
     except Exception as error:
@@ -82,7 +82,7 @@ def cmd_info(args) -> int:
     """What a store holds and how complete it is; ``--verify`` reads every sample back."""
     store = _store(args, args.store)
     url = store.url
-    ds = _open(store, dask=False)
+    ds = _open(store)
     done = int(store.completed().sum())
     total = ds.sizes["sample"]
     swept = [f"{name} ({path})" for name, path in swept_parameters(ds).items()]
