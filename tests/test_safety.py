@@ -782,7 +782,7 @@ def test_the_template_is_built_without_rendering_a_sample(tmp_path, monkeypatch)
     def no_render(*args, **kwargs):
         raise AssertionError("the template rendered a frame")
 
-    monkeypatch.setattr("workers.render._render_frame", no_render)
+    monkeypatch.setattr("workers.stages.frame_light", no_render)
 
     text = TINY_SCENE.format(name="big", seed=1, realisations=2, output="big.zarr")
     text = text.replace("pixels: 16", "pixels: 1024").replace(

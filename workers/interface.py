@@ -3,7 +3,9 @@
 Rays from the platform (laser rays, pixels' lines of sight) are intersected with the real
 surface, refracted by Snell's law at the local facet and weighted by the Fresnel
 transmittance (`through_surface`); in the water they are straight lines, kept as affine
-functions of the depth of the plane they cross (`Projected`).
+functions of the depth of the plane they cross (`Projected`). The rays' arrays are of any
+array API namespace (numpy, or torch on its device: `workers.backend`); the arithmetic is
+the same, so numpy's bytes are those of plain numpy code.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 
 import numpy as np
+from array_api_compat import array_namespace
 
 from workers.geometry import PlaneGrid
 
@@ -97,11 +100,11 @@ class Projected:
         """``(base_u, slope_u, base_v, slope_v)``, for `workers.kernels`."""
         return self.base_u, self.slope_u, self.base_v, self.slope_v
 
-    def extra(self, depth: float) -> np.ndarray:
+    def extra(self, depth: float):
         """Attenuation of each ray's extra slant path to a plane at `depth` [1], float32."""
-        extra = self.log_extra_slope * np.float32(depth)
+        extra = self.log_extra_slope * float(np.float32(depth))
         extra += self.log_extra
-        return np.exp(extra, out=extra)
+        return array_namespace(extra).exp(extra)
 
     def select(self, pick) -> Projected:
         """The rays that `pick`, a function of one component's array, keeps."""
@@ -129,9 +132,11 @@ def through_surface(rays, surface, frame, refractive_index):
     Parameters
     ----------
     rays : tuple
-        ``(ox, oy, oz, dx, dy, dz)`` from `ray_components` [m], [1].
+        ``(ox, oy, oz, dx, dy, dz)`` from `ray_components` [m], [1]: float32 arrays of
+        one backend (numpy, or torch tensors on one device), an origin shared by every
+        ray as scalars.
     surface : Surface or None
-        The sea surface (None: flat).
+        The sea surface (None: flat), its fields on the rays' backend.
     frame : int
         Frame index into the surface.
     refractive_index : float
@@ -159,9 +164,10 @@ def through_surface(rays, surface, frame, refractive_index):
     nothing.
     """
     ox, oy, oz, dx, dy, dz = rays
+    xp = array_namespace(dx)
     travel = -oz / dz
     if surface is None:
-        eta = np.zeros_like(travel)
+        eta = xp.zeros_like(travel)
         sx = sy = eta
     else:
         eta = surface.elevation_at(ox + travel * dx, oy + travel * dy, frame)
@@ -169,31 +175,35 @@ def through_surface(rays, surface, frame, refractive_index):
             travel = (eta - oz) / dz
             x, y = ox + travel * dx, oy + travel * dy
             height = surface.elevation_at(x, y, frame)
-            converged = np.max(np.abs(height - eta)) < SURFACE_TOLERANCE
+            converged = bool(xp.max(xp.abs(height - eta)) < SURFACE_TOLERANCE)
             eta = height
             if converged:
                 break
         sx, sy = surface.slopes_at(x, y, frame)
     ratio = 1.0 / refractive_index
-    inverse_norm = 1.0 / np.sqrt(1.0 + sx * sx + sy * sy)
+    inverse_norm = 1.0 / xp.sqrt(1.0 + sx * sx + sy * sy)
     cos_incidence = (dx * sx + dy * sy - dz) * inverse_norm
-    cos_i = np.clip(cos_incidence, 0.0, 1.0)
-    cos_t = np.sqrt(1.0 - ratio * ratio * (1.0 - cos_i * cos_i))
+    cos_i = xp.clip(cos_incidence, 0.0, 1.0)
+    cos_t = xp.sqrt(1.0 - ratio * ratio * (1.0 - cos_i * cos_i))
     coefficient = (ratio * cos_i - cos_t) * inverse_norm
     down = -(ratio * dz + coefficient)
     facing = (cos_incidence > 0) & (down > 0)
-    secant = np.where(facing, 1.0 / np.where(facing, down, 1.0), 1.0)
+    secant = xp.where(facing, 1.0 / xp.where(facing, down, 1.0), 1.0)
     n_w = refractive_index
     r_s = (cos_i - n_w * cos_t) / (cos_i + n_w * cos_t)
     r_p = (n_w * cos_i - cos_t) / (n_w * cos_i + cos_t)
     transmittance = 1.0 - 0.5 * (r_s * r_s + r_p * r_p)
+
+    def single(values):
+        return xp.astype(values, xp.float32, copy=False)
+
     return Transmitted(
-        air=np.asarray(travel, dtype=np.float32),
-        x=np.asarray(ox + travel * dx, dtype=np.float32),
-        y=np.asarray(oy + travel * dy, dtype=np.float32),
-        z=np.asarray(eta, dtype=np.float32),
-        tan_x=np.where(facing, (ratio * dx - coefficient * sx) * secant, 0.0).astype(np.float32),
-        tan_y=np.where(facing, (ratio * dy - coefficient * sy) * secant, 0.0).astype(np.float32),
-        secant=secant.astype(np.float32),
-        transmittance=np.where(facing, transmittance, 0.0).astype(np.float32),
+        air=single(travel),
+        x=single(ox + travel * dx),
+        y=single(oy + travel * dy),
+        z=single(eta),
+        tan_x=single(xp.where(facing, (ratio * dx - coefficient * sx) * secant, 0.0)),
+        tan_y=single(xp.where(facing, (ratio * dy - coefficient * sy) * secant, 0.0)),
+        secant=single(secant),
+        transmittance=single(xp.where(facing, transmittance, 0.0)),
     )

@@ -6,10 +6,11 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from workers.backend import Backend
 from workers.caches import lru_bytes
 from workers.delays import return_delays
 from workers.geometry import LaserRays, Located, PlaneGrid, flat_sea_point
@@ -80,6 +81,19 @@ class Plane:
         """The fine grid."""
         return self.levels.fine
 
+    def on(self, backend: Backend) -> Plane:
+        """The plane with its fields and spread on `backend` (itself on numpy)."""
+        if backend.name == "numpy":
+            return self
+        return replace(
+            self,
+            levels=self.levels.on(backend),
+            spread=self.spread.on(backend),
+            tail=_moved(self.tail, backend),
+            occlusion=_moved(self.occlusion, backend),
+            seen=_moved(self.seen, backend),
+        )
+
 
 @dataclass(frozen=True)
 class TargetLight:
@@ -95,12 +109,25 @@ class TargetLight:
     rows: slice
 
 
+def _moved(values, backend: Backend):
+    """Host arrays (nested in tuples; None kept) as arrays of `backend`; numbers as floats."""
+    if values is None:
+        return None
+    if isinstance(values, tuple):
+        return tuple(_moved(v, backend) for v in values)
+    if np.ndim(values) == 0:  # a ray origin shared by every ray: a float32 value
+        return float(values)
+    return backend.asarray(values)
+
+
 @dataclass(frozen=True)
 class FrameGeometry:
     """Geometry of one frame: sensor rays, planes, filters and the target impostor.
 
     With a target, `sight` is the pixels' own grid at its depth (`workers.sensor.sight_grid`)
-    and `sight_occupancy` the target's silhouette on it: each pixel's share, for its mask.
+    and `sight_occupancy` the target's silhouette on it: each pixel's share, for its mask;
+    `sight_support` the first row, last row + 1, first column and last column + 1 of its
+    non-zero cells.
     """
 
     position: np.ndarray
@@ -114,11 +141,38 @@ class FrameGeometry:
     target_light: TargetLight | None
     sight: PlaneGrid | None = None
     sight_occupancy: np.ndarray | None = None
+    sight_support: tuple[int, int, int, int] = (0, 0, 0, 0)
+    _on: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
     def sight_cells(self) -> Cells:
         """`workers.kernels.Cells` of `sight`: the pixels' own grid at the target's depth."""
         return Cells.of_grid(self.sight)
+
+    def on(self, backend: Backend) -> FrameGeometry:
+        """The geometry with what a sample reads on `backend` (cached; itself on numpy).
+
+        The rays, the laser's power, the planes (their spreads, tail, occlusion) and the
+        target's maps are moved once; the host's geometry keeps the moved copy while it
+        is cached (`frame_geometry`).
+        """
+        if backend.name == "numpy":
+            return self
+        if backend not in self._on:
+            light = self.target_light
+            if light is not None:
+                light = replace(light, weights=_moved(light.weights, backend))
+            self._on[backend] = replace(
+                self,
+                pixel_rays=_moved(self.pixel_rays, backend),
+                laser_rays=_moved(self.laser_rays, backend),
+                laser_power=backend.asarray(self.laser_power),
+                gate_planes=tuple(plane.on(backend) for plane in self.gate_planes),
+                target_plane=None if self.target_plane is None else self.target_plane.on(backend),
+                target_light=light,
+                sight_occupancy=_moved(self.sight_occupancy, backend),
+            )
+        return self._on[backend]
 
 
 def read_blur(scene: Scene, sensor: Sensor, grid: PlaneGrid, *, uses: int) -> tuple[float, float]:
@@ -291,6 +345,7 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
             light = spread.filtered(fine, source, far_out=gate is None)
         planes.append(Plane(levels=levels, spread=spread, tail=light))
     target_plane = impostor = target_light = sight = sight_occupancy = None
+    sight_support = (0, 0, 0, 0)
     if t.shape != "none":
         target_plane, planes = planes[0], planes[1:]
         impostor = impostor_on(setup, target_plane.grid)
@@ -298,6 +353,7 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
         guard = max(int(np.ceil(GUARD * camera.pixels)), 1)
         sight = sight_grid(sensor, t.depth, water.refractive_index, guard=guard)
         sight_occupancy = impostor_on(setup, sight).occupancy
+        sight_support = _support(sight_occupancy)
     gate_planes = []
     for g, plane in enumerate(planes):
         if impostor is not None:
@@ -324,7 +380,16 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
         target_light=target_light,
         sight=sight,
         sight_occupancy=sight_occupancy,
+        sight_support=sight_support,
     )
+
+
+def _support(field: np.ndarray) -> tuple[int, int, int, int]:
+    """First row, last row + 1, first column, last column + 1 of a field's non-zero cells."""
+    rows, cols = (np.flatnonzero(field.any(axis=axis)) for axis in (1, 0))
+    if not rows.size:
+        return 0, 0, 0, 0
+    return int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
 
 
 def _gated(setup, grid, impostor, top, bottom, *, delays, shares) -> np.ndarray:

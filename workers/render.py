@@ -39,27 +39,65 @@ vertical range to each plane (it underestimates the blur by about 1/cos ϑ in th
 while attenuation follows each ray's slant path; a gate's slab is weighted with the central
 ray's in-water angle and blurred at the central slab's depth wherever slant gating moves
 it; the target's own cells are gated on their lines of sight.
+
+A batch (`render_batch`) renders the realisations of one scene, each on its own streams:
+a sample's bytes do not depend on the batch it is rendered in. The per-frame stages
+(`workers.stages`) run on an array backend (`workers.backend`: numpy with the numba
+kernels, or PyTorch on the CPU or a CUDA device); the labels are made on the host.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import xarray as xr
 
-from workers import montecarlo
-from workers.interface import Projected, through_surface
-from workers.kernels import Cells, gather_levels, sample, span, splat_levels
+from workers import montecarlo, stages
+from workers.backend import Backend, get_backend
 from workers.labels import labelled_dataset, rendered_arrays, target_mask
 from workers.noise import shot_noise
-from workers.planes import FrameGeometry, Plane, frame_geometry
+from workers.planes import frame_geometry
 from workers.scene import Scene
+from workers.section import SceneError
 from workers.seeds import SampleSeed
 from workers.sensor import Setup, scene_setup
 
-__all__ = ["render", "render_arrays", "render_images", "render_pair"]
+__all__ = ["render", "render_arrays", "render_batch", "render_images", "render_pair"]
 
 
-def render(scene: Scene, *, seed: int | SampleSeed) -> xr.Dataset:
+@dataclass(frozen=True)
+class SampleLight:
+    """One sample's light, on the backend (the masks and the Monte Carlo error on the host).
+
+    Attributes
+    ----------
+    surface : Surface or None
+        The sample's sea (None: flat).
+    expected : array, shape (frame, gate, y, x)
+        The noise-free images [photoelectrons], float32.
+    masks : ndarray, shape (frame, y, x)
+        The target mask, uint8.
+    stderr : ndarray or None
+        The Monte Carlo renderer's standard error of `expected` (None: the fast renderer).
+    free : array or None
+        The fast renderer's expected images of the target-free twin (None: no target,
+        or Monte Carlo).
+    image : array
+        The noisy images.
+    """
+
+    surface: object
+    expected: object
+    masks: np.ndarray
+    stderr: np.ndarray | None
+    free: object
+    image: object
+
+
+def render(
+    scene: Scene, *, seed: int | SampleSeed, backend: str = "numpy", device: str = "cpu"
+) -> xr.Dataset:
     """Render one sample: six (or however many) gated images per frame.
 
     Parameters
@@ -70,6 +108,9 @@ def render(scene: Scene, *, seed: int | SampleSeed) -> xr.Dataset:
         An int is the root seed of a lone sample (point 0, realisation 0). The surface
         depends on ``(root, realisation)`` only, the noise on ``(root, point,
         realisation)``.
+    backend, device : str, optional
+        Where it is rendered (`workers.backend.get_backend`): ``numpy`` on the ``cpu``
+        (the default), or ``torch`` on the ``cpu`` or ``cuda`` (``cuda:N``).
 
     Returns
     -------
@@ -79,15 +120,66 @@ def render(scene: Scene, *, seed: int | SampleSeed) -> xr.Dataset:
         ``target_present`` (), coordinates ``gate_top``, ``gate_bottom`` (gate), ``time``
         and the platform position (frame), and ``surface_elevation`` (frame, sy, sx)
         when ``scene.save_surface`` is set.
+
+    Raises
+    ------
+    ValueError
+        A backend or device that cannot run here (`get_backend`).
+    SceneError
+        A Monte Carlo scene (``transport.method``) on a backend other than numpy.
     """
-    return labelled_dataset(scene, render_arrays(scene, seed=seed))
+    arrays = render_arrays(scene, seed=seed, backend=backend, device=device)
+    return labelled_dataset(scene, arrays)
 
 
-def render_arrays(scene: Scene, *, seed: int | SampleSeed) -> dict[str, np.ndarray]:
+def render_batch(
+    scene: Scene, seeds, *, backend: str = "numpy", device: str = "cpu"
+) -> dict[str, np.ndarray]:
+    """The `render_arrays` of several realisations of one scene, stacked.
+
+    Each sample is rendered with its own seed's streams (its sea, its noise: the noise of
+    a torch sample from a generator seeded from its noise stream), so its bytes are those
+    it has alone, whatever else the batch holds; the same seeds give the same bytes on
+    every run of a backend and device.
+
+    Parameters
+    ----------
+    scene : Scene
+        All parameters of the samples.
+    seeds : sequence of int or SampleSeed
+        One per sample, as `render`'s `seed`; at least one.
+    backend, device : str, optional
+        As for `render`.
+
+    Returns
+    -------
+    dict
+        ``name -> array``: `render_arrays`' values, a new leading axis the sample (host
+        numpy, the store's types).
+
+    Raises
+    ------
+    ValueError
+        No seeds, or a backend or device that cannot run here.
+    SceneError
+        A Monte Carlo scene on a backend other than numpy.
+    """
+    chosen = _backend(scene, backend, device)
+    seeds = [_sample_seed(seed) for seed in seeds]
+    if not seeds:
+        raise ValueError("seeds: a batch renders at least one sample")
+    samples = [_sample_arrays(scene, seed, chosen) for seed in seeds]
+    return {name: np.stack([sample[name] for sample in samples]) for name in samples[0]}
+
+
+def render_arrays(
+    scene: Scene, *, seed: int | SampleSeed, backend: str = "numpy", device: str = "cpu"
+) -> dict[str, np.ndarray]:
     """The rendered variables of `render`, as arrays, without the labels the scene fixes.
 
     What a store's task writes (`service.run.render_shard`): the same values as
-    `render`'s, without building a dataset (about 1 ms a sample).
+    `render`'s, without building a dataset (about 1 ms a sample); a batch of one
+    (`render_batch`).
 
     A scene with a target yields its target-free twin (`workers.scene.Scene.without_target`)
     on the same sea too, for the target's effect and its visibility labels
@@ -102,6 +194,8 @@ def render_arrays(scene: Scene, *, seed: int | SampleSeed) -> dict[str, np.ndarr
         All parameters of the sample.
     seed : int or SampleSeed
         As for `render`.
+    backend, device : str, optional
+        As for `render`.
 
     Returns
     -------
@@ -110,16 +204,13 @@ def render_arrays(scene: Scene, *, seed: int | SampleSeed) -> dict[str, np.ndarr
         the signal means, the target's effect, ``target_visibility`` (and
         ``surface_elevation``).
     """
-    seed = seed if isinstance(seed, SampleSeed) else SampleSeed(root=int(seed))
-    surface, expected, masks, stderr, free, image = _render_sample(scene, seed)
-    if scene.target.shape == "none":
-        free = expected
-    elif free is None:  # Monte Carlo: the twin's own photons, the same streams
-        free = _render_frames(scene_setup(scene.without_target()), surface, seed)[0]
-    return rendered_arrays(scene, expected, image, masks, surface, free=free, stderr=stderr)
+    batch = render_batch(scene, [seed], backend=backend, device=device)
+    return {name: values[0] for name, values in batch.items()}
 
 
-def render_images(scene: Scene, *, seed: int | SampleSeed) -> tuple[np.ndarray, np.ndarray]:
+def render_images(
+    scene: Scene, *, seed: int | SampleSeed, backend: str = "numpy", device: str = "cpu"
+) -> tuple[np.ndarray, np.ndarray]:
     """A sample's noise-free and noisy images alone: `render_arrays`'s, without its twin.
 
     What `service.detect` renders again for a store without its ``expected`` images: the
@@ -132,19 +223,26 @@ def render_images(scene: Scene, *, seed: int | SampleSeed) -> tuple[np.ndarray, 
         All parameters of the sample.
     seed : int or SampleSeed
         As for `render`.
+    backend, device : str, optional
+        As for `render`.
 
     Returns
     -------
     expected, image : ndarray, shape (frame, gate, y, x)
         The values of `render_arrays`'s ``expected`` and ``image`` (float32 here).
     """
-    seed = seed if isinstance(seed, SampleSeed) else SampleSeed(root=int(seed))
-    _, expected, _, _, _, image = _render_sample(scene, seed)
-    return expected, image
+    chosen = _backend(scene, backend, device)
+    light = _render_sample(scene, _sample_seed(seed), chosen)
+    return chosen.to_numpy(light.expected), chosen.to_numpy(light.image)
 
 
 def render_pair(
-    scene: Scene, *, seed: SampleSeed, twin_seed: SampleSeed
+    scene: Scene,
+    *,
+    seed: SampleSeed,
+    twin_seed: SampleSeed,
+    backend: str = "numpy",
+    device: str = "cpu",
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
     """A sample's images and those of its target-free twin at another point, in one render.
 
@@ -160,6 +258,8 @@ def render_pair(
         All parameters of the sample, with a target.
     seed, twin_seed : SampleSeed
         The sample's and its twin's, of the same realisation (the same sea).
+    backend, device : str, optional
+        As for `render`.
 
     Returns
     -------
@@ -169,183 +269,108 @@ def render_pair(
     """
     if seed.root != twin_seed.root or seed.realisation != twin_seed.realisation:
         raise ValueError("a twin is of the same root seed and realisation (the same sea)")
-    _, expected, _, _, free, image = _render_sample(scene, seed)
-    if free is None:
+    chosen = _backend(scene, backend, device)
+    light = _render_sample(scene, seed, chosen)
+    if light.free is None:
         return None
-    return expected, image, free, _noisy(scene, free, twin_seed)
+    twin_image = _noisy(scene, light.free, twin_seed, chosen)
+    images = (light.expected, light.image, light.free, twin_image)
+    return tuple(chosen.to_numpy(values) for values in images)
 
 
-def _render_sample(scene: Scene, seed: SampleSeed):
-    """The sample's sea, expected images, masks, Monte Carlo error, twin and noisy images."""
+def _backend(scene: Scene, name: str, device: str) -> Backend:
+    """`get_backend(name, device)`, checked to render `scene`."""
+    backend = get_backend(name, device)
+    if scene.transport.method == "monte_carlo" and backend.name != "numpy":
+        raise SceneError(
+            f"transport.method: monte_carlo renders on the numpy backend only, not {name!r}"
+        )
+    return backend
+
+
+def _sample_seed(seed: int | SampleSeed) -> SampleSeed:
+    """A sample's seed: an int is the root seed of a lone sample."""
+    return seed if isinstance(seed, SampleSeed) else SampleSeed(root=int(seed))
+
+
+def _sample_arrays(scene: Scene, seed: SampleSeed, backend: Backend) -> dict[str, np.ndarray]:
+    """One sample's `render_arrays`, rendered on `backend`, labelled on the host."""
+    light = _render_sample(scene, seed, backend)
+    free = light.free
+    if scene.target.shape == "none":
+        free = light.expected
+    elif free is None:  # Monte Carlo: the twin's own photons, the same streams
+        free = _render_frames(scene_setup(scene.without_target()), light.surface, seed)
+        free = free.expected
+    host = backend.to_numpy
+    return rendered_arrays(
+        scene,
+        host(light.expected),
+        host(light.image),
+        light.masks,
+        light.surface,
+        free=host(free),
+        stderr=light.stderr,
+    )
+
+
+def _render_sample(scene: Scene, seed: SampleSeed, backend: Backend) -> SampleLight:
+    """The sample's light: its sea, each frame's light, its noise."""
     setup = scene_setup(scene)
     surface = setup.surface(seed, np.arange(scene.sequence.frames) * scene.sequence.interval)
-    expected, masks, stderr, free = _render_frames(setup, surface, seed)
-    return surface, expected, masks, stderr, free, _noisy(scene, expected, seed)
+    light = _render_frames(setup, surface, seed, backend)
+    image = _noisy(scene, light.expected, seed, backend)
+    return SampleLight(surface, light.expected, light.masks, light.stderr, light.free, image)
 
 
-def _noisy(scene: Scene, expected: np.ndarray, seed: SampleSeed) -> np.ndarray:
+def _noisy(scene: Scene, expected, seed: SampleSeed, backend: Backend):
     """The noisy images of `expected` [photoelectrons] with the noise streams of `seed`."""
     noise = scene.noise
-    if scene.radiometry.photoelectrons:
-        return shot_noise(
-            expected, rng=seed.noise_rng(), gain=noise.gain, excess_noise=noise.excess_noise
-        )
-    return expected.copy()
+    if not scene.radiometry.photoelectrons:
+        return backend.xp.asarray(expected, copy=True)
+    if backend.name == "numpy":
+        rng = seed.noise_rng()
+    else:
+        rng = backend.generator(seed.noise_rng().integers(2**63))
+    return shot_noise(expected, rng=rng, gain=noise.gain, excess_noise=noise.excess_noise)
 
 
-def _render_frames(setup: Setup, surface, seed: SampleSeed):
-    """Every frame's expected image, (frame, gate, y, x), mask, Monte Carlo error and twin.
+def _render_frames(
+    setup: Setup, surface, seed: SampleSeed, backend: Backend | None = None
+) -> SampleLight:
+    """Every frame's expected image (frame, gate, y, x), mask, Monte Carlo error and twin.
 
     The error is None for the fast renderer (deterministic). The twin, the expected image
     without the target, comes with the fast renderer's when there is a target (the same
-    spread light gathered without the target's light and shadow); None otherwise.
+    spread light gathered without the target's light and shadow); None otherwise. The
+    result has no image (None): the noise is drawn after.
     """
+    backend = backend or get_backend()
+    xp = backend.xp
+    scene = setup.scene
     expected, masks, errors, twins = [], [], [], []
-    for frame in range(setup.scene.sequence.frames):
-        if setup.scene.transport.method == "monte_carlo":
+    for frame in range(scene.sequence.frames):
+        if scene.transport.method == "monte_carlo":
             transported = montecarlo.render_frame(setup, surface, frame, seed)
-            signal, mask = transported.expected, transported.mask
+            expected.append(transported.expected)
+            masks.append(transported.mask)
             errors.append(transported.stderr)
+            continue
+        geometry = frame_geometry(scene, frame).on(backend)
+        light = stages.frame_light(setup, geometry, surface, frame, backend)
+        expected.append(light.images)
+        pixels = scene.receiver.pixels
+        if light.silhouette is None:
+            masks.append(np.zeros((pixels, pixels), dtype=np.uint8))
         else:
-            geometry = frame_geometry(setup.scene, frame)
-            signal, mask, twin = _render_frame(setup, geometry, surface, frame)
-            if twin is not None:
-                twins.append(twin)
-        expected.append(signal)
-        masks.append(mask)
-    stack = [np.stack(values) if values else None for values in (errors, twins)]
-    return np.stack(expected), np.stack(masks), *stack
-
-
-def _render_frame(setup: Setup, geometry: FrameGeometry, surface, frame: int):
-    n_w = setup.water.refractive_index
-    K = setup.water.diffuse_attenuation
-    down = through_surface(geometry.laser_rays, surface, frame, n_w)
-    axes_grid = (geometry.target_plane or geometry.gate_planes[0]).grid
-    down_axes = down.on_axes(axes_grid, K)
-    down_excess = down.air - np.float32(geometry.central_air)
-    # the pixels' lines of sight are never laser rays (`workers.sensor.lattice_offset`)
-    up = through_surface(geometry.pixel_rays, surface, frame, n_w)
-    up_axes, up_transmittance = up.on_axes(axes_grid, K), up.transmittance
-    up_excess = up.air - np.float32(geometry.central_air)
-    power = geometry.laser_power * down.transmittance
-
-    pixels = setup.scene.receiver.pixels
-    images = np.zeros((len(setup.gates), pixels * pixels), dtype=np.float32)
-    free = np.zeros_like(images) if geometry.impostor is not None else None
-    mask = np.zeros(pixels * pixels, dtype=np.uint8)
-    impostor = geometry.impostor
-    if impostor is not None:
-        plane = geometry.target_plane
-        levels = plane.levels
-        cells = Cells.of(levels)
-        sight_cells = geometry.sight_cells
-        occupancy = geometry.sight_occupancy
-        mask = target_mask(_sample(up_axes, sight_cells, (occupancy,), _support(occupancy))[0])
-        extra = down_axes.extra(levels.fine.depth)
-        sight_extra = up_axes.extra(levels.fine.depth)
-        light = geometry.target_light
-        rows = light.rows
-        wide = any(coarse is not None for _, coarse in light.weights)
-        fine, source, rows_in = _splat(plane, down_axes, power * extra)
-        window = span(up_axes.lines, cells, levels.fine.shape)
-        near, far, beyond = plane.spread.filtered(
-            fine, source, rows_in=rows_in, rows_out=(rows, levels.coarse_rows(rows)), far_out=wide
-        )
-        if plane.tail is not None:
-            near += plane.tail[0][rows]
-            far += plane.tail[1]
-            if wide:
-                beyond += plane.tail[2]
-        near += levels.upsample(far, rows=rows)
-        inside = (rows, levels.coarse_rows(rows))
-        for (weights, coarse), gates in zip(light.weights, light.gates, strict=True):
-            fine[:] = 0.0
-            np.multiply(near, weights[rows], out=fine[rows])
-            source = levels.downsample(fine, rows)
-            if coarse is not None:
-                source += beyond * coarse
-            seen = np.zeros(pixels * pixels, dtype=np.float32)
-            rows_in = inside if coarse is None else (rows, slice(None))
-            sources = (fine, source, rows_in)
-            weight = up_transmittance * sight_extra
-            _gather(plane, up_axes, sources, ((weight, seen, None),), window=window)
-            for g in gates:
-                images[g] += seen
-    down_gains = setup.gate_gains(down_excess)
-    up_gains = setup.gate_gains(up_excess)
-    for g, plane in enumerate(geometry.gate_planes):
-        gain = down_gains[g]
-        ray_power = power * gain
-        weight = up_transmittance * up_gains[g]
-        outputs = [(weight, free[g], None)] if impostor is not None else []
-        if plane.seen is not None:
-            # the pixels whose lines of sight the target stops, where they cross it
-            whole = (0, *plane.seen.shape[:1], 0, plane.seen.shape[1])
-            weight = weight * (1.0 - _sample(up_axes, sight_cells, (plane.seen,), whole)[0])
-        outputs.append((weight, images[g], plane.occlusion))
-        _gather(plane, up_axes, _splat(plane, down_axes, ray_power), outputs, tail=plane.tail)
-    # the near and far parts of a spread each ring a little below zero where almost no
-    # light lands; their sum is light, never negative
-    shape = (len(setup.gates), pixels, pixels)
-    for values in (images,) if free is None else (images, free):
-        np.maximum(values, 0.0, out=values)
-        values *= np.float32(setup.scale)
-    twin = None if free is None else free.reshape(shape)
-    return images.reshape(shape), mask.reshape(pixels, pixels), twin
-
-
-def _splat(plane: Plane, rays: Projected, power: np.ndarray):
-    """Rays onto a plane: its fine field, the coarse source of its far spread, their rows."""
-    levels = plane.levels
-    fine = np.zeros(levels.fine.shape, dtype=np.float32)
-    source = np.zeros(levels.coarse.shape, dtype=np.float32)
-    grids = (levels.fine, levels.coarse)
-    densities = tuple(np.float32(1.0 / (g.spacing_u * g.spacing_v)) for g in grids)
-    block = tuple(b.start for b in levels.block)
-    spans = splat_levels(rays.lines, power, Cells.of(levels), densities, fine, source, block)
-    return fine, source, (slice(*spans[:2]), slice(*spans[2:]))
-
-
-_NONE = np.zeros((0, 0), dtype=np.float32)
-
-
-def _gather(plane, sight, sources, outputs, *, window=None, tail=None):
-    """Spread light on a plane and add it at the pixels' sights to each of `outputs`.
-
-    `sources` is ``(fine, source, rows)`` as from `_splat`; the light of the beam's `tail`
-    (`Plane.tail`) is added to the spread. `outputs` holds ``(weight, out, occlusion)``
-    triples: the light, times the cells' `occlusion` (None: 1) and each pixel's
-    `weight`, is added to `out`; the spread is computed once for them all. Only the rows
-    that the sights reach (their `window`, `workers.kernels.span`: found here when None)
-    are brought back from the spectra.
-    """
-    levels = plane.levels
-    cells, shape = Cells.of(levels), plane.grid.shape
-    fine, source, rows_in = sources
-    if window is None:
-        window = span(sight.lines, cells, shape)
-    rows = slice(*window[:2])
-    near, far, _ = plane.spread.filtered(
-        fine, source, rows_in=rows_in, rows_out=(rows, levels.coarse_rows(rows))
+            masks.append(target_mask(backend.to_numpy(light.silhouette)))
+        if light.free is not None:
+            twins.append(light.free)
+    return SampleLight(
+        surface=surface,
+        expected=xp.stack(expected),
+        masks=np.stack(masks),
+        stderr=np.stack(errors) if errors else None,
+        free=xp.stack(twins) if twins else None,
+        image=None,
     )
-    tails = (_NONE, _NONE) if tail is None else tail[:2]
-    parts = (near, window, far, tails)
-    for weight, out, occlusion in outputs:
-        occlusion = _NONE if occlusion is None else occlusion
-        gather_levels(sight.lines, cells, shape, parts, levels.lift, occlusion, weight, out)
-
-
-def _sample(rays: Projected, cells: Cells, fields, box) -> np.ndarray:
-    """`workers.kernels.sample`: the fields at the rays, shape (len(fields), rays)."""
-    out = np.empty((len(fields), rays.base_u.size), dtype=np.float32)
-    sample(rays.lines, cells, tuple(fields), box, out)
-    return out
-
-
-def _support(field: np.ndarray) -> tuple[int, int, int, int]:
-    """First row, last row + 1, first column, last column + 1 of a field's non-zero cells."""
-    rows, cols = (np.flatnonzero(field.any(axis=axis)) for axis in (1, 0))
-    if not rows.size:
-        return 0, 0, 0, 0
-    return int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
