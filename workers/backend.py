@@ -12,6 +12,7 @@ from __future__ import annotations
 import functools
 import importlib
 import importlib.util
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -73,13 +74,16 @@ class Backend:
         Returns
         -------
         array
-            numpy.ndarray or torch.Tensor on `device`.
+            numpy.ndarray or torch.Tensor on `device`, of the same shape (a scalar: 0-d).
+            A tensor is a copy, on the CPU too: writing to it never changes `values`
+            (nor the reverse), whatever the device, and a read-only array moves as
+            any other.
         """
         values = np.asarray(values, dtype=dtype)
         if self.name == "numpy":
             return values
         torch = importlib.import_module("torch")
-        return torch.from_numpy(np.ascontiguousarray(values)).to(self.device)
+        return torch.tensor(values, device=self.device)
 
     def to_numpy(self, values) -> np.ndarray:
         """An array of this backend on the host, as numpy."""
@@ -124,7 +128,7 @@ def get_backend(name: str = "numpy", device: str = "cpu") -> Backend:
     """
     if name not in BACKENDS:
         raise ValueError(f"backend: {name!r} is not one of {', '.join(BACKENDS)}")
-    if device != "cpu" and not (device == "cuda" or device.startswith("cuda:")):
+    if not isinstance(device, str) or not re.fullmatch(r"cpu|cuda(:[0-9]+)?", device):
         raise ValueError(f"device: {device!r} is neither 'cpu' nor 'cuda' (or 'cuda:N')")
     if name == "numpy":
         if device != "cpu":
@@ -136,7 +140,7 @@ def get_backend(name: str = "numpy", device: str = "cpu") -> Backend:
         torch = importlib.import_module("torch")
         if not torch.cuda.is_available():
             raise ValueError(f"device: {device!r} asked, but this machine has no CUDA device")
-        index = int(device.partition(":")[2] or 0)
+        index = int(device.partition(":")[2] or 0)  # the pattern above: digits
         if index >= torch.cuda.device_count():
             raise ValueError(
                 f"device: {device!r} asked, but this machine has "
