@@ -10,7 +10,7 @@ the same, so numpy's bytes are those of plain numpy code.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 from array_api_compat import array_namespace
@@ -105,10 +105,6 @@ class Projected:
         extra = self.log_extra_slope * float(np.float32(depth))
         extra += self.log_extra
         return array_namespace(extra).exp(extra)
-
-    def select(self, pick) -> Projected:
-        """The rays that `pick`, a function of one component's array, keeps."""
-        return Projected(**{f.name: pick(getattr(self, f.name)) for f in fields(self)})
 
 
 def ray_components(origins, directions):
