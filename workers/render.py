@@ -300,8 +300,8 @@ def _sample_arrays(scene: Scene, seed: SampleSeed, backend: Backend) -> dict[str
     if scene.target.shape == "none":
         free = light.expected
     elif free is None:  # Monte Carlo: the twin's own photons, the same streams
-        free = _render_frames(scene_setup(scene.without_target()), light.surface, seed)
-        free = free.expected
+        twin = scene_setup(scene.without_target())
+        free = _render_frames(twin, light.surface, seed, backend).expected
     host = backend.to_numpy
     return rendered_arrays(
         scene,
@@ -335,9 +335,7 @@ def _noisy(scene: Scene, expected, seed: SampleSeed, backend: Backend):
     return shot_noise(expected, rng=rng, gain=noise.gain, excess_noise=noise.excess_noise)
 
 
-def _render_frames(
-    setup: Setup, surface, seed: SampleSeed, backend: Backend | None = None
-) -> SampleLight:
+def _render_frames(setup: Setup, surface, seed: SampleSeed, backend: Backend) -> SampleLight:
     """Every frame's expected image (frame, gate, y, x), mask, Monte Carlo error and twin.
 
     The error is None for the fast renderer (deterministic). The twin, the expected image
@@ -345,7 +343,6 @@ def _render_frames(
     spread light gathered without the target's light and shadow); None otherwise. The
     result has no image (None): the noise is drawn after.
     """
-    backend = backend or get_backend()
     xp = backend.xp
     scene = setup.scene
     expected, masks, errors, twins = [], [], [], []
