@@ -155,7 +155,9 @@ def render_batch(
     -------
     dict
         ``name -> array``: `render_arrays`' values, a new leading axis the sample (host
-        numpy, the store's types).
+        numpy, the store's types). A sample whose counts overflow the image type keeps
+        its image in float32 (`workers.labels.rendered_arrays`): stacked, the batch's
+        images are then all float32, and a store refuses them.
 
     Raises
     ------
