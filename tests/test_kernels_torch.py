@@ -96,7 +96,9 @@ def splat_case(seed, n=400, edges=True):
         base_u = edge[0] / PLANE.scale_u + PLANE.origin_u
         base_v = edge[2] / PLANE.scale_v + PLANE.origin_v
         extra = (base_u, edge[1], base_v, edge[3])
-        lines = tuple(np.concatenate((a, b.astype(np.float32))) for a, b in zip(lines, extra))
+        lines = tuple(
+            np.concatenate((a, b.astype(np.float32))) for a, b in zip(lines, extra, strict=True)
+        )
         power = np.concatenate((power, np.full(edge[0].size, 3.0, np.float32)))
     return lines, power
 
@@ -138,7 +140,7 @@ def test_splat_levels_with_no_ray_on_the_fine_grid():
     power = np.ones(2, np.float32)
     fine, source, spans = numba_splat(lines, power, IDENTITY)
     fine_t, source_t, spans_t = torch_splat(lines, power, IDENTITY)
-    assert spans_t == spans and not fine_t.any()
+    assert spans_t == spans and not fine_t.any() and not fine.any()
     np.testing.assert_array_equal(source_t, source)
     empty = tuple(np.zeros(0, np.float32) for _ in range(4))
     assert torch_splat(empty, np.zeros(0, np.float32), PLANE)[2] == (0, 0, 0, 0)
