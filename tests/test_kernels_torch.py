@@ -103,10 +103,10 @@ def splat_case(seed, n=400, edges=True):
     return lines, power
 
 
-def splat_tolerance(lines, power):
+def splat_tolerance(lines, power, cells=PLANE):
     """Per cell: the numba loop's sequential float32 sums err by at most (k + 1)·u·Σ|t|
     for k terms (k <= the rays), the fixed point by rays · 2⁻⁶² of the largest term."""
-    fine, source, _ = numba_splat(lines, np.abs(power), PLANE)
+    fine, source, _ = numba_splat(lines, np.abs(power), cells)
     n = power.size
     largest = 4.0 * np.abs(power).max()
     return tuple((n + 1) * U * a + n * 2.0**-62 * largest for a in (fine, source))
@@ -158,6 +158,22 @@ def test_splat_levels_same_bytes_twice_and_whatever_the_rays_order():
         assert other[2] == first[2]
 
 
+def test_splat_levels_coarse_rows_of_the_fine_grid_alone():
+    """With every ray on the fine grid, the coarse rows are those of its blocks."""
+    rng = np.random.default_rng(4)
+    row = rng.uniform(5.5, 13.0, 50).astype(np.float32)
+    col = rng.uniform(2.0, 17.0, 50).astype(np.float32)
+    zero = np.zeros_like(row)
+    lines, power = (col, zero, row, zero), rng.uniform(1, 2, 50).astype(np.float32)
+    fine, source, spans = numba_splat(lines, power, IDENTITY)
+    assert spans[2:] == (BLOCK[0] + 1, BLOCK[0] + 4)
+    fine_t, source_t, spans_t = torch_splat(lines, power, IDENTITY)
+    assert spans_t == spans
+    tolerances = splat_tolerance(lines, power, cells=IDENTITY)
+    assert np.all(np.abs(fine_t - fine) <= tolerances[0])
+    assert np.all(np.abs(source_t - source) <= tolerances[1])
+
+
 @pytest.mark.parametrize("edges", [True, False], ids=["edges", "random"])
 def test_span_agrees_with_numba(edges):
     lines = splat_case(11, n=60, edges=edges)[0]
@@ -207,7 +223,7 @@ def test_gather_levels_agrees_with_numba(tail, occluded):
 
 def test_sample_agrees_with_numba():
     rng = np.random.default_rng(8)
-    lines, _ = splat_case(17, n=500)
+    lines, _ = splat_case(17, n=20_000)  # lines on every cell of the box's edges
     fields = tuple(rng.normal(size=FINE).astype(np.float32) for _ in range(2))
     for box in ((0, FINE[0], 0, FINE[1]), (6, 13, 3, 9)):
         out = np.full((2, lines[0].size), np.nan, np.float32)
