@@ -34,9 +34,23 @@ IDENTITY = PLANE._replace(
 """The plane's map with line coordinates read as cells: ``row = base_v``, ``col = base_u``."""
 
 
-def tensors(values):
-    """A tuple of numpy arrays as torch tensors (CPU), the same dtypes."""
-    return tuple(torch.from_numpy(np.ascontiguousarray(v)) for v in values)
+DEVICES = [
+    "cpu",
+    pytest.param(
+        "cuda", marks=pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+    ),
+]
+
+
+@pytest.fixture(params=DEVICES)
+def device(request):
+    """The device the torch kernels run on: the CPU, and CUDA where there is one."""
+    return request.param
+
+
+def tensors(values, device):
+    """A tuple of numpy arrays as torch tensors on `device`, the same dtypes."""
+    return tuple(torch.from_numpy(np.ascontiguousarray(v)).to(device) for v in values)
 
 
 def random_lines(rng, n):
@@ -76,13 +90,21 @@ def numba_splat(lines, power, cells):
     return fine, source, spans
 
 
-def torch_splat(lines, power, cells):
-    fine = torch.zeros(FINE, dtype=torch.float32)
-    source = torch.zeros(COARSE, dtype=torch.float32)
+def torch_splat(lines, power, cells, device):
+    fine = torch.zeros(FINE, dtype=torch.float32, device=device)
+    source = torch.zeros(COARSE, dtype=torch.float32, device=device)
     densities = (np.float32(4.0), np.float32(0.25))
-    args = (tensors(lines), torch.from_numpy(power), cells, densities, fine, source, BLOCK)
+    args = (
+        tensors(lines, device),
+        *tensors((power,), device),
+        cells,
+        densities,
+        fine,
+        source,
+        BLOCK,
+    )
     spans = kernels_torch.splat_levels(*args)
-    return fine.numpy(), source.numpy(), spans
+    return fine.cpu().numpy(), source.cpu().numpy(), spans
 
 
 def splat_case(seed, n=400, edges=True):
@@ -113,10 +135,10 @@ def splat_tolerance(lines, power, cells=PLANE):
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2], ids=lambda s: f"seed{s}")
-def test_splat_levels_agrees_with_numba(seed):
+def test_splat_levels_agrees_with_numba(seed, device):
     lines, power = splat_case(seed)
     fine, source, spans = numba_splat(lines, power, PLANE)
-    fine_t, source_t, spans_t = torch_splat(lines, power, PLANE)
+    fine_t, source_t, spans_t = torch_splat(lines, power, PLANE, device)
     assert spans_t == spans and all(type(v) is int for v in spans_t)
     fine_tol, source_tol = splat_tolerance(lines, power)
     assert np.all(np.abs(fine_t - fine) <= fine_tol)
@@ -124,41 +146,41 @@ def test_splat_levels_agrees_with_numba(seed):
     assert np.count_nonzero(fine) > 50 and np.count_nonzero(source) > 50
 
 
-def test_splat_levels_edge_rules():
+def test_splat_levels_edge_rules(device):
     """The last row and column go to the coarse grid, NaN and off-grid lines vanish."""
     lines = edge_lines()
     power = np.arange(1, lines[0].size + 1, dtype=np.float32)
     fine, source, spans = numba_splat(lines, power, IDENTITY)
-    fine_t, source_t, spans_t = torch_splat(lines, power, IDENTITY)
+    fine_t, source_t, spans_t = torch_splat(lines, power, IDENTITY, device)
     assert spans_t == spans
     np.testing.assert_allclose(fine_t, fine, rtol=4 * U, atol=0)
     np.testing.assert_allclose(source_t, source, rtol=4 * U, atol=0)
 
 
-def test_splat_levels_with_no_ray_on_the_fine_grid():
+def test_splat_levels_with_no_ray_on_the_fine_grid(device):
     lines = tuple(np.array(v, np.float32) for v in ([-20.0, -9.0], [0, 0], [-3.0, 30.0], [0, 0]))
     power = np.ones(2, np.float32)
     fine, source, spans = numba_splat(lines, power, IDENTITY)
-    fine_t, source_t, spans_t = torch_splat(lines, power, IDENTITY)
+    fine_t, source_t, spans_t = torch_splat(lines, power, IDENTITY, device)
     assert spans_t == spans and not fine_t.any() and not fine.any()
     np.testing.assert_array_equal(source_t, source)
     empty = tuple(np.zeros(0, np.float32) for _ in range(4))
-    assert torch_splat(empty, np.zeros(0, np.float32), PLANE)[2] == (0, 0, 0, 0)
+    assert torch_splat(empty, np.zeros(0, np.float32), PLANE, device)[2] == (0, 0, 0, 0)
 
 
-def test_splat_levels_same_bytes_twice_and_whatever_the_rays_order():
+def test_splat_levels_same_bytes_twice_and_whatever_the_rays_order(device):
     lines, power = splat_case(7, n=3000)
-    first = torch_splat(lines, power, PLANE)
-    again = torch_splat(lines, power, PLANE)
+    first = torch_splat(lines, power, PLANE, device)
+    again = torch_splat(lines, power, PLANE, device)
     order = np.random.default_rng(3).permutation(power.size)
-    permuted = torch_splat(tuple(a[order] for a in lines), power[order], PLANE)
+    permuted = torch_splat(tuple(a[order] for a in lines), power[order], PLANE, device)
     for other in (again, permuted):
         assert other[0].tobytes() == first[0].tobytes()
         assert other[1].tobytes() == first[1].tobytes()
         assert other[2] == first[2]
 
 
-def test_splat_levels_coarse_rows_of_the_fine_grid_alone():
+def test_splat_levels_coarse_rows_of_the_fine_grid_alone(device):
     """With every ray on the fine grid, the coarse rows are those of its blocks."""
     rng = np.random.default_rng(4)
     row = rng.uniform(5.5, 13.0, 50).astype(np.float32)
@@ -167,7 +189,7 @@ def test_splat_levels_coarse_rows_of_the_fine_grid_alone():
     lines, power = (col, zero, row, zero), rng.uniform(1, 2, 50).astype(np.float32)
     fine, source, spans = numba_splat(lines, power, IDENTITY)
     assert spans[2:] == (BLOCK[0] + 1, BLOCK[0] + 4)
-    fine_t, source_t, spans_t = torch_splat(lines, power, IDENTITY)
+    fine_t, source_t, spans_t = torch_splat(lines, power, IDENTITY, device)
     assert spans_t == spans
     tolerances = splat_tolerance(lines, power, cells=IDENTITY)
     assert np.all(np.abs(fine_t - fine) <= tolerances[0])
@@ -175,11 +197,13 @@ def test_splat_levels_coarse_rows_of_the_fine_grid_alone():
 
 
 @pytest.mark.parametrize("edges", [True, False], ids=["edges", "random"])
-def test_span_agrees_with_numba(edges):
+def test_span_agrees_with_numba(edges, device):
     lines = splat_case(11, n=60, edges=edges)[0]
-    assert kernels_torch.span(tensors(lines), PLANE, FINE) == kernels.span(lines, PLANE, FINE)
+    assert kernels_torch.span(tensors(lines, device), PLANE, FINE) == kernels.span(
+        lines, PLANE, FINE
+    )
     off = tuple(np.array(v, np.float32) for v in ([-50.0], [0.0], [-50.0], [0.0]))
-    assert kernels_torch.span(tensors(off), PLANE, FINE) == (0, 0, 0, 0)
+    assert kernels_torch.span(tensors(off, device), PLANE, FINE) == (0, 0, 0, 0)
 
 
 def lift():
@@ -194,7 +218,7 @@ def lift():
 
 @pytest.mark.parametrize("tail", [True, False], ids=["tail", "no-tail"])
 @pytest.mark.parametrize("occluded", [True, False], ids=["occlusion", "no-occlusion"])
-def test_gather_levels_agrees_with_numba(tail, occluded):
+def test_gather_levels_agrees_with_numba(tail, occluded, device):
     rng = np.random.default_rng(5)
     lines, _ = splat_case(13, n=500)
     window = kernels.span(lines, PLANE, FINE)
@@ -206,31 +230,39 @@ def test_gather_levels_agrees_with_numba(tail, occluded):
     occlusion = rng.uniform(size=FINE).astype(np.float32) if occluded else none
     weight = rng.uniform(0.5, 2, lines[0].size).astype(np.float32)
     out = rng.normal(size=lines[0].size).astype(np.float32)
-    initial, out_t = out.copy(), torch.from_numpy(out.copy())
+    initial, out_t = out.copy(), torch.from_numpy(out.copy()).to(device)
     parts = (near, window, far, tails)
     kernels.gather_levels(lines, PLANE, FINE, parts, lift(), occlusion, weight, out)
-    parts_t = (*tensors((near,)), window, *tensors((far,)), tensors(tails))
-    lift_t = tuple(tensors(axis) for axis in lift())
-    args = (tensors(lines), PLANE, FINE, parts_t, lift_t, *tensors((occlusion, weight)), out_t)
+    parts_t = (*tensors((near,), device), window, *tensors((far,), device), tensors(tails, device))
+    lift_t = tuple(tensors(axis, device) for axis in lift())
+    args = (
+        tensors(lines, device),
+        PLANE,
+        FINE,
+        parts_t,
+        lift_t,
+        *tensors((occlusion, weight), device),
+        out_t,
+    )
     kernels_torch.gather_levels(*args)
     # elementwise float32 in the same order: a few roundings of values of size ~ the sum of
     # the magnitudes that enter a pixel (fields ~1, 4 corners, 3 terms a cell, weight <= 2)
-    np.testing.assert_allclose(out_t.numpy(), out, rtol=0, atol=64 * U * 4 * 3 * 2)
+    np.testing.assert_allclose(out_t.cpu().numpy(), out, rtol=0, atol=64 * U * 4 * 3 * 2)
     # the edge lines off the fine grid (last row, above it, far off, NaN) add nothing
     off = lines[0].size - 10 + np.array([0, 4, 5, 6, 7, 8, 9])
-    assert out_t.numpy()[off].tobytes() == initial[off].tobytes()
+    assert out_t.cpu().numpy()[off].tobytes() == initial[off].tobytes()
 
 
-def test_sample_agrees_with_numba():
+def test_sample_agrees_with_numba(device):
     rng = np.random.default_rng(8)
     lines, _ = splat_case(17, n=20_000)  # lines on every cell of the box's edges
     fields = tuple(rng.normal(size=FINE).astype(np.float32) for _ in range(2))
     for box in ((0, FINE[0], 0, FINE[1]), (6, 13, 3, 9)):
         out = np.full((2, lines[0].size), np.nan, np.float32)
-        out_t = torch.full((2, lines[0].size), np.nan)
+        out_t = torch.full((2, lines[0].size), np.nan, device=device)
         kernels.sample(lines, PLANE, fields, box, out)
-        kernels_torch.sample(tensors(lines), PLANE, tensors(fields), box, out_t)
-        np.testing.assert_allclose(out_t.numpy(), out, rtol=0, atol=16 * U * 4)
+        kernels_torch.sample(tensors(lines, device), PLANE, tensors(fields, device), box, out_t)
+        np.testing.assert_allclose(out_t.cpu().numpy(), out, rtol=0, atol=16 * U * 4)
         assert np.count_nonzero(out == 0) > 10
 
 
@@ -242,7 +274,7 @@ def periodic_grid(rng, n, fields=3):
     return wrapped.reshape(fields, -1)
 
 
-def test_bilinear_sum_agrees_with_numba_on_periodic_grids_of_any_size():
+def test_bilinear_sum_agrees_with_numba_on_periodic_grids_of_any_size(device):
     rng = np.random.default_rng(9)
     sizes = (16, 12, 7)  # a power of two (bit mask) and two others (remainder)
     grids = tuple(periodic_grid(rng, n) for n in sizes)
@@ -251,35 +283,37 @@ def test_bilinear_sum_agrees_with_numba_on_periodic_grids_of_any_size():
     y = rng.uniform(-200, 200, 2000)
     out = np.empty((3, x.size), np.float32)
     kernels.bilinear_sum(grids, sizes, inverses, x, y, out)
-    out_t = torch.empty((3, x.size))
-    kernels_torch.bilinear_sum(tensors(grids), sizes, inverses, *tensors((x, y)), out_t)
+    out_t = torch.empty((3, x.size), device=device)
+    kernels_torch.bilinear_sum(
+        tensors(grids, device), sizes, inverses, *tensors((x, y), device), out_t
+    )
     # each grid's value ~ its field's magnitude (< 5), three grids added in float32
-    np.testing.assert_allclose(out_t.numpy(), out, rtol=0, atol=3 * 8 * U * 5)
+    np.testing.assert_allclose(out_t.cpu().numpy(), out, rtol=0, atol=3 * 8 * U * 5)
 
 
-def test_cell_uniforms_are_bit_exact():
+def test_cell_uniforms_are_bit_exact(device):
     rng = np.random.default_rng(10)
     x = np.concatenate((rng.uniform(-1e4, 1e4, 5000), [0.0, -0.0, -1e-9, 3.2e7]))
     y = np.concatenate((rng.uniform(-1e4, 1e4, 5000), [0.0, 1e-9, -7.0, -3.2e7]))
     for key, frame in ((np.uint64(2**64 - 5), np.uint64(3)), (np.uint64(12345), np.uint64(0))):
         first, second = (np.empty(x.size, np.float32) for _ in range(2))
         kernels.cell_uniforms(x, y, np.float32(1 / 0.016), key, frame, first, second)
-        first_t, second_t = (torch.empty(x.size) for _ in range(2))
+        first_t, second_t = (torch.empty(x.size, device=device) for _ in range(2))
         kernels_torch.cell_uniforms(
-            *tensors((x, y)), np.float32(1 / 0.016), key, frame, first_t, second_t
+            *tensors((x, y), device), np.float32(1 / 0.016), key, frame, first_t, second_t
         )
-        assert first_t.numpy().tobytes() == first.tobytes()
-        assert second_t.numpy().tobytes() == second.tobytes()
+        assert first_t.cpu().numpy().tobytes() == first.tobytes()
+        assert second_t.cpu().numpy().tobytes() == second.tobytes()
 
 
-def test_column_convolution_agrees_with_numba():
+def test_column_convolution_agrees_with_numba(device):
     rng = np.random.default_rng(12)
     n, k = 13, 9
     kernel = (rng.normal(size=(n, k)) + 1j * rng.normal(size=(n, k))).astype(np.complex64)
     rows = (rng.normal(size=(4, k)) + 1j * rng.normal(size=(4, k))).astype(np.complex64)
     out = (rng.normal(size=(6, k)) + 1j * rng.normal(size=(6, k))).astype(np.complex64)
-    out_t = torch.from_numpy(out.copy())
+    out_t = torch.from_numpy(out.copy()).to(device)
     kernels.column_convolution(kernel, rows, 11, 2, out)
-    kernels_torch.column_convolution(*tensors((kernel, rows)), 11, 2, out_t)
+    kernels_torch.column_convolution(*tensors((kernel, rows), device), 11, 2, out_t)
     # 4 complex products (|.| < ~25) added to out in order: a few roundings each
-    np.testing.assert_allclose(out_t.numpy(), out, rtol=0, atol=5 * 4 * 8 * U * 25)
+    np.testing.assert_allclose(out_t.cpu().numpy(), out, rtol=0, atol=5 * 4 * 8 * U * 25)
