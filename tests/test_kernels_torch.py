@@ -82,9 +82,11 @@ def edge_lines():
     return col, zero, row, zero
 
 
-def numba_splat(lines, power, cells):
-    fine = np.zeros(FINE, np.float32)
-    source = np.zeros(COARSE, np.float32)
+def numba_splat(lines, power, cells, dtype=np.float32):
+    """`workers.kernels.splat_levels` into float32 fields, or float64 ones: the same float32
+    deposits and block means summed in float64, nearly exact (a reference)."""
+    fine = np.zeros(FINE, dtype)
+    source = np.zeros(COARSE, dtype)
     densities = (np.float32(4.0), np.float32(0.25))
     spans = kernels.splat_levels(lines, power, cells, densities, fine, source, BLOCK)
     return fine, source, spans
@@ -126,12 +128,27 @@ def splat_case(seed, n=400, edges=True):
 
 
 def splat_tolerance(lines, power, cells=PLANE):
-    """Per cell: the numba loop's sequential float32 sums err by at most (k + 1)·u·Σ|t|
-    for k terms (k <= the rays), the fixed point by rays · 2⁻⁶² of the largest term."""
+    """Per cell, between the numba loop and the fixed point: the numba loop's sequential
+    float32 sums err by at most (k + 1)·u·Σ|t| for k terms (k <= the rays), the fixed
+    point by rays · 2⁻⁶² of the largest term (4 × the largest power: the fine density)."""
     fine, source, _ = numba_splat(lines, np.abs(power), cells)
     n = power.size
     largest = 4.0 * np.abs(power).max()
     return tuple((n + 1) * U * a + n * 2.0**-62 * largest for a in (fine, source))
+
+
+def exact_tolerance(lines, power, cells=PLANE):
+    """Per cell, between the fixed point and the float64 reference: one float32 rounding
+    of each level's sum (two on the coarse grid: its deposits, then the block mean added,
+    itself rounded to float32 in both), the fixed point's resolution and the reference's
+    float64 roundings (k·2⁻⁵³·Σ|t|, k <= the rays)."""
+    fine, source, _ = numba_splat(lines, np.abs(power), cells, dtype=np.float64)
+    n = power.size
+    resolution = n * 2.0**-62 * 4.0 * np.abs(power).max()
+    return tuple(
+        (rounding * U + (n + 1) * 2.0**-53) * a + resolution
+        for rounding, a in ((1, fine), (3, source))
+    )
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2], ids=lambda s: f"seed{s}")
@@ -141,6 +158,12 @@ def test_splat_levels_agrees_with_numba(seed, device):
     fine_t, source_t, spans_t = torch_splat(lines, power, PLANE, device)
     assert spans_t == spans and all(type(v) is int for v in spans_t)
     fine_tol, source_tol = splat_tolerance(lines, power)
+    assert np.all(np.abs(fine_t - fine) <= fine_tol)
+    assert np.all(np.abs(source_t - source) <= source_tol)
+    # against the same terms summed in float64: the fixed point loses no more than its sum's
+    # rounding to float32
+    fine, source, _ = numba_splat(lines, power, PLANE, dtype=np.float64)
+    fine_tol, source_tol = exact_tolerance(lines, power)
     assert np.all(np.abs(fine_t - fine) <= fine_tol)
     assert np.all(np.abs(source_t - source) <= source_tol)
     assert np.count_nonzero(fine) > 50 and np.count_nonzero(source) > 50
