@@ -182,19 +182,40 @@ def test_log_pmf_of_the_rejection_test_is_accurate():
 # The torch path (workers.backend's torch backend): torch's draws, the same law.
 
 
-def torch_generator(seed):
-    """A seeded torch generator on the CPU (the test skips without torch)."""
+def has_cuda():
+    """Whether torch is installed and sees a CUDA device."""
+    try:
+        import torch
+    except ImportError:
+        return False
+    return torch.cuda.is_available()
+
+
+@pytest.fixture(
+    params=[
+        "cpu",
+        pytest.param("cuda", marks=pytest.mark.skipif(not has_cuda(), reason="no CUDA")),
+    ]
+)
+def device(request):
+    """The device of the torch draws: the CPU, and CUDA where there is one."""
+    return request.param
+
+
+def torch_generator(seed, device):
+    """A seeded torch generator on `device` (the test skips without torch)."""
     torch = pytest.importorskip("torch")
-    return torch, torch.Generator().manual_seed(seed)
+    return torch, torch.Generator(device=device).manual_seed(seed)
 
 
 @pytest.mark.parametrize("lam", [1e-3, 0.5, 5.0, 30.0, 1e3, 1e7], ids=lambda v: f"{v:g}")
-def test_torch_poisson_counts_have_mean_and_variance_lambda(lam):
-    torch, rng = torch_generator(11)
+def test_torch_poisson_counts_have_mean_and_variance_lambda(lam, device):
+    torch, rng = torch_generator(11, device)
     n = 200_000
-    counts = shot_noise(torch.full((n,), lam, dtype=torch.float32), rng=rng)
+    counts = shot_noise(torch.full((n,), lam, dtype=torch.float32, device=device), rng=rng)
     assert isinstance(counts, torch.Tensor) and counts.dtype == torch.float32
-    counts = counts.numpy().astype(np.float64)
+    assert counts.device.type == device
+    counts = counts.cpu().numpy().astype(np.float64)
     assert np.all(counts == np.round(counts))
     # the standard errors of a Poisson(λ) sample's mean and variance, as above: 5 sd
     assert abs(counts.mean() - lam) < 5 * np.sqrt(lam / n)
@@ -206,15 +227,14 @@ def test_torch_poisson_counts_have_mean_and_variance_lambda(lam):
     [(20.0, 1.6), (2.0, 5.0), (0.3, 40.0)],
     ids=["large-shapes", "shapes-below-one", "mostly-below-one"],
 )
-def test_torch_gain_and_excess_noise_factor(lam, excess):
+def test_torch_gain_and_excess_noise_factor(lam, excess, device):
     """E = Gλ, Var = G²Fλ, with Gamma shapes n/(F − 1) above and below 1."""
-    torch, rng = torch_generator(5)
+    torch, rng = torch_generator(5, device)
     n, gain = 400_000, 50.0
-    counts = shot_noise(
-        torch.full((n,), lam, dtype=torch.float32), rng=rng, gain=gain, excess_noise=excess
-    )
-    assert counts.dtype == torch.float32
-    counts = counts.numpy().astype(np.float64)
+    expected = torch.full((n,), lam, dtype=torch.float32, device=device)
+    counts = shot_noise(expected, rng=rng, gain=gain, excess_noise=excess)
+    assert counts.dtype == torch.float32 and counts.device.type == device
+    counts = counts.cpu().numpy().astype(np.float64)
     mean, var = gain * lam, gain**2 * excess * lam
     # sd(mean) = sqrt(var/n); sd of the variance estimate from the 4th cumulant of the
     # compound Poisson–Gamma count, κ4 = λ E[Y⁴] with Y ~ Gamma(1/(F−1), G(F−1))
@@ -225,26 +245,28 @@ def test_torch_gain_and_excess_noise_factor(lam, excess):
 
 
 @pytest.mark.parametrize("alpha", [0.05, 0.7, 1.0, 3.0, 1e6], ids=lambda v: f"{v:g}")
-def test_torch_gamma_has_mean_and_variance_alpha(alpha):
-    torch, rng = torch_generator(9)
+def test_torch_gamma_has_mean_and_variance_alpha(alpha, device):
+    torch, rng = torch_generator(9, device)
     n = 200_000
-    draws = noise._torch_gamma(torch.full((n,), alpha, dtype=torch.float64), rng=rng).numpy()
+    shapes = torch.full((n,), alpha, dtype=torch.float64, device=device)
+    draws = noise._torch_gamma(shapes, rng=rng).cpu().numpy()
     assert np.all(draws >= 0) and np.all(np.isfinite(draws))
     # Gamma(α, 1): mean α, variance α, 4th central moment 3α² + 6α: 5 sd of each estimate
     assert abs(draws.mean() - alpha) < 5 * np.sqrt(alpha / n)
     assert abs(draws.var() - alpha) < 5 * np.sqrt((3 * alpha**2 + 6 * alpha - alpha**2) / n)
 
 
-def test_torch_same_seed_same_bytes_and_zero_mean_gives_zero():
-    torch, _ = torch_generator(0)
-    lam = torch.from_numpy(np.geomspace(1e-4, 1e6, 5000).astype(np.float32))
+def test_torch_same_seed_same_bytes_and_zero_mean_gives_zero(device):
+    torch, _ = torch_generator(0, device)
+    lam = torch.from_numpy(np.geomspace(1e-4, 1e6, 5000).astype(np.float32)).to(device)
     lam[0] = 0.0
     for options in ({}, {"gain": 30.0, "excess_noise": 1.8}):
-        a = shot_noise(lam, rng=torch.Generator().manual_seed(2), **options)
-        b = shot_noise(lam, rng=torch.Generator().manual_seed(2), **options)
-        c = shot_noise(lam, rng=torch.Generator().manual_seed(3), **options)
-        assert a.numpy().tobytes() == b.numpy().tobytes()
-        assert a.numpy().tobytes() != c.numpy().tobytes()
+        a, b, c = (
+            shot_noise(lam, rng=torch_generator(seed, device)[1], **options).cpu().numpy()
+            for seed in (2, 2, 3)
+        )
+        assert a.tobytes() == b.tobytes()
+        assert a.tobytes() != c.tobytes()
         assert a[0] == 0 and a.shape == lam.shape
 
 
