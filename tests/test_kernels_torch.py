@@ -191,6 +191,16 @@ def test_splat_levels_with_no_ray_on_the_fine_grid(device):
     assert torch_splat(empty, np.zeros(0, np.float32), PLANE, device)[2] == (0, 0, 0, 0)
 
 
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_splat_levels_a_non_finite_power_is_not_lost(device, bad):
+    """Fixed point cannot hold a NaN or an infinity: the fields say so (NaN), so that the
+    sample is refused, not written with that ray's light silently dropped."""
+    lines, power = splat_case(5, edges=False)
+    power[17] = bad
+    fine, source, _ = torch_splat(lines, power, PLANE, device)
+    assert np.isnan(fine).all() and np.isnan(source).all()
+
+
 def test_splat_levels_same_bytes_twice_and_whatever_the_rays_order(device):
     lines, power = splat_case(7, n=3000)
     first = torch_splat(lines, power, PLANE, device)

@@ -6,10 +6,6 @@ and returns tensors on the fields' device, equal to the numpy spread within 1e-6
 field's peak (float32 FFTs of two libraries), and the same bytes when run twice.
 """
 
-import importlib.util
-import sys
-import types
-
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
@@ -31,23 +27,9 @@ ROWS = {
 }
 
 
-def _column_convolution(kernel, rows, first, start, out):
-    """`workers.kernels.column_convolution` on torch tensors, for as long as
-    `workers.kernels_torch` (engineer K's) is not on this branch."""
-    n = kernel.shape[0]
-    o = torch.arange(out.shape[0], device=out.device)[:, None]
-    j = torch.arange(rows.shape[0], device=out.device)[None, :]
-    lags = (start + o - first - j) % n
-    out += (kernel[lags] * rows[None]).sum(dim=1)
-
-
 @pytest.fixture(params=DEVICES)
-def backend(request, monkeypatch):
+def backend(request):
     """The torch backend on each device here."""
-    if importlib.util.find_spec("workers.kernels_torch") is None:
-        module = types.ModuleType("workers.kernels_torch")
-        module.column_convolution = _column_convolution
-        monkeypatch.setitem(sys.modules, "workers.kernels_torch", module)
     return get_backend("torch", request.param)
 
 

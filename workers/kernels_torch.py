@@ -164,7 +164,7 @@ def splat_levels(lines, power, cells, densities, fine, source, block):
     lines : tuple of torch.Tensor
         ``(base_u, slope_u, base_v, slope_v)`` of the rays, float32.
     power : torch.Tensor
-        Power of each ray, float32, finite.
+        Power of each ray, float32 (any non-finite value makes both fields NaN).
     cells : Cells
         The plane's map.
     densities : tuple of float32
@@ -212,8 +212,11 @@ def splat_levels(lines, power, cells, densities, fine, source, block):
     top, bottom, left, right_end, coarse_top, coarse_bottom = torch.stack(
         (top, bottom, left, right_end, coarse_top, coarse_bottom)
     ).tolist()
-    fine += fixed.value(fine_sums).to(torch.float32)
-    source += coarse.value(coarse_sums).to(torch.float32)
+    # fixed point holds finite values only: a non-finite power makes both fields NaN (a
+    # sample the service refuses), where numba carries it to its cells
+    poison = torch.where(torch.isfinite(power).all(), 0.0, torch.nan).to(torch.float32)
+    fine += fixed.value(fine_sums).to(torch.float32) + poison
+    source += coarse.value(coarse_sums).to(torch.float32) + poison
     first_row, last_row = top // factor, -(-bottom // factor)
     first_col, last_col = left // factor, -(-right_end // factor)
     if first_row < last_row and first_col < last_col:
