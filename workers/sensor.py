@@ -19,6 +19,7 @@ from workers.geometry import LaserRays, PinholeCamera, PlaneGrid, flat_sea_point
 from workers.optics import fresnel_reflectance
 from workers.radiometry import photoelectrons_per_signal, pixel_solid_angle
 from workers.scene import Scene
+from workers.seasetup import scene_sea, surface_kriging
 from workers.seeds import SampleSeed
 from workers.surface import NUMPY, Surface, draw
 from workers.target import Impostor, gated_share
@@ -56,7 +57,7 @@ class Setup:
             return None
         rngs = [seed.surface_rng(c) for c in range(len(self.sea.patches))]
         modes = draw(self.sea, rngs)
-        conditioning = self.scene.surface.kriging(self.sea)  # cached; built here, to render
+        conditioning = surface_kriging(self.scene.surface, self.sea)  # cached; built to render
         if conditioning is not None:
             modes = conditioning.condition(modes, rngs[0])
         return modes.surface(
@@ -118,7 +119,7 @@ def scene_setup(scene: Scene) -> Setup:
         for (top, bottom), reference in zip(gates, references, strict=True)
     )
     scale = _signal_scale(scene)
-    sea = scene.sea()
+    sea = scene_sea(scene)
     return Setup(
         scene=scene,
         water=water,
