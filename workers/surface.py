@@ -404,8 +404,8 @@ class _Setup:
 @functools.lru_cache(maxsize=32)
 def _evolution(sea: Sea, cascade: int, backend: Backend):
     """ω (float64) and i k (complex64) of `_setup` on `backend`'s device (cached)."""
-    setup = _setup(sea, cascade)  # copied: torch would alias the read-only host arrays
-    return backend.asarray(setup.omega.copy()), backend.asarray(setup.derivative.copy())
+    setup = _setup(sea, cascade)
+    return backend.asarray(setup.omega), backend.asarray(setup.derivative)
 
 
 def _evolve(backend: Backend, omega, ahead, behind, time: float):
