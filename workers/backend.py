@@ -67,7 +67,8 @@ class Backend:
         Parameters
         ----------
         values : array_like
-            The values (a numpy array is not copied on the numpy backend).
+            The values (a numpy array is not copied on the numpy backend; on torch the
+            tensor is always a copy, so that writing to it never changes the host array).
         dtype : numpy.dtype or None, optional
             The numpy dtype to convert to first (None: keep it).
 
