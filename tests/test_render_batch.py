@@ -38,7 +38,11 @@ def scene(**sections):
 
 
 CORPUS = {
-    "flat-none": scene(surface={"spectrum": "flat"}, target={"shape": "none"}),
+    "flat-none-noiseless": scene(
+        surface={"spectrum": "flat"},
+        target={"shape": "none"},
+        radiometry={"white_plane_photons": 0.0},  # the white plane's units, no noise
+    ),
     "wavy-sphere-absolute": scene(radiometry={"mode": "absolute", "white_plane_photons": None}),
     "wavy-sphere-oblique": scene(platform={"nadir_deg": 20.0, "azimuth_deg": 30.0}),
     "wavy-large-sphere-64px": scene(target={"radius": 2.0, "depth": 3.0}, receiver={"pixels": 64}),
@@ -99,8 +103,9 @@ def test_the_backends_agree_on_a_corpus_of_scenes(case):
     assert host["expected"].max() > 0  # light to compare
     for key in LABELS:
         assert_array_equal(host[key], moved[key], err_msg=key)
-    if "surface_elevation" in host:
-        assert_array_equal(host["surface_elevation"], moved["surface_elevation"])
+    if "surface_elevation" in host:  # the same modes, transformed by another FFT
+        sea = host["surface_elevation"]
+        assert np.abs(sea - moved["surface_elevation"]).max() <= 1e-5 * np.abs(sea).max()
 
 
 def test_the_twins_agree_across_backends():
@@ -115,7 +120,7 @@ def test_the_twins_agree_across_backends():
 
 @pytest.mark.parametrize("gain", [1.0, 4.0], ids=["poisson", "gain-stage"])
 def test_the_backends_draw_noise_from_the_same_distribution(gain):
-    # a flat sea under a parallel beam: about 3 to 20 photoelectrons a pixel in the first four gates
+    # a flat sea under a parallel beam: 3 to 20 photoelectrons a pixel in the first gates
     sample = scene(
         surface={"spectrum": "flat"},
         laser={"beam": "parallel"},
@@ -146,7 +151,7 @@ def test_monte_carlo_renders_on_numpy_only():
 
 
 def test_a_batch_needs_a_seed_and_a_backend_that_runs_here():
-    with pytest.raises(ValueError, match="^seeds: "):
-        render_batch(CORPUS["flat-none"], [])
-    with pytest.raises(ValueError, match="^backend: 'jax'"):
-        render_arrays(CORPUS["flat-none"], seed=1, backend="jax")
+    with pytest.raises(ValueError, match=r"^seeds: "):
+        render_batch(CORPUS["flat-none-noiseless"], [])
+    with pytest.raises(ValueError, match=r"^backend: 'jax'"):
+        render_arrays(CORPUS["flat-none-noiseless"], seed=1, backend="jax")

@@ -75,10 +75,8 @@ class Backend:
         Returns
         -------
         array
-            numpy.ndarray or torch.Tensor on `device`, of the same shape (a scalar: 0-d).
-            A tensor is a copy, on the CPU too: writing to it never changes `values`
-            (nor the reverse), whatever the device, and a read-only array moves as
-            any other.
+            numpy.ndarray or torch.Tensor on `device`, of the same shape (a scalar: 0-d;
+            a read-only array moves as any other).
         """
         values = np.asarray(values, dtype=dtype)
         if self.name == "numpy":

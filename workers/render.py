@@ -319,7 +319,8 @@ def _sample_arrays(scene: Scene, seed: SampleSeed, backend: Backend) -> dict[str
 def _render_sample(scene: Scene, seed: SampleSeed, backend: Backend) -> SampleLight:
     """The sample's light: its sea, each frame's light, its noise."""
     setup = scene_setup(scene)
-    surface = setup.surface(seed, np.arange(scene.sequence.frames) * scene.sequence.interval)
+    times = np.arange(scene.sequence.frames) * scene.sequence.interval
+    surface = setup.surface(seed, times, backend=backend)
     light = _render_frames(setup, surface, seed, backend)
     image = _noisy(scene, light.expected, seed, backend)
     return SampleLight(surface, light.expected, light.masks, light.stderr, light.free, image)
@@ -333,7 +334,7 @@ def _noisy(scene: Scene, expected, seed: SampleSeed, backend: Backend):
     if backend.name == "numpy":
         rng = seed.noise_rng()
     else:
-        rng = backend.generator(seed.noise_rng().integers(2**63))
+        rng = backend.generator(seed.noise_seed())
     return shot_noise(expected, rng=rng, gain=noise.gain, excess_noise=noise.excess_noise)
 
 
