@@ -141,6 +141,26 @@ def test_torch_spreads_as_numpy_does(backend, calls, spread, rows, far_out, tail
     assert_allclose(whole.cpu().numpy(), field, rtol=0, atol=1e-6 * peak)
 
 
+@pytest.mark.parametrize(
+    ("lit", "read"),
+    [((12, 20), (7, 7)), ((7, 7), (16, 24)), ((7, 7), (7, 7))],
+    ids=["read-none", "lit-none", "neither"],
+)
+def test_a_spread_from_or_to_no_rows_is_zeros_on_torch(backend, spread, lit, read):
+    # a target whose light lies on the coarse margin alone reads no fine rows: torch's
+    # FFTs refuse an empty batch of rows where numpy's return an empty array
+    start = spread.levels.block[0].start
+    rows_in = (slice(*lit), slice(start + lit[0] // 4, start + -(-lit[1] // 4)))
+    rows_out = (slice(*read), slice(start + read[0] // 4, start + -(-read[1] // 4)))
+    fine, source, rows_in = _sources(spread, rows_in, tail=False)
+    keywords = dict(rows_in=rows_in, rows_out=rows_out)
+    want = spread.filtered(fine, source, **keywords)
+    got = spread.filtered(*_on_torch(backend, fine, source), **keywords)
+    for tensor, array in zip(got[:2], want[:2], strict=True):
+        assert tuple(tensor.shape) == array.shape
+        assert_allclose(tensor.cpu().numpy(), array, rtol=0, atol=1e-6 * max(fine.max(), 1.0))
+
+
 def test_a_whole_spread_of_tensors_matches_numpy(backend, spread):
     fine, source, _ = _sources(spread, (slice(None), slice(None)), tail=True)
     outside = source - spread.levels.downsample(fine)

@@ -368,7 +368,8 @@ def _forward(field, rows, backend: Backend):
     shape = (field.shape[0], field.shape[1] // 2 + 1)
     half = backend.xp.empty(shape, dtype=backend.xp.complex64, device=backend.device)
     half[:first] = 0.0
-    half[first:last] = fft.rfft(field[first:last], axis=1)
+    if last > first:  # torch's FFTs refuse an empty batch of rows
+        half[first:last] = fft.rfft(field[first:last], axis=1)
     half[last:] = 0.0
     return fft.fft(half, axis=0, **_overwrite(backend))
 
@@ -380,9 +381,11 @@ def _direct(columns, field, rows_in, rows_out, backend: Backend):
     `backend.kernels.column_convolution`'s.
     """
     xp, shape = backend.xp, field.shape
-    half = backend.fft.rfft(field[rows_in], axis=1)
     first, start = rows_in.indices(shape[0])[0], rows_out.indices(shape[0])[0]
     rows = len(range(*rows_out.indices(shape[0])))
+    if not rows or not len(range(*rows_in.indices(shape[0]))):
+        return _no_rows(rows, shape[1], backend)
+    half = backend.fft.rfft(field[rows_in], axis=1)
     mixed = xp.zeros((rows, half.shape[1]), dtype=xp.complex64, device=backend.device)
     backend.kernels.column_convolution(columns, half, first, start, mixed)
     return backend.fft.irfft(mixed, n=shape[1], axis=1)
@@ -393,7 +396,18 @@ def _inverse(spectrum, shape, rows, backend: Backend):
     if rows == slice(None):
         return backend.fft.irfft2(spectrum, s=shape)
     columns = backend.fft.ifft(spectrum, axis=0, **_overwrite(backend))
+    if not len(range(*rows.indices(shape[0]))):
+        return _no_rows(0, shape[1], backend)
     return backend.fft.irfft(columns[rows], n=shape[1], axis=1)
+
+
+def _no_rows(rows: int, cols: int, backend: Backend):
+    """Zeros of `rows` × `cols`, float32: a field filtered from no rows, or to none.
+
+    torch's FFTs refuse an empty batch of rows, where numpy's return an empty array.
+    """
+    xp = backend.xp
+    return xp.zeros((rows, cols), dtype=xp.float32, device=backend.device)
 
 
 @dataclass(frozen=True)
