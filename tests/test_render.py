@@ -610,7 +610,7 @@ def test_a_crest_gates_less_water(height, monkeypatch):
     # goes η/n less far into the water each way, so the gate's return changes by e^(-2Kη/n).
     from workers.surface import Cascade, Surface
 
-    def surface(setup, seed, times):
+    def surface(setup, seed, times, *, backend):
         n, zero = 16, np.zeros((len(times), 16, 16), np.float32)
         raised = zero + np.float32(height)
         plane = Cascade(elevation=raised, slope_x=zero, slope_y=zero, spacing=1.0, grid_size=n)
