@@ -41,6 +41,7 @@ from starlette.routing import Route
 
 from service import package_version
 from service.cluster import dask_client
+from service.devices import choose
 from service.errors import BadFileError, BadOptionError, InputError
 from service.inputs import MAX_FILE_BYTES
 from service.jobs import ForbiddenError, QueueFullError, Runner
@@ -384,8 +385,12 @@ def serve(args, security) -> int:
                 raise BadOptionError(
                     f"--data-root {args.data_root}: cannot make the folder ({error.strerror})"
                 ) from None
+        backend = choose(args.backend, args.device, here=args.scheduler is None)
         with dask_client(
-            workers=args.workers, scheduler=args.scheduler, security=security
+            workers=args.workers,
+            scheduler=args.scheduler,
+            security=security,
+            device=backend.device,
         ) as client:
             runner = Runner(
                 table,
@@ -394,6 +399,7 @@ def serve(args, security) -> int:
                 max_running=args.max_running,
                 queue_limit=args.queue_limit,
                 batch_size=args.batch,
+                backend=backend,
             )
             config = uvicorn.Config(
                 create_app(runner, tokens), log_level="warning", access_log=False
