@@ -372,6 +372,7 @@ def serve(args, security) -> int:
     for flag in ("max_running", "queue_limit", "batch"):
         if getattr(args, flag) is not None and getattr(args, flag) < 1:
             raise BadOptionError(f"--{flag.replace('_', '-')} must be at least 1")
+    backend = choose(args.backend, args.device, here=args.scheduler is None)
     root = Store.at(args.data_root, args.storage_options)
     local = "://" not in root.url
     if local and os.path.exists(root.url) and not os.path.isdir(root.url):
@@ -385,7 +386,6 @@ def serve(args, security) -> int:
                 raise BadOptionError(
                     f"--data-root {args.data_root}: cannot make the folder ({error.strerror})"
                 ) from None
-        backend = choose(args.backend, args.device, here=args.scheduler is None)
         with dask_client(
             workers=args.workers,
             scheduler=args.scheduler,
