@@ -93,7 +93,7 @@ def test_validate_counts_the_clusters_start_and_the_compilation(tmp_path, capsys
     # (the first render's extra time was all counted as the scene's setup, over workers)
     import service.cli.run_commands as commands
 
-    monkeypatch.setattr(commands, "_timed_render", lambda plan, point: (2.0, 1.0, 0.5))
+    monkeypatch.setattr(commands, "_timed_render", lambda plan, point, backend: (2.0, 1.0, 0.5))
     assert main(["validate", str(tiny(tmp_path)), "--workers", "2"]) == 0
     out = capsys.readouterr().out
     # 4 samples of 2 scenes on 2 workers: start + compilation + (2 x 1 s + 4 x 0.5 s) / 2
