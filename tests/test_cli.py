@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import xarray as xr
 import yaml
-from conftest import ROOT, TINY_SWEEP, cli_command, run_cli, start_cli
+from conftest import ROOT, TINY_SWEEP, batch_of, cli_command, run_cli, start_cli
 from dask.utils import format_time
 
 from service import package_version, plots
@@ -139,7 +139,7 @@ def test_validate_refuses_a_scene_that_renders_invalid_values(tmp_path, capsys, 
         arrays["expected"][0, 0, 0, 0] = np.nan
         return arrays
 
-    monkeypatch.setattr(commands, "render_arrays", broken)
+    monkeypatch.setattr(commands, "render_samples", batch_of(broken))
     assert main(["validate", str(tiny(tmp_path)), "--workers", "1"]) != 0
     err = capsys.readouterr().err
     assert "renders invalid values: expected holds 1 non-finite value(s)" in err
