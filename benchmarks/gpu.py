@@ -19,8 +19,14 @@ it says so):
    clock of the whole command. Skipped, with a line, without CUDA.
 
 Times are wall-clock, with the device synchronised (CUDA) before each clock read; medians
-of ``--rounds``. Usage, from the repository root: ``python -m benchmarks.gpu [--sizes 256
-512] [--batch 64] [--rounds 5] [--samples 4096]``.
+of ``--rounds``, the render and the FFT floor interleaved round by round. Usage, from the
+repository root: ``python -m benchmarks.gpu [--sizes 256 512] [--batch 64] [--rounds 7]
+[--samples 4096]``.
+
+On the shared 2-core machine without a GPU (2026-11-25, load 2-4, batches of 2): torch on
+the CPU through P1's in-progress `render_batch` (samples one by one) 0.5 samples/s at 256²
+and 0.2 at 512²; torch's CPU FFT floor swung from 36 to 286 samples/s at 256² between
+back-to-back runs there. CPU figures on that machine are load, not the renderer.
 
 Issue #28's targets on an H100: at least 4,000 samples/s at 256² (aim 10,000), 1,000/s at
 512², a run end to end at least 2,000 samples/s at 128 px. Figures measured so far are in
@@ -74,21 +80,8 @@ def plane_shapes(s):
     return [plane.levels.fine.shape for plane in planes if plane is not None]
 
 
-def render_rate(s, backend, batch, rounds):
-    """Median samples/s of the batched render, and whether two renders gave the same bytes."""
-    seeds = [SampleSeed(root=7, point=0, realisation=r) for r in range(batch)]
-    first = render_samples(s, seeds, backend=backend)  # the warm-up: setup cached
-    times = []
-    for _ in range(rounds):
-        start = synchronised(backend.device)
-        again = render_samples(s, seeds, backend=backend)
-        times.append(synchronised(backend.device) - start)
-    same = all(first[name].tobytes() == again[name].tobytes() for name in first)
-    return batch / statistics.median(times), same
-
-
-def fft_floor(shapes, device, batch, rounds):
-    """Median samples/s of one rfft2 + irfft2 pair a plane, batched over `batch` samples."""
+def fft_pairs(shapes, device, batch):
+    """One rfft2 + irfft2 pair a plane of `shapes`, batched over `batch` samples: a callable."""
     generator = torch.Generator(device=device).manual_seed(0)
     planes = [
         torch.randn((batch, *shape), generator=generator, device=device, dtype=torch.float32)
@@ -99,13 +92,27 @@ def fft_floor(shapes, device, batch, rounds):
         for plane in planes:
             torch.fft.irfft2(torch.fft.rfft2(plane), s=plane.shape[-2:])
 
+    return pairs
+
+
+def measure(s, backend, batch, rounds):
+    """Median samples/s of the batched render and of its FFT floor, interleaved round by
+    round (a shared machine's load disturbs both alike), and whether the render's bytes
+    were the same every time."""
+    seeds = [SampleSeed(root=7, point=0, realisation=r) for r in range(batch)]
+    pairs = fft_pairs(plane_shapes(s), backend.device, batch)
+    first = render_samples(s, seeds, backend=backend)  # the warm-up: setup cached
     pairs()
-    times = []
+    renders, floors, same = [], [], True
     for _ in range(rounds):
-        start = synchronised(device)
+        start = synchronised(backend.device)
+        again = render_samples(s, seeds, backend=backend)
+        renders.append(synchronised(backend.device) - start)
+        same &= all(first[name].tobytes() == again[name].tobytes() for name in first)
+        start = synchronised(backend.device)
         pairs()
-        times.append(synchronised(device) - start)
-    return batch / statistics.median(times)
+        floors.append(synchronised(backend.device) - start)
+    return batch / statistics.median(renders), batch / statistics.median(floors), same
 
 
 SWEEP = """\
@@ -140,7 +147,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[256, 512])
     parser.add_argument("--batch", type=int, default=None, help="default 64 on CUDA, 4 on CPU")
-    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--rounds", type=int, default=7)
     parser.add_argument("--samples", type=int, default=4096, help="of the end-to-end run")
     args = parser.parse_args()
     cuda = torch.cuda.is_available()
@@ -152,10 +159,8 @@ def main():
     print("pixels  render samples/s  same bytes  FFT floor samples/s  planes (fine cells)")
     for n in args.sizes:
         s = scene(n)
-        shapes = plane_shapes(s)
-        rate, same = render_rate(s, backend, batch, args.rounds)
-        floor = fft_floor(shapes, device, batch, args.rounds)
-        sizes = ", ".join(f"{a}x{b}" for a, b in shapes)
+        rate, floor, same = measure(s, backend, batch, args.rounds)
+        sizes = ", ".join(f"{a}x{b}" for a, b in plane_shapes(s))
         print(f"{n:>6}  {rate:>16.1f}  {'yes' if same else 'NO':>10}  {floor:>19.1f}  {sizes}")
     if not cuda:
         print("end to end (oceanlidar run --device cuda, 128 px): skipped, no CUDA device")
