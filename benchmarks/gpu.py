@@ -23,10 +23,11 @@ of ``--rounds``, the render and the FFT floor interleaved round by round. Usage,
 repository root: ``python -m benchmarks.gpu [--sizes 256 512] [--batch 64] [--rounds 7]
 [--samples 4096]``.
 
-On the shared 2-core machine without a GPU (2026-11-25, load 2-4, batches of 2): torch on
-the CPU through P1's in-progress `render_batch` (samples one by one) 0.5 samples/s at 256²
-and 0.2 at 512²; torch's CPU FFT floor swung from 36 to 286 samples/s at 256² between
-back-to-back runs there. CPU figures on that machine are load, not the renderer.
+On the shared 2-core machine without a GPU (2026-11-25, load 2-4, batches of 2, 5 rounds):
+torch on the CPU through P1's in-progress `render_batch` (its samples one by one) 4.1
+samples/s at 256², 1.2 at 512², its FFT floor beside 401 and 90 (an earlier run, not
+interleaved: 0.5 and 0.2, floor 286 and 39). In a process whose render ran on numpy (numba)
+first, torch's CPU FFT floor reads 7-19 samples/s: compare CPU figures within one run.
 
 Issue #28's targets on an H100: at least 4,000 samples/s at 256² (aim 10,000), 1,000/s at
 512², a run end to end at least 2,000 samples/s at 128 px. Figures measured so far are in
