@@ -383,3 +383,16 @@ def test_a_cuda_run_gives_the_same_bytes_twice(tmp_path, cli):
         assert (ds.attrs["render_backend"], ds.attrs["render_device"]) == ("torch", "cuda")
         assert np.isfinite(ds.image.values).all()
     assert_same_samples(tmp_path / "a.zarr", tmp_path / "b.zarr")
+
+
+def test_a_torch_run_records_torch_and_gives_the_same_bytes_twice(tmp_path, cli, shared_cluster):
+    # issue #28 items 3, 5: `run --backend torch` (the CPU here) through the whole service:
+    # the store says torch, and the same seed gives the same bytes again
+    sweep_file(tmp_path)
+    for output in ("a.zarr", "b.zarr"):
+        result = cli("run", "sweep.yaml", "--backend", "torch", "--output", output, cwd=tmp_path)
+        assert result.returncode == 0, result.stderr
+    with xr.open_zarr(tmp_path / "a.zarr") as ds:
+        assert (ds.attrs["render_backend"], ds.attrs["render_device"]) == ("torch", "cpu")
+        assert ds.completed.values.all()
+    assert_same_samples(tmp_path / "a.zarr", tmp_path / "b.zarr")
