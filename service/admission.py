@@ -20,6 +20,7 @@ import fsspec
 import numpy as np
 
 from service import package_version
+from service.devices import NUMPY, check_same
 from service.errors import BadFileError, BadOptionError, OutputTakenError, UnusableOutputError
 from service.inputs import DEFAULT_MAX_MEMORY, MAX_FILE_BYTES, shown
 from service.stats import check_owner
@@ -27,6 +28,7 @@ from service.store import integrity
 from service.store.location import KIND, Store, old_gate_numbering
 from service.store.template import check_uniform
 from service.sweep import MEMORY_REMEDY, NO_LIMITS, Plan, parse_sweep, read_header
+from workers.backend import Backend
 
 __all__ = [
     "CLI",
@@ -145,10 +147,12 @@ def check_output(
     overwrite: bool,
     name: str | None = None,
     rules: Rules = CLI,
+    backend: Backend = NUMPY,
 ) -> tuple:
     """Check what is at the output before anything is written or deleted.
 
-    `name` is how messages name the output `store` (default: its URL).
+    `name` is how messages name the output `store` (default: its URL). A resumed store
+    must have been rendered on `backend` (`service.devices.check_same`).
 
     Returns
     -------
@@ -162,7 +166,8 @@ def check_output(
         If the output or the statistics path holds something this run may not replace
         (the statistics of another store among them: `service.stats.check_owner`), or
         the output is neither a folder nor a regular file (``/dev/null``); an
-        `OutputTakenError` if the output is occupied and neither resumed nor overwritten.
+        `OutputTakenError` if the output is occupied and neither resumed nor overwritten;
+        an `UnusableOutputError` too for a resume on another backend or device.
     """
     name = name or store.url
     if (outer := enclosing_store(store)) is not None:
@@ -198,6 +203,7 @@ def check_output(
             f"{package_version()}: samples would differ; resume with that version "
             "or start again with --overwrite"
         )
+    check_same(previous, backend, name=name)
     gates = store.group().get("gate")
     if gates is not None and (problem := old_gate_numbering(gates[:], name)):
         raise UnusableOutputError(problem)
@@ -307,12 +313,13 @@ def admit_header(text: str, mode: str, *, data_root: Store) -> tuple:
     return sweep, confine_output(sweep.output, data_root.url)
 
 
-def admit_job(text: str, mode: str, *, data_root: Store) -> tuple:
+def admit_job(text: str, mode: str, *, data_root: Store, backend: Backend = NUMPY) -> tuple:
     """Check a submitted sweep as ``oceanlidar run`` would; its plan and store URL.
 
     The sweep passes `admit_header`, then is admitted whole under the service's `SERVICE`
     rules (every point), its output checked never to lie inside another store (under
-    `data_root`, a folder or prefix with the service's storage options) and for `mode`.
+    `data_root`, a folder or prefix with the service's storage options) and for `mode`
+    (a resumed store rendered on the service's `backend`).
 
     Raises
     ------
@@ -337,5 +344,6 @@ def admit_job(text: str, mode: str, *, data_root: Store) -> tuple:
             overwrite=mode == "overwrite",
             name=f"output: {shown(plan.sweep.output)}",
             rules=SERVICE,
+            backend=backend,
         )
     return plan, url

@@ -18,7 +18,15 @@ from distributed.worker import thread_state
 
 from service.errors import BadOptionError
 
-__all__ = ["ClusterError", "dask_client", "dask_setup", "embedded_cluster", "hold"]
+__all__ = [
+    "GPU_TASKS",
+    "ClusterError",
+    "dask_client",
+    "dask_setup",
+    "embedded_cluster",
+    "embedded_cuda_cluster",
+    "hold",
+]
 
 CLOSE_TIMEOUT = 60.0
 """Longest wait for the embedded cluster's workers to exit, s."""
@@ -37,6 +45,16 @@ Idle, a worker then burns 6 ms of CPU a second instead of 24, the scheduler and 
 
 OWN_WORKERS = {"distributed.worker.preload": ["service.cluster"]}
 """dask settings of the embedded cluster's workers: each runs `dask_setup` as it starts."""
+
+GPU_TASKS = 2
+"""Shard tasks a GPU worker runs at once (its threads, and the ``GPU`` resource it
+advertises: each task holds one, `service.run.GPU_RESOURCE`): while one renders its shard on
+the GPU, the other checks, encodes and writes the shard it rendered on the host's cores,
+so that the GPU is not idle while a shard is written (`service.tasks`)."""
+CUDA_CLUSTER_HINT = (
+    "pip install 'oceanlidar[gpu]' for dask-cuda, or give --scheduler a cluster of GPU workers"
+)
+"""What to do when ``--device cuda`` finds no dask-cuda for its local cluster."""
 
 HOLD = "OCEANLIDAR_TEST_HOLD"
 """Tests only, the environment variable of `hold`: a folder (the interrupt tests)."""
@@ -132,6 +150,48 @@ def embedded_cluster(
         )
 
 
+def embedded_cuda_cluster(
+    *, workers: int | None, device: str, dashboard: bool = False, verbose: bool = False
+):
+    """dask-cuda's LocalCUDACluster on 127.0.0.1: one worker process a GPU.
+
+    Each worker sees its own GPU alone (as ``cuda``, its ``CUDA_VISIBLE_DEVICES``), runs
+    `GPU_TASKS` threads and advertises as many units of the ``GPU`` resource; dask-cuda is
+    imported only here. Otherwise as `embedded_cluster`.
+
+    Parameters
+    ----------
+    workers : int or None
+        GPUs used (None: every GPU of the machine, or the one `device` names).
+    device : str
+        ``cuda``, or ``cuda:N`` for GPU N alone.
+
+    Raises
+    ------
+    BadOptionError
+        If dask-cuda is not installed, naming ``--device`` and the remedy.
+    """
+    if importlib.util.find_spec("dask_cuda") is None:
+        raise BadOptionError(
+            f"--device {device}: the local CUDA cluster needs dask-cuda, which is not "
+            f"installed ({CUDA_CLUSTER_HINT})"
+        )
+    from dask_cuda import LocalCUDACluster
+
+    quiet = {} if dashboard else QUIET
+    with dask.config.set({**quiet, **OWN_WORKERS}):  # LocalCUDACluster sets `config` itself
+        return LocalCUDACluster(
+            CUDA_VISIBLE_DEVICES=device.partition(":")[2] or None,
+            n_workers=workers,
+            threads_per_worker=GPU_TASKS,
+            resources={"GPU": GPU_TASKS},
+            host="127.0.0.1",
+            dashboard_address="127.0.0.1:0",
+            scheduler_kwargs={"dashboard": dashboard},
+            silence_logs=logging.WARNING if verbose else logging.CRITICAL,
+        )
+
+
 @contextlib.contextmanager
 def dask_client(
     *,
@@ -140,8 +200,12 @@ def dask_client(
     security=None,
     dashboard: bool = False,
     verbose: bool = False,
+    device: str = "cpu",
 ):
     """A client for an existing scheduler, or for an embedded LocalCluster on 127.0.0.1.
+
+    A CUDA `device` (``cuda``, ``cuda:N``) embeds dask-cuda's cluster instead, one worker a
+    GPU (`embedded_cuda_cluster`).
 
     `security` (a `distributed.Security`) defaults to dask's configuration, where TLS
     files and ``require-encryption`` can be set (``DASK_DISTRIBUTED__COMM__...``). With
@@ -167,7 +231,12 @@ def dask_client(
                 log.info("dashboard: %s", client.dashboard_link)
             yield client
         return
-    cluster = embedded_cluster(workers=workers, dashboard=dashboard, verbose=verbose)
+    if device == "cpu":
+        cluster = embedded_cluster(workers=workers, dashboard=dashboard, verbose=verbose)
+    else:
+        cluster = embedded_cuda_cluster(
+            workers=workers, device=device, dashboard=dashboard, verbose=verbose
+        )
     try:
         with Client(cluster) as client:
             client.register_plugin(WarningsToLogging(verbose))

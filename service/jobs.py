@@ -28,6 +28,7 @@ import time
 import uuid
 
 from service.admission import SERVICE, admit_header, admit_job, parents
+from service.devices import NUMPY
 from service.errors import (
     BadOptionError,
     InputError,
@@ -82,10 +83,16 @@ class Runner:
         Most unfinished (queued or running) jobs; more are refused (`QueueFullError`).
     batch_size : int or None
         Samples per shard and task of a new store; None: `service.store.layout.shard_size`'s.
+    backend : Backend, optional
+        Where every job's samples render (``serve --backend --device``): a job resuming a
+        store rendered elsewhere is rejected (`service.devices.check_same`).
     """
 
-    def __init__(self, table, client, *, data_root, max_running, queue_limit, batch_size):
+    def __init__(
+        self, table, client, *, data_root, max_running, queue_limit, batch_size, backend=NUMPY
+    ):
         self.table, self.client, self.data_root = table, client, data_root
+        self.backend = backend
         self.max_running, self.queue_limit, self.batch_size = max_running, queue_limit, batch_size
         self._running: dict[str, tuple[threading.Thread, Cancel]] = {}
         self._stop = threading.Event()
@@ -236,7 +243,9 @@ class Runner:
                 continue
             self.table.log(job.id, "validating: every parameter point, the limits, the output")
             try:
-                plan, _ = admit_job(job.sweep, job.mode, data_root=self.data_root)
+                plan, _ = admit_job(
+                    job.sweep, job.mode, data_root=self.data_root, backend=self.backend
+                )
             except Exception as error:  # a job's failure must not take the service down
                 bad = isinstance(error, InputError)
                 self.table.set_state(
@@ -316,6 +325,7 @@ class Runner:
                 on_progress=progress,
                 claim=f"oceanlidar service job {job.id}",
                 owner=job.owner,
+                backend=self.backend,
             )
         except Exception as error:  # a job's failure must not take the service down
             message = str(error) if isinstance(error, InputError) else repr(error)

@@ -1,7 +1,7 @@
 """Run a sweep on dask (on the client of `service.cluster`), then write its statistics.
 
 One task per shard of the store (`service.store`): it renders the shard's missing samples
-and writes the whole shard (`service.store.shards.write_shard`). A shard is written by one
+and writes the whole shard (`service.tasks.render_shard`). A shard is written by one
 task at a time, never two: each shard has one task in the first pass; the samples of
 shards whose task failed are then rendered one per task with a single task in flight, and
 a shard whose task was given up as stuck (it may still be running) is never given to
@@ -19,30 +19,31 @@ goes on: it is never retried.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import errno
 import functools
 import hashlib
 import os
 import threading
 import time
-from collections.abc import Iterator
 
 import numpy as np
 from distributed import Client, wait
 
 from service.admission import check_output
-from service.cluster import ClusterError, dask_client, hold
+from service.cluster import ClusterError, dask_client
+from service.devices import NUMPY, check_on_worker
+from service.errors import BadOptionError
 from service.progress import Progress, phase
 from service.records import RunResult
 from service.stats import write_statistics
-from service.store import integrity, shards
+from service.store import integrity
 from service.store.layout import shard_samples
 from service.store.location import Store
 from service.store.template import create_store
 from service.sweep import Plan
-from service.tuning import tune_allocator
-from workers.render import render_arrays
-from workers.section import SceneError
+from service.tasks import render_shard, task_batches
+from workers.backend import Backend
 
 __all__ = [
     "Cancel",
@@ -65,65 +66,9 @@ LASTING_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCE
 """Storage failures that stop a run: every further write would fail alike."""
 PROBE_TIMEOUT = 120
 """Seconds a worker has to confirm it sees the store, before anything is rendered."""
-
-
-def render_shard(store: Store, jobs):
-    """Render samples of one shard and write the whole shard (runs on a dask worker).
-
-    Parameters
-    ----------
-    store : Store
-        The store.
-    jobs : list of tuple
-        ``(sample, scene, seed)`` per sample, all in one shard: its index, its
-        `workers.scene.Scene` (hashable, sent as it is) and `workers.seeds.SampleSeed`.
-
-    Returns
-    -------
-    list of tuple
-        ``(sample, reason, refused)`` for every sample not written: ``refused`` True for a
-        scene that cannot be rendered (`workers.section.SceneError`), False for values
-        rejected by `service.store.integrity.invalid_values`. Those are neither written nor
-        marked complete; the valid samples around them are.
-    """
-    tune_allocator()
-    group = store.group("r+")
-    rejected, valid = [], {}
-    for sample, scene, seed in jobs:
-        try:
-            rendered = render_arrays(scene, seed=seed)
-        except SceneError as error:
-            rejected.append((sample, str(error), True))
-            continue
-        reason = integrity.invalid_values(rendered, scene)
-        if reason is None:
-            valid[sample] = rendered
-        else:
-            rejected.append((sample, reason, False))
-    if valid:
-        shards.write_shard(group, valid)
-    hold(jobs[0][0])  # tests only
-    return rejected
-
-
-def task_batches(plan: Plan, todo, samples_per_shard: int) -> Iterator[tuple[int, list]]:
-    """The samples of `todo` (ascending) grouped by the shard that holds them.
-
-    Yields
-    ------
-    tuple
-        ``(first sample, jobs)`` as `render_shard` takes the jobs.
-    """
-    run: list = []
-    for sample in todo:
-        sample = int(sample)
-        if run and sample // samples_per_shard != run[0][0] // samples_per_shard:
-            yield run[0][0], run
-            run = []
-        address = plan.sample(sample)
-        run.append((sample, address.scene, address.seed))
-    if run:
-        yield run[0][0], run
+GPU_RESOURCE = {"GPU": 1}
+"""What a task rendering on a CUDA device asks of its worker: one of the two task slots
+its GPU worker advertises (``--resources GPU=2``, `service.cluster.GPU_TASKS`)."""
 
 
 class RunCancelledError(Exception):
@@ -167,6 +112,7 @@ def run_plan(
     cancel=None,
     on_progress=None,
     completed: np.ndarray | None = None,
+    backend: Backend = NUMPY,
 ) -> RunResult:
     """Render every missing sample of `plan` into `store`.
 
@@ -185,7 +131,9 @@ def run_plan(
     resumable. `on_progress(done, rate)` is called as samples complete
     (samples, samples/s). `progress_stream` shows the progress (`service.progress.Progress`:
     a line until the first shard is written, then the bar); None shows nothing.
-    `completed`: with `resume`, the store's completion flags if already read.
+    `completed`: with `resume`, the store's completion flags if already read. The
+    samples render on `backend`; on a CUDA device each task asks for one unit of its
+    worker's ``GPU`` resource (`GPU_RESOURCE`).
     """
     size = shard_samples(store.group())
     if resume:
@@ -220,6 +168,7 @@ def run_plan(
         progress=progress,
         failed=failed,
         cancel=cancel,
+        backend=backend,
     )
 
     def alone(samples):
@@ -308,6 +257,7 @@ def _submit_bounded(
     progress,
     failed,
     cancel=None,
+    backend=NUMPY,
 ):
     """Submit `batches` keeping at most `window` tasks in flight; record what happened."""
     running: dict = {}  # future -> (samples, submitted at)
@@ -321,9 +271,11 @@ def _submit_bounded(
             render_shard,
             store,
             jobs,
+            backend,
             key=f"oceanlidar-{tag}-{start}-{len(jobs)}",
             retries=RETRIES,
             pure=False,
+            resources=_resources(backend),
         )
         running[future] = ([job[0] for job in jobs], time.monotonic())
         result.max_in_flight = max(result.max_in_flight, len(running))
@@ -375,23 +327,52 @@ def _submit_bounded(
         raise
 
 
-def _connecting(workers: int | None, scheduler: str | None) -> str:
+def _resources(backend: Backend) -> dict | None:
+    """The worker resources a task rendering on `backend` holds while it runs."""
+    return GPU_RESOURCE if backend.device != "cpu" else None
+
+
+def _connecting(workers: int | None, scheduler: str | None, backend: Backend) -> str:
     """The set-up phase that gets a run its cluster, in words."""
     if scheduler is not None:
         return f"connecting to the scheduler at {scheduler}"
+    if backend.device != "cpu":
+        return "starting the local CUDA cluster (one worker a GPU)"
     count = workers or os.cpu_count() or 1
     return f"starting the local cluster ({count} worker{'s' if count > 1 else ''})"
 
 
-def _probe(client: Client, store: Store, token: str) -> None:
-    """Wait for a worker to confirm that it sees `store` and its writer lock `token`."""
-    probe = client.submit(store.check_workers_see, token, pure=False)
+def _see_and_check(store: Store, token: str, backend: Backend) -> None:
+    """On a worker: it sees `store` and its lock `token`, and it renders on `backend`."""
+    store.check_workers_see(token)
+    check_on_worker(backend)
+
+
+def _probe(client: Client, store: Store, token: str, backend: Backend = NUMPY) -> None:
+    """Wait for a worker to confirm that it sees `store` and its writer lock `token`.
+
+    The worker (one with a GPU for a CUDA `backend`) checks that it can render on
+    `backend` too (`service.devices.check_on_worker`).
+
+    Raises
+    ------
+    BadOptionError
+        If it cannot (torch missing there, no CUDA device), naming the flag.
+    ClusterError
+        If no worker answers within `PROBE_TIMEOUT`.
+    """
+    probe = client.submit(
+        _see_and_check, store, token, backend, pure=False, resources=_resources(backend)
+    )
     try:
         probe.result(timeout=PROBE_TIMEOUT)
     except TimeoutError:
+        gpu = " with a GPU resource" if _resources(backend) else ""
         raise ClusterError(
-            f"no worker answered within {PROBE_TIMEOUT} s (are any connected?)"
+            f"no worker{gpu} answered within {PROBE_TIMEOUT} s (are any connected?)"
         ) from None
+    except ValueError as error:  # workers.backend.get_backend's, on the worker
+        raise BadOptionError(f"--{error} (on the cluster's worker)") from None
 
 
 def execute(
@@ -414,6 +395,7 @@ def execute(
     on_progress=None,
     claim: str | None = None,
     owner: str | None = None,
+    backend: Backend = NUMPY,
 ) -> RunResult:
     """Create (or reopen) the store, run the missing samples and write the statistics.
 
@@ -438,9 +420,14 @@ def execute(
     `run_plan`, and `cancel` is closed before the statistics (a cancel that came first ends
     the run interrupted, its samples written, its statistics not);
     `claim` to `service.store.lock.writer_lock`; `owner` (the job service's submitter) is
-    recorded in a new store (`service.store.template.create_store`).
+    recorded in a new store (`service.store.template.create_store`). The samples render
+    on `backend` (`service.devices.choose`), which a new store records and a resumed one
+    must have recorded (`service.devices.check_same`); a CUDA backend without `client` or
+    `scheduler` starts dask-cuda's local cluster, one worker a GPU.
     """
-    options = {"resume": resume, "overwrite": overwrite}
+    options = {"resume": resume, "overwrite": overwrite, "backend": backend}
+    # a GPU worker sees its own GPU alone, as ``cuda`` (``cuda:N`` picks the embedded one)
+    rendering = dataclasses.replace(backend, device=backend.device.partition(":")[0])
     with store.errors():
         check_output(plan, store, **options)
     with store.lock(claim=claim) as token:
@@ -454,14 +441,15 @@ def execute(
             security=security,
             dashboard=dashboard,
             verbose=verbose,
+            device=backend.device,
         )
         said = functools.partial(phase, stream=progress_stream)
         with contextlib.ExitStack() as connected:
             if client is None:
-                with said(_connecting(workers, scheduler)):
+                with said(_connecting(workers, scheduler, backend)):
                     client = connected.enter_context(connect())
             with said("waiting for the workers to start and see the store"):
-                _probe(client, store, token)
+                _probe(client, store, token, rendering)
                 # an earlier run into this store (a service killed mid-job, on a cluster
                 # that outlived it) may have tasks still executing: none may write past here
                 if _wait_executing(client, f"oceanlidar-{_store_key(store)}", task_timeout):
@@ -476,7 +464,9 @@ def execute(
                         store.remove(old_files)
                 if not resuming:
                     with said("writing the store template"):
-                        create_store(plan, store, samples_per_shard=batch_size, owner=owner)
+                        create_store(
+                            plan, store, samples_per_shard=batch_size, owner=owner, backend=backend
+                        )
             checked = resuming and verify
             relabelled, damaged = [], []
             if checked:
@@ -496,6 +486,7 @@ def execute(
                 cancel=cancel,
                 on_progress=on_progress,
                 completed=before,
+                backend=rendering,
             )
             result.damaged, result.relabelled = damaged, relabelled
             if result.ok:

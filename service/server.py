@@ -41,6 +41,7 @@ from starlette.routing import Route
 
 from service import package_version
 from service.cluster import dask_client
+from service.devices import choose
 from service.errors import BadFileError, BadOptionError, InputError
 from service.inputs import MAX_FILE_BYTES
 from service.jobs import ForbiddenError, QueueFullError, Runner
@@ -371,6 +372,7 @@ def serve(args, security) -> int:
     for flag in ("max_running", "queue_limit", "batch"):
         if getattr(args, flag) is not None and getattr(args, flag) < 1:
             raise BadOptionError(f"--{flag.replace('_', '-')} must be at least 1")
+    backend = choose(args.backend, args.device, here=args.scheduler is None)
     root = Store.at(args.data_root, args.storage_options)
     local = "://" not in root.url
     if local and os.path.exists(root.url) and not os.path.isdir(root.url):
@@ -385,7 +387,10 @@ def serve(args, security) -> int:
                     f"--data-root {args.data_root}: cannot make the folder ({error.strerror})"
                 ) from None
         with dask_client(
-            workers=args.workers, scheduler=args.scheduler, security=security
+            workers=args.workers,
+            scheduler=args.scheduler,
+            security=security,
+            device=backend.device,
         ) as client:
             runner = Runner(
                 table,
@@ -394,6 +399,7 @@ def serve(args, security) -> int:
                 max_running=args.max_running,
                 queue_limit=args.queue_limit,
                 batch_size=args.batch,
+                backend=backend,
             )
             config = uvicorn.Config(
                 create_app(runner, tokens), log_level="warning", access_log=False

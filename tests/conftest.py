@@ -292,6 +292,20 @@ def dask_processes(folder, *, workers=2, protocol="tcp", options=(), env=None):
                     process.wait(timeout=10)
 
 
+def batch_of(render):
+    """A stand-in for `service.tasks.render_samples` that renders each seed by `render`.
+
+    `render(scene, *, seed)` returns one sample's arrays (as `workers.render.render_arrays`):
+    the tests that poison, freeze or break one sample of a task's batch.
+    """
+
+    def render_samples(scene, seeds, *, backend):
+        samples = [render(scene, seed=seed) for seed in seeds]
+        return {name: np.stack([sample[name] for sample in samples]) for name in samples[0]}
+
+    return render_samples
+
+
 @pytest.fixture
 def threads(monkeypatch):
     """The embedded cluster's workers as threads of this process, to see monkeypatches."""

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import xarray as xr
 import yaml
-from conftest import ROOT, TINY_SWEEP, cli_command, run_cli, start_cli
+from conftest import ROOT, TINY_SWEEP, batch_of, cli_command, run_cli, start_cli
 from dask.utils import format_time
 
 from service import package_version, plots
@@ -93,7 +93,7 @@ def test_validate_counts_the_clusters_start_and_the_compilation(tmp_path, capsys
     # (the first render's extra time was all counted as the scene's setup, over workers)
     import service.cli.run_commands as commands
 
-    monkeypatch.setattr(commands, "_timed_render", lambda plan, point: (2.0, 1.0, 0.5))
+    monkeypatch.setattr(commands, "_timed_render", lambda plan, point, backend: (2.0, 1.0, 0.5))
     assert main(["validate", str(tiny(tmp_path)), "--workers", "2"]) == 0
     out = capsys.readouterr().out
     # 4 samples of 2 scenes on 2 workers: start + compilation + (2 x 1 s + 4 x 0.5 s) / 2
@@ -139,7 +139,7 @@ def test_validate_refuses_a_scene_that_renders_invalid_values(tmp_path, capsys, 
         arrays["expected"][0, 0, 0, 0] = np.nan
         return arrays
 
-    monkeypatch.setattr(commands, "render_arrays", broken)
+    monkeypatch.setattr(commands, "render_samples", batch_of(broken))
     assert main(["validate", str(tiny(tmp_path)), "--workers", "1"]) != 0
     err = capsys.readouterr().err
     assert "renders invalid values: expected holds 1 non-finite value(s)" in err

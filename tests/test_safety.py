@@ -14,8 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import xarray as xr
-from conftest import TINY_SCENE, TINY_SWEEP, on_cluster, start_cli, store_lock
+from conftest import TINY_SCENE, TINY_SWEEP, batch_of, on_cluster, start_cli, store_lock
 
+import service.tasks
 from service.admission import enclosing_store
 from service.cli import main
 from service.store import integrity, lock, shards
@@ -586,7 +587,7 @@ def test_a_sample_with_non_finite_values_is_reported_and_never_marked_complete(
             sample["expected"][0, 0, 0, 0] = np.nan
         return sample
 
-    monkeypatch.setattr(threads, "render_arrays", poisoned)
+    monkeypatch.setattr(service.tasks, "render_samples", batch_of(poisoned))
     sweep = tmp_path / "nan.yaml"
     sweep.write_text(TINY_SWEEP.format(name="nan", seed=1, realisations=3, output="n.zarr"))
     output = tmp_path / "n.zarr"
@@ -744,7 +745,7 @@ def test_a_frozen_task_is_given_up_and_named(tmp_path, monkeypatch, capsys, thre
             release.wait(timeout=3)  # frozen well past the task timeout
         return render_arrays(scene, seed=seed)
 
-    monkeypatch.setattr(threads, "render_arrays", frozen)
+    monkeypatch.setattr(service.tasks, "render_samples", batch_of(frozen))
     command = ["run", str(tiny_sweep(tmp_path)), "--output", str(tmp_path / "t.zarr")]
     options = ["--batch", "1", "--workers", "2", "--task-timeout", "1"]
     started = time.monotonic()

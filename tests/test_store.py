@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 import xarray as xr
 import zarr
-from conftest import TINY_SCENE, cf_failures
+from conftest import TINY_SCENE, batch_of, cf_failures
 
+import service.tasks
 from service.dataset import SampleDataset, open_dataset
 from service.errors import DamagedStoreError, InputError
 from service.run import execute, render_shard, task_batches
@@ -221,7 +222,7 @@ def test_one_task_per_shard_and_a_failed_shard_rerun_one_sample_at_a_time(
         return render_arrays(scene, seed=seed)
 
     monkeypatch.setattr(shards, "write_shard", timed)
-    monkeypatch.setattr(threads, "render_arrays", poisoned)
+    monkeypatch.setattr(service.tasks, "render_samples", batch_of(poisoned))
     plan = tiny_plan(realisations=3)
     url = str(tmp_path / "p.zarr")
     result = execute(
@@ -259,7 +260,7 @@ def test_a_shard_whose_task_is_given_up_goes_to_no_other_task(tmp_path, monkeypa
             raise RuntimeError("poison")
         return render_arrays(scene, seed=seed)
 
-    monkeypatch.setattr(threads, "render_arrays", frozen_then_poisoned)
+    monkeypatch.setattr(service.tasks, "render_samples", batch_of(frozen_then_poisoned))
     plan = tiny_plan(realisations=3)
     url = str(tmp_path / "s.zarr")
     result = execute(

@@ -11,6 +11,14 @@ The scheduler runs in this process; each SLURM job starts --cores single-threade
 processes. Arguments this script does not know (--resume, --overwrite, --batch,
 --storage-options) go to ``oceanlidar run``. --dry-run prints the job script and exits.
 
+On GPUs (``pip install '.[gpu]'``), ``--gpus`` makes each job one GPU (``--gres=gpu:1``;
+SLURM sets its ``CUDA_VISIBLE_DEVICES``) and one worker of two threads that advertises two
+units of the ``GPU`` resource (``service.cluster.GPU_TASKS``: one shard renders while the
+other is written), and runs ``oceanlidar run --device cuda``, whose tasks each ask for one::
+
+    python deploy/slurm/run_sweep.py configs/quickstart.yaml --gpus --jobs 4 \
+        --memory 32GB --queue gpu --account myproject --resume
+
 TLS: ``Security.temporary()`` makes a key and a self-signed certificate in memory;
 dask-jobqueue writes the workers' copy (files of mode 600) into --shared-dir, which the
 compute nodes must see, and deletes them when the cluster closes. Encryption is required, so
@@ -29,6 +37,7 @@ from dask_jobqueue import SLURMCluster
 from distributed.security import Security
 
 from service.cli import main as oceanlidar
+from service.cluster import GPU_TASKS
 from service.tuning import ALLOCATOR_ENVIRONMENT
 
 
@@ -36,9 +45,15 @@ def make_cluster(args: argparse.Namespace, security: Security) -> SLURMCluster:
     """A SLURMCluster whose scheduler, workers and jobs all use `security`."""
     shared = os.path.expanduser(args.shared_dir)
     os.makedirs(shared, mode=0o700, exist_ok=True)
+    worker = ["--no-dashboard", "--dashboard-address", "127.0.0.1:0"]
+    if args.gpus:  # one GPU a job: one worker, GPU_TASKS threads and as many GPU slots
+        cores, gpu = GPU_TASKS, ["--gres=gpu:1"]
+        worker += ["--resources", f"GPU={GPU_TASKS}"]
+    else:
+        cores, gpu = args.cores, []
     return SLURMCluster(
-        cores=args.cores,
-        processes=args.cores,  # one thread per worker process, as the embedded cluster
+        cores=cores,
+        processes=1 if args.gpus else cores,  # else one thread a process, as embedded
         memory=args.memory,
         walltime=args.walltime,
         queue=args.queue,
@@ -47,7 +62,8 @@ def make_cluster(args: argparse.Namespace, security: Security) -> SLURMCluster:
         security=security,  # protocol becomes tls://
         shared_temp_directory=shared,
         scheduler_options={"dashboard": False, "dashboard_address": "127.0.0.1:8787"},
-        worker_extra_args=["--no-dashboard", "--dashboard-address", "127.0.0.1:0"],
+        worker_extra_args=worker,
+        job_extra_directives=gpu,
         # glibc allocator thresholds for the render processes (service/tuning.py)
         job_script_prologue=[f"export {k}={v}" for k, v in ALLOCATOR_ENVIRONMENT.items()],
     )
@@ -67,6 +83,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--interface", help="network interface of the workers, e.g. ib0")
     parser.add_argument("--shared-dir", default="~/.oceanlidar-dask", help="seen by all nodes")
     parser.add_argument("--wait", type=float, default=3600.0, help="seconds to wait for jobs")
+    parser.add_argument("--gpus", action="store_true", help="one GPU a job: --device cuda")
     parser.add_argument("--dry-run", action="store_true", help="print the job script, exit")
     args, run_args = parser.parse_known_args(argv)
 
@@ -84,7 +101,8 @@ def main(argv: list[str] | None = None) -> int:
             print(cluster.job_script())
             return 0
         cluster.scale(jobs=args.jobs)
-        wanted, deadline = args.jobs * args.cores, time.monotonic() + args.wait
+        wanted = args.jobs * (1 if args.gpus else args.cores)
+        deadline = time.monotonic() + args.wait
         # the run sizes its in-flight window from the workers present at its start
         while (count := len(cluster.scheduler_info["workers"])) < wanted:
             if time.monotonic() > deadline:
@@ -95,6 +113,7 @@ def main(argv: list[str] | None = None) -> int:
             return 1
         output = ["--output", args.output] if args.output else []
         command = ["run", args.sweep, "--scheduler", cluster.scheduler_address]
+        command += ["--device", "cuda"] if args.gpus else []
         return oceanlidar([*command, *output, *run_args])
 
 

@@ -38,6 +38,21 @@ def _storage_options(command) -> None:
     )
 
 
+def _backend(command, renders: str) -> None:
+    """``--backend`` and ``--device``: where `renders` (the samples, the timed renders)."""
+    command.add_argument(
+        "--backend",
+        choices=("numpy", "torch"),
+        default=None,
+        help=f"array backend {renders} render on (default: numpy, torch on a CUDA device)",
+    )
+    command.add_argument(
+        "--device",
+        default=None,
+        help=f"device {renders} render on: cpu (default), cuda or cuda:N (implies torch)",
+    )
+
+
 def _limits(command) -> None:
     command.add_argument(
         "--no-limits", action="store_true", help="lift the size and memory limits"
@@ -87,6 +102,7 @@ def _run(commands) -> None:
         default=600.0,
         help="seconds after its submission that a task is given up as stuck (default 600)",
     )
+    _backend(run, "the samples")
     _limits(run)
     _storage_options(run)
 
@@ -148,6 +164,7 @@ def _job_commands(commands) -> None:
     where = serve.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, default=None, help="embedded cluster's workers")
     where.add_argument("--scheduler", help="address of an existing dask scheduler")
+    _backend(serve, "every job's samples")
     tls = serve.add_argument_group("TLS (for tls:// schedulers; else dask's configuration)")
     tls.add_argument("--tls-ca-file", help="CA certificate(s), PEM")
     tls.add_argument("--tls-cert", help="client certificate, PEM")
@@ -241,6 +258,7 @@ def parser() -> argparse.ArgumentParser:
         action="store_true",
         help="skip the timed renders of sample 0's first frame (and the run-time estimate)",
     )
+    _backend(validate, "the timed renders")
     _limits(validate)
 
     commands.add_parser("schema", help="print the JSON Schema of sweep files (for editors)")

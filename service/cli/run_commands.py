@@ -24,6 +24,7 @@ import yaml
 from dask.utils import format_bytes, format_time
 
 from service.admission import Rules, admit
+from service.devices import NUMPY, choose
 from service.errors import BadFileError, BadOptionError, BadSweepError
 from service.inputs import DEFAULT_MAX_MEMORY, read_text, shown
 from service.schema import sweep_json_schema
@@ -31,9 +32,10 @@ from service.store.integrity import invalid_values
 from service.store.layout import shard_size
 from service.store.location import Store
 from service.sweep import Plan
+from service.tasks import render_samples
+from workers.backend import Backend
 from workers.caches import clear_all
 from workers.cascades import describe
-from workers.render import render_arrays
 from workers.seasetup import scene_sea
 from workers.section import SceneError
 
@@ -52,6 +54,8 @@ log = logging.getLogger("oceanlidar")
 EXIT_OK, EXIT_FAILURE = 0, 1
 SHOWN_SEAS = 3
 """Most distinct seas whose resolved shares `validate` prints."""
+TIMED_BATCH = 8
+"""Most samples of `validate`'s timed batch on torch (`_timed_render`)."""
 SHOWN_PROBLEMS = 20
 """Most samples named under one reason in a report; the rest are counted."""
 CLUSTER_START = 4.0
@@ -134,37 +138,54 @@ def run_time(
     return start + (scenes * setup + samples * per_sample) / max(workers, 1)
 
 
-def _timed_render(plan: Plan, point: int = 0) -> tuple[float, float, float]:
-    """Seconds of the renderer's compilation, a scene's setup and one sample.
+def _timed_render(
+    plan: Plan, point: int = 0, backend: Backend = NUMPY
+) -> tuple[float, float, float]:
+    """Seconds of the renderer's compilation, a scene's setup and one sample, on `backend`.
 
-    The first frame of `point`'s first sample is rendered three times: first as a fresh
+    The first frame of `point`'s first samples is rendered three times: first as a fresh
     worker renders it (its kernels compiled, or loaded from numba's cache, the scene set
     up), then set up, then with every cache of the renderer emptied (set up again, the
     kernels still compiled). The setup and the sample are scaled by the number of frames
-    (each frame has its own geometry and its own light), the compilation is not.
+    (each frame has its own geometry and its own light), the compilation is not. On torch
+    each render is a batch of the point's first samples (at most `TIMED_BATCH`, as a task
+    renders a shard's samples of a scene: `service.tasks.render_samples`) and a sample's
+    time is the batch's share; on numpy, where a batch is its samples one by one, one.
     """
-    sample = plan.sample(point * plan.realisations)
-    sequence = sample.scene.sequence
-    first_frame = sample.scene.model_copy(
+    batch = 1 if backend.name == "numpy" else min(TIMED_BATCH, plan.realisations)
+    samples = [plan.sample(point * plan.realisations + i) for i in range(batch)]
+    sequence = samples[0].scene.sequence
+    first_frame = samples[0].scene.model_copy(
         update={"sequence": sequence.model_copy(update={"frames": 1})}
     )
+    seeds = [sample.seed for sample in samples]
     timings = []
     for cleared in (False, False, True):
         if cleared:
             clear_all()
         started = time.perf_counter()
         try:
-            rendered = render_arrays(first_frame, seed=sample.seed)
+            rendered = render_samples(first_frame, seeds, backend=backend)
         except SceneError as error:
-            raise BadSweepError(f"{sample.describe()}: {error}") from None
+            raise BadSweepError(f"{samples[0].describe()}: {error}") from None
         timings.append(time.perf_counter() - started)
         # what `run` would refuse to write (every sample of the scene alike, as a rule)
-        reason = invalid_values(rendered, first_frame)
+        reason = invalid_values({k: v[0] for k, v in rendered.items()}, first_frame)
         if reason is not None:
-            raise BadSweepError(f"{sample.describe()}: renders invalid values: {reason}")
+            raise BadSweepError(f"{samples[0].describe()}: renders invalid values: {reason}")
     first, set_up, again = timings
     frames = sequence.frames
-    return max(first - again, 0.0), frames * max(again - set_up, 0.0), frames * set_up
+    return max(first - again, 0.0), frames * max(again - set_up, 0.0), frames * set_up / batch
+
+
+def _estimate_workers(args, backend: Backend) -> tuple[int, str]:
+    """The workers a run's estimate counts, and their name: ``--workers``, cores or GPUs."""
+    if backend.device == "cpu":
+        return args.workers or os.cpu_count() or 1, "worker(s)"
+    import torch  # checked by `choose`
+
+    gpus = 1 if ":" in backend.device else torch.cuda.device_count()
+    return args.workers or gpus, f"GPU worker(s) ({backend.name} on {backend.device})"
 
 
 def _sea_lines(plan: Plan) -> list[str]:
@@ -196,13 +217,14 @@ def cmd_validate(args) -> int:
     points: dict[str, list[int]] = {}
     for point, scene in enumerate(plan.scenes):
         points.setdefault(scene.transport.method, []).append(point)
-    timed = {method: _timed_render(plan, where[0]) for method, where in points.items()}
+    backend = choose(args.backend, args.device)
+    timed = {method: _timed_render(plan, where[0], backend) for method, where in points.items()}
     compiled = sum(compile_time for compile_time, _, _ in timed.values())  # kernels apart
     setup, per_sample = (
         sum(timed[method][i] * len(where) for method, where in points.items()) / len(plan.scenes)
         for i in (1, 2)
     )
-    workers = args.workers or os.cpu_count() or 1
+    workers, kind = _estimate_workers(args, backend)
     seconds = run_time(
         samples=plan.samples,
         scenes=len(set(plan.scenes)),
@@ -216,7 +238,7 @@ def cmd_validate(args) -> int:
         for method, (_, _, sample) in timed.items()
     )
     print(
-        f"  run time: about {format_time(seconds)} on {workers} worker(s) (the cluster "
+        f"  run time: about {format_time(seconds)} on {workers} {kind} (the cluster "
         f"starts in about {format_time(CLUSTER_START)}, the renderer compiles in "
         f"{format_time(compiled)}, a scene's setup takes {format_time(setup)}, a sample "
         f"renders in {renders})"
@@ -315,6 +337,8 @@ def cmd_run(args) -> int:
     from service.run import execute
 
     _check_run_flags(args)
+    # the embedded cluster renders here: checked now; a scheduler's workers, by its probe
+    backend = choose(args.backend, args.device, here=args.scheduler is None)
     plan = load(args)
     url = args.output or plan.sweep.output
     for line in plan_lines(plan, args.batch, url, resume=args.resume):
@@ -340,6 +364,7 @@ def cmd_run(args) -> int:
                 batch_size=args.batch,
                 task_timeout=args.task_timeout,
                 progress_stream=None if args.quiet else sys.stderr,
+                backend=backend,
             )
     except ClusterError as error:
         log.error("oceanlidar run: error: %s", error)

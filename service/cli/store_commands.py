@@ -14,6 +14,7 @@ import logging
 import os
 import sys
 
+from service.devices import BACKEND_ATTR, DEVICE_ATTR, stored
 from service.errors import BadOptionError, DamagedStoreError, InputError, UnusableOutputError
 from service.inputs import shown
 from service.store import integrity
@@ -94,6 +95,8 @@ def cmd_info(args) -> int:
     print(f"  swept: {', '.join(map(str, swept)) or '(nothing)'}")
     print(f"  sweep sha256: {ds.attrs.get('sweep_sha256')}")
     print(f"  written by: oceanlidar {ds.attrs.get('oceanlidar_version')}")
+    rendered = stored(ds.attrs)
+    print(f"  rendered on: backend {rendered[BACKEND_ATTR]}, device {rendered[DEVICE_ATTR]}")
     stats = _statistics(store)
     print(f"  statistics: {stats.url if stats else '(none)'}")
     if not args.verify:

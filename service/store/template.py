@@ -20,6 +20,7 @@ import numpy as np
 import xarray as xr
 
 from service import package_version
+from service.devices import NUMPY, recorded
 from service.errors import BadSweepError
 from service.schema import field_units
 from service.store.layout import (
@@ -32,6 +33,7 @@ from service.store.layout import (
 )
 from service.store.location import KIND, Store
 from service.sweep import Plan
+from workers.backend import Backend
 from workers.labels import sample_labels, surface_axis
 from workers.scene import Scene
 from workers.variables import Role, Variable, rendered_order, variables
@@ -179,7 +181,12 @@ def _coordinate_array(values: list) -> np.ndarray:
 
 
 def create_store(
-    plan: Plan, store: Store, *, samples_per_shard: int | None = None, owner: str | None = None
+    plan: Plan,
+    store: Store,
+    *,
+    samples_per_shard: int | None = None,
+    owner: str | None = None,
+    backend: Backend = NUMPY,
 ) -> None:
     """Write the template of the store: metadata, coordinates, empty data arrays.
 
@@ -195,8 +202,12 @@ def create_store(
     owner : str, optional
         Who writes it, recorded in its `OWNER` attribute: the job service's submitter,
         whom the store's record names even if the job table is lost.
+    backend : Backend, optional
+        Where its samples render, recorded in its root attributes
+        (`service.devices.recorded`): a resume must render on the same.
     """
     ds, encoding = template(plan, samples_per_shard)
+    ds.attrs.update(recorded(backend))
     if owner is not None:
         ds.attrs[OWNER] = owner
     # mode "a": the folder holds the writer's lock

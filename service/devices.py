@@ -1,0 +1,117 @@
+"""Where a run renders: the array backend and device a store's samples come from.
+
+``--backend numpy|torch`` and ``--device cpu|cuda[:N]`` (``run``, ``validate``, ``serve``)
+name a `workers.backend.Backend`: numpy on the CPU by default, and a CUDA device implies
+torch. The backend is checked by `workers.backend.get_backend` where the samples render:
+here for the embedded cluster and ``validate``, on a worker of ``--scheduler``'s cluster
+before anything is written (`check_on_worker`). Samples rendered on another backend or
+device are other bytes (torch's random streams and FFTs are not numpy's, nor CUDA's the
+CPU's), so a store records where it was rendered (`recorded`) and a resume refuses to mix
+(`check_same`).
+"""
+
+from __future__ import annotations
+
+from service.errors import BadOptionError, UnusableOutputError
+from workers.backend import Backend, get_backend
+
+__all__ = [
+    "BACKEND_ATTR",
+    "DEVICE_ATTR",
+    "NUMPY",
+    "check_on_worker",
+    "check_same",
+    "choose",
+    "recorded",
+    "stored",
+]
+
+BACKEND_ATTR = "render_backend"
+"""Root attribute of a samples store: the array backend its samples were rendered on."""
+DEVICE_ATTR = "render_device"
+"""Root attribute of a samples store: the kind of device they were rendered on."""
+NUMPY = Backend(name="numpy", device="cpu")
+"""The default backend, and that of the stores written before they recorded one."""
+
+
+def choose(backend: str | None, device: str | None, *, here: bool = True) -> Backend:
+    """The backend that ``--backend`` and ``--device`` name, checked if it renders `here`.
+
+    Parameters
+    ----------
+    backend : str or None
+        ``numpy`` or ``torch``; None: torch on a CUDA device, else numpy.
+    device : str or None
+        ``cpu``, ``cuda`` or ``cuda:N``; None: ``cpu``.
+    here : bool, optional
+        Whether this process's machine renders (``validate``, the embedded cluster): then
+        `workers.backend.get_backend` checks that it can. False for a ``--scheduler``'s
+        workers, checked there (`check_on_worker`).
+
+    Returns
+    -------
+    Backend
+
+    Raises
+    ------
+    BadOptionError
+        Naming ``--backend`` or ``--device`` and why (torch not installed, no CUDA device,
+        numpy on a GPU, an unknown name; a GPU's index for a scheduler's workers).
+    """
+    device = device or "cpu"
+    name = backend or ("numpy" if device == "cpu" else "torch")
+    if not here:
+        if ":" in device:
+            raise BadOptionError(
+                f"--device {device}: a scheduler's GPU workers each render on the GPU they "
+                "were given; pass --device cuda"
+            )
+        return Backend(name=name, device=device)
+    try:
+        return get_backend(name, device)
+    except ValueError as error:
+        raise BadOptionError(f"--{error}") from None
+
+
+def check_on_worker(backend: Backend) -> None:
+    """Check on a dask worker that it renders on `backend` (`workers.backend.get_backend`).
+
+    Raises
+    ------
+    ValueError
+        As `get_backend` does (the client turns it into a `BadOptionError`).
+    """
+    get_backend(backend.name, backend.device)
+
+
+def recorded(backend: Backend) -> dict[str, str]:
+    """The root attributes that record `backend` in a store: its name and device kind.
+
+    The device is recorded without its index (``cuda``, not ``cuda:1``): every GPU of a
+    cluster renders the same bytes.
+    """
+    return {BACKEND_ATTR: backend.name, DEVICE_ATTR: backend.device.partition(":")[0]}
+
+
+def stored(attributes: dict) -> dict[str, str]:
+    """The backend and device a store's root `attributes` record (numpy, cpu if none)."""
+    return {key: attributes.get(key, value) for key, value in recorded(NUMPY).items()}
+
+
+def check_same(attributes: dict, backend: Backend, *, name: str) -> None:
+    """Refuse to resume the store `name` (root `attributes`) on another backend or device.
+
+    Raises
+    ------
+    UnusableOutputError
+        Naming both, and the remedy: resume with the store's flags, or ``--overwrite``.
+    """
+    were, now = stored(attributes), recorded(backend)
+    if were != now:
+        raise UnusableOutputError(
+            f"{name} was rendered with --backend {were[BACKEND_ATTR]} --device "
+            f"{were[DEVICE_ATTR]}, this run renders with --backend {now[BACKEND_ATTR]} "
+            f"--device {now[DEVICE_ATTR]}: its samples would differ; resume with "
+            f"--backend {were[BACKEND_ATTR]} --device {were[DEVICE_ATTR]} or start again "
+            "with --overwrite"
+        )
