@@ -24,7 +24,7 @@ from service.store.location import Store
 from service.sweep import Plan
 from service.tuning import tune_allocator
 from workers.backend import Backend
-from workers.render import render_arrays
+from workers.render import render_batch
 from workers.scene import Scene
 from workers.section import SceneError
 
@@ -53,9 +53,7 @@ def render_samples(scene: Scene, seeds: list, *, backend: Backend) -> dict[str, 
     SceneError
         If the scene cannot be rendered (on this backend).
     """
-    # until workers.render.render_batch lands (issue #28): one render per seed, on numpy
-    samples = [render_arrays(scene, seed=seed) for seed in seeds]
-    return {name: np.stack([sample[name] for sample in samples]) for name in samples[0]}
+    return render_batch(scene, seeds, backend=backend.name, device=backend.device)
 
 
 def render_shard(store: Store, jobs, backend: Backend = NUMPY):
