@@ -154,7 +154,26 @@ holds lines of sight the waves push out. The coarser cascades, whose bands end a
 quarter of their Nyquist wavenumber, now draw normals only for the square of modes that
 holds the band (1/16 of them). The sea alone, old and new interleaved in one process (41
 rounds, medians, load 5): 14.3 → 10.3 pairs at 128 px (three cascades), 10.7 → 8.2 at
-256, 11.2 → 8.3 at 512 (the finest cascade and a single patch keep their bytes).
+256, 11.2 → 8.3 at 512 (the finest cascade and a single patch keep their bytes). This
+script, the code before (7ebc7d2) and after run alternately, twice each, CPU time, on the
+shared 2-core machine at load 6–7 (too loaded for a 3 % change to show in the ratios to
+the pair; the multi-scale sea's cost over the single patch, timed in the same rounds,
+shows it):
+
+====== ======= ======================= =====================
+pixels target  scipy ratio             sea / 1 patch
+====== ======= ======================= =====================
+128    sphere  97.0, 96.4 → 91.5, 92.6 1.18, 1.20 → 1.15, 1.16
+128    none    72.7, 72.4 → 69.7, 65.5 1.27, 1.25 → 1.22, 1.22
+256    sphere  101, 103 → 105, 103     1.09, 1.11 → 1.06, 1.06
+256    none    80.6, 70.2 → 68.2, 73.9 1.26, 1.17 → 1.16, 1.11
+512    sphere  113, 113 → 114, 110     1.12, 1.11 → 1.05, 1.06
+512    none    80.0, 82.7 → 73.6, 80.4 1.15, 1.15 → 1.12, 1.11
+====== ======= ======================= =====================
+
+The same samples with the old draw and the new interleaved in one process (31 rounds,
+medians, load 11): old/new 1.04 / 1.05 at 128 px (sphere / none), 1.02 / 1.05 at 256,
+1.03 / 1.05 at 512; scipy pairs 78.1 → 75.4, 89.0 → 87.4, 110.6 → 106.6 (sphere).
 
 The floor of this design is far above the issue's 30 pairs (aim 20) at 256²: without any
 FFT and sea at all a sample would still cost about 65 pairs (256²) and 81 (512²), and
