@@ -21,6 +21,7 @@ from service.tuning import tune_allocator
 from workers.conditioning import kriging
 from workers.render import render
 from workers.scene import Scene
+from workers.seasetup import scene_sea, surface_kriging
 from workers.surface import draw
 
 
@@ -29,7 +30,7 @@ def scenes(n, points, times):
     base = {"surface": {"grid_size": n, "spacing": 4.1 / n}, "receiver": {"pixels": n}}
     free = Scene.model_validate(base)
     rng = np.random.default_rng(0)
-    std = np.sqrt(free.sea().spectrum.variance())
+    std = np.sqrt(scene_sea(free).spectrum.variance())
     patch = 4.1 * (1 - 1e-9)
     data = [
         [x, y, e, t]
@@ -54,9 +55,9 @@ def timed(function):
 def measure(n, points, times, rounds):
     free, tied = scenes(n, points, times)
     kriging.cache_clear()
-    sea = tied.sea()
-    build = timed(lambda: tied.surface.kriging(sea))
-    system = tied.surface.kriging(sea)
+    sea = scene_sea(tied)
+    build = timed(lambda: surface_kriging(tied.surface, sea))
+    system = surface_kriging(tied.surface, sea)
     render(free, seed=0)
     render(tied, seed=0)
     columns = {"render free": [], "render tied": [], "surface free": [], "surface tied": []}

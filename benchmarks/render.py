@@ -199,6 +199,7 @@ import workers
 from service.tuning import tune_allocator
 from workers.render import render_arrays as render
 from workers.scene import Scene
+from workers.seasetup import scene_sea
 
 
 def scene(n, *, target="sphere", mode="normalised", single=False):
@@ -239,7 +240,7 @@ def measure(n, target, rounds, mode):
         numpy_pairs.append(timed(lambda: np.fft.irfft2(np.fft.rfft2(a), s=a.shape)))
         scipy_pairs.append(timed(lambda: scipy.fft.irfft2(scipy.fft.rfft2(a), s=a.shape)))
     return (
-        len(s.sea().patches),
+        len(scene_sea(s).patches),
         statistics.median(samples),
         statistics.median(singles),
         statistics.median(numpy_pairs),

@@ -10,15 +10,17 @@ from numpy.testing import assert_allclose
 from workers.cascades import K_TOP, Sea, resolved_share, subgrid_slope_covariance
 from workers.render import render
 from workers.scene import Scene
+from workers.seasetup import scene_sea
 from workers.spectra import Elfouhaily
 from workers.surface import draw, synthesize
 
 
 def default_sea(wind_speed, altitude=34.0):
     """The sea the renderer draws for the default scene at this wind and altitude."""
-    return Scene.model_validate(
+    scene = Scene.model_validate(
         {"surface": {"wind_speed": wind_speed}, "platform": {"altitude": altitude}}
-    ).sea()
+    )
+    return scene_sea(scene)
 
 
 def test_bands_are_disjoint_and_tile_the_disc_below_the_finest_nyquist():
@@ -234,7 +236,7 @@ def test_no_repetition_at_300_m():
     flat = Scene.model_validate({**data, "surface": {"spectrum": "flat"}})
     flat = render(flat, seed=0).expected.values[0, 0]
     span = scene.footprint()
-    assert min(scene.sea().patches) >= span
+    assert min(scene_sea(scene).patches) >= span
     pitch = span / scene.receiver.pixels
     lag = round(4.096 / pitch)
     for seed in (1, 2):
@@ -253,7 +255,7 @@ def test_validate_states_the_resolved_shares(tmp_path, cli):
     )
     result = cli("validate", sweep, cwd=tmp_path)
     assert result.returncode == 0, result.stderr
-    sea = Scene.model_validate({"platform": {"altitude": 300.0}}).sea()
+    sea = scene_sea(Scene.model_validate({"platform": {"altitude": 300.0}}))
     elevation, slope = resolved_share(sea)
     assert f"{100 * elevation:.1f} % of the spectrum's elevation variance" in result.stdout
     assert f"{100 * slope:.1f} % of its slope variance" in result.stdout

@@ -16,6 +16,7 @@ from workers.cascades import Sea
 from workers.conditioning import kriging, space_time_covariance
 from workers.render import render
 from workers.scene import Scene
+from workers.seasetup import scene_sea, surface_kriging
 from workers.section import SceneError
 from workers.spectra import Elfouhaily, dispersion
 from workers.surface import draw
@@ -289,8 +290,9 @@ def test_validation_checks_points_without_building_the_system():
     kriging.cache_clear()
     scene = Scene.model_validate({"surface": {**surface, "conditioning": {"points": near}}})
     assert kriging.cache_info().misses == 0
+    # built to render, where the error is the input's
     with pytest.raises(SceneError, match=r"surface\.conditioning\.points: .*ill-conditioned"):
-        scene.surface.kriging(scene.sea())  # built to render, where the error is the input's
+        surface_kriging(scene.surface, scene_sea(scene))
 
 
 def test_singular_systems_name_the_redundant_points():

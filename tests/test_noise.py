@@ -177,3 +177,104 @@ def test_log_pmf_of_the_rejection_test_is_accurate():
         ks = np.arange(round(lam - 40 * sd), round(lam + 40 * sd), step, dtype=np.float64)
         total = step * sum(math.exp(log_pmf(k, lam)) for k in ks)
         assert abs(total - 1) < 1e-9
+
+
+# The torch path (workers.backend's torch backend): torch's draws, the same law.
+
+
+def has_cuda():
+    """Whether torch is installed and sees a CUDA device."""
+    try:
+        import torch
+    except ImportError:
+        return False
+    return torch.cuda.is_available()
+
+
+@pytest.fixture(
+    params=[
+        "cpu",
+        pytest.param("cuda", marks=pytest.mark.skipif(not has_cuda(), reason="no CUDA")),
+    ]
+)
+def device(request):
+    """The device of the torch draws: the CPU, and CUDA where there is one."""
+    return request.param
+
+
+def torch_generator(seed, device):
+    """A seeded torch generator on `device` (the test skips without torch)."""
+    torch = pytest.importorskip("torch")
+    return torch, torch.Generator(device=device).manual_seed(seed)
+
+
+@pytest.mark.parametrize("lam", [1e-3, 0.5, 5.0, 30.0, 1e3, 1e7], ids=lambda v: f"{v:g}")
+def test_torch_poisson_counts_have_mean_and_variance_lambda(lam, device):
+    torch, rng = torch_generator(11, device)
+    n = 200_000
+    counts = shot_noise(torch.full((n,), lam, dtype=torch.float32, device=device), rng=rng)
+    assert isinstance(counts, torch.Tensor) and counts.dtype == torch.float32
+    assert counts.device.type == device
+    counts = counts.cpu().numpy().astype(np.float64)
+    assert np.all(counts == np.round(counts))
+    # the standard errors of a Poisson(λ) sample's mean and variance, as above: 5 sd
+    assert abs(counts.mean() - lam) < 5 * np.sqrt(lam / n)
+    assert abs(counts.var() - lam) < 5 * np.sqrt((2 * lam**2 + lam) / n)
+
+
+@pytest.mark.parametrize(
+    ("lam", "excess"),
+    [(20.0, 1.6), (2.0, 5.0), (0.3, 40.0)],
+    ids=["large-shapes", "shapes-below-one", "mostly-below-one"],
+)
+def test_torch_gain_and_excess_noise_factor(lam, excess, device):
+    """E = Gλ, Var = G²Fλ, with Gamma shapes n/(F − 1) above and below 1."""
+    torch, rng = torch_generator(5, device)
+    n, gain = 400_000, 50.0
+    expected = torch.full((n,), lam, dtype=torch.float32, device=device)
+    counts = shot_noise(expected, rng=rng, gain=gain, excess_noise=excess)
+    assert counts.dtype == torch.float32 and counts.device.type == device
+    counts = counts.cpu().numpy().astype(np.float64)
+    mean, var = gain * lam, gain**2 * excess * lam
+    # sd(mean) = sqrt(var/n); sd of the variance estimate from the 4th cumulant of the
+    # compound Poisson–Gamma count, κ4 = λ E[Y⁴] with Y ~ Gamma(1/(F−1), G(F−1))
+    alpha, theta = 1 / (excess - 1), gain * (excess - 1)
+    fourth = lam * theta**4 * alpha * (alpha + 1) * (alpha + 2) * (alpha + 3)
+    assert abs(counts.mean() - mean) < 5 * np.sqrt(var / n)
+    assert abs(counts.var() - var) < 5 * np.sqrt((fourth + 2 * var**2) / n)
+
+
+@pytest.mark.parametrize("alpha", [0.05, 0.7, 1.0, 3.0, 1e6], ids=lambda v: f"{v:g}")
+def test_torch_gamma_has_mean_and_variance_alpha(alpha, device):
+    torch, rng = torch_generator(9, device)
+    n = 200_000
+    shapes = torch.full((n,), alpha, dtype=torch.float64, device=device)
+    draws = noise._torch_gamma(shapes, rng=rng).cpu().numpy()
+    assert np.all(draws >= 0) and np.all(np.isfinite(draws))
+    # Gamma(α, 1): mean α, variance α, 4th central moment 3α² + 6α: 5 sd of each estimate
+    assert abs(draws.mean() - alpha) < 5 * np.sqrt(alpha / n)
+    assert abs(draws.var() - alpha) < 5 * np.sqrt((3 * alpha**2 + 6 * alpha - alpha**2) / n)
+
+
+def test_torch_same_seed_same_bytes_and_zero_mean_gives_zero(device):
+    torch, _ = torch_generator(0, device)
+    lam = torch.from_numpy(np.geomspace(1e-4, 1e6, 5000).astype(np.float32)).to(device)
+    lam[0] = 0.0
+    for options in ({}, {"gain": 30.0, "excess_noise": 1.8}):
+        a, b, c = (
+            shot_noise(lam, rng=torch_generator(seed, device)[1], **options).cpu().numpy()
+            for seed in (2, 2, 3)
+        )
+        assert a.tobytes() == b.tobytes()
+        assert a.tobytes() != c.tobytes()
+        assert a[0] == 0 and a.shape == lam.shape
+
+
+def test_noise_seed_is_the_noise_streams_first_draw():
+    from workers.seeds import SampleSeed
+
+    seed = SampleSeed(root=7, point=3, realisation=2)
+    assert seed.noise_seed() == SampleSeed(root=7, point=3, realisation=2).noise_seed()
+    assert seed.noise_seed() == int(seed.noise_rng().integers(2**63))
+    others = {SampleSeed(7, p, r).noise_seed() for p in range(3) for r in range(3)}
+    assert len(others) == 9 and all(0 <= s < 2**63 for s in others)

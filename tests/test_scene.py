@@ -8,6 +8,7 @@ from pydantic import BaseModel, ValidationError
 from workers.instrument import MLDC_GATES
 from workers.render import render
 from workers.scene import Scene, footprint_span
+from workers.seasetup import scene_sea
 
 
 def test_defaults_are_the_papers_example_3_geometry():
@@ -204,8 +205,8 @@ def test_the_default_cascades_cover_the_footprint(altitude):
     # Issue #14: by default the coarsest cascade covers the footprint at any altitude
     scene = Scene.model_validate({"platform": {"altitude": altitude}})
     span = footprint_span(altitude=altitude, nadir=0.0, azimuth=0.0, field_of_view=FOV)
-    assert scene.sea().patches[-1] >= span
-    assert scene.sea().patches[0] == pytest.approx(span)  # the finest covers it too
+    assert scene_sea(scene).patches[-1] >= span
+    assert scene_sea(scene).patches[0] == pytest.approx(span)  # the finest covers it too
 
 
 @pytest.mark.parametrize(

@@ -10,6 +10,7 @@ from scipy import optimize, special
 
 from workers.cascades import Sea
 from workers.sea import SurfaceSpec
+from workers.seasetup import wave_spectrum
 from workers.spectra import (
     GRAVITY,
     Elfouhaily,
@@ -326,7 +327,7 @@ SCENE_SPECTRA = {
 def test_every_scene_spectrum_is_finite_and_non_negative(settings, wind_speed):
     # Issue #9, item 8: below U10 ≈ 2.7 m/s the short-wave term of Elfouhaily et al. went
     # negative (eq. 44 extrapolated), so sqrt(Ψ Δk²) was NaN and so was the sample.
-    spectrum = SurfaceSpec(**settings, wind_speed=wind_speed).wave_spectrum()
+    spectrum = wave_spectrum(SurfaceSpec(**settings, wind_speed=wind_speed))
     k, phi, _ = _polar_grid(1e-4, 1e5, 2001, 72)
     density = spectrum.directional(k * np.cos(phi), k * np.sin(phi))
     assert np.isfinite(density).all() and (density >= 0).all()

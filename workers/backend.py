@@ -66,7 +66,8 @@ class Backend:
         Parameters
         ----------
         values : array_like
-            The values (a numpy array is not copied on the numpy backend).
+            The values (a numpy array is not copied on the numpy backend; on torch the
+            tensor is always a copy, so that writing to it never changes the host array).
         dtype : numpy.dtype or None, optional
             The numpy dtype to convert to first (None: keep it).
 
@@ -79,7 +80,7 @@ class Backend:
         if self.name == "numpy":
             return values
         torch = importlib.import_module("torch")
-        return torch.from_numpy(np.ascontiguousarray(values)).to(self.device)
+        return torch.tensor(values, device=self.device)
 
     def to_numpy(self, values) -> np.ndarray:
         """An array of this backend on the host, as numpy."""

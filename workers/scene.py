@@ -15,11 +15,11 @@ import math
 import numpy as np
 from pydantic import Field, model_validator
 
-from workers.cascades import Sea
 from workers.conditioning import check_points
 from workers.instrument import Laser, Noise, Platform, Radiometry, Receiver, Sequence
 from workers.phase import FF_FRACTIONS
 from workers.sea import SurfaceSpec, Target, Water
+from workers.seasetup import surface_sea
 from workers.section import Section, units
 from workers.transport import Transport
 
@@ -171,10 +171,6 @@ class Scene(Section):
         """
         return self.model_copy(update={"target": self.target.model_copy(update={"shape": "none"})})
 
-    def sea(self) -> Sea | None:
-        """The cascades of the scene's sea (`SurfaceSpec.sea` at its footprint)."""
-        return self.surface.sea(self.footprint())
-
     def surface_spacing(self) -> float:
         """Grid spacing of the sea's finest cascade (`SurfaceSpec.finest_spacing`) [m]."""
         return self.surface.finest_spacing(self.footprint())
@@ -183,7 +179,7 @@ class Scene(Section):
     def _footprint_within_sea_patch(self) -> Scene:
         surface = self.surface
         span = self.footprint()
-        sea = surface.sea(span)
+        sea = surface_sea(surface, span=span)  # built to check its patches, not kept
         if sea is None:
             if self.save_surface:
                 self.surface_spacing()

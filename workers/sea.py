@@ -1,7 +1,9 @@
 """The sea's sections of a scene: the surface (spectrum, grid, conditioning), water, target.
 
-Validated settings only; the physics they describe is in `workers.spectra`,
-`workers.surface`, `workers.conditioning`, `workers.water` and `workers.target`. Every field
+Validated settings only, building nothing: the physics they describe is in
+`workers.spectra`, `workers.surface`, `workers.conditioning`, `workers.water` and
+`workers.target`, and the objects are built from them by `workers.seasetup` (the spectrum,
+the cascades, the kriging system) and `workers.sensor.scene_setup`. Every field
 declares its unit as data (`workers.section.units`).
 """
 
@@ -10,13 +12,10 @@ from __future__ import annotations
 import math
 from typing import Annotated, Literal
 
-import numpy as np
 from pydantic import Field, model_validator
 
-from workers import spectra
-from workers.cascades import MAX_CASCADES, Sea, check_patches, default_patches
-from workers.conditioning import Kriging, kriging
-from workers.section import SceneError, Section, units
+from workers.cascades import MAX_CASCADES, check_patches
+from workers.section import Section, units
 from workers.water import PRESETS
 
 __all__ = ["Conditioning", "SurfaceSpec", "Target", "Water"]
@@ -33,7 +32,7 @@ class Conditioning(Section):
 
     A measurement is of the elevation the renderer sees at (x, y): the sum of the
     cascades' bilinear interpolations. Points lie on the coarsest cascade's patch [0, L)
-    in x and y (`Scene.sea`; a point elsewhere is refused). Sweep files may give
+    in x and y (`workers.seasetup.scene_sea`; a point elsewhere is refused). Sweep files may give
     ``file: points.csv`` instead of ``points``; the service reads it (see
     `service.measurements`). See `workers.conditioning`.
     """
@@ -184,72 +183,6 @@ class SurfaceSpec(Section):
                 "(footprint over grid_size) is undefined; give surface.spacing"
             )
         return span / self.grid_size
-
-    def sea(self, span: float) -> Sea | None:
-        """The cascades of the sea (None for a flat sea).
-
-        Parameters
-        ----------
-        span : float
-            Longest chord of the receiver's footprint along x or y [m]
-            (`footprint_span`), for the default patches.
-
-        Raises
-        ------
-        ValueError
-            For a default spacing at a footprint that reaches the horizon, or
-            `coarse_patches` that do not fit the finest patch.
-        """
-        spectrum = self.wave_spectrum()
-        if spectrum is None:
-            return None
-        spacing = self.finest_spacing(span)
-        if self.coarse_patches is None:
-            patches = default_patches(
-                spectrum, grid_size=self.grid_size, spacing=spacing, span=span
-            )
-        else:
-            patches = (self.grid_size * spacing, *self.coarse_patches)
-        try:
-            return Sea(spectrum=spectrum, grid_size=self.grid_size, patches=tuple(patches))
-        except ValueError as error:
-            raise ValueError(
-                f"surface.coarse_patches: {error} (patch 0 is grid_size x spacing)"
-            ) from None
-
-    def wave_spectrum(self) -> spectra.Spectrum | None:
-        """The wave spectrum these settings describe (None for a flat sea)."""
-        common = {
-            "wind_speed": self.wind_speed,
-            "wind_direction": np.radians(self.wind_direction_deg),
-        }
-        if self.spectrum == "flat":
-            return None
-        if self.spectrum == "elfouhaily":
-            return spectra.Elfouhaily(**common, inverse_wave_age=self.inverse_wave_age)
-        if self.spectrum == "phillips":
-            return spectra.Phillips(**common)
-        if self.spectrum == "pierson_moskowitz":
-            return spectra.PiersonMoskowitz(**common)
-        return spectra.Jonswap(**common, fetch=self.fetch)
-
-    def kriging(self, sea: Sea | None) -> Kriging | None:
-        """The kriging system of `conditioning` on `sea` (cached), or None without points.
-
-        Validation checks the points alone (`workers.conditioning.check_points`); whether
-        their system is regular is known once it is built, here, to render.
-
-        Raises
-        ------
-        SceneError
-            For a singular or ill-conditioned system (`workers.conditioning.kriging`).
-        """
-        if not self.conditioning.points:
-            return None
-        try:
-            return kriging(sea, points=self.conditioning.points, noise=self.conditioning.noise)
-        except ValueError as error:
-            raise SceneError(f"surface.conditioning.points: {error}") from None
 
 
 class Water(Section):

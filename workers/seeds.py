@@ -60,6 +60,15 @@ class SampleSeed:
         )
         return np.random.Generator(np.random.PCG64(sequence))
 
+    def noise_seed(self) -> int:
+        """The seed of a device generator for the sensor noise, in [0, 2⁶³).
+
+        The first draw of `noise_rng` (``integers(2**63)``): what seeds the torch
+        backend's generator (`workers.backend.Backend.generator`) for this sample's noise,
+        so that each sample of a batch draws from its own generator.
+        """
+        return int(self.noise_rng().integers(2**63))
+
     def photon_rng(self, frame: int = 0):
         """Generator for the Monte Carlo renderer's photon launches in `frame`.
 

@@ -12,14 +12,16 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from workers.backend import Backend
 from workers.cascades import Sea
 from workers.gates import central_paths, gate_gains, sight_lines, slab_bounds
 from workers.geometry import LaserRays, PinholeCamera, PlaneGrid, flat_sea_point
 from workers.optics import fresnel_reflectance
 from workers.radiometry import photoelectrons_per_signal, pixel_solid_angle
 from workers.scene import Scene
+from workers.seasetup import scene_sea, surface_kriging
 from workers.seeds import SampleSeed
-from workers.surface import Surface, draw
+from workers.surface import NUMPY, Surface, draw
 from workers.target import Impostor, gated_share
 from workers.water import (
     WaterOptics,
@@ -42,20 +44,25 @@ class Setup:
     refracted_nadir: float
     secant: float
 
-    def surface(self, seed: SampleSeed, times) -> Surface | None:
+    def surface(self, seed: SampleSeed, times, *, backend: Backend = NUMPY) -> Surface | None:
         """The sample's sea at `times` [s]: drawn, conditioned on the scene's data (None: flat).
 
         Cascade c draws from ``seed.surface_rng(c)``, the measurement noise of the
-        conditioning from cascade 0's stream after its normals.
+        conditioning from cascade 0's stream after its normals. The modes are drawn and
+        conditioned on the host (the same sea on every backend), then evolved and
+        transformed on `backend` (`workers.surface.Modes.surface`), where the returned
+        `Surface` keeps its fields and answers at points.
         """
         if self.sea is None:
             return None
         rngs = [seed.surface_rng(c) for c in range(len(self.sea.patches))]
         modes = draw(self.sea, rngs)
-        conditioning = self.scene.surface.kriging(self.sea)  # cached; built here, to render
+        conditioning = surface_kriging(self.scene.surface, self.sea)  # cached; built to render
         if conditioning is not None:
             modes = conditioning.condition(modes, rngs[0])
-        return modes.surface(times, max_elevation=self.scene.surface.max_elevation)
+        return modes.surface(
+            times, max_elevation=self.scene.surface.max_elevation, backend=backend
+        )
 
     def gate_gain(self, excess, gate: int):
         """`workers.gates.gate_gain` of this scene's gate number `gate` [1]."""
@@ -112,7 +119,7 @@ def scene_setup(scene: Scene) -> Setup:
         for (top, bottom), reference in zip(gates, references, strict=True)
     )
     scale = _signal_scale(scene)
-    sea = scene.sea()
+    sea = scene_sea(scene)
     return Setup(
         scene=scene,
         water=water,

@@ -24,10 +24,16 @@ makes it linear; the **near** part MTF − MTF_s·W (the unscattered light and t
 core minus its smoothed copy) integrates to the unscattered share and decays within a few
 Δ, so the fine grid's guard holds it. A field is carried as a fine array plus a coarse
 array for the light outside the fine grid (`Spread.__call__`).
+
+The filters are built once per scene in numpy (`Spread.build`); a sample's fields may be
+numpy arrays or PyTorch tensors (`workers.backend`): `Spread.on` and `Levels.on` give the
+same spread with its arrays on a backend, made once and kept. On numpy the FFTs are
+`scipy.fft`'s (the renderer's bytes), on torch the namespace's.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from dataclasses import dataclass
 
@@ -35,8 +41,8 @@ import numpy as np
 import scipy.fft
 from scipy import integrate, special
 
+from workers.backend import Backend, get_backend
 from workers.geometry import PlaneGrid, fast_length
-from workers.kernels import column_convolution
 from workers.water import WaterOptics
 
 __all__ = [
@@ -71,6 +77,28 @@ _HANKEL_X = np.linspace(0.0, 200.0, 4001)
 
 _LARGE_EXPONENT = 600.0
 """Exponent above which e^x is not taken alone (float64 overflows at 709)."""
+
+_NUMPY = get_backend("numpy")
+
+
+def _backend_of(values) -> Backend:
+    """The backend whose arrays `values` is: numpy, or torch on the tensor's device."""
+    if isinstance(values, np.ndarray):
+        return _NUMPY
+    return get_backend("torch", str(values.device))
+
+
+def _held_by(backend: Backend, values) -> bool:
+    """Whether `values` is an array of `backend`'s kind (numpy array or torch tensor)."""
+    return isinstance(values, np.ndarray) == (backend.name == "numpy")
+
+
+def _copy_on(owner, backend: Backend, make):
+    """`owner`'s copy on `backend`: `make()` the first time, then the one kept."""
+    if backend == owner.backend:
+        return owner
+    copy = owner._copies.get(backend)
+    return copy if copy is not None else owner._copies.setdefault(backend, make())
 
 
 def scattered_mtf(water: WaterOptics, frequency, *, distance, passes=1):
@@ -185,12 +213,20 @@ class Levels:
         Fine cells per coarse cell along each axis.
     offset : tuple of int
         Coarse (row, col) of the block holding fine cell (0, 0).
+    backend : Backend
+        Where `lift`, `downsample` and `upsample` put their arrays (default numpy).
     """
 
     fine: PlaneGrid
     coarse: PlaneGrid
     factor: int
     offset: tuple[int, int]
+    backend: Backend = _NUMPY
+    _copies: dict = dataclasses.field(default_factory=dict, init=False, repr=False, compare=False)
+
+    def on(self, backend: Backend) -> Levels:
+        """The same levels on `backend` (made once, then kept): its `lift` there."""
+        return _copy_on(self, backend, lambda: dataclasses.replace(self, backend=backend))
 
     @classmethod
     def around(cls, fine: PlaneGrid, *, factor: int, margin: float) -> Levels:
@@ -243,19 +279,22 @@ class Levels:
         (r0, c0), (rows, cols) = self.offset, self.fine.shape
         return slice(r0, r0 + rows // self.factor), slice(c0, c0 + cols // self.factor)
 
-    def downsample(self, fine: np.ndarray, rows: slice = slice(None)) -> np.ndarray:
+    def downsample(self, fine, rows: slice = slice(None)):
         """A fine field as a coarse one: block means inside the fine region, 0 outside.
 
-        `fine` is zero outside its fine `rows` (default all): only the blocks holding them
-        are averaged (the others are 0).
+        `fine` (numpy array or torch tensor, float32) is zero outside its fine `rows`
+        (default all): only the blocks holding them are averaged (the others are 0). The
+        coarse field is an array of `fine`'s backend.
         """
-        s = self.factor
+        if not _held_by(self.backend, fine):
+            return self.on(_backend_of(fine)).downsample(fine, rows)
+        xp, s = self.backend.xp, self.factor
         first, last, _ = rows.indices(fine.shape[0])
         blocks = slice(first // s, -(-last // s)) if last > first else slice(0, 0)
-        cols = fine.shape[1]
-        out = np.zeros(self.coarse.shape, dtype=np.float32)
-        inside = fine[blocks.start * s : blocks.stop * s].reshape(-1, s, cols // s, s)
-        out[self.block][blocks] = inside.mean(axis=(1, 3))
+        shape = (blocks.stop - blocks.start, s, fine.shape[1] // s, s)
+        out = xp.zeros(self.coarse.shape, dtype=xp.float32, device=self.backend.device)
+        inside = xp.reshape(fine[blocks.start * s : blocks.stop * s], shape)
+        out[self.block][blocks] = xp.mean(inside, axis=(1, 3))
         return out
 
     def to_coarse(self, row, col):
@@ -266,7 +305,18 @@ class Levels:
 
     @functools.cached_property
     def lift(self):
-        """Per axis: lower coarse index and weight of the upper one for each fine cell."""
+        """Per axis: lower coarse index and weight of the upper one for each fine cell.
+
+        Arrays of the levels' `backend` (intp or int64 indices, float32 weights).
+        """
+        return tuple(
+            (self.backend.asarray(lower), self.backend.asarray(weight))
+            for lower, weight in self._host_lift
+        )
+
+    @functools.cached_property
+    def _host_lift(self):
+        """`lift` in numpy, on the host (what `coarse_rows` reads)."""
         rows, cols = self.fine.shape
         zero = np.float32(0)
         positions = (
@@ -283,54 +333,67 @@ class Levels:
         """The coarse rows that the bilinear upsampling of the fine `rows` reads."""
         if rows.start == rows.stop:
             return slice(0, 0)
-        lower = self.lift[0][0]
+        lower = self._host_lift[0][0]
         return slice(int(lower[rows.start]), int(lower[rows.stop - 1]) + 2)
 
-    def upsample(self, coarse: np.ndarray, rows: slice = slice(None)) -> np.ndarray:
+    def upsample(self, coarse, rows: slice = slice(None)):
         """A coarse field at the fine cell centres (bilinear interpolation), float32.
 
-        Only the fine `rows` are returned (default all).
+        Only the fine `rows` are returned (default all), as an array of `coarse`'s
+        backend (numpy array or torch tensor).
         """
+        if not _held_by(self.backend, coarse):
+            return self.on(_backend_of(coarse)).upsample(coarse, rows)
         (rl, rw), (cl, cw) = self.lift
         rl, rw = rl[rows], rw[rows]
         along = coarse[rl] * (1 - rw)[:, None] + coarse[rl + 1] * rw[:, None]
-        return (along[:, cl] * (1 - cw) + along[:, cl + 1] * cw).astype(np.float32)
+        fine = along[:, cl] * (1 - cw) + along[:, cl + 1] * cw
+        return self.backend.xp.astype(fine, self.backend.xp.float32)
 
 
 _ALL = (slice(None), slice(None))
 
 
-def _forward(field, rows):
+def _overwrite(backend: Backend) -> dict:
+    """`scipy.fft`'s leave to overwrite its input (numpy only: torch's FFTs lack it)."""
+    return {"overwrite_x": True} if backend.name == "numpy" else {}
+
+
+def _forward(field, rows, backend: Backend):
     """rfft2 of a real field that is zero outside `rows` (a slice of its rows)."""
+    fft = backend.fft
     if rows == slice(None):
-        return scipy.fft.rfft2(field)
+        return fft.rfft2(field)
     first, last, _ = rows.indices(field.shape[0])
-    half = np.empty((field.shape[0], field.shape[1] // 2 + 1), dtype=np.complex64)
+    shape = (field.shape[0], field.shape[1] // 2 + 1)
+    half = backend.xp.empty(shape, dtype=backend.xp.complex64, device=backend.device)
     half[:first] = 0.0
-    half[first:last] = scipy.fft.rfft(field[first:last], axis=1)
+    half[first:last] = fft.rfft(field[first:last], axis=1)
     half[last:] = 0.0
-    return scipy.fft.fft(half, axis=0, overwrite_x=True)
+    return fft.fft(half, axis=0, **_overwrite(backend))
 
 
-def _direct(columns, field, rows_in, rows_out):
+def _direct(columns, field, rows_in, rows_out, backend: Backend):
     """`field` filtered by the kernel `columns`, on `rows_out`, by direct column sums.
 
-    `field` is zero outside its rows `rows_in`; see `Spread.filtered`.
+    `field` is zero outside its rows `rows_in`; see `Spread.filtered`. The sums are
+    `backend.kernels.column_convolution`'s.
     """
-    shape = field.shape
-    half = scipy.fft.rfft(field[rows_in], axis=1)
+    xp, shape = backend.xp, field.shape
+    half = backend.fft.rfft(field[rows_in], axis=1)
     first, start = rows_in.indices(shape[0])[0], rows_out.indices(shape[0])[0]
-    mixed = np.zeros((len(range(*rows_out.indices(shape[0]))), half.shape[1]), np.complex64)
-    column_convolution(columns, half, first, start, mixed)
-    return scipy.fft.irfft(mixed, n=shape[1], axis=1)
+    rows = len(range(*rows_out.indices(shape[0])))
+    mixed = xp.zeros((rows, half.shape[1]), dtype=xp.complex64, device=backend.device)
+    backend.kernels.column_convolution(columns, half, first, start, mixed)
+    return backend.fft.irfft(mixed, n=shape[1], axis=1)
 
 
-def _inverse(spectrum, shape, rows):
+def _inverse(spectrum, shape, rows, backend: Backend):
     """irfft2 of `spectrum` to `shape`, on the rows `rows` (a slice) only."""
     if rows == slice(None):
-        return scipy.fft.irfft2(spectrum, s=shape)
-    columns = scipy.fft.ifft(spectrum, axis=0, overwrite_x=True)
-    return scipy.fft.irfft(columns[rows], n=shape[1], axis=1)
+        return backend.fft.irfft2(spectrum, s=shape)
+    columns = backend.fft.ifft(spectrum, axis=0, **_overwrite(backend))
+    return backend.fft.irfft(columns[rows], n=shape[1], axis=1)
 
 
 @dataclass(frozen=True)
@@ -351,6 +414,9 @@ class Spread:
     columns : ndarray
         The far filter's kernel along the coarse columns, per row frequency: the inverse
         FFT of `far` along axis 0, complex64.
+    backend : Backend
+        Where the filters (and `levels`' arrays) are, and what the spreads run on
+        (default numpy, as `build` makes them; `on` moves them).
     """
 
     levels: Levels
@@ -358,6 +424,34 @@ class Spread:
     far: np.ndarray
     whole: np.ndarray
     columns: np.ndarray
+    backend: Backend = _NUMPY
+    _copies: dict = dataclasses.field(default_factory=dict, init=False, repr=False, compare=False)
+
+    def on(self, backend: Backend) -> Spread:
+        """The same spread with its filters and levels on `backend`.
+
+        Made once per backend and kept (the filters are copied to the device once per
+        scene, not per sample); `self` when it is already there.
+
+        Parameters
+        ----------
+        backend : Backend
+            From `workers.backend.get_backend`.
+
+        Returns
+        -------
+        Spread
+        """
+
+        def make():
+            filters = {
+                name: backend.asarray(self.backend.to_numpy(getattr(self, name)))
+                for name in ("near", "far", "whole", "columns")
+            }
+            levels = self.levels.on(backend)
+            return dataclasses.replace(self, levels=levels, backend=backend, **filters)
+
+        return _copy_on(self, backend, make)
 
     @classmethod
     def build(
@@ -454,14 +548,17 @@ class Spread:
             columns=np.fft.ifft(far.astype(np.float64), axis=0).astype(np.complex64),
         )
 
-    def __call__(self, fine: np.ndarray, coarse: np.ndarray | None = None, *, far_out=True):
+    def __call__(self, fine, coarse=None, *, far_out=True):
         """Spread a field: a fine array and, optionally, the light outside the fine grid.
+
+        The fields are numpy arrays or torch tensors (float32); the spread runs on their
+        backend (`on`), and returns arrays of it.
 
         Parameters
         ----------
-        fine : ndarray
+        fine : ndarray or torch.Tensor
             Field on the fine grid (e.g. irradiance [W/m²] or power per area).
-        coarse : ndarray, optional
+        coarse : ndarray or torch.Tensor, optional
             Field on the coarse grid outside the fine region (0 inside it).
         far_out : bool, optional
             Also return the spread field outside the fine region (default True).
@@ -474,6 +571,8 @@ class Spread:
             The spread field on the coarse grid outside the fine region (0 inside it),
             with the whole MTF; None when `far_out` is false.
         """
+        if not _held_by(self.backend, fine):
+            return self.on(_backend_of(fine))(fine, coarse, far_out=far_out)
         levels = self.levels
         source = levels.downsample(fine)
         if coarse is not None:
@@ -485,11 +584,15 @@ class Spread:
     def filtered(self, fine, source, *, rows_in=_ALL, rows_out=_ALL, far_out=False):
         """The two parts of a spread, before the far one is brought to the fine grid.
 
+        The fields are numpy arrays or torch tensors; the spread runs on their backend
+        (`on`: scipy's FFTs and the numba column sums for numpy, torch's FFTs and
+        `workers.kernels_torch.column_convolution` for torch) and returns its arrays.
+
         Parameters
         ----------
-        fine : ndarray
+        fine : ndarray or torch.Tensor
             Field on the fine grid, float32.
-        source : ndarray
+        source : ndarray or torch.Tensor
             The far part's source on the coarse grid: `fine`'s block means
             (`Levels.downsample`) plus the light outside the fine grid, float32.
         rows_in : tuple of slice, optional
@@ -519,9 +622,14 @@ class Spread:
         along each column of the row spectra with the far kernel `columns`. Both are the
         same linear map; they differ by float32 rounding (relative 1e-7 of the field).
         """
-        spectrum = _forward(fine, rows_in[0])
+        backend = self.backend
+        if not _held_by(backend, fine):
+            return self.on(_backend_of(fine)).filtered(
+                fine, source, rows_in=rows_in, rows_out=rows_out, far_out=far_out
+            )
+        spectrum = _forward(fine, rows_in[0], backend)
         spectrum *= self.near
-        near = _inverse(spectrum, fine.shape, rows_out[0])
+        near = _inverse(spectrum, fine.shape, rows_out[0], backend)
         shape = source.shape
         inside = len(range(*rows_in[1].indices(shape[0])))
         read = len(range(*rows_out[1].indices(shape[0])))
@@ -530,15 +638,17 @@ class Spread:
             and rows_out[1] != slice(None)
             and inside * read < shape[0] * np.log2(shape[0])
         ):
-            far = _direct(self.columns, source, rows_in[1], rows_out[1])
+            far = _direct(self.columns, source, rows_in[1], rows_out[1], backend)
         else:
-            spectrum = _forward(source, rows_in[1])
-            far = _inverse(spectrum * self.far, shape, rows_out[1])
+            spectrum = _forward(source, rows_in[1], backend)
+            far = _inverse(spectrum * self.far, shape, rows_out[1], backend)
         if rows_out[1] != slice(None):
-            far, rows = np.zeros(source.shape, dtype=np.float32), far
+            xp = backend.xp
+            rows = far
+            far = xp.zeros(shape, dtype=xp.float32, device=backend.device)
             far[rows_out[1]] = rows
         if not far_out:
             return near, far, None
-        outside = scipy.fft.irfft2(spectrum * self.whole, s=source.shape)
+        outside = backend.fft.irfft2(spectrum * self.whole, s=shape)
         outside[self.levels.block] = 0.0
         return near, far, outside

@@ -7,23 +7,44 @@ each cascade holds its own band of the spectrum. Synthesis is in two steps, so t
 conditioning (:mod:`workers.conditioning`) composes on top of it: :func:`draw` draws the
 complex amplitudes (:class:`Modes`), :meth:`Modes.surface` evolves them to the frames'
 times (:class:`Surface`). Arrays are indexed (t, y, x): axis -1 is x.
+
+The modes are drawn (and conditioned) on the host with numpy, so every backend shows the
+same sea; :meth:`Modes.surface` moves them to a `workers.backend.Backend` and runs the
+evolution and the FFTs there (scipy's on numpy, torch's on PyTorch), and a
+:class:`Surface` answers at points with the backend's kernels
+(`workers.kernels` / `workers.kernels_torch`). Across backends the fields agree to
+float32 rounding, not bit for bit.
 """
 
 from __future__ import annotations
 
 import functools
+import importlib
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.fft
+from array_api_compat import is_torch_array
 
+from workers.backend import Backend, get_backend
 from workers.cascades import Sea, subgrid_slope_covariance
-from workers.kernels import bilinear_sum, cell_uniforms
 from workers.spectra import dispersion
 
-__all__ = ["Cascade", "Modes", "SubgridSlopes", "Surface", "centred_axis", "draw", "synthesize"]
+__all__ = [
+    "NUMPY",
+    "Cascade",
+    "Modes",
+    "SubgridSlopes",
+    "Surface",
+    "centred_axis",
+    "draw",
+    "synthesize",
+]
+
+NUMPY = get_backend()
+"""The numpy backend (numba kernels, scipy's FFTs): the default, today's bytes."""
 
 
 def _check_grid(grid_size, spacing) -> None:
@@ -33,26 +54,54 @@ def _check_grid(grid_size, spacing) -> None:
         raise ValueError(f"spacing must be a positive number of metres, got {spacing!r}")
 
 
+def _field(backend: Backend, values):
+    """`values` as a C-ordered float32 array of `backend` (read-only on numpy)."""
+    if backend.name == "numpy":
+        array = np.ascontiguousarray(values, dtype=np.float32)
+        array.flags.writeable = False
+        return array
+    if not is_torch_array(values):
+        values = backend.asarray(values, np.float32)
+    return values.to(device=backend.device, dtype=backend.xp.float32).contiguous()
+
+
+def _points(backend: Backend, x, y):
+    """Points (x, y) broadcast together, as 1-D arrays of `backend`, and their shape.
+
+    On numpy they are passed on as given (the kernel rounds them to float32); on torch
+    host values are moved to the device and rounded to float32 first, the same values.
+    """
+    if backend.name == "numpy":
+        x, y = np.broadcast_arrays(x, y)
+        return x.ravel(), y.ravel(), x.shape
+    xp = backend.xp
+    x, y = (v if is_torch_array(v) else backend.asarray(v) for v in (x, y))
+    x, y = xp.broadcast_arrays(xp.astype(x, xp.float32), xp.astype(y, xp.float32))
+    return xp.reshape(x, (-1,)), xp.reshape(y, (-1,)), tuple(x.shape)
+
+
 @dataclass(frozen=True, eq=False)
 class Cascade:
     """One cascade of a synthesised sea: elevation and slopes on a periodic grid, per frame.
 
     Parameters
     ----------
-    elevation : numpy.ndarray
+    elevation : array
         Elevation η above mean sea level, m, float32 of shape (T, N, N), index order
         (frame, y, x); element [t, i, j] is at x = jΔ, y = iΔ.
-    slope_x, slope_y : numpy.ndarray
+    slope_x, slope_y : array
         ∂η/∂x and ∂η/∂y (dimensionless), float32 of shape (T, N, N).
     spacing : float
         Grid spacing Δ, m.
     grid_size : int
         Number N of grid points along x and along y.
+    backend : workers.backend.Backend, optional
+        Where the arrays live and what samples them (default numpy).
 
     Notes
     -----
-    The three arrays are stored float32, C-ordered and read-only. The surface is
-    periodic with period NΔ in x and in y.
+    The three arrays are stored float32 and C-ordered on the backend (read-only on
+    numpy). The surface is periodic with period NΔ in x and in y.
     """
 
     elevation: np.ndarray
@@ -60,19 +109,20 @@ class Cascade:
     slope_y: np.ndarray
     spacing: float
     grid_size: int
+    backend: Backend = field(default=NUMPY, repr=False)
 
     def __post_init__(self):
         _check_grid(self.grid_size, self.spacing)
         n = int(self.grid_size)
         frames = None
         for name in ("elevation", "slope_x", "slope_y"):
-            array = np.ascontiguousarray(getattr(self, name), dtype=np.float32)
-            if array.ndim != 3 or array.shape[1:] != (n, n) or array.shape[0] < 1:
-                raise ValueError(f"{name} must have shape (frames, {n}, {n}), got {array.shape}")
-            if frames is not None and array.shape[0] != frames:
-                raise ValueError(f"{name} has {array.shape[0]} frames, elevation has {frames}")
-            frames = array.shape[0]
-            array.flags.writeable = False
+            array = _field(self.backend, getattr(self, name))
+            shape = tuple(array.shape)
+            if len(shape) != 3 or shape[1:] != (n, n) or shape[0] < 1:
+                raise ValueError(f"{name} must have shape (frames, {n}, {n}), got {shape}")
+            if frames is not None and shape[0] != frames:
+                raise ValueError(f"{name} has {shape[0]} frames, elevation has {frames}")
+            frames = shape[0]
             object.__setattr__(self, name, array)
         object.__setattr__(self, "_wrapped", {})
 
@@ -84,15 +134,11 @@ class Cascade:
         """
         frame = int(frame)
         if frame not in self._wrapped:
-            n = int(self.grid_size)
-            padded = np.empty((3, n + 1, n + 1), np.float32)
-            for field, grid in zip(
-                padded, (self.elevation, self.slope_x, self.slope_y), strict=True
-            ):
-                field[:n, :n] = grid[frame]
-                field[n, :n] = grid[frame, 0]
-                field[:, n] = field[:, 0]
-            self._wrapped[frame] = padded.reshape(3, -1)
+            xp = self.backend.xp
+            fields = xp.stack([self.elevation[frame], self.slope_x[frame], self.slope_y[frame]])
+            fields = xp.concat([fields, fields[:, :1, :]], axis=1)
+            fields = xp.concat([fields, fields[:, :, :1]], axis=2)
+            self._wrapped[frame] = xp.reshape(fields, (3, -1))
         return self._wrapped[frame]
 
     def sample(self, x, y, frame=0):
@@ -108,15 +154,17 @@ class Cascade:
 
         Parameters
         ----------
-        x, y : array_like
-            World coordinates, m (broadcast together).
+        x, y : array
+            World coordinates, m (broadcast together), arrays of the backend (on
+            torch, host arrays are moved to its device).
         frame : int, optional
             Frame index into the first axis of the fields.
 
         Returns
         -------
-        elevation, slope_x, slope_y : numpy.ndarray
-            η (m), ∂η/∂x and ∂η/∂y, float32 of the broadcast shape of ``x`` and ``y``.
+        elevation, slope_x, slope_y : array
+            η (m), ∂η/∂x and ∂η/∂y, float32 arrays of the backend, of the broadcast
+            shape of ``x`` and ``y``.
 
         Notes
         -----
@@ -125,8 +173,8 @@ class Cascade:
         the derivative of the interpolated elevation. A power-of-two N wraps indices
         with a bit mask, any other N with a (slower) remainder; a copy of each frame
         with its first row and column repeated after the last (made on first use and
-        kept) gives the other three corners without wrapping. The loop is compiled
-        (`workers.kernels.bilinear_sum`).
+        kept) gives the other three corners without wrapping. The loop is the
+        backend's kernel (`workers.kernels.bilinear_sum` or its torch twin).
         """
         return _sample((self,), (self._wrapped_fields(frame),), x, y)
 
@@ -144,13 +192,15 @@ class Cascade:
 
 def _sample(cascades, grids, x, y):
     """The sum over `cascades` of their bilinear `grids` (`Cascade._wrapped_fields` rows)."""
-    x, y = np.broadcast_arrays(x, y)
-    shape = x.shape
-    out = np.empty((grids[0].shape[0], x.size), np.float32)
+    backend = cascades[0].backend
+    xp = backend.xp
+    x, y, shape = _points(backend, x, y)
+    count = grids[0].shape[0]
+    out = xp.empty((count, x.shape[0]), dtype=xp.float32, device=backend.device)
     sizes = tuple(int(c.grid_size) for c in cascades)
     inverses = tuple(np.float32(1.0 / c.spacing) for c in cascades)
-    bilinear_sum(grids, sizes, inverses, x.ravel(), y.ravel(), out)
-    return tuple(values.reshape(shape) for values in out)
+    backend.kernels.bilinear_sum(grids, sizes, inverses, x, y, out)
+    return tuple(xp.reshape(out[k], shape) for k in range(count))
 
 
 @dataclass(frozen=True, eq=False)
@@ -176,28 +226,36 @@ class SubgridSlopes:
         Δ₀, m.
     key : int
         64-bit key drawn from the surface's random stream.
+    backend : workers.backend.Backend, optional
+        Where the points live and what hashes them (default numpy).
     """
 
     factor: np.ndarray
     cell: float
     key: int
+    backend: Backend = field(default=NUMPY, repr=False)
 
     def at(self, x, y, frame):
-        """The sub-grid slopes (∂η/∂x, ∂η/∂y) at points, float32 of their broadcast shape."""
+        """The sub-grid slopes (∂η/∂x, ∂η/∂y) at points: float32 arrays of the backend.
+
+        Of the broadcast shape of `x` and `y` (m); `frame` is the frame's index.
+        """
+        backend, xp = self.backend, self.backend.xp
         inverse = np.float32(1.0 / self.cell)
-        x, y = np.broadcast_arrays(x, y)
-        shape = x.shape
-        first = np.empty(x.size, np.float32)
-        second = np.empty(x.size, np.float32)
-        frame = np.uint64(int(frame) & 0xFFFFFFFFFFFFFFFF)
-        cell_uniforms(x.ravel(), y.ravel(), inverse, np.uint64(self.key), frame, first, second)
-        radius = np.sqrt(np.float32(-2.0) * np.log(first))
-        angle = np.float32(2.0 * np.pi) * second
-        normal_x, normal_y = radius * np.cos(angle), radius * np.sin(angle)
-        (f00, f01), (f10, f11) = np.asarray(self.factor, np.float32)
+        x, y, shape = _points(backend, x, y)
+        first = xp.empty(x.shape, dtype=xp.float32, device=backend.device)
+        second = xp.empty(x.shape, dtype=xp.float32, device=backend.device)
+        key, frame = int(self.key), int(frame) & 0xFFFFFFFFFFFFFFFF
+        if backend.name == "numpy":  # numba's hash needs unsigned 64-bit words
+            key, frame = np.uint64(key), np.uint64(frame)
+        backend.kernels.cell_uniforms(x, y, inverse, key, frame, first, second)
+        radius = xp.sqrt(-2.0 * xp.log(first))
+        angle = (2.0 * np.pi) * second
+        normal_x, normal_y = radius * xp.cos(angle), radius * xp.sin(angle)
+        (f00, f01), (f10, f11) = np.asarray(self.factor, np.float32).tolist()
         slope_x = f00 * normal_x + f01 * normal_y
         slope_y = f10 * normal_x + f11 * normal_y
-        return slope_x.reshape(shape), slope_y.reshape(shape)
+        return xp.reshape(slope_x, shape), xp.reshape(slope_y, shape)
 
 
 def centred_axis(*, grid_size: int, spacing: float) -> np.ndarray:
@@ -240,7 +298,9 @@ class Surface:
     -----
     A point's elevation is the sum of the cascades' bilinear values; its slopes the
     sum of theirs plus the sub-grid slopes of its cell. The sum is periodic only with
-    a common multiple of the patches.
+    a common multiple of the patches. The fields live on the cascades' backend
+    (`backend`): points are asked and answered there, while the gridded elevations
+    (`elevation`, `centred_elevation`: what a store keeps) come back as numpy.
     """
 
     cascades: tuple[Cascade, ...]
@@ -250,6 +310,11 @@ class Surface:
         frames = {cascade.elevation.shape[0] for cascade in self.cascades}
         if len(frames) != 1:
             raise ValueError(f"the cascades must share their frames, got {sorted(frames)}")
+
+    @property
+    def backend(self) -> Backend:
+        """The backend the fields live on (the cascades')."""
+        return self.cascades[0].backend
 
     @property
     def spacing(self) -> float:
@@ -263,14 +328,18 @@ class Surface:
 
     @functools.cached_property
     def elevation(self) -> np.ndarray:
-        """The summed elevation on the finest grid's nodes [0, NΔ₀)², m, (T, N, N) float32."""
-        finest = self.cascades[0]
+        """The summed elevation on the finest grid's nodes [0, NΔ₀)², m, (T, N, N) float32.
+
+        On the host (numpy, read-only) whatever the backend.
+        """
+        finest, backend = self.cascades[0], self.backend
         nodes = np.arange(finest.grid_size) * finest.spacing
-        x, y = nodes[None, :], nodes[:, None]
-        out = finest.elevation.copy()
+        x, y = backend.asarray(nodes[None, :]), backend.asarray(nodes[:, None])
+        out = backend.xp.asarray(finest.elevation, copy=True)
         for frame in range(out.shape[0]):
             for cascade in self.cascades[1:]:
                 out[frame] += cascade.elevation_at(x, y, frame)
+        out = backend.to_numpy(out)
         out.flags.writeable = False
         return out
 
@@ -284,11 +353,14 @@ class Surface:
         """The summed elevation (`elevation_at`) on the grid centred on the origin, m.
 
         Nodes at (`axis`, `axis`), over the footprint (`centred_axis`): float32 of
-        shape (T, N + 1, N + 1), index order (frame, y, x).
+        shape (T, N + 1, N + 1), index order (frame, y, x), on the host (numpy,
+        read-only) whatever the backend.
         """
-        x, y = self.axis[None, :], self.axis[:, None]
+        backend = self.backend
+        x, y = backend.asarray(self.axis[None, :]), backend.asarray(self.axis[:, None])
         frames = self.cascades[0].elevation.shape[0]
-        out = np.stack([self.elevation_at(x, y, frame) for frame in range(frames)])
+        out = backend.xp.stack([self.elevation_at(x, y, frame) for frame in range(frames)])
+        out = backend.to_numpy(out)
         out.flags.writeable = False
         return out
 
@@ -297,8 +369,8 @@ class Surface:
 
         Returns
         -------
-        elevation, slope_x, slope_y : numpy.ndarray
-            η (m), ∂η/∂x and ∂η/∂y (sub-grid slopes included).
+        elevation, slope_x, slope_y : array
+            η (m), ∂η/∂x and ∂η/∂y (sub-grid slopes included), arrays of the backend.
         """
         eta = self.elevation_at(x, y, frame)
         return (eta, *self.slopes_at(x, y, frame))
@@ -327,6 +399,32 @@ class _Setup:
     mirror: np.ndarray  # (N·(N//2+1),) flat index into (N, N) of -k for each half-plane k
     omega: np.ndarray  # (N, N//2+1) float64, ω(|k|) from `dispersion`, rad/s
     derivative: np.ndarray  # (2, N, N//2+1) complex64: i k_x, i k_y
+
+
+@functools.lru_cache(maxsize=32)
+def _evolution(sea: Sea, cascade: int, backend: Backend):
+    """ω (float64) and i k (complex64) of `_setup` on `backend`'s device (cached)."""
+    setup = _setup(sea, cascade)
+    return backend.asarray(setup.omega), backend.asarray(setup.derivative)
+
+
+def _evolve(backend: Backend, omega, ahead, behind, time: float):
+    r"""The modes at `time` (s), arrays of `backend` (`Modes.spectrum_at`'s formula).
+
+    The phase ωt is reduced to a cycle in float64, then rounded to float32; the
+    rotation and the products are complex64 on every backend.
+    """
+    xp = backend.xp
+    cycles = omega * (time / (2.0 * np.pi))
+    cycles = cycles - xp.floor(cycles)
+    phase = xp.astype(2.0 * np.pi * cycles, xp.float32)
+    if backend.name == "numpy":
+        rotation = np.empty(phase.shape, np.complex64)
+        np.cos(phase, out=rotation.real)
+        np.sin(phase, out=rotation.imag)
+    else:
+        rotation = importlib.import_module("torch").complex(xp.cos(phase), xp.sin(phase))
+    return behind * rotation + xp.conj(rotation) * ahead
 
 
 @functools.lru_cache(maxsize=32)
@@ -373,25 +471,17 @@ class Modes:
         :math:`\tilde h(\mathbf k, t) = h_0 e^{-i\omega t}
         + \overline{h_0(-\mathbf k)} e^{i\omega t}`.
         """
-        setup = _setup(self.sea, cascade)
-        cycles = setup.omega * (time / (2.0 * np.pi))
-        cycles -= np.floor(cycles)
-        phase = (2.0 * np.pi * cycles).astype(np.float32)
-        rotation = np.empty(phase.shape, np.complex64)
-        np.cos(phase, out=rotation.real)
-        np.sin(phase, out=rotation.imag)
-        spectrum = np.multiply(self.behind[cascade], rotation, dtype=np.complex64)
-        np.conjugate(rotation, out=rotation)
-        rotation *= self.ahead[cascade]
-        spectrum += rotation
-        return spectrum
+        omega = _setup(self.sea, cascade).omega
+        return _evolve(NUMPY, omega, self.ahead[cascade], self.behind[cascade], float(time))
 
     def elevation_grid(self, cascade: int, time: float) -> np.ndarray:
         """A cascade's elevation on its grid at time t (s), m, (N, N) float32."""
         n = self.sea.grid_size
         return scipy.fft.irfft2(self.spectrum_at(cascade, time), s=(n, n), norm="forward")
 
-    def surface(self, times: Sequence[float] = (0.0,), *, max_elevation=None) -> Surface:
+    def surface(
+        self, times: Sequence[float] = (0.0,), *, max_elevation=None, backend: Backend = NUMPY
+    ) -> Surface:
         r"""The sea at the frames' times: every cascade evolved, its slopes derived.
 
         .. math::
@@ -413,11 +503,14 @@ class Modes:
             grid centred on the origin, over the footprint) and all frames equals it (the
             "maximum wave elevation" of Carmona et al. 2000). It then no longer
             follows the spectrum's amplitude, only its shape.
+        backend : workers.backend.Backend, optional
+            Where the modes are evolved and transformed (`Backend.fft`) and the fields
+            kept (default numpy: scipy's FFTs, one field at a time).
 
         Returns
         -------
         Surface
-            Cascades of float32 fields of shape (len(times), N, N).
+            Cascades of float32 fields of shape (len(times), N, N) on `backend`.
         """
         times = np.asarray(times, dtype=np.float64)
         if times.ndim != 1 or times.size == 0 or not np.all(np.isfinite(times)):
@@ -426,43 +519,47 @@ class Modes:
             raise ValueError(
                 f"max_elevation must be a positive number of metres, got {max_elevation}"
             )
-        sea, n = self.sea, self.sea.grid_size
-        fields = np.empty((len(sea.patches), 3, times.size, n, n), np.float32)
+        sea, n, xp = self.sea, self.sea.grid_size, backend.xp
+        shape = (len(sea.patches), 3, times.size, n, n)
+        fields = xp.empty(shape, dtype=xp.float32, device=backend.device)
         for cascade in range(len(sea.patches)):
-            derivative = _setup(sea, cascade).derivative
-            for frame, time in enumerate(times):
-                spectrum = self.spectrum_at(cascade, time)
+            omega, derivative = _evolution(sea, cascade, backend)
+            ahead, behind = (backend.asarray(m[cascade]) for m in (self.ahead, self.behind))
+            for frame, time in enumerate(times.tolist()):
+                spectrum = _evolve(backend, omega, ahead, behind, time)
                 # One transform per field: scipy's batched irfft2 is several times slower.
-                fields[cascade, 0, frame] = scipy.fft.irfft2(spectrum, s=(n, n), norm="forward")
-                for component in (1, 2):
-                    product = derivative[component - 1] * spectrum
-                    fields[cascade, component, frame] = scipy.fft.irfft2(
-                        product, s=(n, n), norm="forward"
+                for component in range(3):
+                    product = spectrum if component == 0 else derivative[component - 1] * spectrum
+                    fields[cascade, component, frame] = backend.fft.irfftn(
+                        product, s=(n, n), axes=(-2, -1), norm="forward"
                     )
         values, vectors = np.linalg.eigh(subgrid_slope_covariance(sea))
         factor = vectors * np.sqrt(np.maximum(values, 0.0))  # F Fᵀ = Σ
-        surface = self._assemble(fields, factor)
+        surface = self._assemble(fields, factor, backend)
         if max_elevation is not None:
             peak = float(np.abs(surface.centred_elevation).max())
             if peak == 0:
                 raise ValueError("max_elevation cannot rescale a flat surface (zero spectrum)")
             scale = max_elevation / peak
-            fields *= np.float32(scale)
-            surface = self._assemble(fields, factor * scale)
+            fields *= float(np.float32(scale))
+            surface = self._assemble(fields, factor * scale, backend)
         return surface
 
-    def _assemble(self, fields, factor) -> Surface:
+    def _assemble(self, fields, factor, backend: Backend) -> Surface:
         cascades = tuple(
             Cascade(
-                elevation=field[0],
-                slope_x=field[1],
-                slope_y=field[2],
+                elevation=fields[cascade, 0],
+                slope_x=fields[cascade, 1],
+                slope_y=fields[cascade, 2],
                 spacing=self.sea.spacing(cascade),
                 grid_size=self.sea.grid_size,
+                backend=backend,
             )
-            for cascade, field in enumerate(fields)
+            for cascade in range(fields.shape[0])
         )
-        subgrid = SubgridSlopes(factor=factor, cell=self.sea.spacing(0), key=self.subgrid_key)
+        subgrid = SubgridSlopes(
+            factor=factor, cell=self.sea.spacing(0), key=self.subgrid_key, backend=backend
+        )
         return Surface(cascades=cascades, subgrid=subgrid)
 
 

@@ -34,6 +34,7 @@ from service.sweep import Plan
 from workers.caches import clear_all
 from workers.cascades import describe
 from workers.render import render_arrays
+from workers.seasetup import scene_sea
 from workers.section import SceneError
 
 __all__ = [
@@ -170,7 +171,7 @@ def _sea_lines(plan: Plan) -> list[str]:
     """What the sea's cascades resolve of the spectrum, per distinct sea of the plan."""
     seas: dict = {}
     for point, scene in enumerate(plan.scenes):
-        if (sea := scene.sea()) is not None:
+        if (sea := scene_sea(scene)) is not None:
             seas.setdefault(sea, []).append(point)
     lines = [
         f"  sea at point {points[0]}{f' (+{len(points) - 1} more)' if len(points) > 1 else ''}:"
