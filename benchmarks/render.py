@@ -126,6 +126,66 @@ Fournier-Forand spread, the shadows, the gated shares and delays): one run, load
 machine, ``--sizes 128 256``, numpy-pair ratios before (051395d) → after: sphere 49.6 →
 57.2 at 128 px, 58.0 → 62.1 at 256 (1.15 and 1.07 times); no target 38.8 → 41.4, 45.3 →
 48.2. Rendering the twin apart, as a second sample, had cost 1.6-1.9 times.
+
+Issue #28 item 4 (the CPU renderer at the floor), 2026-11-25. Where a sphere sample goes
+(CPU time by wrapping the functions, 20 samples at 256², 8 at 512², load about 1; ratio
+91.6 / 110 in that run), in scipy pairs of its size, 256² / 512²: the gathers (assembly
+and bilinear reads, 14 a sample) 18.7 / 21.1, the rays through the sea 16.7 / 19.7, the
+spreads' FFT passes 16.2 / 19.0, the sea's synthesis 10.3 / 10.3, splats 8.0 / 9.4, the
+mask's and shadows' reads 6.7 / 7.4, shot noise 3.5 / 6.3, the arrays 2.2 / 2.0, the rest
+(gains, target maps, Python) 8.7 / 14.3. Nine tenths of the FFT passes are the fine
+planes' column passes (320²–360² cells at 256 px, 648²–720² at 512); the coarse level
+costs about one pair. Half the sea is its normals (2N² per cascade), half the inverse FFTs.
+
+The fine planes are not wider than where the light is read. Over 20 seas of this scene
+(256 px) the pixels' lines of sight move from their flat-sea place on the planes (5 m to
+13.4 m) by 10–22 fine cells (median), 27–62 (99 %) and 39–90 (99.99 %), against guard
+bands of 32–52 cells; 3e-5 to 1.3e-3 of them leave the fine grid (they read nothing
+there) and 0.3–11 % lie within the near spread's support (four coarse cells) of its edge.
+Planes sized to the lit lattice and the image alone would move those pixels; planes that
+hold the lines' 99.99 % drift and the near support would be wider than today's at the deep
+gates (at 512 px the drift doubles in cells: 72–165 at 99.99 %, guards 64–104). So the
+planes keep their size (`tests/test_spread.py` checks that planes with four times the
+guard move no pixel beyond the two levels' own error, and goes red on a guard of one
+coarse cell). Not even their rounding is waste: at 512 px four of the seven planes fit
+in 640² with another coarsening factor (today 648² and 720², about 1.3 pairs), but the
+images then moved by up to 0.19 of a gate's peak (8.1 m, 720² → 640²): the rounding
+holds lines of sight the waves push out. The coarser cascades, whose bands end at a
+quarter of their Nyquist wavenumber, now draw normals only for the square of modes that
+holds the band (1/16 of them). The sea alone, old and new interleaved in one process (41
+rounds, medians, load 5): 14.3 → 10.3 pairs at 128 px (three cascades), 10.7 → 8.2 at
+256, 11.2 → 8.3 at 512 (the finest cascade and a single patch keep their bytes). This
+script, the code before (7ebc7d2) and after run alternately, twice each, CPU time, on the
+shared 2-core machine at load 6–7 (too loaded for a 3 % change to show in the ratios to
+the pair; the multi-scale sea's cost over the single patch, timed in the same rounds,
+shows it):
+
+====== ======= ======================= =====================
+pixels target  scipy ratio             sea / 1 patch
+====== ======= ======================= =====================
+128    sphere  97.0, 96.4 → 91.5, 92.6 1.18, 1.20 → 1.15, 1.16
+128    none    72.7, 72.4 → 69.7, 65.5 1.27, 1.25 → 1.22, 1.22
+256    sphere  101, 103 → 105, 103     1.09, 1.11 → 1.06, 1.06
+256    none    80.6, 70.2 → 68.2, 73.9 1.26, 1.17 → 1.16, 1.11
+512    sphere  113, 113 → 114, 110     1.12, 1.11 → 1.05, 1.06
+512    none    80.0, 82.7 → 73.6, 80.4 1.15, 1.15 → 1.12, 1.11
+====== ======= ======================= =====================
+
+The same samples with the old draw and the new interleaved in one process (31 rounds,
+medians, load 11): old/new 1.04 / 1.05 at 128 px (sphere / none), 1.02 / 1.05 at 256,
+1.03 / 1.05 at 512; scipy pairs 78.1 → 75.4, 89.0 → 87.4, 110.6 → 106.6 (sphere).
+
+The floor of this design is far above the issue's 30 pairs (aim 20) at 256²: without any
+FFT and sea at all a sample would still cost about 65 pairs (256²) and 81 (512²), and
+the spreads' FFTs on planes that hold the light are some 16–19 pairs alone. What would
+reach it is fewer passes over the rays, not smaller planes: each laser ray and each
+pixel's line is located and interpolated on seven planes (splats, gathers and reads, 33
+pairs at 256²) and traced through every cascade at each fixed-point step (17 pairs). One
+location per ray for all planes (a line is affine in depth), the six gates gathered in
+one pass over the pixels, and the cascades summed over the footprint once before the
+surface iteration are the changes to make. Even then the FFT passes of the present planes
+(about 20 pairs a sample, all FFTs counted) leave the aim of 20 out of reach of the
+two-level spread as it is.
 """
 
 import argparse

@@ -141,6 +141,40 @@ def test_covariance_is_that_of_the_synthesised_field_exactly():
         assert_allclose(covariance, expected, rtol=0, atol=1e-6 * variance)
 
 
+class ZeroGenerator(BasisGenerator):
+    """Stands in for a Generator whose normals are all zero."""
+
+    def __init__(self):
+        super().__init__(slice(0, 0))
+
+
+def test_a_coarser_cascade_drawn_on_its_bands_square_has_its_whole_covariance():
+    # A coarser cascade's band ends at a quarter of its Nyquist wavenumber: its modes
+    # vanish outside the square |i|, |j| <= m, and the 2M² normals of that square
+    # (M = 2m + 1) alone must give its field the whole space-time covariance.
+    n, times = 32, (0.0, 0.9)
+    sea = Sea(SEA, n, (9.6, 19.2))
+    signed = np.abs(np.fft.fftfreq(n, d=1.0 / n))
+    rows, cols = np.nonzero(sea.amplitudes(1))
+    side = 2 * int(max(signed[rows].max(), signed[cols].max())) + 1
+    assert side <= n // 4 + 1
+    columns = [
+        draw(sea, [ZeroGenerator(), BasisGenerator(i)])
+        .surface(times)
+        .cascades[1]
+        .elevation.reshape(len(times), -1)
+        .astype(np.float64)
+        for i in range(2 * side * side)
+    ]
+    A = np.stack(columns, axis=-1)
+    variance = space_time_covariance(sea, cascade=1)[0, 0]
+    for lag, (later, earlier) in ((0.0, (0, 0)), (0.9, (1, 0))):
+        grid = space_time_covariance(sea, cascade=1, lag=lag)
+        r, c = np.divmod(np.arange(n * n), n)
+        expected = grid[(r[:, None] - r[None]) % n, (c[:, None] - c[None]) % n]
+        assert_allclose(A[later] @ A[earlier].T, expected, rtol=0, atol=1e-6 * variance)
+
+
 def test_no_data_equals_unconditional_bytes():
     base = {"surface": {"grid_size": 32, "spacing": 0.128}, "receiver": {"pixels": 16}}
     empty = {**base, "surface": {**base["surface"], "conditioning": {"points": [], "noise": 0.1}}}

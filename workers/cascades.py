@@ -150,6 +150,35 @@ class Sea:
         """
         return _amplitudes(self, cascade)
 
+    def drawn_modes(self, cascade: int) -> np.ndarray:
+        r"""FFT-ordered indices, along y and along x, of the modes a draw gives normals to.
+
+        A coarser cascade's band ends at β = :data:`BAND_CUT` of its Nyquist wavenumber,
+        so its modes vanish beyond index ±βN/2 along each axis: it is drawn on the square
+        of modes :math:`|i|, |j| \le m` that holds its band, about (βN + 1)² of its N²
+        modes (:func:`workers.surface.draw`). A cascade whose band reaches its grid's
+        Nyquist wavenumber (the finest) is drawn whole.
+
+        Returns
+        -------
+        numpy.ndarray
+            The indices, int, ascending in FFT order: N of them (0 … N − 1) for a
+            cascade drawn whole, else 0 … m then N − m … N − 1. Cached per sea and
+            cascade, read-only.
+        """
+        return _drawn_modes(self, cascade)
+
+
+@functools.lru_cache(maxsize=32)
+def _drawn_modes(sea: Sea, cascade: int) -> np.ndarray:
+    n = sea.grid_size
+    signed = np.abs(np.fft.fftfreq(n, d=1.0 / n)).astype(int)
+    rows, columns = np.nonzero(sea.amplitudes(cascade))
+    reach = int(max(signed[rows].max(initial=0), signed[columns].max(initial=0)))
+    index = np.arange(n) if reach >= n // 2 - 1 else np.flatnonzero(signed <= reach)
+    index.flags.writeable = False
+    return index
+
 
 @functools.lru_cache(maxsize=32)
 def _amplitudes(sea: Sea, cascade: int) -> np.ndarray:

@@ -584,7 +584,9 @@ def draw(sea: Sea, rng) -> Modes:
         The layout.
     rng : numpy.random.Generator or sequence of them
         One generator per cascade (finest first), or one for all, drawn in that order:
-        2N² normals per cascade, then (from the first) one 64-bit sub-grid key.
+        2M² normals per cascade (the M × M modes of its band's square,
+        `workers.cascades.Sea.drawn_modes`: M = N for the finest), then (from the first)
+        one 64-bit sub-grid key.
 
     Returns
     -------
@@ -598,8 +600,14 @@ def draw(sea: Sea, rng) -> Modes:
     ahead, behind = [], []
     for cascade, generator in enumerate(rngs):
         setup = _setup(sea, cascade)
-        h0 = np.empty((n, n), np.complex64)
-        generator.standard_normal(out=h0.view(np.float32), dtype=np.float32)
+        index = sea.drawn_modes(cascade)
+        drawn = np.empty((index.size, index.size), np.complex64)
+        generator.standard_normal(out=drawn.view(np.float32), dtype=np.float32)
+        if index.size == n:
+            h0 = drawn
+        else:  # the modes beyond the band's square are zero
+            h0 = np.zeros((n, n), np.complex64)
+            h0[np.ix_(index, index)] = drawn
         h0 *= 0.5 * setup.amplitude
         ahead.append(np.ascontiguousarray(h0[:, : n // 2 + 1]))
         behind.append(np.conj(h0.ravel().take(setup.mirror)).reshape(ahead[-1].shape))
