@@ -16,8 +16,11 @@ a detection dataset beside the store (`detection_store`). Variables, per positiv
 - ``roc_pfa``, ``roc_pd`` (point, detector, vertex): the empirical ROC, NaN-padded;
 - ``gate_auc``, ``gate_auc_low``, ``gate_auc_high`` (point, gate): each gate's matched
   filter alone;
+- ``sea_auc_se``, ``auc_half_seas``, ``effective_seas``, ``seas`` (point): the
+  sea-marginal observer's Monte Carlo error (`workers.detection.sea_auc_error`);
 - ``negative_point`` (point): the store's target-free point paired with it, and
-  ``held_out`` (realisation): the realisations the trained detector is evaluated on.
+  ``held_out`` (realisation): the realisations the trained detector and the sea-marginal
+  observer are evaluated on (the others train the one and are the other's seas).
 """
 
 from __future__ import annotations
@@ -293,10 +296,39 @@ def _dataset(ds, pairs, results, realisations, test) -> xr.Dataset:
             stacked["gate_auc_high"],
             {"long_name": "gate AUC 95 % interval, high", **one},
         ),
+        "sea_auc_se": (
+            "point",
+            stacked["sea_auc_se"],
+            {
+                "long_name": "Monte Carlo error of the sea-marginal observer's AUC",
+                "comment": "standard deviation over a bootstrap of its seas, the images fixed; "
+                "adds in quadrature to the auc interval's error",
+                **one,
+            },
+        ),
+        "auc_half_seas": (
+            "point",
+            stacked["auc_half_seas"],
+            {"long_name": "sea-marginal observer's AUC with half its seas (mean of two)", **one},
+        ),
+        "effective_seas": (
+            "point",
+            stacked["effective_seas"],
+            {"long_name": "median effective number of seas weighting an image", **one},
+        ),
+        "seas": (
+            "point",
+            stacked["seas"].astype(np.int64),
+            {"long_name": "seas in the sea-marginal observer's Monte Carlo sample", **one},
+        ),
         "held_out": (
             "realisation",
             test.astype(np.uint8),
-            {"long_name": "realisation evaluates (1) or trains (0) the logistic detector", **one},
+            {
+                "long_name": "realisation evaluates (1) or trains (0) the logistic detector",
+                "comment": "the training realisations' seas are the sea-marginal observer's",
+                **one,
+            },
         ),
     }
     positives = [p for p, _ in pairs]

@@ -26,6 +26,7 @@ from workers.detection import (
     pd_at_pfa,
     roc_curve,
 )
+from workers.marginal import sea_marginal_observer
 
 
 def rng(seed):
@@ -289,14 +290,14 @@ def test_detection_dataset_layout(detection):
     assert held.sum() == 60 and held[1] and not held[0]
     logistic = det["score_positive"].sel(detector="logistic_regression").values
     assert np.isnan(logistic[:, ~held]).all() and np.isfinite(logistic[:, held]).all()
-    assert det["evaluated"].values.tolist() == [[120, 120, 60]] * 4
+    assert det["evaluated"].values.tolist() == [[120, 60, 120, 60]] * 4
     # 120 negatives measure Pfa = 0.1, not 0.01; the trained detector's 60 measure 0.1 too
     assert det["pd_available"].sel(pfa=0.1).values.all()
     assert not det["pd_available"].sel(pfa=0.01).values.any()
     assert np.isnan(det["pd"].sel(pfa=0.01).values).all()
     # each ROC runs from (0, 0) to (1, 1) and its area is the AUC
     for p in range(4):
-        for d in range(3):
+        for d in range(4):
             pfa, pd = (det[v].values[p, d] for v in ("roc_pfa", "roc_pd"))
             pfa, pd = pfa[~np.isnan(pfa)], pd[~np.isnan(pd)]
             assert (pfa[0], pd[0], pfa[-1], pd[-1]) == (0, 0, 1, 1)
@@ -331,10 +332,38 @@ def test_scores_compare_the_samples_of_one_realisation(detection):
             )
 
 
+def test_the_sea_marginal_observer_scores_held_out_images_over_the_training_seas(detection):
+    """Each held-out image is scored over the expected images of the training realisations
+    (the sea's law), never its own sea's; its Monte Carlo error comes with it."""
+    folder, det = detection
+    ds = xr.open_zarr(folder / "small.zarr")
+    r = ds.attrs["realisations"]
+    held = det["held_out"].values.astype(bool)
+    marginal = det.sel(detector="sea_marginal_observer")
+    for i, (p, q) in enumerate(
+        zip(det["point"].values, det["negative_point"].values, strict=True)
+    ):
+        seas = {
+            "signal": ds["expected"][p * r : (p + 1) * r].values[~held],
+            "background": ds["expected"][q * r : (q + 1) * r].values[~held],
+        }
+        for name, point in (("score_positive", p), ("score_negative", q)):
+            image = ds["image"][point * r : (point + 1) * r].values
+            scores = marginal[name].values[i]
+            assert np.isnan(scores[~held]).all()
+            np.testing.assert_allclose(
+                scores[held], sea_marginal_observer(image[held], **seas), rtol=1e-12
+            )
+    assert det["seas"].values.tolist() == [60] * 4
+    assert (det["sea_auc_se"] > 0).all() and (det["sea_auc_se"] < 0.05).all()
+    assert ((det["effective_seas"] >= 1) & (det["effective_seas"] <= 60)).all()
+    assert (np.abs(det["auc_half_seas"] - marginal["auc"]) < 0.1).all()
+
+
 def test_ideal_observer_bounds_the_other_detectors(detection):
     _, det = detection
     ideal = det.sel(detector="ideal_observer")
-    for other in ("matched_filter", "logistic_regression"):
+    for other in ("sea_marginal_observer", "matched_filter", "logistic_regression"):
         assert (ideal["auc_high"] >= det["auc"].sel(detector=other)).all(), other
     assert (det["auc"] > 0.5).all()
 

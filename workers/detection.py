@@ -20,6 +20,8 @@ import numpy as np
 from scipy.ndimage import uniform_filter
 from scipy.stats import rankdata
 
+from workers.marginal import sea_likelihoods
+
 __all__ = [
     "DETECTORS",
     "MIN_FALSE_ALARMS",
@@ -35,11 +37,15 @@ __all__ = [
     "matched_filter_weights",
     "pd_at_pfa",
     "roc_curve",
+    "sea_auc_error",
 ]
 
 MIN_FALSE_ALARMS = 2
 """Fewest negatives that must lie above the threshold for Pd at a false-alarm rate α to be
 reported: Pd at α needs at least ``MIN_FALSE_ALARMS / α`` negatives (200 at α = 10⁻²)."""
+
+SEA_RESAMPLES = 200
+"""Bootstrap resamples of the seas behind the sea-marginal observer's Monte Carlo error."""
 
 BOOTSTRAP_BLOCK = 100
 """Resamples ranked at once: bounds the bootstrap's memory to ~100 x 2n scores."""
@@ -52,6 +58,13 @@ DETECTORS = {
         "Poisson log-likelihood ratio of the noisy images between the expected images with "
         "and without the target under the sample's own sea (signal and sea known exactly): "
         "the most powerful test given the sea, an upper bound for any detector."
+    ),
+    "sea_marginal_observer": (
+        "Poisson likelihood ratio with the sea integrated out: the mean likelihood of the "
+        "image over the expected images with the target of the training realisations' seas, "
+        "over the same without it (Monte Carlo over seas drawn from the same spectrum, in log "
+        "space), evaluated on the held-out realisations. Knows the target and the sea's law, "
+        "not the sea: the ceiling of a detector that sees only the image."
     ),
     "matched_filter": (
         "Prewhitened matched filter fused over gates: sum over pixels and gates of "
@@ -361,6 +374,53 @@ def _resampled_aucs(s1, s0, picks):
     return (ranks - n * (n + 1) / 2) / (n * len(s0))
 
 
+def sea_auc_error(likelihoods, *, positives, resamples=SEA_RESAMPLES, seed=0):
+    r"""Monte Carlo error of the sea-marginal observer's AUC, from its sample of seas.
+
+    Parameters
+    ----------
+    likelihoods : workers.marginal.SeaLikelihoods
+        The images scored: the first `positives` rows with the target, the others without.
+    positives : int, keyword-only
+        Images with the target.
+    resamples : int, keyword-only
+        Bootstrap resamples of the seas.
+    seed : int, keyword-only
+        Seed of the resampling (fixed: the same images and seas give the same error).
+
+    Returns
+    -------
+    dict of float
+        ``sea_auc_se``: the standard deviation of the AUC over the seas resampled with
+        replacement, the images held fixed [1]; ``auc_half_seas``: the mean AUC of two
+        disjoint halves of the seas, each scoring every image [1]; ``effective_seas``: the
+        median over the images of `SeaLikelihoods.effective_seas` [seas]; ``seas``: M.
+
+    Notes
+    -----
+    The sea-marginal AUC has two independent errors: the images' (the realisation pairs'
+    bootstrap, `bootstrap_auc`, as every detector's) and the seas' behind the estimate of
+    Λ (this one: the bootstrap over seas estimates the spread of the AUC across
+    independent samples of M seas, which falls as :math:`1/\sqrt M`); they add in
+    quadrature. The estimate with M seas is itself a detector, so its AUC lies below the
+    exact ratio's by a shortfall of second order in Λ's error, about c/M: the AUC with M
+    seas less the AUC with M/2 estimates the shortfall left at M.
+    """
+    seas = likelihoods.with_target.shape[1]
+    rng = np.random.Generator(np.random.PCG64(seed))
+    counts = rng.multinomial(seas, np.full(seas, 1.0 / seas), size=resamples).astype(float)
+    halves = np.zeros((2, seas))
+    halves[0, : seas // 2] = halves[1, seas // 2 : 2 * (seas // 2)] = 1.0
+    scores = likelihoods.scores(np.concatenate([counts, halves]))
+    aucs = _auc_rows(scores[:, :positives], scores[:, positives:])
+    return {
+        "sea_auc_se": float(aucs[:resamples].std(ddof=1)),
+        "auc_half_seas": float(aucs[resamples:].mean()),
+        "effective_seas": float(np.median(likelihoods.effective_seas())),
+        "seas": seas,
+    }
+
+
 def pd_at_pfa(*, positives, negatives, pfa, min_false_alarms=MIN_FALSE_ALARMS):
     """Probability of detection at a false-alarm probability, where the negatives allow.
 
@@ -411,7 +471,10 @@ def evaluate_pair(
         ``score_positive``, ``score_negative`` (detector, realisation; NaN where a detector
         is not evaluated); ``auc``, ``auc_low``, ``auc_high``, ``evaluated``
         (detector,); ``pd`` (detector, pfa; NaN where unavailable); ``gate_auc``,
-        ``gate_auc_low``, ``gate_auc_high`` (gates,): the matched filter of each gate alone.
+        ``gate_auc_low``, ``gate_auc_high`` (gates,): the matched filter of each gate alone;
+        the sea-marginal observer's Monte Carlo error (`sea_auc_error`: ``sea_auc_se``,
+        ``auc_half_seas``, ``effective_seas``, ``seas``), its seas the training
+        realisations', its images the held-out ones.
     """
     realisations = positive_image.shape[0]
     signal_mean = positive_expected.mean(axis=0, dtype=np.float64)
@@ -433,13 +496,19 @@ def evaluate_pair(
         ),
         np.concatenate([np.ones(train.sum(), bool), np.zeros(train.sum(), bool)]),
     )
+    marginal = sea_likelihoods(  # the training realisations' seas score the held-out ones
+        np.concatenate([positive_image[test], negative_image[test]]),
+        signal=positive_expected[train],
+        background=negative_expected[train],
+    )
     scores = np.full((len(DETECTORS), 2, realisations), np.nan)
+    scores[1][:, test] = marginal.scores().reshape(2, -1)
     for column, image in enumerate((positive_image, negative_image)):
         scores[0, column] = ideal_observer(
             image, signal=positive_expected, background=negative_expected
         )
-        scores[1, column] = gate_scores[column].sum(axis=1)
-        scores[2, column, test] = model.decision(gate_features(image[test]))
+        scores[2, column] = gate_scores[column].sum(axis=1)
+        scores[3, column, test] = model.decision(gate_features(image[test]))
     result = {
         "score_positive": scores[:, 0],
         "score_negative": scores[:, 1],
@@ -448,6 +517,7 @@ def evaluate_pair(
         "auc_high": np.full(len(DETECTORS), np.nan),
         "evaluated": np.zeros(len(DETECTORS), np.int32),
         "pd": np.full((len(DETECTORS), len(pfa)), np.nan),
+        **sea_auc_error(marginal, positives=int(test.sum())),
     }
     for row in range(len(DETECTORS)):
         rows = ~np.isnan(scores[row, 0])
