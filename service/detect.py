@@ -26,6 +26,7 @@ a detection dataset beside the store (`detection_store`). Variables, per positiv
 from __future__ import annotations
 
 import uuid
+from typing import TYPE_CHECKING
 
 import dask
 import numpy as np
@@ -41,6 +42,9 @@ from service.store.template import swept_parameters
 from service.sweep import parse_sweep
 from workers.detection import DETECTORS, MIN_FALSE_ALARMS, evaluate_pair, held_out, roc_curve
 from workers.render import render_images, render_pair
+
+if TYPE_CHECKING:
+    from workers.cnn import CnnSettings
 
 __all__ = ["PFA", "detection_store", "pair_points", "write_detection"]
 
@@ -214,8 +218,8 @@ def _sweep_plan(ds: xr.Dataset, url: str):
     return plan
 
 
-def _dataset(ds, pairs, results, realisations, test) -> xr.Dataset:
-    names = list(DETECTORS)
+def _dataset(ds, pairs, results, realisations, test, detectors) -> xr.Dataset:
+    names = list(detectors)
     stacked = {name: np.stack([r[name] for r in results]) for name in results[0]}
     rocs = [
         [
@@ -325,7 +329,7 @@ def _dataset(ds, pairs, results, realisations, test) -> xr.Dataset:
             "realisation",
             test.astype(np.uint8),
             {
-                "long_name": "realisation evaluates (1) or trains (0) the logistic detector",
+                "long_name": "realisation evaluates (1) or trains (0) the trained detectors",
                 "comment": "the training realisations' seas are the sea-marginal observer's",
                 **one,
             },
@@ -337,7 +341,7 @@ def _dataset(ds, pairs, results, realisations, test) -> xr.Dataset:
         "detector": ("detector", np.array(names, dtype=object), {"long_name": "detector"}),
         "description": (
             "detector",
-            np.array([DETECTORS[n] for n in names], dtype=object),
+            np.array([detectors[n] for n in names], dtype=object),
             {"long_name": "what the detector assumes"},
         ),
         "pfa": ("pfa", np.array(PFA), {"long_name": "false-alarm probability", **one}),
@@ -366,13 +370,13 @@ def _dataset(ds, pairs, results, realisations, test) -> xr.Dataset:
         sweep_sha256=ds.attrs.get("sweep_sha256", ""),
         oceanlidar_version=package_version(),
         bootstrap="95 % percentile interval, 2000 resamples of realisation pairs, seed 0",
-        **{f"detector_{name}": text for name, text in DETECTORS.items()},
+        **{f"detector_{name}": text for name, text in detectors.items()},
     )
     return detection
 
 
 def write_detection(
-    store: Store, *, output: Store | None = None, stream=None
+    store: Store, *, output: Store | None = None, stream=None, cnn: CnnSettings | None = None
 ) -> tuple[Store, list[int]]:
     """Run the detection study of `store` and write its dataset.
 
@@ -388,6 +392,9 @@ def write_detection(
     stream : file, optional
         Where to show the points scored (`service.progress.Progress`) and the set-up
         phases; None shows nothing.
+    cnn : workers.cnn.CnnSettings, optional
+        Train the convolutional detector too with these settings (`service.cnn.add_cnn`;
+        needs torch).
 
     Returns
     -------
@@ -427,8 +434,22 @@ def write_detection(
         results = compute(tasks, counts=[1] * len(tasks), progress=progress)
     finally:
         progress.close()
+    detectors = dict(DETECTORS)
+    if cnn is not None:  # one network across the points: imports torch
+        from service.cnn import add_cnn
+
+        detectors |= add_cnn(
+            results,
+            store=store,
+            pairs=pairs,
+            realisations=realisations,
+            test=test,
+            pfa=PFA,
+            settings=cnn,
+            stream=stream,
+        )
     with phase("writing the detection dataset", stream=stream):
-        detection = _dataset(ds, pairs, results, realisations, test)
+        detection = _dataset(ds, pairs, results, realisations, test, detectors)
         detection.attrs["expected_images"] = (
             "read from the store" if plan is None else "rendered again"
         )

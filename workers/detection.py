@@ -38,6 +38,7 @@ __all__ = [
     "pd_at_pfa",
     "roc_curve",
     "sea_auc_error",
+    "score_metrics",
 ]
 
 MIN_FALSE_ALARMS = 2
@@ -449,6 +450,36 @@ def pd_at_pfa(*, positives, negatives, pfa, min_false_alarms=MIN_FALSE_ALARMS):
     return float((s1 > s0[allowed]).mean())
 
 
+def score_metrics(*, positives, negatives, pfa) -> dict:
+    """One detector's metrics from its paired scores, NaN where it is not evaluated.
+
+    Parameters
+    ----------
+    positives, negatives : array_like, shape (realisations,)
+        Scores of the samples with and without the target, row i of both realisation i's;
+        a realisation where either is NaN is left out.
+    pfa : sequence of float, keyword-only
+        False-alarm probabilities at which to report the probability of detection.
+
+    Returns
+    -------
+    dict
+        ``evaluated`` (the pairs used), ``auc``, ``auc_low``, ``auc_high``
+        (`bootstrap_auc`), ``pd`` (one per `pfa`, NaN where unavailable: `pd_at_pfa`).
+    """
+    s1, s0 = np.asarray(positives, np.float64), np.asarray(negatives, np.float64)
+    rows = ~(np.isnan(s1) | np.isnan(s0))
+    s1, s0 = s1[rows], s0[rows]
+    low, high = bootstrap_auc(positives=s1, negatives=s0)
+    return {
+        "evaluated": int(rows.sum()),
+        "auc": auc(positives=s1, negatives=s0),
+        "auc_low": low,
+        "auc_high": high,
+        "pd": np.array([pd_at_pfa(positives=s1, negatives=s0, pfa=alpha) for alpha in pfa]),
+    }
+
+
 def evaluate_pair(
     *, positive_image, positive_expected, negative_image, negative_expected, test, pfa
 ):
@@ -520,13 +551,9 @@ def evaluate_pair(
         **sea_auc_error(marginal, positives=int(test.sum())),
     }
     for row in range(len(DETECTORS)):
-        rows = ~np.isnan(scores[row, 0])
-        s1, s0 = scores[row, 0, rows], scores[row, 1, rows]
-        result["evaluated"][row] = rows.sum()
-        result["auc"][row] = auc(positives=s1, negatives=s0)
-        result["auc_low"][row], result["auc_high"][row] = bootstrap_auc(positives=s1, negatives=s0)
-        for column, alpha in enumerate(pfa):
-            result["pd"][row, column] = pd_at_pfa(positives=s1, negatives=s0, pfa=alpha)
+        metrics = score_metrics(positives=scores[row, 0], negatives=scores[row, 1], pfa=pfa)
+        for name, value in metrics.items():
+            result[name][row] = value
     gates = gate_scores[0].shape[1]
     result["gate_auc"] = np.array(
         [auc(positives=gate_scores[0][:, g], negatives=gate_scores[1][:, g]) for g in range(gates)]

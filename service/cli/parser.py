@@ -291,6 +291,13 @@ def parser() -> argparse.ArgumentParser:
         help="score the points on an embedded cluster of this many processes (default: "
         "threads of this process, which share one core while they render)",
     )
+    detect.add_argument(
+        "--cnn",
+        action="store_true",
+        help="also train a small convolutional network on the even realisations of every "
+        "point and score it on the odd ones (a GPU if there is one; needs "
+        "pip install 'oceanlidar[train]')",
+    )
     _storage_options(detect)
     _preview(commands)
 

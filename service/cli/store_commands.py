@@ -167,6 +167,7 @@ def cmd_detect(args) -> int:
 
     if args.workers is not None and args.workers < 1:
         raise BadOptionError("--workers must be at least 1")
+    cnn = _cnn_settings() if args.cnn else None
     store = _store(args, args.store)
     _open(store)
     output = store.other(args.output) if args.output else None
@@ -180,11 +181,23 @@ def cmd_detect(args) -> int:
                 cluster.enter_context(
                     dask_client(workers=args.workers, scheduler=None, verbose=args.verbose > 0)
                 )
-        target, unpaired = write_detection(store, output=output, stream=stream)
+        target, unpaired = write_detection(store, output=output, stream=stream, cnn=cnn)
     if unpaired:
         log.warning("points with no target-free twin, left out: %s", unpaired)
     print(target.url)
     return EXIT_OK
+
+
+def _cnn_settings():
+    """The trained network's default settings, or `BadOptionError` if torch is missing."""
+    try:
+        from workers.cnn import CnnSettings
+    except ImportError:
+        raise BadOptionError(
+            "--cnn trains a network with PyTorch, which is not installed: "
+            "pip install 'oceanlidar[train]'"
+        ) from None
+    return CnnSettings()
 
 
 def _stored_sample(store: Store, sample: int):
