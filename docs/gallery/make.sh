@@ -21,3 +21,6 @@ oceanlidar plot "$work/quickstart.zarr" --output $out/quickstart-statistics.png
 oceanlidar run configs/detection-study.yaml --output "$work/detection-study.zarr"   # ~5 min
 oceanlidar detect "$work/detection-study.zarr"
 oceanlidar plot "$work/detection-study.detect.zarr" --output $out/detection-study.png
+oceanlidar run configs/wind-trend.yaml --output "$work/wind-trend.zarr"   # ~7 min
+oceanlidar detect "$work/wind-trend.zarr"
+python -m benchmarks.wind_trend "$work/wind-trend.zarr" --png $out/wind-trend.png
