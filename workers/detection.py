@@ -37,8 +37,8 @@ __all__ = [
     "matched_filter_weights",
     "pd_at_pfa",
     "roc_curve",
-    "sea_auc_error",
     "score_metrics",
+    "sea_auc_error",
 ]
 
 MIN_FALSE_ALARMS = 2
