@@ -50,7 +50,7 @@ PIXELS = 64
 def sloped_sea(monkeypatch, *, slope_x=0.0, slope_y=0.0):
     """Make `render` see a sea of constant slopes (∂η/∂x, ∂η/∂y) and zero elevation."""
 
-    def surface(setup, seed, times):
+    def surface(setup, seed, times, *, backend):
         zero = np.zeros((len(times), 16, 16), np.float32)
         plane = Cascade(
             elevation=zero,
