@@ -1,6 +1,8 @@
 """The sea-marginal observer against closed forms: a flat sea, a two-sea mixture, a sea whose
 pixels vary independently (the exact marginal a product of one-dimensional integrals)."""
 
+import warnings
+
 import numpy as np
 import pytest
 from scipy.special import roots_hermitenorm
@@ -168,3 +170,19 @@ def test_its_auc_converges_as_the_seas_grow_and_its_error_shrinks_as_root_m(wavy
     # and the AUC rises to the exact ratio's: the shortfall is positive and falls with M
     assert shortfalls[25] > shortfalls[100] > shortfalls[400] > 0
     assert shortfalls[400] < shortfalls[25] / 2
+
+
+def test_an_image_no_sea_can_make_scores_nan_quietly():
+    """Counts where every sea expects none, with and without the target: the likelihood
+    ratio is 0/0, NaN (not evaluated), whole or bootstrapped, and no invalid-value warning
+    (the service runs with warnings as errors; a Monte Carlo sweep's zero means met it)."""
+    signal = np.array([[1.0, 0.0, 1.0], [2.0, 0.0, 1.0]])
+    background = np.array([[0.5, 1.0, 0.0], [0.5, 1.0, 0.0]])
+    image = np.array([[1.0, 0.0, 0.0], [1.0, 3.0, 2.0]])
+    likelihoods = sea_likelihoods(image, signal=signal, background=background)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        whole = likelihoods.scores()
+        resampled = likelihoods.scores(np.array([[1.0, 1.0], [2.0, 0.0]]))
+    assert np.isfinite(whole[0]) and np.isnan(whole[1])
+    assert np.isfinite(resampled[:, 0]).all() and np.isnan(resampled[:, 1]).all()

@@ -59,10 +59,11 @@ class SeaLikelihoods:
             (the common :math:`1/\sum_j c_j` cancels); +inf (-inf) where no sea without
             (with) the target can make the image, NaN where none of either can.
         """
-        if counts is None:
-            return logsumexp(self.with_target, axis=1) - logsumexp(self.without_target, axis=1)
-        c = np.asarray(counts, dtype=np.float64)
-        return _log_sums(self.with_target, c) - _log_sums(self.without_target, c)
+        with np.errstate(invalid="ignore"):  # -inf - -inf: no sea can make the image, NaN
+            if counts is None:
+                return logsumexp(self.with_target, axis=1) - logsumexp(self.without_target, axis=1)
+            c = np.asarray(counts, dtype=np.float64)
+            return _log_sums(self.with_target, c) - _log_sums(self.without_target, c)
 
     def effective_seas(self) -> np.ndarray:
         r"""Effective number of seas weighting each image, :math:`1 / \sum_j w_j^2`.
