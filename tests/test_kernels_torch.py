@@ -281,9 +281,56 @@ def test_gather_levels_agrees_with_numba(tail, occluded, device):
     # elementwise float32 in the same order: a few roundings of values of size ~ the sum of
     # the magnitudes that enter a pixel (fields ~1, 4 corners, 3 terms a cell, weight <= 2)
     np.testing.assert_allclose(out_t.cpu().numpy(), out, rtol=0, atol=64 * U * 4 * 3 * 2)
-    # the edge lines off the fine grid (last row, above it, far off, NaN) add nothing
-    off = lines[0].size - 10 + np.array([0, 4, 5, 6, 7, 8, 9])
+    edge = lines[0].size - 10
+    # the edge lines off both grids (far off, past the coarse columns, NaN) add nothing
+    off = edge + np.array([5, 6, 7])
     assert out_t.cpu().numpy()[off].tobytes() == initial[off].tobytes()
+    assert out[off].tobytes() == initial[off].tobytes()
+    # those off the fine grid only (its last row and column, above it, coarse only) read
+    # the far spread and the tail's far part at their coarse place, no occlusion
+    coarse = edge + np.array([0, 1, 4, 8, 9])
+    read = far + tails[1] if tail else far
+    expected = initial[coarse] + weight[coarse] * far_at(read, lines, coarse)
+    np.testing.assert_allclose(out[coarse], expected, rtol=1e-5, atol=1e-6)
+    assert np.all(out[coarse] != initial[coarse])
+
+
+def far_at(field, lines, index):
+    """A coarse field at lines' crossings of PLANE, bilinearly, in float64 (a reference)."""
+    fine_row, fine_col = (
+        (lines[2 * k][index] + lines[2 * k + 1][index] * 1.5 - origin) * 2.0
+        for k, origin in ((1, 0.5), (0, -0.25))
+    )
+    row = fine_row / FACTOR + float(PLANE.shift_v)
+    col = fine_col / FACTOR + float(PLANE.shift_u)
+    r, c = np.floor(row).astype(int), np.floor(col).astype(int)
+    down, right = row - r, col - c
+    return (
+        field[r, c] * (1 - down) * (1 - right)
+        + field[r, c + 1] * (1 - down) * right
+        + field[r + 1, c] * down * (1 - right)
+        + field[r + 1, c + 1] * down * right
+    )
+
+
+@pytest.mark.parametrize("edges", [True, False], ids=["edges", "random"])
+def test_outside_rows_agrees_with_numba(edges, device):
+    lines = splat_case(19, n=60, edges=edges)[0]
+    rows = kernels.outside_rows(lines, PLANE, FINE, COARSE)
+    assert kernels_torch.outside_rows(tensors(lines, device), PLANE, FINE, COARSE) == rows
+    # the rows the lines off the fine grid touch on the coarse one, found in float64
+    fine_row = (lines[2] + lines[3] * 1.5 - 0.5) * 2.0
+    fine_col = (lines[0] + lines[1] * 1.5 + 0.25) * 2.0
+    on_fine = (fine_row >= 0) & (fine_col >= 0) & (fine_row < FINE[0] - 1)
+    on_fine &= fine_col < FINE[1] - 1
+    row = fine_row / FACTOR + float(PLANE.shift_v)
+    col = fine_col / FACTOR + float(PLANE.shift_u)
+    on_coarse = (row >= 0) & (col >= 0) & (row < COARSE[0] - 1) & (col < COARSE[1] - 1)
+    touched = np.floor(row[on_coarse & ~on_fine]).astype(int)
+    assert rows == (touched.min(), touched.max() + 2)
+    inside = tuple(np.array(v, np.float32) for v in ([1.0], [0.0], [2.0], [0.0]))
+    assert kernels.outside_rows(inside, PLANE, FINE, COARSE) == (0, 0)
+    assert kernels_torch.outside_rows(tensors(inside, device), PLANE, FINE, COARSE) == (0, 0)
 
 
 def test_sample_agrees_with_numba(device):

@@ -46,6 +46,11 @@ CORPUS = {
     "wavy-sphere-absolute": scene(radiometry={"mode": "absolute", "white_plane_photons": None}),
     "wavy-sphere-oblique": scene(platform={"nadir_deg": 20.0, "azimuth_deg": 30.0}),
     "wavy-large-sphere-64px": scene(target={"radius": 2.0, "depth": 3.0}, receiver={"pixels": 64}),
+    # seen through 2°, the waves' slopes bend some lines of sight off the fine grids: they
+    # read the coarse level (`workers.kernels.gather_levels`)
+    "wavy-narrow-lines-off-the-grid": scene(
+        surface={"spacing": 0.02}, receiver={"pixels": 48, "field_of_view_deg": 2.0}
+    ),
     "frames-moving-saved-sea": scene(
         sequence={"frames": 2, "velocity": (2.0, 0.0, 0.0)}, save_surface=True
     ),

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
+from workers import planes as planes_module
 from workers.optics import fresnel_reflectance
 from workers.render import render
 from workers.scene import Scene
@@ -167,6 +168,40 @@ def test_a_sloped_sea_shifts_the_targets_image_as_snell_predicts(monkeypatch, sl
     lit = image * (image > 0.5 * image.max())
     _, bright = np.indices(image.shape)
     assert (lit * bright).sum() / lit.sum() == pytest.approx(column, abs=0.25)
+
+
+def test_lines_of_sight_that_leave_the_fine_grid_read_the_coarse_light(monkeypatch):
+    # Facets at 45° bend the pixels' lines of sight past the fine grid's guard band in the
+    # deep gates (`workers.kernels.gather_levels`): they used to read nothing, 146 to 624
+    # black pixels a deep gate in this scene, 55 to 86 % of the gate's peak off. Now they
+    # read the coarse level's far light: no pixel is dark among lit neighbours, and every
+    # pixel agrees with planes of 8 times the guard band (where no line leaves) within 6 %
+    # of the gate's peak (measured 4.2 %: the near light of the laser's rays that landed
+    # off the fine grid too, which the coarse level does not hold, is what is missing).
+    sloped_sea(monkeypatch, slope_x=1.0, slope_y=0.5)
+    scene = Scene.model_validate(
+        {
+            "surface": {"grid_size": 16, "spacing": 0.5},
+            "water": {"preset": "coastal"},
+            "receiver": {"pixels": 48},
+        }
+    )
+    images = []
+    for guard in (planes_module.GUARD, 8 * planes_module.GUARD):
+        monkeypatch.setattr(planes_module, "GUARD", guard)
+        planes_module.frame_geometry.cache_clear()
+        images.append(render(scene, seed=3).expected.values[0])
+    planes_module.frame_geometry.cache_clear()
+    plane, wide = images
+    assert np.all(wide > 0)
+    for gate in plane[2:]:
+        assert np.all(gate > 0)
+        padded = np.pad(gate, 1, mode="edge")
+        windows = np.lib.stride_tricks.sliding_window_view(padded, (3, 3))
+        neighbours = np.median(windows.reshape(*gate.shape, 9), axis=-1)
+        assert np.all(gate >= 0.5 * neighbours)
+    peak = wide.max(axis=(1, 2), keepdims=True)
+    assert (np.abs(plane - wide) / peak).max() <= 0.06
 
 
 @pytest.mark.parametrize("slope", [0.3, -0.3], ids=lambda s: f"slope{s:g}")

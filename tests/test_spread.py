@@ -246,19 +246,26 @@ def test_downsample_on_the_lit_rows_is_the_whole_downsample(rows):
 
 
 @pytest.mark.parametrize(
-    ("spectrum", "atol"), [("flat", 2e-3), (None, 1.5e-2)], ids=["flat-sea", "rough-sea"]
+    ("spectrum", "spacing", "fov", "atol"),
+    [("flat", 0.09, None, 2e-3), (None, 0.09, None, 1e-2), (None, 0.02, 2.0, 4.5e-2)],
+    ids=["flat-sea", "rough-sea", "rough-sea-narrow"],
 )
-def test_a_plane_holds_the_light_a_wider_one_changes_no_pixel(spectrum, atol, monkeypatch):
+def test_a_plane_holds_the_light_a_wider_one_changes_no_pixel(
+    spectrum, spacing, fov, atol, monkeypatch
+):
     # The fine planes hold the lit lattice, the pixels' lines of sight and the near spread
     # around them (`workers.planes._plane_levels`): planes with four times the guard band
     # move no pixel of any gate by more than the two levels' own error (flat sea: 1.1e-3 of
     # the gate's peak, the deepest gate; rough sea: 8.7e-3, where the slopes push a few
     # lines of sight near the fine grid's edge). Planes that do not hold the near spread
-    # (a guard of one coarse cell) move them by 4.9e-3 and 0.61.
-    surface = {"grid_size": 64, "spacing": 0.09}
+    # (a guard of one coarse cell) move them by 4.9e-3 and 0.61. Seen through a 2° field
+    # the slopes bend some lines of sight past the guard band (up to 51 a gate): they read
+    # the coarse level's far light, 3.3e-2 off (they read nothing before: 0.36 off).
+    surface = {"grid_size": 64, "spacing": spacing}
     if spectrum is not None:
         surface["spectrum"] = spectrum
-    scene = Scene.model_validate({"surface": surface, "receiver": {"pixels": 48}})
+    receiver = {"pixels": 48} | ({} if fov is None else {"field_of_view_deg": fov})
+    scene = Scene.model_validate({"surface": surface, "receiver": receiver})
     images = []
     for guard in (planes_module.GUARD, 4 * planes_module.GUARD):
         monkeypatch.setattr(planes_module, "GUARD", guard)

@@ -25,6 +25,7 @@ __all__ = [
     "cell_uniforms",
     "column_convolution",
     "gather_levels",
+    "outside_rows",
     "sample",
     "span",
     "splat_levels",
@@ -128,6 +129,12 @@ def _deposit(field, row, col, value):
     return True
 
 
+@numba.njit(cache=True)
+def _coarse(row, col, cells):
+    """Fractional coarse (row, col) of a fractional fine one, float32."""
+    return row / cells.factor + cells.shift_v, col / cells.factor + cells.shift_u
+
+
 @numba.njit(cache=True, nogil=True)
 def splat_levels(lines, power, cells, densities, fine, source, block):
     """Splat rays onto a two-level plane: the fine field and the coarse spread source.
@@ -177,8 +184,7 @@ def splat_levels(lines, power, cells, densities, fine, source, block):
             left = min(left, c)
             right = max(right, c + 2)
             continue
-        row = row / cells.factor + cells.shift_v
-        col = col / cells.factor + cells.shift_u
+        row, col = _coarse(row, col, cells)
         if _deposit(source, row, col, power[i] * coarse_density):
             coarse_top = min(coarse_top, int(row))
             coarse_bottom = max(coarse_bottom, int(row) + 2)
@@ -220,6 +226,45 @@ def span(lines, cells, shape):
 
 
 @numba.njit(cache=True, nogil=True)
+def outside_rows(lines, cells, shape, coarse_shape):
+    """The coarse rows that the lines off the fine grid read (`gather_levels`).
+
+    Returns the first row and the last row + 1 of the coarse cells whose bilinear
+    corners the lines that miss the fine grid of `shape` touch on the coarse grid of
+    `coarse_shape` (0, 0 if every line meets the fine grid or misses both).
+    """
+    rows, cols = shape
+    base_u, slope_u, base_v, slope_v = lines
+    top, bottom = coarse_shape[0], 0
+    for i in range(lines[0].size):
+        row = _at(base_v, slope_v, i, cells.depth, cells.origin_v, cells.scale_v)
+        col = _at(base_u, slope_u, i, cells.depth, cells.origin_u, cells.scale_u)
+        if _split(row, col, rows, cols)[0] >= 0:
+            continue
+        row, col = _coarse(row, col, cells)
+        r = _split(row, col, coarse_shape[0], coarse_shape[1])[0]
+        if r >= 0:
+            top = min(top, r)
+            bottom = max(bottom, r + 2)
+    if top >= bottom:
+        return 0, 0
+    return top, bottom
+
+
+@numba.njit(cache=True)
+def _interpolate(field, r, c, down, right):
+    """Bilinear value of `field` at cell (r, c) with fractions down and right, float32."""
+    left = _ONE - right
+    w2 = left * down
+    w3 = right * down
+    total = field[r, c] * (left - w2)
+    total += field[r, c + 1] * (right - w3)
+    total += field[r + 1, c] * w2
+    total += field[r + 1, c + 1] * w3
+    return total
+
+
+@numba.njit(cache=True, nogil=True)
 def gather_levels(lines, cells, shape, parts, lift, occlusion, weight, out):
     """Add the spread field, bilinearly interpolated at each line's crossing, to `out`.
 
@@ -234,7 +279,8 @@ def gather_levels(lines, cells, shape, parts, lift, occlusion, weight, out):
     parts : tuple
         ``(near, window, far, tail)``: the near spread on the fine rows
         ``window[0]:window[1]``, the fine cells the lines reach (`span`), the far spread
-        on the coarse grid, and the beam tail's near and far spreads (size 0: none);
+        on the coarse grid (on the rows the lines off the fine grid read too,
+        `outside_rows`), and the beam tail's near and far spreads (size 0: none);
         float32.
     lift : tuple
         ``((lower row, weight), (lower col, weight))`` of each fine cell on the coarse grid
@@ -244,51 +290,63 @@ def gather_levels(lines, cells, shape, parts, lift, occlusion, weight, out):
     weight : ndarray
         Factor on each pixel, float32.
     out : ndarray
-        In and out: each pixel's sum, float32; pixels off the fine grid add nothing.
+        In and out: each pixel's sum, float32; pixels off both grids add nothing.
 
     Notes
     -----
     The field is first assembled on the window, ``near + upsampled far`` (times the
     occlusion), in float32 as `workers.spread.Spread` does on the whole grid; the far
     part is interpolated along the columns once per fine row.
+
+    A line that misses the fine grid (a steep sea bends it past the guard band) reads
+    the coarse level alone: the far spread plus the tail's far part, bilinearly at its
+    coarse crossing (located as `splat_levels` locates a ray there), with no occlusion
+    (the target's shadow lies inside the fine grid). The near part is left out there:
+    the near kernel decays within the guard band (`workers.spread.NEAR_SUPPORT`), so
+    beyond the fine grid the light of the fine level is all in the far part. What it
+    misses is the near part of the light of rays that themselves landed off the fine
+    grid (their unscattered share and scattered core), a part of the light a few
+    guard-widths from the image that the coarse cells would blur anyway.
     """
     near, window, far, (tail_near, tail_far) = parts
     top, bottom, left, right = window
     (rl, rw), (cl, cw) = lift
     field = np.empty((bottom - top, right - left), dtype=np.float32)
-    if top == bottom:
-        return
-    first = cl[left]
-    along = np.empty(cl[right - 1] + 2 - first, dtype=np.float32)
-    for r in range(top, bottom):
-        a, lower, upper = rl[r], _ONE - rw[r], rw[r]
-        for b in range(along.size):
-            value = far[a, first + b] * lower + far[a + 1, first + b] * upper
-            if tail_far.size:
-                value += tail_far[a, first + b] * lower + tail_far[a + 1, first + b] * upper
-            along[b] = value
-        for c in range(left, right):
-            b = cl[c] - first
-            value = near[r - top, c]
-            if tail_near.size:
-                value += tail_near[r, c]
-            value += along[b] * (_ONE - cw[c]) + along[b + 1] * cw[c]
-            if occlusion.size:
-                value *= occlusion[r, c]
-            field[r - top, c - left] = value
+    if top < bottom:
+        first = cl[left]
+        along = np.empty(cl[right - 1] + 2 - first, dtype=np.float32)
+        for r in range(top, bottom):
+            a, lower, upper = rl[r], _ONE - rw[r], rw[r]
+            for b in range(along.size):
+                value = far[a, first + b] * lower + far[a + 1, first + b] * upper
+                if tail_far.size:
+                    value += tail_far[a, first + b] * lower + tail_far[a + 1, first + b] * upper
+                along[b] = value
+            for c in range(left, right):
+                b = cl[c] - first
+                value = near[r - top, c]
+                if tail_near.size:
+                    value += tail_near[r, c]
+                value += along[b] * (_ONE - cw[c]) + along[b + 1] * cw[c]
+                if occlusion.size:
+                    value *= occlusion[r, c]
+                field[r - top, c - left] = value
     rows, cols = shape
+    base_u, slope_u, base_v, slope_v = lines
     for i in range(lines[0].size):
-        r, c, down, right_share = _locate(lines, i, cells, rows, cols)
-        if r < 0:
-            continue
-        r, c = r - top, c - left
-        left_share = _ONE - right_share
-        w2 = left_share * down
-        w3 = right_share * down
-        total = field[r, c] * (left_share - w2)
-        total += field[r, c + 1] * (right_share - w3)
-        total += field[r + 1, c] * w2
-        total += field[r + 1, c + 1] * w3
+        row = _at(base_v, slope_v, i, cells.depth, cells.origin_v, cells.scale_v)
+        col = _at(base_u, slope_u, i, cells.depth, cells.origin_u, cells.scale_u)
+        r, c, down, right_share = _split(row, col, rows, cols)
+        if r >= 0:
+            total = _interpolate(field, r - top, c - left, down, right_share)
+        else:
+            row, col = _coarse(row, col, cells)
+            r, c, down, right_share = _split(row, col, far.shape[0], far.shape[1])
+            if r < 0:
+                continue
+            total = _interpolate(far, r, c, down, right_share)
+            if tail_far.size:
+                total += _interpolate(tail_far, r, c, down, right_share)
         out[i] += total * weight[i]
 
 

@@ -1,11 +1,11 @@
-"""The render's kernels on PyTorch tensors: `workers.kernels`' seven, vectorised.
+"""The render's kernels on PyTorch tensors: `workers.kernels`' eight, vectorised.
 
 The same names, arguments, out-parameters and returned ints as the numba loops of
 `workers.kernels`, on torch tensors of the same dtypes on any device (CPU or CUDA): a
 ``Cells`` is the same NamedTuple of float32 scalars. Every ray, pixel or point is handled
 at once (no Python loop over them), in float32 with the numba code's operations in the
 same order (``t = slope·depth; t += base; t −= origin; t·scale``), so the two agree to
-float32 rounding; `bilinear_sum`, `span`, `sample` and `cell_uniforms` have no sums
+float32 rounding; `bilinear_sum`, `span`, `outside_rows`, `sample` and `cell_uniforms` have no sums
 whose order could differ.
 
 No float atomics: the scatter-adds of `splat_levels` (the rays' bilinear deposits and
@@ -27,6 +27,7 @@ __all__ = [
     "cell_uniforms",
     "column_convolution",
     "gather_levels",
+    "outside_rows",
     "sample",
     "span",
     "splat_levels",
@@ -65,6 +66,12 @@ def _coordinates(lines, cells):
     row = _at(base_v, slope_v, depth, origin_v, scale_v)
     col = _at(base_u, slope_u, depth, origin_u, scale_u)
     return row, col
+
+
+def _coarse(row, col, cells):
+    """Fractional coarse (row, col) of fractional fine ones, float32 (numba's order)."""
+    factor = _scalar(cells.factor, row)
+    return row / factor + _scalar(cells.shift_v, row), col / factor + _scalar(cells.shift_u, col)
 
 
 def _split(row, col, rows, cols):
@@ -200,9 +207,7 @@ def splat_levels(lines, power, cells, densities, fine, source, block):
     fine_sums = _deposit((rows, cols), r, c, weights, value, hit, fixed)
     top, bottom = _extent(r, hit, rows)
     left, right_end = _extent(c, hit, cols)
-    coarse_row = row / _scalar(cells.factor, row) + _scalar(cells.shift_v, row)
-    coarse_col = col / _scalar(cells.factor, col) + _scalar(cells.shift_u, col)
-    rc, cc, down, right, coarse_hit = _split(coarse_row, coarse_col, *source.shape)
+    rc, cc, down, right, coarse_hit = _split(*_coarse(row, col, cells), *source.shape)
     coarse_hit &= ~hit
     value = power * _scalar(densities[1], power)
     coarse = _FixedPoint(torch.where(coarse_hit, value, 0.0))
@@ -258,6 +263,20 @@ def span(lines, cells, shape):
     return top, bottom, left, right
 
 
+def outside_rows(lines, cells, shape, coarse_shape):
+    """The coarse rows the lines off the fine grid read (`workers.kernels.outside_rows`).
+
+    Returns the first row and the last row + 1 (0, 0 if none), python ints.
+    """
+    row, col = _coordinates(lines, cells)
+    hit = _split(row, col, *shape)[4]
+    r, _, _, _, coarse_hit = _split(*_coarse(row, col, cells), *coarse_shape)
+    top, bottom = torch.stack(_extent(r, coarse_hit & ~hit, coarse_shape[0])).tolist()
+    if top >= bottom:
+        return 0, 0
+    return top, bottom
+
+
 def gather_levels(lines, cells, shape, parts, lift, occlusion, weight, out):
     """Add the spread field at each line's crossing to `out` (`workers.kernels.gather_levels`).
 
@@ -272,7 +291,8 @@ def gather_levels(lines, cells, shape, parts, lift, occlusion, weight, out):
     parts : tuple
         ``(near, window, far, tail)``: the near spread on the fine rows
         ``window[0]:window[1]``, the window (python ints, `span`), the far spread on the
-        coarse grid, the beam tail's near and far spreads (size 0: none); float32.
+        coarse grid (on the rows `outside_rows` too), the beam tail's near and far spreads
+        (size 0: none); float32.
     lift : tuple
         ``((lower row, weight), (lower col, weight))`` of each fine cell on the coarse
         grid, int64 and float32 tensors.
@@ -281,42 +301,51 @@ def gather_levels(lines, cells, shape, parts, lift, occlusion, weight, out):
     weight : torch.Tensor
         Factor on each pixel, float32.
     out : torch.Tensor
-        In and out: each pixel's sum, float32; pixels off the fine grid add nothing.
+        In and out: each pixel's sum, float32; pixels off both grids add nothing.
 
     Notes
     -----
     The window's field is ``near (+ tail near) + (far (+ tail far) upsampled)`` times the
-    occlusion, in numba's float32 order (the far part along the columns first); no sum
-    over lines, so the values agree with numba's to float32 rounding.
+    occlusion, in numba's float32 order (the far part along the columns first); a line
+    off the fine grid reads the far spread (+ the tail's far part) at its coarse
+    crossing, without occlusion, as numba does. No sum over lines, so the values agree
+    with numba's to float32 rounding.
     """
     near, window, far, (tail_near, tail_far) = parts
     top, bottom, left, right = window
-    if top == bottom:
-        return
-    (rl, rw), (cl, cw) = (
-        tuple(torch.as_tensor(part, device=out.device) for part in axis) for axis in lift
-    )
-    a, upper = rl[top:bottom, None], rw[top:bottom, None]
-    lower = 1.0 - upper
-    b, across = cl[None, left:right], cw[None, left:right]
+    row, col = _coordinates(lines, cells)
+    r, c, down, right_share, hit = _split(row, col, *shape)
+    if top < bottom:
+        (rl, rw), (cl, cw) = (
+            tuple(torch.as_tensor(part, device=out.device) for part in axis) for axis in lift
+        )
+        a, upper = rl[top:bottom, None], rw[top:bottom, None]
+        lower = 1.0 - upper
+        b, across = cl[None, left:right], cw[None, left:right]
 
-    def along(column):
-        value = far[a, column] * lower + far[a + 1, column] * upper
-        if tail_far.numel():
-            value = value + (tail_far[a, column] * lower + tail_far[a + 1, column] * upper)
-        return value
+        def along(column):
+            value = far[a, column] * lower + far[a + 1, column] * upper
+            if tail_far.numel():
+                value = value + (tail_far[a, column] * lower + tail_far[a + 1, column] * upper)
+            return value
 
-    field = near[:, left:right]
-    if tail_near.numel():
-        field = field + tail_near[top:bottom, left:right]
-    field = field + (along(b) * (1.0 - across) + along(b + 1) * across)
-    if occlusion.numel():
-        field = field * occlusion[top:bottom, left:right]
-    r, c, down, right_share, hit = _split(*_coordinates(lines, cells), *shape)
-    r = torch.where(hit, r - top, 0)
-    c = torch.where(hit, c - left, 0)
-    total = _bilinear(field, r, c, _corner_weights(down, right_share))
-    out.copy_(torch.where(hit, out + total * weight, out))
+        field = near[:, left:right]
+        if tail_near.numel():
+            field = field + tail_near[top:bottom, left:right]
+        field = field + (along(b) * (1.0 - across) + along(b + 1) * across)
+        if occlusion.numel():
+            field = field * occlusion[top:bottom, left:right]
+        r = torch.where(hit, r - top, 0)
+        c = torch.where(hit, c - left, 0)
+        total = _bilinear(field, r, c, _corner_weights(down, right_share))
+        out.copy_(torch.where(hit, out + total * weight, out))
+    rc, cc, down, right_share, coarse_hit = _split(*_coarse(row, col, cells), *far.shape)
+    coarse_hit &= ~hit
+    weights = _corner_weights(down, right_share)
+    total = _bilinear(far, rc, cc, weights)
+    if tail_far.numel():
+        total = total + _bilinear(tail_far, rc, cc, weights)
+    out.copy_(torch.where(coarse_hit, out + total * weight, out))
 
 
 def sample(lines, cells, fields, box, out):

@@ -200,10 +200,8 @@ def _target_frame(geometry: FrameGeometry, rays: SeaRays, images, backend: Backe
     gathered at the pixels.
     """
     xp = backend.xp
-    kernels = backend.kernels
     plane = geometry.target_plane
     levels = plane.levels
-    cells = Cells.of(levels)
     occupancy = geometry.sight_occupancy
     silhouette = _sample(
         rays.up, geometry.sight_cells, (occupancy,), geometry.sight_support, backend
@@ -214,7 +212,7 @@ def _target_frame(geometry: FrameGeometry, rays: SeaRays, images, backend: Backe
     rows = light.rows
     wide = any(coarse is not None for _, coarse in light.weights)
     splat = _splat(plane, rays.down, rays.power * extra, backend)
-    window = kernels.span(rays.up.lines, cells, levels.fine.shape)
+    reach = _reach(plane, rays.up, backend)
     near, far, beyond = plane.spread.filtered(
         splat.fine,
         splat.source,
@@ -239,7 +237,7 @@ def _target_frame(geometry: FrameGeometry, rays: SeaRays, images, backend: Backe
             source += beyond * coarse
         seen = xp.zeros(images.shape[1], dtype=xp.float32, device=backend.device)
         rows_in = inside if coarse is None else (rows, slice(None))
-        spread = _spread(plane, rays.up, Splat(fine, source, rows_in), backend, window=window)
+        spread = _spread(plane, rays.up, Splat(fine, source, rows_in), backend, reach=reach)
         _gather(plane, rays.up, spread, ((weight, seen, None),), backend)
         for g in gates:
             images[g] += seen
@@ -262,23 +260,40 @@ def _splat(plane: Plane, rays: Projected, power, backend: Backend) -> Splat:
 
 
 def _spread(
-    plane: Plane, sight: Projected, splat: Splat, backend: Backend, *, window=None, tail=None
+    plane: Plane, sight: Projected, splat: Splat, backend: Backend, *, reach=None, tail=None
 ):
-    """A splat spread on its plane, on the fine rows the pixels' `sight` reaches.
+    """A splat spread on its plane, on the rows the pixels' `sight` reaches.
 
     The light of the beam's `tail` (`Plane.tail`) is added to the spread. Only the rows
-    that the sights reach (their `window`, `workers.kernels.span`: found here when None)
-    are brought back from the spectra.
+    that the sights read (their `reach`, `_reach`: found here when None) are brought back
+    from the spectra.
     """
-    levels = plane.levels
-    if window is None:
-        window = backend.kernels.span(sight.lines, Cells.of(levels), plane.grid.shape)
+    window, coarse = _reach(plane, sight, backend) if reach is None else reach
     rows = slice(*window[:2])
     near, far, _ = plane.spread.filtered(
-        splat.fine, splat.source, rows_in=splat.rows, rows_out=(rows, levels.coarse_rows(rows))
+        splat.fine, splat.source, rows_in=splat.rows, rows_out=(rows, coarse)
     )
     none = _none(backend)
     return PlaneLight(near, window, far, (none, none) if tail is None else tail[:2])
+
+
+def _reach(plane: Plane, sight: Projected, backend: Backend) -> tuple:
+    """The fine cells the pixels' `sight` reads and the coarse rows the spread must hold.
+
+    Returns `workers.kernels.span`'s window and a slice of coarse rows: those the window's
+    upsampling reads and those where the lines that miss the fine grid cross the coarse
+    one (`workers.kernels.outside_rows`: what `gather_levels` reads for them).
+    """
+    levels = plane.levels
+    cells, kernels = Cells.of(levels), backend.kernels
+    window = kernels.span(sight.lines, cells, plane.grid.shape)
+    coarse = levels.coarse_rows(slice(*window[:2]))
+    first, last = kernels.outside_rows(sight.lines, cells, plane.grid.shape, levels.coarse.shape)
+    if first < last:
+        if coarse.start < coarse.stop:
+            first, last = min(first, coarse.start), max(last, coarse.stop)
+        coarse = slice(first, last)
+    return window, coarse
 
 
 def _gather(plane: Plane, sight: Projected, light: PlaneLight, outputs, backend: Backend):
