@@ -33,6 +33,7 @@ import numpy as np
 import xarray as xr
 
 from service import package_version
+from service.devices import written_by
 from service.errors import BadOptionError, BadSweepError, InputError
 from service.progress import Progress, compute, phase
 from service.stats import twin_points
@@ -40,6 +41,7 @@ from service.store.layout import CONVENTIONS
 from service.store.location import Store
 from service.store.template import swept_parameters
 from service.sweep import parse_sweep
+from workers.backend import Backend
 from workers.detection import DETECTORS, MIN_FALSE_ALARMS, evaluate_pair, held_out, roc_curve
 from workers.render import render_images, render_pair
 
@@ -101,11 +103,12 @@ def pair_points(ds: xr.Dataset) -> tuple[list[tuple[int, int]], list[int]]:
     return pairs, unpaired
 
 
-def _rendered_expected(plan, rows, both, images):
+def _rendered_expected(plan, rows, both, images, backend: Backend):
     """Render the pair's samples again for their noise-free images (renders are deterministic).
 
     `rows` maps the positive and the negative point to their samples, `both` picks the
-    realisations read, `images` their stored noisy images by point. A positive sample whose
+    realisations read, `images` their stored noisy images by point, `backend` the one that
+    wrote them (`service.devices.written_by`: another draws other noise). A positive sample whose
     point's target-free twin (`workers.scene.Scene.without_target`) is the negative point's
     scene is rendered once with its twin (`workers.render.render_pair`: the negative
     sample's images, on the same sea, in the same pass); otherwise each sample is rendered
@@ -119,13 +122,17 @@ def _rendered_expected(plan, rows, both, images):
         The expected images by point, float64.
     """
     (positive, negative), rendered = rows, {point: [] for point in rows}
+    where = {"backend": backend.name, "device": backend.device}
     for p, q in zip(rows[positive][both], rows[negative][both], strict=True):
         a, b = plan.sample(int(p)), plan.sample(int(q))
         pair = None
         if b.scene == a.scene.without_target():
-            pair = render_pair(a.scene, seed=a.seed, twin_seed=b.seed)
+            pair = render_pair(a.scene, seed=a.seed, twin_seed=b.seed, **where)
         if pair is None:
-            pair = (*render_images(a.scene, seed=a.seed), *render_images(b.scene, seed=b.seed))
+            pair = (
+                *render_images(a.scene, seed=a.seed, **where),
+                *render_images(b.scene, seed=b.seed, **where),
+            )
         rendered[positive].append(pair[:2])
         rendered[negative].append(pair[2:])
     expected = {}
@@ -141,11 +148,11 @@ def _rendered_expected(plan, rows, both, images):
     return expected
 
 
-def _evaluate(store: Store, positive, negative, realisations, test, plan):
+def _evaluate(store: Store, positive, negative, realisations, test, plan, backend):
     """Read one pair's samples (the realisations written at both points) and score them.
 
     `plan`: the store's sweep, to render the expected images again when the store has none
-    (None: read them).
+    (None: read them), on `backend`, the one that wrote them.
     """
     source = store.group()
     rows = {p: np.arange(realisations) + p * realisations for p in (positive, negative)}
@@ -169,7 +176,7 @@ def _evaluate(store: Store, positive, negative, realisations, test, plan):
             expected[p] = source["expected"].get_orthogonal_selection((rows[p][both],))
             expected[p] = expected[p].astype(np.float64)
     if plan is not None:
-        expected = _rendered_expected(plan, rows, both, images)
+        expected = _rendered_expected(plan, rows, both, images, backend)
     metrics = evaluate_pair(
         positive_image=images[positive].astype(np.float64),
         positive_expected=expected[positive],
@@ -422,7 +429,10 @@ def write_detection(
     realisations = int(ds.attrs["realisations"])
     test = held_out(realisations)
     plan = None if "expected" in ds else _sweep_plan(ds, url)
-    tasks = [dask.delayed(_evaluate)(store, p, q, realisations, test, plan) for p, q in pairs]
+    backend = None if plan is None else written_by(ds.attrs, url)
+    tasks = [
+        dask.delayed(_evaluate)(store, p, q, realisations, test, plan, backend) for p, q in pairs
+    ]
     how = "reading" if plan is None else "rendering again"
     progress = Progress(
         len(pairs),

@@ -12,7 +12,7 @@ CPU's), so a store records where it was rendered (`recorded`) and a resume refus
 
 from __future__ import annotations
 
-from service.errors import BadOptionError, UnusableOutputError
+from service.errors import BadOptionError, BadSweepError, UnusableOutputError
 from workers.backend import Backend, get_backend
 
 __all__ = [
@@ -58,7 +58,7 @@ def choose(backend: str | None, device: str | None, *, here: bool = True) -> Bac
         Naming ``--backend`` or ``--device`` and why (torch not installed, no CUDA device,
         numpy on a GPU, an unknown name; a GPU's index for a scheduler's workers).
     """
-    device = device or "cpu"
+    device = "cpu" if device is None else device
     name = backend or ("numpy" if device == "cpu" else "torch")
     if not here:
         if ":" in device:
@@ -71,6 +71,31 @@ def choose(backend: str | None, device: str | None, *, here: bool = True) -> Bac
         return get_backend(name, device)
     except ValueError as error:
         raise BadOptionError(f"--{error}") from None
+
+
+def check_renderers(plan, backend: Backend) -> None:
+    """Refuse a sweep with Monte Carlo points on a backend other than numpy, before any work.
+
+    Parameters
+    ----------
+    plan : service.sweep.Plan
+        The sweep (every point's scene is read: built, on a trusted resume).
+    backend : Backend
+        Where it would render.
+
+    Raises
+    ------
+    BadOptionError
+        Naming ``--backend`` and the first such point.
+    """
+    if backend.name == "numpy":
+        return
+    for point, scene in enumerate(plan.scenes):
+        if scene.transport.method == "monte_carlo":
+            raise BadOptionError(
+                f"--backend {backend.name}: point {point} renders by Monte Carlo "
+                "(transport.method: monte_carlo), which runs on the numpy backend only"
+            )
 
 
 def check_on_worker(backend: Backend) -> None:
@@ -96,6 +121,35 @@ def recorded(backend: Backend) -> dict[str, str]:
 def stored(attributes: dict) -> dict[str, str]:
     """The backend and device a store's root `attributes` record (numpy, cpu if none)."""
     return {key: attributes.get(key, value) for key, value in recorded(NUMPY).items()}
+
+
+def written_by(attributes: dict, name: str) -> Backend:
+    """The backend and device that rendered a store's samples, checked to run here.
+
+    What ``detect`` renders a store's samples again on, for their expected images (another
+    backend draws other noise).
+
+    Parameters
+    ----------
+    attributes : dict
+        The store's root attributes.
+    name : str
+        The store, for the message.
+
+    Raises
+    ------
+    BadSweepError
+        Naming the store's backend and device and why they cannot run here.
+    """
+    written = stored(attributes)
+    try:
+        return get_backend(written[BACKEND_ATTR], written[DEVICE_ATTR])
+    except ValueError as error:
+        raise BadSweepError(
+            f"{name}: its samples were rendered with --backend {written[BACKEND_ATTR]} "
+            f"--device {written[DEVICE_ATTR]}, and detect renders them again there for their "
+            f"expected images, but cannot here ({error})"
+        ) from None
 
 
 def check_same(attributes: dict, backend: Backend, *, name: str) -> None:

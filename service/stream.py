@@ -56,8 +56,8 @@ class SweepStream(IterableDataset):
         The type ``image`` is returned in; default the store's (the sweep's widest).
     backend, device : str, optional
         The array backend and device to render on, passed to
-        `workers.render.render_arrays` when given (issue #28's keywords; the renderer
-        this version ships takes neither, so leave them out until it does).
+        `workers.render.render_arrays` when given (a store's bytes are those of the
+        backend that wrote it: its ``render_backend``, ``render_device``).
 
     Notes
     -----

@@ -61,9 +61,10 @@ NO_RENDER_HERE = [
     pytest.param(
         ["--device", "tpu"], "--device: 'tpu' is neither 'cpu' nor 'cuda'", id="unknown-device"
     ),
+    pytest.param(["--device", ""], "--device: '' is neither 'cpu' nor 'cuda'", id="no-device"),
     pytest.param(
         ["--backend", "torch"],
-        "--backend: torch is not installed here (pip install 'oceanlidar[gpu]')",
+        "--backend: torch is not installed here (pip install 'oceanlidar[train]' for the CPU",
         id="no-torch",
     ),
 ]
@@ -89,7 +90,7 @@ def without_torch(monkeypatch):
     get_backend.cache_clear()
 
 
-@pytest.mark.parametrize("command", ["run", "validate", "serve"])
+@pytest.mark.parametrize("command", ["run", "validate", "validate-quick", "serve"])
 @pytest.mark.parametrize(("flags", "message"), NO_RENDER_HERE)
 def test_a_backend_that_cannot_render_here_is_refused_before_anything_is_written(
     work, cli, command, flags, message, request
@@ -101,6 +102,7 @@ def test_a_backend_that_cannot_render_here_is_refused_before_anything_is_written
     args = {
         "run": ["run", "sweep.yaml"],
         "validate": ["validate", "sweep.yaml"],
+        "validate-quick": ["validate", "sweep.yaml", "--no-estimate"],  # a trial's find
         "serve": [
             "serve",
             "--no-auth",
@@ -114,7 +116,29 @@ def test_a_backend_that_cannot_render_here_is_refused_before_anything_is_written
     }[command]
     result = cli(*args, *flags, cwd=work)
     assert result.returncode == 2, result.stderr
-    assert f"oceanlidar {command}: error: {message}" in result.stderr
+    assert f"oceanlidar {command.split('-')[0]}: error: {message}" in result.stderr
+    assert "Traceback" not in result.stderr
+    assert sorted(p.name for p in work.iterdir()) == ["sweep.yaml"]
+
+
+@pytest.mark.parametrize("command", ["run", "validate"])
+def test_monte_carlo_points_on_torch_are_refused_before_anything_is_written(work, cli, command):
+    # found by a trial: the run wrote the fast points, refused the Monte Carlo ones one by
+    # one, and left a half store that only --overwrite could reuse
+    sweep = work / "sweep.yaml"
+    sweep.write_text(
+        sweep.read_text().replace(
+            "target.shape: {values: [sphere, none]}",
+            "transport.method: {values: [small_angle, monte_carlo]}",
+        )
+    )
+    extra = ["--no-estimate"] if command == "validate" else []
+    result = cli(command, "sweep.yaml", "--backend", "torch", *extra, cwd=work)
+    assert result.returncode == 2, result.stderr
+    assert (
+        "--backend torch: point 1 renders by Monte Carlo (transport.method: monte_carlo), "
+        "which runs on the numpy backend only"
+    ) in result.stderr
     assert "Traceback" not in result.stderr
     assert sorted(p.name for p in work.iterdir()) == ["sweep.yaml"]
 
@@ -396,3 +420,20 @@ def test_a_torch_run_records_torch_and_gives_the_same_bytes_twice(tmp_path, cli,
         assert (ds.attrs["render_backend"], ds.attrs["render_device"]) == ("torch", "cpu")
         assert ds.completed.values.all()
     assert_same_samples(tmp_path / "a.zarr", tmp_path / "b.zarr")
+
+
+def test_detect_renders_again_on_the_backend_that_wrote_the_store():
+    # found by a trial: detect re-rendered a torch store's samples on numpy, whose noise
+    # differs, and blamed "another oceanlidar version"
+    import xarray as xr
+
+    from service.devices import written_by
+    from service.errors import BadSweepError
+
+    written = xr.Dataset(attrs={"render_backend": "torch", "render_device": "cpu"}).attrs
+    assert written_by(written, "s.zarr") == TORCH_CPU
+    assert written_by(xr.Dataset().attrs, "old.zarr") == NUMPY  # stores before 0.3
+    if not cuda_here():
+        written["render_device"] = "cuda"
+        with pytest.raises(BadSweepError, match="rendered with --backend torch --device cuda"):
+            written_by(written, "s.zarr")

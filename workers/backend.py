@@ -22,7 +22,7 @@ __all__ = ["BACKENDS", "Backend", "get_backend"]
 BACKENDS = ("numpy", "torch")
 """The backends' names."""
 
-INSTALL_HINT = "pip install 'oceanlidar[gpu]'"
+INSTALL_HINT = "pip install 'oceanlidar[train]' for the CPU, 'oceanlidar[gpu]' for CUDA devices"
 """What installs PyTorch for the torch backend."""
 
 

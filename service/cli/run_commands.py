@@ -24,7 +24,7 @@ import yaml
 from dask.utils import format_bytes, format_time
 
 from service.admission import Rules, admit
-from service.devices import NUMPY, choose
+from service.devices import NUMPY, check_renderers, choose
 from service.errors import BadFileError, BadOptionError, BadSweepError
 from service.inputs import DEFAULT_MAX_MEMORY, read_text, shown
 from service.schema import sweep_json_schema
@@ -211,13 +211,14 @@ def cmd_validate(args) -> int:
     if args.show_scene:
         print("# the scene of point 0, every default filled in (units: `oceanlidar schema`)")
         print(yaml.safe_dump(plan.scenes[0].model_dump(mode="json"), sort_keys=False), end="")
+    backend = choose(args.backend, args.device)
+    check_renderers(plan, backend)
     if args.no_estimate:
         return EXIT_OK
     # one render per renderer (transport.method): Monte Carlo takes far longer a sample
     points: dict[str, list[int]] = {}
     for point, scene in enumerate(plan.scenes):
         points.setdefault(scene.transport.method, []).append(point)
-    backend = choose(args.backend, args.device)
     timed = {method: _timed_render(plan, where[0], backend) for method, where in points.items()}
     compiled = sum(compile_time for compile_time, _, _ in timed.values())  # kernels apart
     setup, per_sample = (
@@ -340,6 +341,7 @@ def cmd_run(args) -> int:
     # the embedded cluster renders here: checked now; a scheduler's workers, by its probe
     backend = choose(args.backend, args.device, here=args.scheduler is None)
     plan = load(args)
+    check_renderers(plan, backend)
     url = args.output or plan.sweep.output
     for line in plan_lines(plan, args.batch, url, resume=args.resume):
         log.info(line)
