@@ -13,6 +13,7 @@ from pathlib import Path
 
 import dask
 from distributed import Client, LocalCluster, get_worker
+from distributed.core import Status
 from distributed.diagnostics.plugin import WorkerPlugin
 from distributed.worker import thread_state
 
@@ -89,7 +90,7 @@ def hold(start: int) -> None:
     With `HOLD` set to a folder, a task that has written its shard (`start`, its first
     sample) says so by a file ``shard-START`` there; then, once as many shards as the
     folder's file ``hold`` says are written, it waits until the run lets it go (its client
-    gone, interrupted: the task is cancelled), at most `HOLD_LIMIT`.
+    gone, interrupted: the task is cancelled, or its worker closes), at most `HOLD_LIMIT`.
     """
     folder = os.environ.get(HOLD)
     if not folder:
@@ -98,9 +99,15 @@ def hold(start: int) -> None:
     (folder / f"shard-{start}").touch()
     if len(list(folder.glob("shard-*"))) < int((folder / "hold").read_text()):
         return
-    task = get_worker().state.tasks[thread_state.key]
+    worker = get_worker()
+    task = worker.state.tasks[thread_state.key]
     deadline = time.monotonic() + HOLD_LIMIT
-    while task.state == "executing" and time.monotonic() < deadline:
+    # a worker closing with its cluster (the run interrupted) may not cancel it first
+    while (
+        task.state == "executing"
+        and worker.status == Status.running
+        and time.monotonic() < deadline
+    ):
         time.sleep(0.05)
 
 
