@@ -48,7 +48,7 @@ import numpy as np
 from service.stats import create_statistics
 from service.store.layout import shard_samples
 from service.store.location import Store
-from service.store.shards import CHECKSUMS, sample_checksum
+from service.store.shards import CHECKSUMS, sample_checksum, sample_identity
 from service.store.template import create_store
 from service.sweep import parse_sweep
 from workers.variables import rendered_order
@@ -97,8 +97,13 @@ def build(folder: str, *, samples: int, points: int, shard: int) -> tuple[str, s
     size = shard_samples(group)
     names = [name for name in rendered_order() if name in group]
     blank = [np.full(group[n].shape[1:], group[n].fill_value, group[n].dtype) for n in names]
+    attrs = group.attrs.asdict()
     for kind in CHECKSUMS:
-        group[kind][:] = sample_checksum(blank, kind)
+        if kind in group:
+            group[kind][:] = [
+                sample_checksum(blank, kind, sample_identity(attrs, sample))
+                for sample in range(plan.samples)
+            ]
     group["completed"][:] = 1
     statistics(store, realisations=plan.realisations)
     print(f"store: {plan.samples} samples, {len(plan.points)} points, {size} a shard")

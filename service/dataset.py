@@ -19,6 +19,7 @@ task recorded); it opens the store once per process (so it can be handed to a
 from __future__ import annotations
 
 import os
+import warnings
 
 import dask.array as da
 import numpy as np
@@ -26,12 +27,13 @@ import xarray as xr
 from dask.base import tokenize
 
 from service.errors import BadFileError, DamagedStoreError
-from service.store.integrity import unflagged
+from service.inputs import position
+from service.store.integrity import check_labels, unflagged, verify
 from service.store.location import Store, old_gate_numbering
-from service.store.shards import ShardReader, sample_checksum, verified_by
+from service.store.shards import ShardReader, sample_checksum, sample_identity, verified_by
 from workers.variables import rendered_order
 
-__all__ = ["SampleDataset", "open_dataset"]
+__all__ = ["SampleDataset", "image_type", "open_dataset"]
 
 SMALL_DIMENSIONS = frozenset({"sample", "frame", "gate"})
 """Variables with only these dimensions are loaded eagerly (bytes per sample: tens)."""
@@ -39,7 +41,9 @@ TYPED_ATTRIBUTES = ("flag_values", "valid_min", "valid_max")
 """Attributes that CF wants of the variable's type (zarr's JSON attributes lose it)."""
 
 
-def open_dataset(url: str, *, storage_options: dict | None = None) -> xr.Dataset:
+def open_dataset(
+    url: str, *, storage_options: dict | None = None, verify: bool = False
+) -> xr.Dataset:
     """Open a sweep's store (or its statistics) for analysis: the way to read it with xarray.
 
     Parameters
@@ -48,6 +52,15 @@ def open_dataset(url: str, *, storage_options: dict | None = None) -> xr.Dataset
         A path or fsspec URL.
     storage_options : dict, optional
         fsspec options (credentials, endpoint).
+    verify : bool, optional
+        Read every completed sample of a samples store back first, as ``oceanlidar info
+        --verify`` does (`service.store.integrity.verify`: every chunk's CRC32C, each
+        sample's arrays against its checksum), and its labels and coordinates; ``completed``
+        then reads 0 for every sample that fails (a warning names them; their large arrays
+        read as fill values, never decoded), so that ``ds.isel(sample=ds.completed == 1)``
+        keeps only the samples intact, and reads. Without it
+        (the default: nothing read but the small variables), ``completed`` is the flag
+        each task set, and a damaged chunk fails only when its values are computed.
 
     Returns
     -------
@@ -67,8 +80,16 @@ def open_dataset(url: str, *, storage_options: dict | None = None) -> xr.Dataset
     ds = store.dataset(dask=False)
     small = [name for name, v in ds.variables.items() if set(v.dims) <= SMALL_DIMENSIONS]
     loaded = ds[small].load()
+    damaged = frozenset()
+    if verify and store.kind() == "samples":
+        flags, damaged = _verified(store)
+        loaded["completed"] = loaded["completed"].copy(data=flags)
     ds = ds.assign(loaded.data_vars).assign_coords(loaded.coords)
-    large = {name: _lazy(store, group, v) for name, v in ds.data_vars.items() if name not in small}
+    large = {
+        name: _lazy(store, group, v, damaged)
+        for name, v in ds.data_vars.items()
+        if name not in small
+    }
     ds = ds.assign(large)
     if "sample" in ds.dims and {"point", "realisation"} <= set(ds.coords):
         ds = ds.set_index(sample=["point", "realisation"])
@@ -82,12 +103,33 @@ def open_dataset(url: str, *, storage_options: dict | None = None) -> xr.Dataset
     return ds
 
 
-def _lazy(store: Store, group, variable: xr.DataArray) -> xr.DataArray:
+def _verified(store: Store) -> tuple[np.ndarray, frozenset[int]]:
+    """A samples store's completion flags, 0 for the samples `verify` finds damaged; those.
+
+    Its labels and coordinates are checked too (`service.store.integrity.check_labels`).
+    """
+    if reason := check_labels(store):
+        warnings.warn(f"{store.url}: labels and coordinates not checked ({reason})", stacklevel=3)
+    flags = store.records("completed").copy()
+    damaged = [sample for sample, _ in verify(store)]
+    if damaged:
+        flags[damaged] = 0
+        warnings.warn(
+            f"{store.url}: samples {_listed(damaged)} marked complete fail their checks: "
+            "completed reads 0 for them (`oceanlidar info --verify` says why); run the sweep "
+            "again with --resume --verify to recompute them",
+            stacklevel=3,
+        )
+    return flags, frozenset(damaged)
+
+
+def _lazy(store: Store, group, variable: xr.DataArray, damaged=frozenset()) -> xr.DataArray:
     """A large variable as a dask array: a sharded one in chunks of one shard each.
 
-    Read whole by `service.store.shards.ShardReader.read_shard`, one task per shard; an
-    array in a layout that reader does not know by zarr, in chunks of a shard; an array
-    without shards (the statistics' images) in its zarr chunks.
+    Read whole by `service.store.shards.ShardReader.read_shard`, one task per shard (the
+    `damaged` samples, whose ``completed`` reads 0, not decoded: fill values); an array in
+    a layout that reader does not know by zarr, in chunks of a shard; an array without
+    shards (the statistics' images) in its zarr chunks.
     """
     name = str(variable.name)
     chunks = dict(variable.encoding["preferred_chunks"])
@@ -107,17 +149,20 @@ def _lazy(store: Store, group, variable: xr.DataArray) -> xr.DataArray:
         chunks=(blocks, *((size,) for size in variable.shape[1:])),
         dtype=reader.dtype,
         meta=np.empty((0,) * variable.ndim, reader.dtype),
-        name=f"read-{name}-{tokenize(store.url, name, variable.shape)}",
+        name=f"read-{name}-{tokenize(store.url, name, variable.shape, sorted(damaged))}",
         reader=reader,
         blocks=blocks,
+        damaged=damaged,
     )
     return variable.copy(data=data)
 
 
-def _read_block(*, reader: ShardReader, blocks: tuple[int, ...], block_id) -> np.ndarray:
-    """Dask chunk `block_id` of `reader`'s array: its whole shard."""
+def _read_block(
+    *, reader: ShardReader, blocks: tuple[int, ...], damaged: frozenset, block_id
+) -> np.ndarray:
+    """Dask chunk `block_id` of `reader`'s array: its whole shard, `damaged` samples skipped."""
     shard = block_id[0]
-    return reader.read_shard(shard, blocks[shard])
+    return reader.read_shard(shard, blocks[shard], damaged)
 
 
 class SampleDataset:
@@ -181,12 +226,17 @@ class SampleDataset:
     ) -> None:
         self.store = Store(url, storage_options)
         self.arrays = tuple(arrays)
-        self.image_dtype = None if image_dtype is None else np.dtype(image_dtype)
         group = self.store.group()
         missing = [name for name in (*self.arrays, *labels) if name not in group]
         if missing:
             known = ", ".join(sorted(group.array_keys()))
             raise KeyError(f"{url} has no {', '.join(missing)}; it has {known}")
+        image = group.get("image")
+        self.image_dtype = (
+            None
+            if image_dtype is None
+            else image_type(image_dtype, stored=image.dtype, largest=image.attrs.get("valid_max"))
+        )
         if "gate" in group and (problem := old_gate_numbering(group["gate"][:], url)):
             raise BadFileError(problem)
         if lost := unflagged(self.store):
@@ -195,10 +245,13 @@ class SampleDataset:
                 "lost (or a run stopped while writing them); run the sweep again with --resume "
                 "--verify to recompute them"
             )
+        if reason := check_labels(self.store):
+            warnings.warn(f"{url}: labels and coordinates not checked ({reason})", stacklevel=2)
         self.checked = tuple(name for name in rendered_order() if name in group)
         self.checksum = verified_by(group)
+        self.attributes = group.attrs.asdict()
         self.completed_only = completed_only
-        completed = group["completed"][:].astype(bool)
+        completed = self.store.completed()
         self.sample_index = (
             np.flatnonzero(completed) if completed_only else np.arange(completed.size)
         )
@@ -221,13 +274,22 @@ class SampleDataset:
         return int(self.sample_index.size)
 
     def __getitem__(self, index: int) -> dict[str, np.ndarray]:
-        if not -len(self) <= index < len(self):
-            raise IndexError(f"item {index} of a dataset of {len(self)} samples")
         return self.__getitems__([index])[0]
 
     def __getitems__(self, indices) -> list[dict[str, np.ndarray]]:
-        """A batch of items (what a ``DataLoader`` with automatic batching asks for)."""
-        samples = self.sample_index[np.asarray(indices, dtype=np.int64)]
+        """A batch of items (what a ``DataLoader`` with automatic batching asks for).
+
+        Raises
+        ------
+        TypeError
+            For an index that is not an integer (``1.5``, ``True``: `service.inputs.position`).
+        IndexError
+            For one outside ``-len(self)..len(self) - 1``.
+        """
+        picked = [position(index, "a SampleDataset index") for index in indices]
+        if outside := [index for index in picked if not -len(self) <= index < len(self)]:
+            raise IndexError(f"item {outside[0]} of a dataset of {len(self)} samples")
+        samples = self.sample_index[np.asarray(picked, dtype=np.int64)]
         return [
             {
                 "sample": np.int64(sample),
@@ -247,7 +309,8 @@ class SampleDataset:
                 f"sample {sample}: no longer marked complete in {self.store.url} (a run "
                 "recomputing it, or its flags lost); open the dataset again once it is"
             )
-        checksum = sample_checksum([read[name] for name in self.checked], self.checksum)
+        identity = sample_identity(self.attributes, sample)
+        checksum = sample_checksum([read[name] for name in self.checked], self.checksum, identity)
         if flagged and checksum != readers[self.checksum].read(sample):
             raise DamagedStoreError(
                 f"sample {sample}: its arrays do not match its checksum (a shard file lost, "
@@ -256,6 +319,46 @@ class SampleDataset:
         if self.image_dtype is not None and "image" in self.arrays:
             read["image"] = read["image"].astype(self.image_dtype)
         return {name: read[name] for name in self.arrays}
+
+
+def image_type(asked, *, stored: np.dtype, largest=None) -> np.dtype:
+    """The type `asked` for a store's images, if it holds every value they can hold.
+
+    Parameters
+    ----------
+    asked : numpy dtype
+        The reader's ``image_dtype``.
+    stored : numpy dtype
+        The store's (or sweep's) image type.
+    largest : int, optional
+        The largest count it holds (its ``valid_max``); default the most `stored` holds.
+
+    Raises
+    ------
+    ValueError
+        Naming ``image_dtype``: a type that is not a number, an integer type for images
+        that are not counts (it would truncate them), or one whose largest value is below
+        `largest` (``uint8`` would wrap a count of 3434 to 106). Float types
+        round counts beyond their mantissa (float32: 2²⁴) but never wrap.
+    """
+    dtype = np.dtype(asked)
+    if dtype.kind not in "uif":
+        raise ValueError(f"image_dtype {dtype}: not an integer or float type")
+    if stored.kind == "f" and dtype.kind != "f":
+        raise ValueError(
+            f"image_dtype {dtype}: the images are {stored} (not counts): an integer type "
+            "would truncate them; ask for a float type"
+        )
+    if stored.kind == "f" and largest is None:
+        return dtype
+    top = np.iinfo(stored).max if largest is None else int(largest)
+    most = np.iinfo(dtype).max if dtype.kind in "ui" else np.finfo(dtype).max
+    if most < top:
+        raise ValueError(
+            f"image_dtype {dtype}: holds values up to {most}, and the images counts up to "
+            f"{top} (their valid_max): it would wrap them; ask for {stored} or float32"
+        )
+    return dtype
 
 
 def _own(value):

@@ -25,6 +25,8 @@ a detection dataset beside the store (`detection_store`). Variables, per positiv
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import uuid
 from typing import TYPE_CHECKING
 
@@ -34,11 +36,13 @@ import xarray as xr
 
 from service import package_version
 from service.devices import written_by
-from service.errors import BadOptionError, BadSweepError, InputError
+from service.errors import BadOptionError, BadSweepError, InputError, UnusableOutputError
 from service.progress import Progress, compute, phase
 from service.stats import twin_points
+from service.store.integrity import check_labels
 from service.store.layout import CONVENTIONS
 from service.store.location import Store
+from service.store.shards import read_verified
 from service.store.template import swept_parameters
 from service.sweep import parse_sweep
 from workers.backend import Backend
@@ -49,6 +53,8 @@ if TYPE_CHECKING:
     from workers.cnn import CnnSettings
 
 __all__ = ["PFA", "detection_store", "pair_points", "write_detection"]
+
+log = logging.getLogger("oceanlidar")
 
 PFA = (1e-1, 1e-2)
 """False-alarm probabilities at which the probability of detection is reported."""
@@ -148,24 +154,43 @@ def _rendered_expected(plan, rows, both, images, backend: Backend):
     return expected
 
 
-def _evaluate(store: Store, positive, negative, realisations, test, plan, backend):
-    """Read one pair's samples (the realisations written at both points) and score them.
+def _written_pairs(store: Store, pairs, realisations: int) -> list[np.ndarray]:
+    """Each pair's realisations written at both points, before any is scored.
 
-    `plan`: the store's sweep, to render the expected images again when the store has none
-    (None: read them), on `backend`, the one that wrote them.
+    Raises
+    ------
+    BadSweepError
+        If a pair has fewer than `MIN_REALISATIONS` (nothing is scored then).
+    """
+    done = store.completed().reshape(-1, realisations)
+    written = []
+    for positive, negative in pairs:
+        both = done[positive] & done[negative]
+        if both.sum() < MIN_REALISATIONS:
+            raise BadSweepError(
+                f"points {positive} and {negative}: {both.sum()} realisations written at both, "
+                f"fewer than {MIN_REALISATIONS}; complete the run with `oceanlidar run --resume`"
+            )
+        written.append(both)
+    return written
+
+
+def _evaluate(store: Store, positive, negative, both, test, plan, backend):
+    """Read one pair's samples (the realisations `both` written at both points), score them.
+
+    Each sample is checked as ``info --verify`` checks it (every chunk's CRC32C, its arrays
+    against its checksum: `service.store.shards.read_verified`), so that a damaged, lost or
+    foreign shard stops the study naming the sample. `plan`: the store's sweep, to render
+    the expected images again when the store has none (None: read them), on `backend`,
+    the one that wrote them.
     """
     source = store.group()
+    realisations = both.size
     rows = {p: np.arange(realisations) + p * realisations for p in (positive, negative)}
-    both = source["completed"].get_orthogonal_selection((rows[positive],)).astype(bool)
-    both &= source["completed"].get_orthogonal_selection((rows[negative],)).astype(bool)
-    if both.sum() < MIN_REALISATIONS:
-        raise BadSweepError(
-            f"points {positive} and {negative}: {both.sum()} realisations written at both, "
-            f"fewer than {MIN_REALISATIONS}; complete the run with `oceanlidar run --resume`"
-        )
     images, expected = {}, {}
     for p in (positive, negative):
-        image = source["image"].get_orthogonal_selection((rows[p][both],))
+        read = read_verified(source, rows[p][both].tolist())
+        image = read["image"]
         if not np.array_equal(image, np.round(image)):
             raise BadSweepError(
                 f"point {p}: images are not whole photoelectron counts (an ICCD excess-noise "
@@ -173,8 +198,7 @@ def _evaluate(store: Store, positive, negative, realisations, test, plan, backen
             )
         images[p] = image
         if plan is None:
-            expected[p] = source["expected"].get_orthogonal_selection((rows[p][both],))
-            expected[p] = expected[p].astype(np.float64)
+            expected[p] = read["expected"].astype(np.float64)
     if plan is not None:
         expected = _rendered_expected(plan, rows, both, images, backend)
     metrics = evaluate_pair(
@@ -387,7 +411,11 @@ def write_detection(
 ) -> tuple[Store, list[int]]:
     """Run the detection study of `store` and write its dataset.
 
-    Runs one task per positive point on the dask client in use, or on local threads.
+    Runs one task per positive point on the dask client in use, or on local threads,
+    holding the store's writer lock (`service.store.location.Store.lock`): no run writes
+    its samples meanwhile, and a second study of it is refused. Every sample read is
+    checked as ``info --verify`` checks it, and the labels and coordinates too
+    (`service.store.integrity.check_labels`).
 
     Parameters
     ----------
@@ -413,25 +441,41 @@ def write_detection(
     Raises
     ------
     InputError
-        A store that cannot be evaluated, or an output that is not a detection dataset.
+        A store that cannot be evaluated, or an output that is not a detection dataset;
+        `service.errors.LockedError` while another run, ``stats`` or ``detect`` holds
+        the store.
+    DamagedStoreError
+        Naming a sample, or a file of the store, that cannot be read back as written
+        (nothing is written then).
     """
     url = store.url
-    ds = store.dataset()
-    _check_store(ds, url)
-    pairs, unpaired = pair_points(ds)
     target = output or detection_store(store)
     if target.url.rstrip("/") in (url.rstrip("/"), store.stats.url):
         raise BadOptionError(
             f"--output {target.url}: that is the sweep's own store or its statistics"
         )
+    with store.lock():  # no run writes the samples meanwhile, no other detect the dataset
+        return _write_detection(store, target, stream=stream, cnn=cnn)
+
+
+def _write_detection(store: Store, target: Store, *, stream, cnn) -> tuple[Store, list[int]]:
+    """`write_detection` of `store` to `target`, holding the store's writer lock."""
+    url = store.url
+    ds = store.dataset()
+    _check_store(ds, url)
+    pairs, unpaired = pair_points(ds)
     # an earlier detection dataset is replaced, anything else refused, before any work
     old = target.removable(DATASET_KIND)
     realisations = int(ds.attrs["realisations"])
+    written = _written_pairs(store, pairs, realisations)
+    if reason := check_labels(store):
+        log.warning("%s: labels and coordinates not checked (%s)", url, reason)
     test = held_out(realisations)
     plan = None if "expected" in ds else _sweep_plan(ds, url)
     backend = None if plan is None else written_by(ds.attrs, url)
     tasks = [
-        dask.delayed(_evaluate)(store, p, q, realisations, test, plan, backend) for p, q in pairs
+        dask.delayed(_evaluate)(store, p, q, both, test, plan, backend)
+        for (p, q), both in zip(pairs, written, strict=True)
     ]
     how = "reading" if plan is None else "rendering again"
     progress = Progress(
@@ -464,7 +508,12 @@ def write_detection(
             "read from the store" if plan is None else "rendered again"
         )
         partial = target.partial(uuid.uuid4().hex[:12])
-        partial.write(detection, mode="w-")
+        try:
+            partial.write(detection, mode="w-")
+        except BaseException:
+            with contextlib.suppress(UnusableOutputError, OSError):  # best effort
+                partial.remove(partial.removable(DATASET_KIND))
+            raise
         target.remove(old)
         partial.move_to(target)
     return target, unpaired

@@ -6,7 +6,7 @@ only, no duplicate keys or sets, bounded depth and alias expansion). Errors are
 `service.errors.BadFileError` (a file that cannot be read as asked: not a regular file, too
 large, not UTF-8 or plain YAML) or `service.errors.BadSweepError` (a value that is not a
 strict number), whose message names the place and the reason; values a user gave are
-echoed through `shown`.
+echoed through `shown`. `position` checks an index or count given to a Python reader.
 """
 
 from __future__ import annotations
@@ -14,17 +14,19 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import operator
 import os
 import re
 import stat
 from collections.abc import Hashable
 from typing import Any
 
+import numpy as np
 import yaml
 
 from service.errors import BadFileError, BadSweepError
 
-__all__ = ["json_object", "read_text", "read_yaml", "shown", "strict_numbers"]
+__all__ = ["json_object", "position", "read_text", "read_yaml", "shown", "strict_numbers"]
 
 MAX_FILE_BYTES = 1_000_000
 DEFAULT_MAX_MEMORY = 4 * 2**30
@@ -48,6 +50,26 @@ def json_object(text: str) -> dict:
     if not isinstance(value, dict):
         raise argparse.ArgumentTypeError("must be a JSON object, e.g. '{\"anon\": false}'")
     return value
+
+
+def position(value: Any, name: str) -> int:
+    """`value`, an index or count a Python reader is given (`name` says which), as an int.
+
+    Python and numpy integers, and anything else that is one (``__index__``: a 0-d integer
+    tensor), pass; a float (``1.5``, even ``2.0``) or a bool, which numpy would quietly
+    make 1, or 0, is refused.
+
+    Raises
+    ------
+    TypeError
+        Naming `name` and the value.
+    """
+    if not isinstance(value, bool | np.bool_):
+        try:
+            return operator.index(value)
+        except TypeError:
+            pass
+    raise TypeError(f"{name} must be an integer, got {shown(value)} ({type(value).__name__})")
 
 
 def shown(value: Any) -> str:

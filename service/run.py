@@ -472,7 +472,8 @@ def execute(
             if checked:
                 with said("reading the stored samples back against their checksums"):
                     relabelled = integrity.repair_labels(store, plan)
-                    damaged = integrity.verify(store)
+                    damaged = integrity.rebuild_records(store)
+                    damaged += integrity.verify(store)
             store.mark_incomplete([sample for sample, _ in damaged])
             with store.errors():
                 before = store.completed() if resuming else None

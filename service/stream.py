@@ -17,6 +17,8 @@ from pathlib import Path
 import numpy as np
 from torch.utils.data import IterableDataset, get_worker_info
 
+from service.dataset import image_type
+from service.inputs import position
 from service.store.template import store_variables
 from service.sweep import Plan, load_sweep
 from workers.render import render_arrays
@@ -53,7 +55,16 @@ class SweepStream(IterableDataset):
         ``target_signal``, ...) and ``target_present``, as `service.dataset.SampleDataset`
         names them (the two lists are one pool here: nothing is read from disk).
     image_dtype : numpy dtype, optional
-        The type ``image`` is returned in; default the store's (the sweep's widest).
+        The type ``image`` is returned in; default the store's (the sweep's widest). One
+        that cannot hold the sweep's counts is refused (`service.dataset.image_type`).
+
+    Raises
+    ------
+    TypeError
+        For points, realisations or first that are not integers (``0.7``, ``2.5``, ``True``).
+    ValueError
+        For points outside the sweep, fewer than one realisation, a negative first, or
+        an image type that would wrap the counts.
     backend, device : str, optional
         The array backend and device to render on, passed to
         `workers.render.render_arrays` when given (a store's bytes are those of the
@@ -82,14 +93,20 @@ class SweepStream(IterableDataset):
         super().__init__()
         self.plan = sweep if isinstance(sweep, Plan) else load_sweep(Path(sweep))
         count = len(self.plan.points)
-        self.points = tuple(range(count)) if points is None else tuple(int(p) for p in points)
+        self.points = (
+            tuple(range(count))
+            if points is None
+            else tuple(position(p, "points' entries") for p in points)
+        )
         if not self.points or not all(0 <= p < count for p in self.points):
             raise ValueError(f"points {points!r}: the sweep has points 0..{count - 1}")
-        if realisations is not None and realisations < 1:
-            raise ValueError(f"realisations must be at least 1 (or None), got {realisations}")
-        if first < 0:
+        if realisations is not None:
+            realisations = position(realisations, "realisations")
+            if realisations < 1:
+                raise ValueError(f"realisations must be at least 1 (or None), got {realisations}")
+        if (first := position(first, "first")) < 0:
             raise ValueError(f"first must be a realisation (>= 0), got {first}")
-        self.realisations, self.first = realisations, int(first)
+        self.realisations, self.first = realisations, first
         table = store_variables(self.plan)
         self.names = (*arrays, *labels)
         unknown = [n for n in self.names if n != PRESENCE and table.get(n) is None]
@@ -97,7 +114,9 @@ class SweepStream(IterableDataset):
             raise KeyError(f"a sweep's samples hold no {', '.join(unknown)}")
         self.dtypes = {name: table[name].dtype for name in self.names}
         if image_dtype is not None:
-            self.dtypes["image"] = np.dtype(image_dtype)
+            image = table["image"]
+            largest = image.attrs.get("valid_max")
+            self.dtypes["image"] = image_type(image_dtype, stored=image.dtype, largest=largest)
         self.options = {
             key: value for key, value in (("backend", backend), ("device", device)) if value
         }

@@ -1,10 +1,12 @@
 """Detectors and detection metrics: closed forms, then a real sweep through the CLI."""
 
 import re
+import shutil
 
 import numpy as np
 import pytest
 import xarray as xr
+import zarr
 from conftest import TINY_SCENE, cf_failures, on_cluster, same_values
 from scipy.stats import multivariate_normal, norm, poisson
 
@@ -13,6 +15,7 @@ from service.dataset import open_dataset
 from service.detect import pair_points
 from service.errors import InputError
 from service.store.location import Store, consolidated_v3
+from service.store.shards import sample_checksum, sample_identity
 from service.store.template import create_store
 from service.sweep import parse_sweep
 from workers.detection import (
@@ -27,6 +30,7 @@ from workers.detection import (
     roc_curve,
 )
 from workers.marginal import sea_marginal_observer
+from workers.variables import rendered_order
 
 
 def rng(seed):
@@ -414,12 +418,100 @@ def test_expected_images_missing_from_the_store_are_rendered_again(detection, tm
         variable.encoding = {}  # written afresh: dask's chunks, not the shards
     with consolidated_v3():
         copy.to_zarr(bare, zarr_format=3, consolidated=True)
+    # what a store written without them records: the checksums of the arrays it holds
+    group = zarr.open_group(bare, mode="r+")
+    arrays = [group[name][:] for name in rendered_order() if name in group]
+    group["checksum_bound"][:] = [
+        sample_checksum([a[s] for a in arrays], "checksum_bound", sample_identity(copy.attrs, s))
+        for s in range(copy.sizes["sample"])
+    ]
     assert main(["detect", str(bare)]) == 0
     again = xr.open_zarr(tmp_path / "bare.detect.zarr").load()
     assert again.attrs["expected_images"] == "rendered again"
     assert det.attrs["expected_images"] == "read from the store"
     for name in ("score_positive", "score_negative", "auc", "auc_low", "auc_high", "pd"):
         assert det[name].values.tobytes() == again[name].values.tobytes(), name
+
+
+def copied(detection, tmp_path):
+    """A copy of the detection fixture's store, to damage, and its samples per shard."""
+    folder, _ = detection
+    copy = tmp_path / "small.zarr"
+    shutil.copytree(folder / "small.zarr", copy)
+    return copy, int(zarr.open_group(copy, mode="r")["completed"].chunks[0])
+
+
+def flip_byte(path):
+    data = bytearray(path.read_bytes())
+    data[len(data) // 3] ^= 0x01  # inside a chunk: the shard's index is at its end
+    path.write_bytes(bytes(data))
+
+
+def swap_files(copy, first, second):
+    """Swap two shards' files in every per-sample array, checksums and flags included."""
+    for folder in copy.iterdir():
+        files = {p.name.split(".")[1]: p for p in folder.glob("c.*")} if folder.is_dir() else {}
+        if str(first) in files and str(second) in files:
+            a, b = files[str(first)], files[str(second)]
+            data = a.read_bytes()
+            a.write_bytes(b.read_bytes())
+            b.write_bytes(data)
+
+
+DETECT_ATTACKS = {
+    # shard 1 damaged (point 1, a negative, with the default layout)
+    "shard-lost": (lambda c: next((c / "image").glob("c.1.*")).unlink(), "do not match"),
+    "byte-flipped": (lambda c: flip_byte(next((c / "image").glob("c.1.*"))), "cannot be read"),
+    "shard-cut-short": (
+        lambda c: next((c / "image").glob("c.1.*")).write_bytes(b"\x00" * 100),
+        "cannot be read",
+    ),
+    "shards-swapped": (lambda c: swap_files(c, 1, 3), "do not match"),
+}
+
+
+@pytest.mark.parametrize("attack", DETECT_ATTACKS)
+def test_detect_refuses_samples_that_fail_their_checks(detection, tmp_path, capsys, attack):
+    # issue #37 items 1 and 2: detect read around the samples' checks: an image shard lost
+    # took an AUC from 1.000 to 0.5 with exit 0, a flipped byte ended in a traceback naming
+    # no sample, and shards swapped whole (checksums too) passed every check
+    copy, size = copied(detection, tmp_path)
+    damage, reason = DETECT_ATTACKS[attack]
+    damage(copy)
+    assert main(["detect", str(copy)]) == 1
+    err = capsys.readouterr().err
+    found = re.search(
+        r"error: sample (\d+): its (image chunk cannot be read|chunks do not match)", err
+    )
+    assert found and reason in found[0], err
+    shards = (1, 3) if attack == "shards-swapped" else (1,)
+    assert int(found[1]) // size in shards
+    assert "--resume --verify" in err and "Traceback" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["small.zarr"]  # no dataset, no lock
+
+
+def test_detect_compares_the_labels_with_the_sweeps(detection, tmp_path, capsys):
+    # issue #37 item 1: as info --verify, stats and the training reader do
+    copy, _ = copied(detection, tmp_path)
+    depth = zarr.open_array(copy / "target_depth", mode="r+")
+    depth[0] = 9.0
+    assert main(["detect", str(copy)]) == 1
+    err = capsys.readouterr().err
+    assert "its target_depth differ from what its sweep gives" in err and "Traceback" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["small.zarr"]
+
+
+def test_detect_holds_the_stores_lock(detection, tmp_path, capsys):
+    # issue #37 item 16: three detects at once on one store left tracebacks ("Directory not
+    # empty") and .partial-* folders; one holding the store's lock refuses the others
+    copy, _ = copied(detection, tmp_path)
+    with Store.at(str(copy)).lock():  # another detect, or a run, holds it
+        assert main(["detect", str(copy)]) == 2
+        err = capsys.readouterr().err
+        assert f"{copy} is locked by another run" in err and "Traceback" not in err
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["small.zarr", "small.zarr.lock"]
+    assert main(["detect", str(copy)]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["small.detect.zarr", "small.zarr"]
 
 
 def test_detect_refuses_to_overwrite_what_is_not_a_detection_dataset(detection, capsys):
@@ -462,5 +554,9 @@ def test_detect_refuses_stores_it_cannot_evaluate(tmp_path, capsys, change, real
     url = str(tmp_path / "t.zarr")
     create_store(parse_sweep(text), Store(url))  # the template: no sample written yet
     assert main(["detect", url]) == 2
-    assert message in capsys.readouterr().err
-    assert not (tmp_path / "t.detect.zarr").exists()
+    err = capsys.readouterr().err
+    assert message in err
+    # refused before anything is scored (issue #37 item 16: no task fails, so none leaves
+    # a "Task exception was never retrieved")
+    assert "scoring" not in err and "Traceback" not in err and "Task exception" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.zarr"]

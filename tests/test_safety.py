@@ -23,6 +23,7 @@ from service.store import integrity, lock, shards
 from service.store.location import KIND, Store
 from service.store.template import create_store
 from workers.render import render_arrays
+from workers.variables import rendered_order
 
 
 def sweep_file(folder, name="one", output="one.zarr", seed=3):
@@ -299,13 +300,46 @@ def shard_file(work, variable, shard):
     return next(p for p in folder.iterdir() if p.name.split(".")[:2] == ["c", str(shard)])
 
 
-def written_before_crc32c(work):
-    """The store as written before issue #26: its samples' CRC-32 alone, no CRC32C."""
-    shutil.rmtree(work / "one.zarr" / "checksum_crc32c")
-    for path in (work / "one.zarr" / "zarr.json",):
-        meta = json.loads(path.read_text())
-        del meta["consolidated_metadata"]["metadata"]["checksum_crc32c"]
-        path.write_text(json.dumps(meta))
+def written_before(work, issue):
+    """The store as written before `issue`: #37, its samples' CRC-32 and CRC32C of their
+    arrays alone (not of which sample they are); #26, their CRC-32 alone."""
+    root = work / "one.zarr"
+    meta = json.loads((root / "zarr.json").read_text())
+    arrays = meta["consolidated_metadata"]["metadata"]
+    bound = arrays.pop("checksum_bound")
+    if issue == 37:
+        (root / "checksum_bound").rename(root / "checksum_crc32c")
+        arrays["checksum_crc32c"] = bound
+    else:
+        shutil.rmtree(root / "checksum_bound")
+    (root / "zarr.json").write_text(json.dumps(meta))
+    if issue == 37:
+        group = Store.at(str(root)).group("r+")
+        names = [name for name in rendered_order() if name in group]
+        group["checksum_crc32c"][:] = [
+            shards.sample_checksum([group[name][s] for name in names], "checksum_crc32c")
+            for s in range(group["completed"].shape[0])
+        ]
+
+
+def swap_shards(work, first, second, *, source=None):
+    """Swap shards `first` and `second` of every per-sample array, checksums and flags too
+    (or, with `source`, a store's folder, copy its shard `second` over `first`'s)."""
+    for folder in (work / "one.zarr").iterdir():
+        files = {
+            p.name.split(".")[1]: p
+            for p in (folder.iterdir() if folder.is_dir() else ())
+            if p.name.startswith("c.")
+        }
+        if str(first) not in files or str(second) not in files:
+            continue
+        a, b = files[str(first)], files[str(second)]
+        if source is not None:
+            shutil.copyfile(source / folder.name / b.name, a)
+            continue
+        data = a.read_bytes()
+        a.write_bytes(b.read_bytes())
+        b.write_bytes(data)
 
 
 READER_ATTACKS = {
@@ -319,17 +353,21 @@ READER_ATTACKS = {
 }
 
 
-@pytest.mark.parametrize("old", [False, True], ids=["crc32c", "crc32-of-older-stores"])
+@pytest.mark.parametrize(
+    ("old", "kind"),
+    [(None, "checksum_bound"), (37, "checksum_crc32c"), (26, "checksum")],
+    ids=["bound", "crc32c-of-older-stores", "crc32-of-older-stores"],
+)
 @pytest.mark.parametrize("attack", READER_ATTACKS)
-def test_the_training_reader_returns_no_sample_that_is_not_its_own(work, attack, old):
+def test_the_training_reader_returns_no_sample_that_is_not_its_own(work, attack, old, kind):
     from service.dataset import SampleDataset
     from service.errors import DamagedStoreError
 
     intact = SampleDataset("one.zarr", arrays=("image", "target_mask", "target_signal"))
     expected = intact.__getitems__(range(5))
     if old:
-        written_before_crc32c(work)
-        assert SampleDataset("one.zarr").checksum == "checksum"
+        written_before(work, old)
+    assert SampleDataset("one.zarr").checksum == kind
     damage_it, damaged = READER_ATTACKS[attack]
     damage_it(work)
     reader = SampleDataset("one.zarr", arrays=("image", "target_mask", "target_signal"))
@@ -390,6 +428,127 @@ def test_verify_finds_damaged_missing_and_swapped_samples_and_resume_redoes_them
     assert "sample 4: damaged or missing: no image shard" in out
     assert "sample 2:" not in out
     assert_repaired(work, cli, original, written=4, kept=1)
+
+
+@pytest.mark.parametrize("attack", ["shards-swapped", "shard-of-another-seed"])
+def test_a_shard_of_another_sample_or_store_fails_every_check(
+    work, capsys, cli, shared_cluster, attack
+):
+    # issue #37 item 2: every file of shards 0 and 1 swapped, checksums and flags included,
+    # or shard 1 copied from a store of the same sweep with another seed: every chunk's
+    # CRC32C and every checksum of the arrays alone hold; only a checksum that covers which
+    # sample it is (index, point, realisation, sweep, seed) tells
+    from service.dataset import SampleDataset
+    from service.errors import DamagedStoreError
+
+    original = snapshot(work / "one.zarr")
+    statistics = snapshot(work / "one.stats.zarr")
+    if attack == "shards-swapped":
+        swap_shards(work, 0, 1)
+        damaged = [0, 1, 2, 3]
+    else:
+        other = work / "other"
+        other.mkdir()
+        sweep = sweep_file(other, seed=4)
+        with pytest.MonkeyPatch.context() as patch:
+            patch.chdir(other)
+            assert main(["run", str(sweep), "--workers", "1", "--batch", str(PER_SHARD)]) == 0
+        swap_shards(work, 1, 1, source=other / "one.zarr")
+        shutil.rmtree(other)
+        damaged = [2, 3]
+    assert snapshot(work / "one.zarr") != original
+    capsys.readouterr()
+    assert main(["info", "one.zarr", "--verify"]) == 1
+    out = capsys.readouterr().out
+    assert f"verified: {5 - len(damaged)} of 5 complete samples read back intact" in out
+    for sample in damaged:
+        assert f"sample {sample}: damaged or missing: its chunks do not match" in out
+    assert "do not cover which sample" not in out
+    # stats refuses and keeps the correct statistics
+    assert main(["stats", "one.zarr"]) == 1
+    err = capsys.readouterr().err
+    assert f"sample {damaged[0]}: its chunks do not match its checksum" in err
+    assert "Traceback" not in err
+    assert snapshot(work / "one.stats.zarr") == statistics
+    reader = SampleDataset("one.zarr")
+    for item in range(5):
+        if item in damaged:
+            with pytest.raises(DamagedStoreError, match=f"sample {item}: its arrays do not"):
+                reader[item]
+        else:
+            assert int(reader[item]["sample"]) == item
+    assert_repaired(work, cli, original, written=len(damaged), kept=5 - len(damaged))
+
+
+def test_checksums_of_an_older_store_are_read_and_say_what_they_miss(work, capsys):
+    # issue #37 item 2: a store written before it (checksums of the arrays alone) is read
+    # and checked as before, and info --verify says which damage those cannot see
+    written_before(work, 37)
+    swap_shards(work, 0, 1)
+    assert main(["info", "one.zarr", "--verify"]) == 0
+    out = capsys.readouterr().out
+    assert "verified: 5 of 5 complete samples read back intact" in out
+    assert "its checksums (written before issue #37) do not cover which sample they are" in out
+    damage(work, "image", sample=1)
+    assert main(["info", "one.zarr", "--verify"]) == 1
+    assert "sample 1: damaged or missing" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("record", ["completed", "checksum_bound"])
+def test_an_empty_record_file_is_named_and_written_again(
+    work, capsys, cli, shared_cluster, record
+):
+    # issue #37 item 6: a zero-length file of completion flags or checksums (shard 1:
+    # samples 2 and 3) ended in tracebacks naming nothing to delete
+    from service.dataset import SampleDataset
+    from service.errors import DamagedStoreError
+
+    original = snapshot(work / "one.zarr")
+    statistics = snapshot(work / "one.stats.zarr")
+    shard_file(work, record, 1).write_bytes(b"")
+    named = f"one.zarr/{record}/c.1"
+    commands = [["info", "one.zarr", "--verify"], ["stats", "one.zarr"]]
+    if record == "completed":  # a complete store's resume reads no checksum
+        commands += [["info", "one.zarr"], ["run", "one.yaml", "--resume", "--workers", "1"]]
+    for argv in commands:
+        assert main(argv) == 1, argv
+        err = capsys.readouterr().err
+        assert named in err and "--resume --verify" in err, (argv, err)
+        assert "Traceback" not in err, argv
+    with pytest.raises(DamagedStoreError, match=f"{named}.*--resume --verify"):
+        SampleDataset("one.zarr")[2]
+    assert snapshot(work / "one.stats.zarr") == statistics
+    result = cli("run", "one.yaml", "--resume", "--verify", "--workers", 1, cwd=work)
+    assert result.returncode == 0, result.stderr
+    assert f"its {record} record could not be read (written again)" in result.stderr
+    assert "wrote 2 samples" in result.stderr and "3 already complete" in result.stderr
+    assert snapshot(work / "one.zarr") == original
+    assert main(["info", "one.zarr", "--verify"]) == 0
+
+
+def test_edited_labels_stop_the_readers(work, capsys):
+    # issue #37 item 5: no sample's checksum covers the labels; stats and the training
+    # reader compare them with the sweep's, as info --verify does
+    from service.dataset import SampleDataset
+    from service.errors import DamagedStoreError
+
+    statistics = snapshot(work / "one.stats.zarr")
+    present = __import__("zarr").open_array(work / "one.zarr" / "target_present", mode="r+")
+    present[2] = 0  # the fill value: as a chunk lost reads
+    assert main(["stats", "one.zarr"]) == 1
+    err = capsys.readouterr().err
+    assert "its target_present are lost or unreadable" in err and "--resume --verify" in err
+    assert "Traceback" not in err
+    assert snapshot(work / "one.stats.zarr") == statistics
+    with pytest.raises(DamagedStoreError, match="its target_present are lost or unreadable"):
+        SampleDataset("one.zarr")
+    present[2] = 1
+    platform = __import__("zarr").open_array(work / "one.zarr" / "platform_z", mode="r+")
+    platform[0] = platform[0] + 1.0  # no fill value: edited, or computed otherwise
+    with pytest.raises(DamagedStoreError, match="its platform_z differ from what its sweep"):
+        SampleDataset("one.zarr")
+    assert main(["stats", "one.zarr"]) == 1
+    assert "--overwrite" in capsys.readouterr().err
 
 
 def test_a_truncated_shard_is_written_again_whole(work, capsys, cli, shared_cluster):

@@ -393,6 +393,66 @@ def test_the_training_reader_converts_images_to_the_type_asked_for(filled):
     assert floats.__getitems__([3])[0]["image"].dtype == np.float32
 
 
+def test_the_training_reader_refuses_positions_and_types_that_would_misread(filled):
+    # issue #37 items 5 and 7: reader[1.5] and reader[True] returned sample 1, and an image
+    # type narrower than the store's counts wrapped them silently
+    _, url = filled
+    reader = SampleDataset(url)
+    for index in (1.5, True, np.float64(2.0), np.bool_(False)):
+        with pytest.raises(TypeError, match="a SampleDataset index must be an integer"):
+            reader[index]
+    with pytest.raises(TypeError, match=r"must be an integer, got 1\.0"):
+        reader.__getitems__([0, 1.0])
+    assert int(reader[np.int64(1)]["sample"]) == 1 and int(reader[-1]["sample"]) == 11
+    with pytest.raises(IndexError):
+        reader[12]
+    largest = zarr.open_array(Path(url, "image"), mode="r").attrs["valid_max"]
+    assert largest > np.iinfo(np.int8).max
+    with pytest.raises(
+        ValueError,
+        match=f"image_dtype int8: holds values up to 127, and the images counts up to {largest}",
+    ):
+        SampleDataset(url, image_dtype=np.int8)
+    assert SampleDataset(url, image_dtype=np.uint16)[0]["image"].dtype == np.uint16
+
+
+def test_an_edited_swept_coordinate_stops_the_readers(filled, tmp_path, cli):
+    # issue #37 item 5: the labels and swept coordinates, which no sample's checksum covers,
+    # are compared with the sweep's as info --verify compares them
+    _, url = filled
+    copy = tmp_path / "t.zarr"
+    shutil.copytree(url, copy)
+    depth = zarr.open_array(copy / "target_depth", mode="r+")
+    depth[0] = 9.0
+    with pytest.raises(DamagedStoreError, match="its target_depth differ from what its sweep"):
+        SampleDataset(str(copy))
+    result = cli("stats", copy, cwd=tmp_path)
+    assert result.returncode == 1 and "its target_depth differ" in result.stderr
+    assert "Traceback" not in result.stderr and not Path(tmp_path, "t.stats.zarr").exists()
+
+
+def test_open_dataset_verified_marks_damaged_samples_incomplete(filled, tmp_path):
+    # issue #37 item 4: the README's ds.isel(sample=ds.completed == 1) kept samples whose
+    # chunks fail their CRC32C, or whose arrays are not theirs
+    _, url = filled
+    copy = tmp_path / "t.zarr"
+    shutil.copytree(url, copy)
+    shard = next(Path(copy, "target_mask").glob("c.1.*"))  # samples 2 and 3
+    data = bytearray(shard.read_bytes())
+    data[3] ^= 0x01  # sample 2's chunk
+    shard.write_bytes(bytes(data))
+    next(Path(copy, "image").glob("c.4.*")).unlink()  # samples 8 and 9
+    assert open_dataset(str(copy)).completed.values.all()  # the flags as tasks set them
+    with pytest.warns(UserWarning, match="samples 2, 8, 9 marked complete fail their checks"):
+        ds = open_dataset(str(copy), verify=True)
+    assert np.flatnonzero(ds.completed.values == 0).tolist() == [2, 8, 9]
+    kept = ds.isel(sample=ds.completed == 1)
+    assert kept.sizes["sample"] == 9
+    intact = open_dataset(url)
+    for name in ("image", "target_mask"):
+        assert np.array_equal(kept[name].values, intact[name].values[ds.completed.values == 1])
+
+
 def test_a_store_numbering_its_gates_from_0_is_refused_until_renumbered(filled, tmp_path, cli):
     # issue #27 item 4: stores written before it number their gates 0..N-1; read, resumed,
     # reduced or evaluated now they would mix the two numberings: refused with the remedy

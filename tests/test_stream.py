@@ -82,3 +82,23 @@ def test_bad_arguments_name_themselves(sweep):
         SweepStream(plan, realisations=0)
     with pytest.raises(KeyError, match="surface_elevation"):
         SweepStream(plan, arrays=("surface_elevation",))
+
+
+def test_positions_and_image_types_that_would_misread_are_refused(sweep):
+    # issue #37 items 5 and 7: points=[0.7] rendered point 0, realisations=2.5 failed later,
+    # and an image type narrower than the counts wrapped them (3434 as uint8: 106)
+    plan, _ = sweep
+    for options, name in (
+        ({"points": [0.7]}, "points' entries"),
+        ({"points": [True]}, "points' entries"),
+        ({"realisations": 2.5}, "realisations"),
+        ({"first": 1.0}, "first"),
+    ):
+        with pytest.raises(TypeError, match=f"{name} must be an integer"):
+            SweepStream(plan, **options)
+    assert SweepStream(plan, points=[np.int64(1)], realisations=np.int32(2)).points == (1,)
+    largest = SweepStream(plan).dtypes["image"]
+    with pytest.raises(ValueError, match="image_dtype int8: holds values up to 127"):
+        SweepStream(plan, image_dtype=np.int8)
+    assert np.iinfo(largest).max > 127
+    assert SweepStream(plan, image_dtype=np.float32).dtypes["image"] == np.float32

@@ -19,8 +19,9 @@ from service.errors import BadOptionError, DamagedStoreError, InputError, Unusab
 from service.inputs import shown
 from service.store import integrity
 from service.store.location import KIND, Store
+from service.store.shards import checks_identity
 from service.store.template import swept_parameters
-from service.sweep import load_sweep, parse_sweep
+from service.sweep import load_sweep
 
 __all__ = ["cmd_detect", "cmd_info", "cmd_plot", "cmd_preview", "cmd_stats"]
 
@@ -103,25 +104,27 @@ def cmd_info(args) -> int:
         return EXIT_OK
     problems = integrity.verify(store)
     print(f"  verified: {done - len(problems)} of {done} complete samples read back intact")
+    if not checks_identity(store.group()):
+        print(
+            "  its checksums (written before issue #37) do not cover which sample they "
+            "are: a shard's files swapped with another's, or copied from another store, "
+            "pass them; write the sweep again for that check"
+        )
     _print_problems("damaged or missing", problems)
     unflagged = integrity.unflagged(store)
     reason = "its checksum is stored but its completion flag lost (or a run stopped writing it)"
     _print_problems("not counted complete", [(sample, reason) for sample in unflagged])
-    labels = _label_problems(store, ds)
+    labels = _label_problems(store)
     if problems or unflagged or "lost" in labels.values():
         print("  run the sweep again with --resume --verify to recompute them")
     return EXIT_FAILURE if problems or unflagged or labels else EXIT_OK
 
 
-def _label_problems(store: Store, ds) -> dict:
+def _label_problems(store: Store) -> dict:
     """Print and return `service.store.integrity.wrong_labels` of the store, if its sweep loads."""
-    try:
-        plan = parse_sweep(ds.attrs["sweep"], max_memory=None)
-    except InputError as error:  # e.g. a measurement file the sweep names is not here
-        print(f"  labels and coordinates: not checked (its sweep does not load here: {error})")
-        return {}
-    if plan.digest != ds.attrs.get("sweep_sha256"):  # a measurement file changed since
-        print("  labels and coordinates: not checked (its sweep reads other files here)")
+    plan, reason = integrity.stored_plan(store)
+    if plan is None:  # e.g. a measurement file the sweep names is not here, or changed
+        print(f"  labels and coordinates: not checked ({reason})")
         return {}
     labels = integrity.wrong_labels(store, plan)
     lost = ", ".join(name for name, kind in labels.items() if kind == "lost") or "none"
@@ -137,6 +140,10 @@ def _label_problems(store: Store, ds) -> dict:
 def cmd_stats(args) -> int:
     """(Re)compute a store's statistics, holding its writer lock.
 
+    The labels and coordinates are compared with the store's sweep first
+    (`service.store.integrity.check_labels`, as ``info --verify`` compares them), and every
+    sample read is checked against its checksum (`service.stats.write_statistics`).
+
     An incomplete store is refused (exit 2) unless ``--partial`` asks for the statistics of
     the samples written; those record how complete they are and say it.
     """
@@ -146,6 +153,8 @@ def cmd_stats(args) -> int:
     total = _open(store).sizes["sample"]
     with store.lock():
         check_computable(store)  # what cannot be computed at all is said first
+        if reason := integrity.check_labels(store):  # a sample's checksum does not cover them
+            log.warning("%s: labels and coordinates not checked (%s)", store.url, reason)
         done = int(store.completed().sum())
         if done < total and not args.partial:
             raise BadOptionError(

@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.errors import UnusableOutputError
+from service.errors import DamagedStoreError, InputError, UnusableOutputError
 from service.store.layout import shard_samples
 from service.store.location import Store
-from service.store.shards import CHECKSUMS, sample_checksum, verified_by
+from service.store.shards import CHECKSUMS, sample_checksum, sample_identity, verified_by
 from service.store.template import rendered_shapes, template
-from service.sweep import Plan
+from service.sweep import Plan, parse_sweep
 from workers.scene import Scene
 from workers.variables import Rule, rendered, rendered_order, variables
 
@@ -25,9 +25,12 @@ IMAGE_AXES = ("y", "x")
 before them has none, and lacks nothing (it resumes without them)."""
 
 __all__ = [
+    "check_labels",
     "invalid_values",
+    "rebuild_records",
     "repair_labels",
     "stale_layout",
+    "stored_plan",
     "unflagged",
     "verify",
     "wrong_labels",
@@ -55,7 +58,9 @@ def verify(store: Store) -> list[tuple[int, str]]:
     codec finds a damaged chunk, and then the shard is read sample by sample to name
     it), and each sample's arrays are compared with the checksum its task recorded
     (`service.store.shards.verified_by`; which finds a chunk deleted, or swapped with
-    another sample's). A shard file that is absent
+    another sample's, and, where it covers the sample's identity (stores written since
+    issue #37, `service.store.shards.BOUND`), a shard's files swapped with another
+    shard's, checksums included, or copied from another store). A shard file that is absent
     reads as the fill value: zarr writes no shard whose values all equal it (the masks and
     NaN signal means of a shard of samples without a target), so only a checksum that
     does not match says a sample is damaged or lost; a shard absent then is named.
@@ -68,9 +73,9 @@ def verify(store: Store) -> list[tuple[int, str]]:
     group = store.group()
     names = _stored(group)
     size = shard_samples(group)
-    kind = verified_by(group)
+    kind, attrs = verified_by(group), group.attrs.asdict()
     shards = {name: _stored_shards(store, name) for name in [*names, kind]}
-    done = np.flatnonzero(group["completed"][:])
+    done = np.flatnonzero(store.records("completed", group=group))
     problems = []
     for shard in np.unique(done // size):
         samples = [int(s) for s in done[done // size == shard]]
@@ -84,14 +89,14 @@ def verify(store: Store) -> list[tuple[int, str]]:
             arrays = [group[name].get_orthogonal_selection((samples,)) for name in names]
         except Exception:
             arrays = None  # a damaged chunk: read its samples one by one below
-        recorded = group[kind].get_orthogonal_selection((samples,))
+        recorded = store.records(kind, samples, group=group)
         for i, sample in enumerate(samples):
             try:
                 values = [a[i] for a in arrays] if arrays else [group[n][sample] for n in names]
             except Exception as error:
                 problems.append((sample, f"a chunk cannot be read ({type(error).__name__})"))
                 continue
-            if sample_checksum(values, kind) != int(recorded[i]):
+            if sample_checksum(values, kind, sample_identity(attrs, sample)) != int(recorded[i]):
                 problems.append((sample, mismatch))
     return problems
 
@@ -117,9 +122,102 @@ def unflagged(store: Store) -> list[int]:
     samples = []
     for shard in lost:
         first = shard * size
-        recorded = group["checksum"][first : first + size]
+        last = min(first + size, group["checksum"].shape[0])
+        recorded = store.records("checksum", range(first, last), group=group)
         samples += [first + int(i) for i in np.flatnonzero(recorded)]
     return samples
+
+
+def rebuild_records(store: Store) -> list[tuple[int, str]]:
+    """Write again the chunks of completion flags and checksums that cannot be read.
+
+    A shard's chunk of ``completed`` or of a checksum that is empty, cut short or damaged
+    (`service.store.location.Store.records` names it) says nothing of its samples: both
+    are written again as "not written" (the damaged file deleted first: zarr would read it
+    before writing a chunk at the array's end), so that a resumed run renders the shard's
+    samples again and records them afresh. What ``run --resume --verify`` does first.
+
+    Returns
+    -------
+    list of tuple
+        ``(sample, reason)`` for every sample of those shards, by sample index.
+    """
+    group = store.group("r+")
+    names = ["completed", *(kind for kind in CHECKSUMS if kind in group)]
+    size, total = shard_samples(group), group["completed"].shape[0]
+    lost: dict[int, list[str]] = {}
+    for name in names:
+        for shard in store.unreadable(group[name]):
+            lost.setdefault(shard, []).append(name)
+    rebuilt = []
+    for shard, which in sorted(lost.items()):
+        region = slice(shard * size, min((shard + 1) * size, total))
+        for name in names:
+            array = group[name].with_config({"write_empty_chunks": True})
+            (array.store_path / array.metadata.encode_chunk_key((shard,))).delete_sync()
+            array[region] = 0
+        reason = f"its {' and '.join(which)} record could not be read (written again)"
+        rebuilt += [(sample, reason) for sample in range(region.start, region.stop)]
+    return rebuilt
+
+
+def stored_plan(store: Store) -> tuple[Plan | None, str]:
+    """The sweep a samples store holds, read again here, or None and why not.
+
+    Returns
+    -------
+    plan : Plan or None
+        None if its sweep does not load here (a measurement file it names is not here) or
+        reads otherwise (a measurement file changed since: another ``sweep_sha256``).
+    reason : str
+        Why not; empty with a plan.
+    """
+    attributes = store.attributes() or {}
+    try:
+        plan = parse_sweep(attributes["sweep"], max_memory=None)
+    except InputError as error:
+        return None, f"its sweep does not load here: {error}"
+    except KeyError:
+        return None, "it records no sweep"
+    if plan.digest != attributes.get("sweep_sha256"):
+        return None, "its sweep reads other files here"
+    return plan, ""
+
+
+def check_labels(store: Store) -> str:
+    """Refuse a store whose labels or coordinates are not its sweep's (`wrong_labels`).
+
+    What ``info --verify`` reports, checked before a reader (``stats``, ``detect``,
+    `service.dataset.SampleDataset`) reads samples under those labels.
+
+    Returns
+    -------
+    str
+        Empty if checked; else why they could not be (`stored_plan`), for the caller to say.
+
+    Raises
+    ------
+    DamagedStoreError
+        Naming the variables lost (``run --resume --verify`` writes them again) or
+        differing from what the sweep gives here (edited, or another numpy or scipy
+        version: nothing here repairs them).
+    """
+    plan, reason = stored_plan(store)
+    if plan is None:
+        return reason
+    wrong = wrong_labels(store, plan)
+    if lost := [name for name, kind in wrong.items() if kind == "lost"]:
+        raise DamagedStoreError(
+            f"{store.url}: its {', '.join(lost)} are lost or unreadable (written with the store, "
+            "from its sweep); run the sweep again with --resume --verify to write them again"
+        )
+    if differing := [name for name, kind in wrong.items() if kind == "differs"]:
+        raise DamagedStoreError(
+            f"{store.url}: its {', '.join(differing)} differ from what its sweep gives (edited, "
+            "or written by another numpy or scipy version): its samples would be read under "
+            "wrong labels; write the sweep again with --overwrite"
+        )
+    return ""
 
 
 def wrong_labels(store: Store, plan: Plan) -> dict[str, str]:

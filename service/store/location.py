@@ -25,11 +25,11 @@ import numpy as np
 import xarray as xr
 import zarr
 
-from service.errors import BadFileError, BadOptionError, UnusableOutputError
+from service.errors import BadFileError, BadOptionError, DamagedStoreError, UnusableOutputError
 from service.inputs import shown
 from service.store.lock import LEGACY_LOCK_NAME, check_workers_see, writer_lock
 
-__all__ = ["KIND", "Store", "consolidated_v3", "old_gate_numbering"]
+__all__ = ["KIND", "Store", "chunk_file", "consolidated_v3", "old_gate_numbering"]
 
 KIND = "oceanlidar_dataset"
 """Root attribute naming what a store holds: ``samples`` (a sweep), ``statistics`` or
@@ -53,6 +53,16 @@ def old_gate_numbering(gates: np.ndarray, url: str) -> str | None:
         "'gate' array and to those of its statistics and detection datasets: README, 'The "
         "dataset') or write the sweep again with --overwrite"
     )
+
+
+def chunk_file(array, sample: int) -> str:
+    """The file of a zarr `array` (samples along its first axis) that holds `sample`.
+
+    Its shard's file, or its chunk's in an array without shards; a local store's as a path.
+    """
+    size = int((array.shards or array.chunks)[0])
+    key = array.metadata.encode_chunk_key((sample // size,) + (0,) * (array.ndim - 1))
+    return f"{str(array.store_path).removeprefix('file://')}/{key}"
 
 
 @contextlib.contextmanager
@@ -409,14 +419,54 @@ class Store:
 
         The flags have one chunk per shard: one read per shard, whatever its samples;
         `samples` (indices, ascending) reads only the shards that hold them.
+
+        Raises
+        ------
+        DamagedStoreError
+            Naming a file of flags that cannot be read (`records`).
         """
-        flags = self.group()["completed"]
-        if samples is None:
-            return flags[:].astype(bool)
-        samples = np.asarray(samples, dtype=int)
-        if not samples.size:
-            return np.zeros(0, bool)
-        return flags.get_orthogonal_selection((samples,)).astype(bool)
+        return self.records("completed", samples).astype(bool)
+
+    def records(self, name: str, samples=None, *, group=None) -> np.ndarray:
+        """A per-sample record (``completed``, a checksum) of every sample, or of `samples`.
+
+        `samples`: indices, ascending (only the chunks that hold them are read); `group`:
+        the store's, if already open (`group`).
+
+        Raises
+        ------
+        DamagedStoreError
+            Naming the record's files that cannot be read (empty, cut short, damaged: their
+            CRC32C fails) and the remedy: ``run --resume --verify`` writes them again
+            (`service.store.integrity.rebuild_records`).
+        """
+        array = (group or self.group())[name]
+        if samples is not None:
+            samples = np.asarray(samples, dtype=int)
+            if not samples.size:
+                return np.zeros(0, array.dtype)
+        try:
+            return array[:] if samples is None else array.get_orthogonal_selection((samples,))
+        except Exception as error:
+            size = int(array.chunks[0])
+            files = [chunk_file(array, chunk * size) for chunk in self.unreadable(array)]
+            raise DamagedStoreError(
+                f"{', '.join(files) or chunk_file(array, 0)}: cannot be read (empty, cut short "
+                f"or damaged: {type(error).__name__}); run the sweep again with --resume --verify "
+                "to write it again (the samples it records are rendered again)"
+            ) from None
+
+    @staticmethod
+    def unreadable(array) -> list[int]:
+        """The chunks (along the samples, one a shard) of a zarr `array` that cannot be read."""
+        size, total = int(array.chunks[0]), array.shape[0]
+        bad = []
+        for chunk, first in enumerate(range(0, total, size)):
+            try:
+                array[first : first + size]
+            except Exception:
+                bad.append(chunk)
+        return bad
 
     def completed_after(self, before: np.ndarray) -> np.ndarray:
         """The completion flags after a run that found `before` (`completed`).

@@ -18,16 +18,19 @@ import numpy as np
 from numcodecs import Blosc, Zstd
 
 from service.errors import DamagedStoreError
-from service.store.location import Store
+from service.store.location import Store, chunk_file
 from workers.variables import rendered_order
 
 __all__ = [
+    "BOUND",
     "CHECKSUMS",
     "ZERO_WHEN_ABSENT",
     "ShardReader",
+    "checks_identity",
     "read_samples",
     "read_verified",
     "sample_checksum",
+    "sample_identity",
     "verified_by",
     "write_shard",
 ]
@@ -45,23 +48,68 @@ its error 0."""
 CHECKSUMS = {
     "checksum": lambda crc, values: zlib.crc32(values, crc),
     "checksum_crc32c": google_crc32c.extend,
+    "checksum_bound": google_crc32c.extend,
 }
-"""A sample's checksums over its rendered arrays, by the array that records them: CRC-32
-(every store) and CRC32C (stores written since issue #26: the same check, computed in
-hardware, 12 times faster here, 2.3 against 28 GB/s; what `verified_by` chooses)."""
+"""A sample's checksums by the array that records them: CRC-32 of its rendered arrays
+(every store), CRC32C of them (stores written from issue #26 to #37: the same check,
+computed in hardware, 12 times faster here, 2.3 against 28 GB/s), and CRC32C of the
+sample's identity (`sample_identity`) followed by its rendered arrays (stores written
+since issue #37: what `verified_by` chooses where it is recorded)."""
+
+BOUND = frozenset({"checksum_bound"})
+"""The checksums that cover which sample the arrays are (`sample_identity`), not only
+their bytes: a shard's files swapped with another shard's, checksums included, or copied
+from a store of another seed or sweep, fail them."""
 
 
-def sample_checksum(arrays: list[np.ndarray], kind: str = "checksum") -> int:
-    """The `kind` checksum (`CHECKSUMS`) of a sample's arrays (`rendered_order`'s order)."""
-    extend, crc = CHECKSUMS[kind], 0
+VERIFIED_BY = ("checksum_bound", "checksum_crc32c", "checksum")
+"""The checksums a store's samples are checked against, the first it records (`verified_by`)."""
+
+
+def sample_identity(attrs, sample: int) -> bytes:
+    """Which sample `sample` of the store whose root attributes are `attrs` is, as bytes.
+
+    The sample's index, point and realisation, and the store's sweep (``sweep_sha256``,
+    the hash of the sweep with its seed) and ``seed``: what a `BOUND` checksum covers
+    before the sample's arrays.
+    """
+    point, realisation = divmod(int(sample), int(attrs["realisations"]))
+    return (
+        f"oceanlidar sample {int(sample)} point {point} realisation {realisation} "
+        f"sweep {attrs['sweep_sha256']} seed {attrs['seed']}"
+    ).encode()
+
+
+def sample_checksum(
+    arrays: list[np.ndarray], kind: str = "checksum", identity: bytes = b""
+) -> int:
+    """The `kind` checksum (`CHECKSUMS`) of a sample's arrays (`rendered_order`'s order).
+
+    `identity` (`sample_identity`) comes first in a `BOUND` checksum; the others ignore it.
+    """
+    extend = CHECKSUMS[kind]
+    crc = extend(0, identity) if kind in BOUND else 0
     for values in arrays:
         crc = extend(crc, np.ascontiguousarray(values))
     return crc
 
 
 def verified_by(group) -> str:
-    """The checksum a store's samples are checked against: CRC32C where it records one."""
-    return "checksum_crc32c" if "checksum_crc32c" in group else "checksum"
+    """The checksum a store's samples are checked against: the most it records.
+
+    The `BOUND` one (stores written since issue #37), else CRC32C (since issue #26), else
+    CRC-32.
+    """
+    return next(kind for kind in VERIFIED_BY if kind in group)
+
+
+def checks_identity(group) -> bool:
+    """Whether a store's checksums find a sample's arrays at another sample's place.
+
+    Stores written before issue #37 record checksums of the arrays alone: a shard's files
+    swapped with another's, checksums included, pass them.
+    """
+    return verified_by(group) in BOUND
 
 
 def read_samples(array, samples: list[int]) -> np.ndarray:
@@ -86,10 +134,11 @@ def read_samples(array, samples: list[int]) -> np.ndarray:
             try:
                 array[sample]
             except Exception as error:
+                where = chunk_file(array, sample)
                 raise DamagedStoreError(
                     f"sample {sample}: its {array.basename} chunk cannot be read "
-                    f"({type(error).__name__}: {str(error)[:120]}); run the sweep again with "
-                    "--resume --verify to recompute it"
+                    f"({type(error).__name__}: {str(error)[:120]}; file {where}); run the "
+                    "sweep again with --resume --verify to recompute it"
                 ) from None
         raise
 
@@ -100,7 +149,9 @@ def read_verified(group, samples: list[int]) -> dict[str, np.ndarray]:
     Each sample's arrays are compared with the checksum its task recorded, as
     `service.store.integrity.verify` compares them: a shard file lost (read back as the
     fill value), copied over another, or with chunks swapped inside it fails as a chunk
-    that cannot be decoded does.
+    that cannot be decoded does; where the checksums are `BOUND` (stores written since
+    issue #37), so do a shard's files swapped with another shard's, checksums included,
+    and a shard copied from another store.
 
     Parameters
     ----------
@@ -123,13 +174,15 @@ def read_verified(group, samples: list[int]) -> dict[str, np.ndarray]:
     """
     names = [name for name in rendered_order() if name in group]
     read = {name: read_samples(group[name], samples) for name in names}
-    kind = verified_by(group)
+    kind, attrs = verified_by(group), group.attrs.asdict()
     recorded = read_samples(group[kind], samples)
     for i, sample in enumerate(samples):
-        if sample_checksum([read[name][i] for name in names], kind) != int(recorded[i]):
+        values = [read[name][i] for name in names]
+        if sample_checksum(values, kind, sample_identity(attrs, sample)) != int(recorded[i]):
             raise DamagedStoreError(
                 f"sample {sample}: its chunks do not match its checksum (a shard lost, or "
-                "another's); run the sweep again with --resume --verify to recompute it"
+                "another sample's or store's); run the sweep again with --resume --verify to "
+                "recompute it"
             )
     return read
 
@@ -173,10 +226,12 @@ def write_shard(group, samples: dict[int, dict[str, np.ndarray]]) -> None:
             block[sample - first] = rendered.get(name, 0) if zero else rendered[name]
         blocks[name] = block
     checksums = {kind: array[region] for kind, array in stored.items()}
+    attrs = group.attrs.asdict()
     for sample in samples:
         values = [block[sample - first] for block in blocks.values()]
+        identity = sample_identity(attrs, sample)
         for kind, recorded in checksums.items():
-            recorded[sample - first] = sample_checksum(values, kind)
+            recorded[sample - first] = sample_checksum(values, kind, identity)
     for name, block in blocks.items():
         _write_whole(arrays[name], region, block)
     for kind, array in stored.items():
@@ -283,9 +338,13 @@ class ShardReader:
             if self.sharded:
                 self.indexes[shard] = self._shard_index(data, shard)
             else:
-                self._check(data, f"samples {shard * self.per_shard}+: their chunk")
-                values = np.frombuffer(self.codec.decode(data[:-4]), self.dtype)
-                self.indexes[shard] = values.reshape(-1, *self.shape)
+                what = f"samples {shard * self.per_shard}+: their chunk"
+                self._check(data, what, shard)
+                try:
+                    values = np.frombuffer(self.codec.decode(data[:-4]), self.dtype)
+                    self.indexes[shard] = values.reshape(-1, *self.shape)
+                except (RuntimeError, ValueError):  # a chunk of other bytes
+                    self._refuse(what, shard)
         return self.indexes[shard]
 
     def _shard_index(self, data: bytes, shard: int) -> np.ndarray:
@@ -294,15 +353,22 @@ class ShardReader:
         `data` is the shard file or its tail.
         """
         tail = data[-(16 * self.per_shard + 4) :]
-        self._check(tail, f"shard {shard}'s index")
+        if len(tail) < 16 * self.per_shard + 4:  # cut short: no whole index
+            self._refuse(f"shard {shard}'s index", shard)
+        self._check(tail, f"shard {shard}'s index", shard)
         return np.frombuffer(tail[:-4], "<u8").reshape(-1, 2)
 
-    def _check(self, data: bytes, what: str) -> None:
-        if google_crc32c.value(data[:-4]) != int.from_bytes(data[-4:], "little"):
-            raise DamagedStoreError(
-                f"{what} of {self.name} fails its checksum; run the sweep again with "
-                "--resume --verify to recompute it"
-            )
+    def _check(self, data: bytes, what: str, shard: int) -> None:
+        """Refuse `data` (bytes of shard `shard`'s file, then their CRC32C) if damaged."""
+        if len(data) < 4 or google_crc32c.value(data[:-4]) != int.from_bytes(data[-4:], "little"):
+            self._refuse(what, shard)
+
+    def _refuse(self, what: str, shard: int):
+        """`DamagedStoreError`: `what` of this array, in shard `shard`'s file, is damaged."""
+        raise DamagedStoreError(
+            f"{what} of {self.name} fails its checksum (file {self.key.format(shard)}, empty, "
+            "cut short or damaged); run the sweep again with --resume --verify to recompute it"
+        )
 
     def read(self, sample: int) -> np.ndarray:
         """The sample's array (the fill value where it was never written), writable, its own.
@@ -320,28 +386,35 @@ class ShardReader:
         data = self.fs.cat_file(self.key.format(shard), start=offset, end=offset + length)
         return self._decoded(data, sample)
 
-    def read_shard(self, shard: int, samples: int) -> np.ndarray:
+    def read_shard(self, shard: int, samples: int, skip=frozenset()) -> np.ndarray:
         """The first `samples` samples of a sharded array's shard `shard`, decoded.
 
         The shard file is read whole, once (its index not kept); fill values where a sample
-        was never written: what a dask chunk of a shard reads
-        (`service.dataset.open_dataset`).
+        was never written, and for the samples in `skip` (known damaged: never decoded):
+        what a dask chunk of a shard reads (`service.dataset.open_dataset`).
         """
         values = np.full((samples, *self.shape), self.fill, self.dtype)
+        first = shard * self.per_shard
+        if set(range(first, first + samples)) <= skip:
+            return values
         try:
             data = self.fs.cat_file(self.key.format(shard))
         except FileNotFoundError:
             return values
         index = self._shard_index(data, shard)
         for position, (offset, length) in enumerate(index[:samples].tolist()):
-            if offset != EMPTY:
-                sample = shard * self.per_shard + position
-                values[position] = self._decoded(data[offset : offset + length], sample)
+            if offset != EMPTY and first + position not in skip:
+                chunk = data[offset : offset + length]
+                values[position] = self._decoded(chunk, first + position)
         return values
 
     def _decoded(self, data: bytes, sample: int) -> np.ndarray:
         """A sample's chunk (its bytes with their CRC32C) checked and decompressed."""
-        self._check(data, f"sample {sample}: its chunk")
+        shard = sample // self.per_shard
+        self._check(data, f"sample {sample}: its chunk", shard)
         values = np.empty(self.shape, self.dtype)
-        self.codec.decode(data[:-4], out=values)
+        try:
+            self.codec.decode(data[:-4], out=values)
+        except (RuntimeError, ValueError):  # CRC32C passed, other bytes (written so)
+            self._refuse(f"sample {sample}: its chunk", shard)
         return values

@@ -285,12 +285,17 @@ def template(plan: Plan, samples_per_shard: int | None = None) -> tuple[xr.Datas
         lazy_array((n,), 0, np.uint32, multiple=shard),
         {"long_name": "CRC-32 of the sample's rendered arrays", "units": "1"},
     )
-    data_vars["checksum_crc32c"] = (
+    data_vars["checksum_bound"] = (
         ("sample",),
         lazy_array((n,), 0, np.uint32, multiple=shard),
-        {"long_name": "CRC32C of the sample's rendered arrays", "units": "1"},
+        {
+            "long_name": "CRC32C of the sample's identity and rendered arrays",
+            "comment": "the identity: sample index, point, realisation, sweep_sha256 and seed "
+            "(service.store.shards.sample_identity), then the arrays in the store's order",
+            "units": "1",
+        },
     )
-    for name in ("completed", "checksum", "checksum_crc32c"):
+    for name in ("completed", "checksum", "checksum_bound"):
         encoding[name] = per_shard((), shard)
     # labels and the platform track follow from each point's scene: written once, here
     track = [name for name, v in table.items() if v.role is Role.TRACK]
