@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import json
 
+import google_crc32c
 import numpy as np
 import xarray as xr
 
@@ -39,9 +40,12 @@ from workers.scene import Scene
 from workers.variables import Role, Variable, rendered_order, variables
 
 __all__ = [
+    "LABELS_CHECKSUM",
     "OWNER",
     "check_uniform",
     "create_store",
+    "label_names",
+    "labels_checksum",
     "parameter_name",
     "rendered_shapes",
     "store_variables",
@@ -59,6 +63,38 @@ STDERR_COMMENT = (
 """The ``comment`` of a store's ``expected_stderr`` (`store_variables`)."""
 OWNER = "oceanlidar_owner"
 """Root attribute naming who wrote a store: the job service's submitter (`create_store`)."""
+LABELS_CHECKSUM = "labels_crc32c"
+"""Root attribute: the `labels_checksum` of the labels and coordinates the template wrote
+(stores written since issue #37), which a reader compares the stored ones with in one
+read (`service.store.integrity.check_labels`)."""
+
+
+def label_names(names) -> list[str]:
+    """The labels and coordinates among a store's variable `names`, sorted.
+
+    What the template writes once (`template`): neither a rendered variable nor the
+    completion flags nor a checksum, which the tasks write.
+    """
+    samples = {*rendered_order(), "completed"}
+    return sorted(str(n) for n in names if n not in samples and not str(n).startswith("checksum"))
+
+
+def labels_checksum(values: dict) -> int:
+    """CRC32C of a store's labels and coordinates: `values` by name (`label_names`).
+
+    Each variable's name, then its values: numbers as their little-endian bytes, anything
+    else (names, lists as JSON) as text, so that the values read back from the store give
+    the checksum the template's gave.
+    """
+    crc = 0
+    for name in label_names(values):
+        array = np.asarray(values[name])
+        if array.dtype.kind in "OUST":
+            data = "\x1f".join(str(value) for value in array.ravel()).encode()
+        else:
+            data = np.ascontiguousarray(array, array.dtype.newbyteorder("<")).tobytes()
+        crc = google_crc32c.extend(google_crc32c.extend(crc, name.encode() + b"\0"), data)
+    return crc
 
 
 def parameter_name(path: str) -> str:
@@ -356,4 +392,6 @@ def template(plan: Plan, samples_per_shard: int | None = None) -> tuple[xr.Datas
         realisations=realisations,
         points=len(plan.points),
     )
+    labels = {name: ds[name].values for name in label_names(ds.variables)}
+    ds.attrs[LABELS_CHECKSUM] = labels_checksum(labels)
     return ds, encoding
