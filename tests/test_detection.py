@@ -490,6 +490,17 @@ def test_detect_refuses_samples_that_fail_their_checks(detection, tmp_path, caps
     assert sorted(p.name for p in tmp_path.iterdir()) == ["small.zarr"]  # no dataset, no lock
 
 
+def test_detect_names_a_file_of_flags_that_cannot_be_read(detection, tmp_path, capsys):
+    # issue #37 item 6: a zero-length completed file ended in a traceback naming nothing
+    copy, _ = copied(detection, tmp_path)
+    (copy / "completed" / "c.1").write_bytes(b"")
+    assert main(["detect", str(copy)]) == 1
+    err = capsys.readouterr().err
+    assert f"{copy}/completed/c.1: cannot be read" in err and "--resume --verify" in err
+    assert "Traceback" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["small.zarr"]
+
+
 def test_detect_compares_the_labels_with_the_sweeps(detection, tmp_path, capsys):
     # issue #37 item 1: as info --verify, stats and the training reader do
     copy, _ = copied(detection, tmp_path)
