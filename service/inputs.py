@@ -21,7 +21,6 @@ import stat
 from collections.abc import Hashable
 from typing import Any
 
-import numpy as np
 import yaml
 
 from service.errors import BadFileError, BadSweepError
@@ -56,15 +55,15 @@ def position(value: Any, name: str) -> int:
     """`value`, an index or count a Python reader is given (`name` says which), as an int.
 
     Python and numpy integers, and anything else that is one (``__index__``: a 0-d integer
-    tensor), pass; a float (``1.5``, even ``2.0``) or a bool, which numpy would quietly
-    make 1, or 0, is refused.
+    tensor), pass; a float (``1.5``, even ``2.0``) or a bool (numpy's has no ``__index__``),
+    which numpy would quietly make 1, or 0, is refused.
 
     Raises
     ------
     TypeError
         Naming `name` and the value.
     """
-    if not isinstance(value, bool | np.bool_):
+    if not isinstance(value, bool):
         try:
             return operator.index(value)
         except TypeError:

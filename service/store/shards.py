@@ -134,11 +134,11 @@ def read_samples(array, samples: list[int]) -> np.ndarray:
             try:
                 array[sample]
             except Exception as error:
-                where = chunk_file(array, sample)
+                reason = f"{type(error).__name__}: {str(error)[:120].rstrip('.')}"
                 raise DamagedStoreError(
-                    f"sample {sample}: its {array.basename} chunk cannot be read "
-                    f"({type(error).__name__}: {str(error)[:120]}; file {where}); run the "
-                    "sweep again with --resume --verify to recompute it"
+                    f"sample {sample}: its {array.basename} chunk cannot be read ({reason}; "
+                    f"file {chunk_file(array, sample)}); run the sweep again with --resume "
+                    "--verify to recompute it"
                 ) from None
         raise
 
