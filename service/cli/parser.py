@@ -142,8 +142,8 @@ def _check(commands) -> None:
         "fast renderer and by Monte Carlo photon transport on the same sea (realisation "
         "0's, frame 0) and print per point and gate the fast/transport ratio of the "
         "background, the target's contrast and its shadow, with the transport's errors, "
-        "marking those outside the bars: backgrounds within 5 %%, the target's contrast "
-        "within 5 %% inside a gate and 10 %% where a gate's edge cuts it, shadows within "
+        "marking those outside the bars: backgrounds within 5 %, the target's contrast "
+        "within 5 % inside a gate and 10 % where a gate's edge cuts it, shadows within "
         "0.05 (each plus two standard errors). Exit 0 when every point holds, 1 "
         "otherwise, 2 for bad input. Writes nothing but --plot.",
     )
