@@ -266,3 +266,29 @@ def test_gate_kinds_widen_the_target_by_the_seas_reach():
     # a disk at a gate's top lies in its shadow
     assert gate_kinds(disk, sea_std=0.0) == ("above", "above", "inside", "shadow", "shadow")
     assert gate_kinds(scene.without_target(), sea_std=0.0) == ("none",) * 5
+
+
+def test_lights_are_the_renderers_own(tmp_path):
+    # what check compares is what a run stores: the Monte Carlo's and the fast renderer's
+    # expected images of the sample, and the Monte Carlo's error and mask, bit for bit
+    from workers.render import render_arrays
+
+    plan = parse_sweep(sweep_file(tmp_path).read_text(), folder=tmp_path)
+    sample = plan.sample(4)  # point 1, realisation 1: its own sea and photons
+    scene = sample.scene
+    transported = scene.model_copy(
+        update={"transport": scene.transport.model_copy(update={"method": "monte_carlo"})}
+    )
+    stored = render_arrays(transported, seed=sample.seed)
+    light = fidelity.transport_light(scene, seed=sample.seed)
+    np.testing.assert_array_equal(light.image, stored["expected"][0])
+    np.testing.assert_array_equal(light.stderr, stored["expected_stderr"][0])
+    np.testing.assert_array_equal(light.mask, stored["target_mask"][0].astype(bool))
+    twin = render_arrays(transported.without_target(), seed=sample.seed)
+    np.testing.assert_array_equal(light.twin, twin["expected"][0])
+    fast = fidelity.fast_light(scene, seed=sample.seed)
+    np.testing.assert_array_equal(
+        fast.image, render_arrays(scene, seed=sample.seed)["expected"][0]
+    )
+    free = render_arrays(scene.without_target(), seed=sample.seed)["expected"][0]
+    np.testing.assert_array_equal(fast.twin, free)
