@@ -5,8 +5,10 @@ the first frame and its no-target twin on the same sea and photon streams, seed
 `SEED`) and writes ``tests/data/fidelity_reference/NAME.npz``: the scene as JSON
 (``scene``), its images (``image``, ``twin``), their standard errors (``stderr``,
 ``twin_stderr``), the target's ``mask`` and the sea's elevation's standard deviation
-(``sea_std``), from which `workers.fidelity.compare` gives per gate the background, the
-target's contrast over its mask and the shadow with their errors;
+(``sea_std``), and per gate what `workers.fidelity.compare` reads of them: the
+background's mean and standard error (``background``, ``background_error``), the
+target's contrast (target − twin)/twin over its mask, a shadow's below it, and its error
+(``contrast``, ``contrast_error``) and the gate's kind (``kinds``);
 ``tests/test_fidelity_reference.py`` holds the fast renderer to them.
 
 The scenes (issue #36, item 3) vary one thing at a time around the reference scene (32 px
@@ -34,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from workers.fidelity import compare, gate_kinds, transport_light
+from workers.fidelity import Light, compare, gate_kinds, transport_light
 from workers.scene import Scene
 from workers.seeds import SampleSeed
 
@@ -76,6 +78,8 @@ SCENES = {
 }
 """Each scene: its sections replacing the reference's, and its photons per frame."""
 
+SUMMARY_ORDER = ("kinds", "background", "background_error", "contrast", "contrast_error")
+
 
 def fidelity_scene(name: str, *, photons: int | None = None) -> Scene:
     """Scene `name` of `SCENES` (with `photons` instead of its own, if given)."""
@@ -84,6 +88,19 @@ def fidelity_scene(name: str, *, photons: int | None = None) -> Scene:
     data["target"] = {**REFERENCE["target"], **data["target"]}
     data["transport"] = {"method": "monte_carlo", "photons": photons or default, "batches": 16}
     return Scene.model_validate(data)
+
+
+def summaries(light: Light, kinds) -> dict[str, np.ndarray]:
+    """Per gate, the background, the contrast and their standard errors, and the kinds."""
+    checks = compare(light, light, kinds=kinds)  # against itself: its own values and errors
+    background = light.twin.mean(axis=(1, 2), dtype=np.float64)
+    return {
+        "background": background,
+        "background_error": np.array([c.background.error for c in checks]) * background,
+        "contrast": np.array([c.reference_contrast for c in checks]),
+        "contrast_error": np.array([c.reference_error for c in checks]),
+        "kinds": np.array(kinds),
+    }
 
 
 def main(argv=None) -> None:
@@ -107,17 +124,14 @@ def main(argv=None) -> None:
         seconds = time.perf_counter() - start
         total += seconds
         kinds = gate_kinds(scene, sea_std=light.sea_std)
-        checks = compare(light, light, kinds=kinds)  # itself: its errors, its contrasts
+        summary = summaries(light, kinds)
         print(
             f"{name:16s} {scene.transport.photons:>10,d} photons {seconds:7.1f} s  "
             + "  ".join(
-                f"g{c.gate} {c.kind} bg±{100 * c.background.error:.1f}%"
-                + (
-                    f" c {c.reference_contrast:+.2f}±{c.reference_error:.2f}"
-                    if c.contrast is not None
-                    else ""
+                f"g{g + 1} {kind} bg±{100 * error / mean:.1f}% c {value:+.2f}±{spread:.2f}"
+                for g, (kind, mean, error, value, spread) in enumerate(
+                    zip(*(summary[k] for k in SUMMARY_ORDER), strict=True)
                 )
-                for c in checks
             ),
             flush=True,
         )
@@ -131,6 +145,7 @@ def main(argv=None) -> None:
                 twin_stderr=light.twin_stderr,
                 mask=light.mask,
                 sea_std=np.float64(light.sea_std),
+                **summary,
             )
     print(f"{total:.0f} s in all")
 

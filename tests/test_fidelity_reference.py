@@ -3,12 +3,13 @@
 ``tests/data/fidelity_reference/NAME.npz`` holds, per scene of
 `benchmarks.fidelity_reference` (one change at a time around 32 px, 34 m, nadir, a 0.3 m
 sphere at 5 m in clear water, the ML(DC) gates, a flat sea: nadir 10° and 20°, altitude
-100 and 300 m, other spheres and depths, a disk, coastal water, 5 and 10 m/s seas), the
-Monte Carlo images of its first frame and of its no-target twin with their standard
-errors. Each test renders its scene by the fast renderer on the same sea and holds it,
-gate by gate, to the bars of `workers.fidelity.compare` (the ``oceanlidar check``
-command's): backgrounds within 5 %, the target's contrast within 5 % inside a gate and
-10 % where a gate's edge cuts it, shadows within 0.05, each plus two standard errors.
+100 and 300 m, other spheres and depths, a disk, coastal water, 1, 5 and 10 m/s seas),
+the Monte Carlo images of its first frame and of its no-target twin with their standard
+errors, and per gate the background, the target's contrast (or shadow) and their errors.
+Each test renders its scene by the fast renderer on the same sea and holds it, gate by
+gate, to the bars of `workers.fidelity.compare` (the ``oceanlidar check`` command's):
+backgrounds within 5 %, the target's contrast within 5 % inside a gate and 10 % where a
+gate's edge cuts it, shadows within 0.05, each plus two standard errors.
 
 The data are regenerated with ``python -m benchmarks.fidelity_reference --force`` after a
 change of the transport physics, never to make a test pass. A scene that fails names its
@@ -22,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks.fidelity_reference import SCENES, SEED
+from benchmarks.fidelity_reference import SCENES, SEED, SUMMARY_ORDER, fidelity_scene, summaries
 from workers.fidelity import Light, compare, fast_light, gate_kinds, transport_light
 from workers.scene import Scene
 from workers.seeds import SampleSeed
@@ -69,13 +70,16 @@ def test_fast_renderer_holds_to_the_reference_scene(name):
 
 
 def test_the_references_are_the_scenes_of_the_grid():
-    # every scene of the script is stored, as the script defines it today
-    from benchmarks.fidelity_reference import fidelity_scene
-
+    # every scene of the script is stored, as the script defines it today, with the
+    # per-gate summaries `compare` reads of its images
     for name in SCENES:
         scene, light = stored(name)
         assert scene == fidelity_scene(name), name
         assert light.image.shape == (6, 32, 32) and np.all(np.isfinite(light.stderr))
+        with np.load(DATA / f"{name}.npz") as data:
+            kept = {key: data[key] for key in SUMMARY_ORDER}
+        for key, values in summaries(light, gate_kinds(scene, sea_std=light.sea_std)).items():
+            np.testing.assert_array_equal(kept[key], values, err_msg=f"{name}: {key}")
 
 
 def test_monte_carlo_reproduces_the_reference_scene():
