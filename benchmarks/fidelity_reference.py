@@ -16,9 +16,11 @@ over 6.7° from 34 m at nadir, a 0.3 m sphere at 5 m in clear water, the six ML(
 gates, a flat sea): nadir 10° and 20°; altitude 100 and 300 m; a 0.3 m sphere at 3 m,
 0.5 m at 9 m and 1 m at 12 m; a 0.3 m disk at 5 m; coastal water; 1, 5 and 10 m/s
 Elfouhaily seas with the default cascades (and coastal water under 5 m/s): one
-realisation each (`SEED`). Photons: 8·10⁶ over a flat sea (backgrounds ±0.1–0.3 %, the
-sphere's contrast in its gate ±2–3 %), 2·10⁶ over waves (backgrounds ±1–3 %, ±3–5 %);
-the whole grid took 35 CPU-minutes (about 25 of them here under load, 2026-11-28).
+realisation each (`SEED`). Photons: 8·10⁶ over a flat sea (backgrounds ±0.1–0.2 %, the
+sphere's contrast in gate 1 ±2–3 % at 34 m, 13 % at 300 m), 2·10⁶ over waves
+(backgrounds ±0.4–2 %, the sphere ±3–12 %);
+the scenes' times summed 41 minutes (14 flat, 27 over waves; niced, on the shared
+2-core machine under a load of about 12, 2026-11-28).
 
 Usage, from the repository root: ``nice python -m benchmarks.fidelity_reference``
 (resumable: a scene whose file exists is skipped unless ``--force``; ``--only NAME ...``;
