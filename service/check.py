@@ -187,11 +187,11 @@ def report_lines(check: PointCheck) -> list[str]:
         f"point {check.point}{f' ({values})' if values else ''}: {verdict} "
         f"({check.photons:,} photons: transport {check.seconds[0]:.1f} s, fast "
         f"{check.seconds[1]:.1f} s)",
-        "  gate kind    background (fast/transport)  contrast: transport        fast"
-        "     fast vs transport",
+        f"  gate kind    {'background (fast/transport)':<42} contrast: transport"
+        "        fast  fast vs transport",
     ]
     for gate in check.gates:
-        row = f"  {gate.gate:>4} {gate.kind:<7} {_shown(gate.background):<28}"
+        row = f"  {gate.gate:>4} {gate.kind:<7} {_shown(gate.background):<42}"
         if gate.contrast is not None:
             reference = f"{gate.reference_contrast:+.3f} ± {gate.reference_error:.3f}"
             row += f" {reference:>19} {gate.fast_contrast:+9.3f}  {_shown(gate.contrast)}"
