@@ -34,6 +34,7 @@ __all__ = [
     "colour_scales",
     "figure_pixels",
     "image_label",
+    "plot_check",
     "plot_detection",
     "plot_statistics",
     "preview_figure",
@@ -424,3 +425,86 @@ def plot_detection(detection: xr.Dataset, path: str) -> None:
         axes[roc_rows, 0].legend(fontsize=5)
     figure.tight_layout()
     figure.savefig(path, dpi=DPI)
+
+
+def plot_check(checks, path: str) -> None:
+    """``oceanlidar check``'s comparison: each point's images side by side, ratios by gate.
+
+    Parameters
+    ----------
+    checks : sequence of service.check.PointCheck
+        The points checked.
+    path : str
+        Picture to write (`PLOT_FORMATS`). Two rows a point: transport's noise-free
+        images, gate by gate, over the fast renderer's, each gate on one colour scale
+        (`colour_scales` over both, the target's mask outlined); beside them, by gate, the
+        background's ratio (fast/transport) and the target's (the contrast's ratio inside
+        or at an edge; 1 + the difference of the contrasts in a shadow or above it), with
+        the reference's errors, the bars shaded, measures outside their bar in red.
+    """
+    gates = max(len(check.gates) for check in checks)
+    figure = _figure(figsize=(1.6 * gates + 3.6, 3.2 * len(checks)))
+    grid = figure.add_gridspec(2 * len(checks), gates + 2)
+    for row, check in enumerate(checks):
+        pair = np.stack([check.reference.image, check.fast.image])
+        scales = colour_scales(pair)
+        for g in range(len(check.gates)):
+            for r, (name, image) in enumerate((("transport", pair[0]), ("fast", pair[1]))):
+                ax = figure.add_subplot(grid[2 * row + r, g])
+                ax.imshow(image[g], cmap="gray", vmin=scales[g, 0], vmax=scales[g, 1])
+                if check.reference.mask.any():
+                    ax.contour(check.reference.mask, levels=[0.5], colors="C1", linewidths=0.5)
+                ax.set_xticks([])
+                ax.set_yticks([])
+                if g == 0:
+                    ax.set_ylabel(f"point {check.point}\n{name}", fontsize=7)
+                if r == 0:
+                    ax.set_title(f"gate {g + 1} ({check.gates[g].kind})", fontsize=7)
+        ax = figure.add_subplot(grid[2 * row : 2 * row + 2, gates:])
+        _draw_ratios(ax, check)
+    figure.tight_layout()
+    figure.savefig(path, dpi=DPI)
+
+
+def _draw_ratios(ax, check) -> None:
+    """One point's measures by gate against 1, each with its bar (`plot_check`)."""
+    number = np.array([gate.gate for gate in check.gates], dtype=np.float64)
+    series = [
+        ("background", -0.12, [gate.background for gate in check.gates]),
+        ("target", 0.12, [gate.contrast for gate in check.gates]),
+    ]
+    for label, shift, measures in series:
+        for x, measure in zip(number + shift, measures, strict=True):
+            if measure is None or not np.isfinite(measure.value):
+                continue
+            value = measure.value if measure.ratio else 1.0 + measure.value
+            colour = "C3" if measure.holds is False else "C0" if label == "target" else "C2"
+            ax.errorbar(
+                x,
+                value,
+                yerr=measure.error,
+                fmt="o" if label == "target" else "s",
+                color=colour,
+                markersize=3,
+                elinewidth=0.8,
+                markerfacecolor="none" if measure.holds is None else colour,
+            )
+            ax.fill_between(
+                [x - 0.1, x + 0.1], 1 - measure.bar, 1 + measure.bar, color=colour, alpha=0.15
+            )
+        ax.plot(
+            [],
+            [],
+            "s" if label == "background" else "o",
+            color="C2" if label == "background" else "C0",
+            markersize=3,
+            label=label,
+        )
+    ax.axhline(1.0, color="0.5", linewidth=0.5)
+    ax.set_xticks(number)
+    ax.set_xlabel("gate", fontsize=7)
+    ax.set_ylabel("fast / transport", fontsize=7)
+    verdict = "holds" if check.holds else "fails (red)"
+    ax.set_title(f"point {check.point}: {verdict}", fontsize=7)
+    ax.tick_params(labelsize=6)
+    ax.legend(fontsize=5)

@@ -167,6 +167,31 @@ def test_normalised_mode_is_unchanged():
         assert_allclose(value, 200.0 * math.exp(-2 * K * 2.0) * spread, rtol=0.01)
 
 
+def test_normalised_mode_is_range_free_off_nadir():
+    # docs/model.md §7: normalised images drop the range, not only the altitude: a white
+    # plane seen at 20° off nadir reads what the plane at nadir reads from the same
+    # (slant) range, times the oblique view's own factors: the two Fresnel crossings
+    # T(θ)²/t0², the beam's irradiance on a horizontal plane, cos θ, and the slant path's
+    # attenuation and spread. Issue #36 read the definition as "the plane at nadir from
+    # the same altitude", which is cos²θ = 0.88 of this at 20°: 0.83 where this gives 0.94.
+    normalised = {"mode": "normalised", "white_plane_photons": 200.0}
+    altitude, depth, nadir = 90.0, 1.0, math.radians(20.0)
+    flat = disk_scene(altitude, depth=depth, reflectance=1.0, radiometry=normalised)
+    oblique = flat.model_copy(
+        update={"platform": flat.platform.model_copy(update={"nadir_deg": 20.0})}
+    )
+    values = [centre(render(s, seed=1).expected.values[0, 0]) for s in (flat, oblique)]
+    inside = math.asin(math.sin(nadir) / N_WATER)
+    t = 1.0 - float(fresnel_reflectance(math.cos(nadir), n1=1.0, n2=N_WATER))
+    slant, path = altitude / math.cos(nadir), depth / math.cos(inside)
+    spread = (slant / (slant + path / N_WATER)) ** 2 / (
+        altitude / (altitude + depth / N_WATER)
+    ) ** 2
+    expected = t**2 / T0**2 * math.cos(nadir) * math.exp(-2 * K * (path - depth)) * spread
+    assert_allclose(values[1] / values[0], expected, rtol=0.01)
+    assert abs(values[1] / values[0] - expected * math.cos(nadir) ** 2) > 0.1
+
+
 def test_units_follow_the_mode_and_gain():
     s = disk_scene(50.0)
     s = Scene.model_validate({**s.model_dump(), "noise": {"gain": 10.0, "excess_noise": 1.0}})

@@ -6,7 +6,7 @@ that could not be rendered, an interrupted run, an unreadable store; quietly, a 
 output closed by its reader as ``| head`` does: Python's convention for a broken pipe).
 The arguments are in `service.cli.parser`; the commands, ``cmd_NAME`` each, in
 `service.cli.run_commands` (run, validate, schema), `service.cli.store_commands` (info,
-stats, detect, preview, plot) and `service.cli.job_commands` (serve, submit, jobs, status,
+stats, detect, preview, plot, check) and `service.cli.job_commands` (serve, submit, jobs, status,
 logs, cancel). A command's module is imported when the command runs: parsing the command line
 imports neither dask, zarr nor the server.
 
@@ -31,7 +31,9 @@ EXIT_FAILURE, EXIT_BAD_INPUT = 1, 2
 
 COMMANDS = {
     **dict.fromkeys(("run", "validate", "schema"), "service.cli.run_commands"),
-    **dict.fromkeys(("info", "stats", "detect", "preview", "plot"), "service.cli.store_commands"),
+    **dict.fromkeys(
+        ("info", "stats", "detect", "preview", "plot", "check"), "service.cli.store_commands"
+    ),
     **dict.fromkeys(
         ("serve", "submit", "jobs", "status", "logs", "cancel"), "service.cli.job_commands"
     ),

@@ -134,6 +134,34 @@ def _preview(commands) -> None:
     _storage_options(preview)
 
 
+def _check(commands) -> None:
+    check = commands.add_parser(
+        "check",
+        help="hold the fast renderer to photon transport on a few points of a sweep",
+        description="Render a few points of the sweep (its corners first: --points) by the "
+        "fast renderer and by Monte Carlo photon transport on the same sea (realisation "
+        "0's, frame 0) and print per point and gate the fast/transport ratio of the "
+        "background, the target's contrast and its shadow, with the transport's errors, "
+        "marking those outside the bars: backgrounds within 5 %, the target's contrast "
+        "within 5 % inside a gate and 10 % where a gate's edge cuts it, shadows within "
+        "0.05 (each plus two standard errors). Exit 0 when every point holds, 1 "
+        "otherwise, 2 for bad input. Writes nothing but --plot.",
+    )
+    check.add_argument("sweep", help="sweep YAML file (of small_angle points)")
+    check.add_argument(
+        "--points", type=int, default=4, help="most points to check (default %(default)s)"
+    )
+    check.add_argument(
+        "--photons",
+        type=int,
+        default=None,
+        help="Monte Carlo photons per point (default: the sweep's transport.photons); "
+        "more narrow the errors, in proportion to the time",
+    )
+    check.add_argument("--plot", help="FILE.png: the images side by side and ratios by gate")
+    _limits(check)
+
+
 def _job_commands(commands) -> None:
     """``serve`` (the job service) and its clients (``submit``, ``logs``, ...)."""
     serve = commands.add_parser("serve", help="run the batch service (HTTP API and web page)")
@@ -307,5 +335,6 @@ def parser() -> argparse.ArgumentParser:
         "--output", required=True, help="FILE.png (or .pdf, .svg: what matplotlib writes)"
     )
     _storage_options(plot)
+    _check(commands)
     _job_commands(commands)
     return top

@@ -1,4 +1,6 @@
-"""The store's commands: ``info``, ``stats``, ``detect``, ``preview`` and ``plot``.
+"""The store's commands: ``info``, ``stats``, ``detect``, ``preview``, ``plot`` and ``check``.
+
+``preview`` and ``check`` render from a sweep file too; ``check`` never opens a store.
 
 Each takes the parsed arguments (`service.cli.parser`) and returns an exit code; bad input
 is raised as a `service.errors.InputError`, a damaged store as
@@ -23,7 +25,7 @@ from service.store.shards import checks_identity
 from service.store.template import swept_parameters
 from service.sweep import load_sweep
 
-__all__ = ["cmd_detect", "cmd_info", "cmd_plot", "cmd_preview", "cmd_stats"]
+__all__ = ["cmd_check", "cmd_detect", "cmd_info", "cmd_plot", "cmd_preview", "cmd_stats"]
 
 log = logging.getLogger("oceanlidar")
 
@@ -233,8 +235,8 @@ def _sample_title(name: str, sample: int, point: int, values: dict, realisation:
     return f"{name}, sample {sample} ({where}; realisation {realisation})"
 
 
-def _check_picture(path: str, formats: tuple[str, ...]) -> None:
-    """Refuse a picture's ``--output`` that cannot be written, before any work is done.
+def _check_picture(path: str, formats: tuple[str, ...], flag: str = "--output") -> None:
+    """Refuse a picture (its `flag`) that cannot be written, before any work is done.
 
     Raises
     ------
@@ -244,26 +246,26 @@ def _check_picture(path: str, formats: tuple[str, ...]) -> None:
     """
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
-        raise BadOptionError(f"--output {shown(path)}: no folder {shown(folder)}")
+        raise BadOptionError(f"{flag} {shown(path)}: no folder {shown(folder)}")
     if os.path.isdir(path) or not os.access(folder, os.W_OK):
         what = "a folder" if os.path.isdir(path) else f"{shown(folder)} is not writable"
-        raise BadOptionError(f"--output {shown(path)}: {what}")
+        raise BadOptionError(f"{flag} {shown(path)}: {what}")
     extension = os.path.splitext(path)[1].lower()
     if extension not in formats:
         what = f"a {extension} picture" if extension else "a picture without extension"
         raise BadOptionError(
-            f"--output {shown(path)}: cannot write {what} (write {', '.join(formats)})"
+            f"{flag} {shown(path)}: cannot write {what} (write {', '.join(formats)})"
         )
 
 
 @contextlib.contextmanager
-def _saving(path: str):
+def _saving(path: str, flag: str = "--output"):
     """Report a picture that cannot be written (`_check_picture` passed) as bad input."""
     try:
         yield
     except OSError as error:
         reason = error.strerror or type(error).__name__
-        raise BadOptionError(f"--output {shown(path)}: {reason}") from None
+        raise BadOptionError(f"{flag} {shown(path)}: {reason}") from None
 
 
 def cmd_preview(args) -> int:
@@ -295,6 +297,40 @@ def cmd_preview(args) -> int:
         )
     log.info("%s: %d frame(s)", args.output, frames)
     return EXIT_OK
+
+
+def cmd_check(args) -> int:
+    """Hold the fast renderer to photon transport on a few points of a sweep (exit 1: not)."""
+    from service.check import check_points, report_lines, spanning_points, transport_settings
+    from service.cli.run_commands import memory_limit
+    from service.plots import PLOT_FORMATS, plot_check
+
+    if args.points < 1:
+        raise BadOptionError(f"--points {args.points}: check at least 1 point")
+    if args.plot is not None:
+        _check_picture(args.plot, PLOT_FORMATS, "--plot")
+    plan = load_sweep(args.sweep, max_memory=None if args.no_limits else memory_limit(args))
+    transport_settings(plan, photons=args.photons)
+    points = spanning_points(plan, args.points)
+    log.info(
+        "checking %d of %d points (%s), realisation 0's sea, frame 0",
+        len(points),
+        len(plan.points),
+        ", ".join(map(str, points)),
+    )
+    checks = check_points(
+        plan, points, photons=args.photons, progress=lambda c: print("\n".join(report_lines(c)))
+    )
+    failing = [check.point for check in checks if not check.holds]
+    print(
+        f"{len(checks) - len(failing)} of {len(checks)} points hold"
+        + (f"; outside the bars: point(s) {', '.join(map(str, failing))}" if failing else "")
+    )
+    if args.plot is not None:
+        with _saving(args.plot, "--plot"):
+            plot_check(checks, args.plot)
+        log.info("%s: the comparison drawn", args.plot)
+    return EXIT_FAILURE if failing else EXIT_OK
 
 
 def cmd_plot(args) -> int:
