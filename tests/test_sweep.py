@@ -4,10 +4,10 @@ import copy
 import math
 import os
 import subprocess
-import typing
 import sys
 import textwrap
 import tracemalloc
+import typing
 
 import annotated_types
 import numpy as np
