@@ -339,3 +339,30 @@ def test_an_output_that_names_nothing_is_refused(tmp_path, capsys, monkeypatch, 
     err = capsys.readouterr().err
     assert status == 2 and message in err and "Traceback" not in err, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["nul.yaml", "t.yaml"]
+
+
+def test_preview_picks_a_sample_by_point_and_realisation(stored, tmp_path, capsys, monkeypatch):
+    # issue #37 item 19: a sample could be named by its index alone
+    titles = []
+    figure = plots.preview_figure
+    monkeypatch.setattr(
+        plots, "preview_figure", lambda ds, **k: titles.append(k["title"]) or figure(ds, **k)
+    )
+    picture = str(tmp_path / "p.png")
+    assert (
+        main(["preview", stored, "--point", "1", "--realisation", "1", "--output", picture]) == 0
+    )
+    assert "sample 3 (point 1: target.shape=none; realisation 1)" in titles[-1]
+    assert main(["preview", stored, "--point", "1", "--output", picture, "--dpi", "30"]) == 0
+    assert "sample 2 (point 1: target.shape=none; realisation 0)" in titles[-1]
+    sweep = str(tiny(tmp_path))  # a sweep file's samples alike
+    assert main(["preview", sweep, "--point", "1", "--realisation", "1", "--output", picture]) == 0
+    assert "sample 3 (point 1: target.shape=none; realisation 1)" in titles[-1]
+    for flags, message in [
+        (["--point", "2"], "--point 2 --realisation 0: the sweep has points 0..1"),
+        (["--point", "0", "--realisation", "2"], "realisations 0..1"),
+        (["--realisation", "1"], "--realisation needs --point"),
+        (["--dpi", "0"], "--dpi 0.0: give dots per inch"),
+    ]:
+        assert main(["preview", stored, *flags, "--output", picture]) == 2, flags
+        assert message in capsys.readouterr().err, flags

@@ -124,7 +124,14 @@ def _preview(commands) -> None:
         help="draw one sample's gated images, rendered from a sweep or read from a store",
     )
     preview.add_argument("source", help="sweep YAML file (rendered now) or store path or URL")
-    preview.add_argument("--sample", type=int, default=0, help="sample index (default 0)")
+    which = preview.add_mutually_exclusive_group()
+    which.add_argument("--sample", type=int, default=None, help="sample index (default 0)")
+    which.add_argument(
+        "--point", type=int, default=None, help="parameter point (with --realisation)"
+    )
+    preview.add_argument(
+        "--realisation", type=int, default=None, help="realisation of --point (default 0)"
+    )
     preview.add_argument(
         "--frame", type=int, default=None, help="frame to draw as PNG (default 0)"
     )
@@ -142,6 +149,13 @@ def _preview(commands) -> None:
     )
     preview.add_argument(
         "--output", type=_output, required=True, help="FILE.png, or FILE.gif for a sequence"
+    )
+    preview.add_argument(
+        "--dpi",
+        type=float,
+        default=None,
+        help="dots per inch (default: 100, or more where a gate's image would have fewer "
+        "than 2 screen pixels across each of its pixels)",
     )
     _limits(preview)
     _storage_options(preview)
