@@ -12,6 +12,7 @@ look.
 from __future__ import annotations
 
 import functools
+import math
 import textwrap
 
 import numpy as np
@@ -52,6 +53,11 @@ PANEL_INCHES = 2.2
 DPI = 100
 TITLE_CHARACTERS = 28
 """Characters of a title a panel's width holds at 9 points (longer titles wrap)."""
+PIXEL_SIDE = 2
+"""Fewest screen pixels across an image pixel in a preview at its default DPI (at one, a
+128-pixel gate in a 150-pixel panel shows an outline as fragments)."""
+MAX_DPI = 1200
+"""Most dots per inch a preview is drawn at (a 7-panel strip: about 18 000 pixels wide)."""
 CLIP_PERCENTILE = 99.5
 """Percentile of a gate's pixels its colour scale tops at (`colour_scales`)."""
 
@@ -116,7 +122,13 @@ def rounded(value) -> str:
 
 
 def preview_figure(
-    ds: xr.Dataset, *, frame: int = 0, title: str = "", measurements=None, scales=None
+    ds: xr.Dataset,
+    *,
+    frame: int = 0,
+    title: str = "",
+    measurements=None,
+    scales=None,
+    sea_scale=None,
 ):
     """The gated images of one frame side by side, deeper to the right, and the sea.
 
@@ -135,6 +147,8 @@ def preview_figure(
     scales : array_like, shape (gates, 2), or None
         (low, high) of each gate's colour scale, in the image's units (`colour_scales`);
         None: each gate's over this frame, clipped at `CLIP_PERCENTILE`.
+    sea_scale : tuple of float, or None
+        (low, high) of the sea's colour scale [m]; None: this frame's elevations.
 
     Returns
     -------
@@ -173,18 +187,24 @@ def preview_figure(
         bar.ax.tick_params(labelsize=6)
         bar.set_label(label, fontsize=6)
     if panels > gates:
-        _draw_sea(figure, axes[gates], ds, frame, measurements)
+        _draw_sea(figure, axes[gates], ds, frame, measurements, sea_scale)
     if title:
         figure.suptitle(textwrap.fill(title, TITLE_CHARACTERS * panels), fontsize=9)
     figure.tight_layout()
     return figure
 
 
-def _draw_sea(figure, sea, ds: xr.Dataset, frame: int, measurements) -> None:
-    """The surface elevation of `frame` with the platform's ground point and the data."""
+def _draw_sea(figure, sea, ds: xr.Dataset, frame: int, measurements, scale) -> None:
+    """The surface elevation of `frame` with the platform's ground point and the data.
+
+    `scale` is the colour scale's (low, high) [m], or None for this frame's range.
+    """
     elevation = ds["surface_elevation"].isel(frame=frame)
     extent = [float(ds.sx[0]), float(ds.sx[-1]), float(ds.sy[0]), float(ds.sy[-1])]
-    shown = sea.imshow(elevation.values, origin="lower", extent=extent, cmap="ocean")
+    low, high = (None, None) if scale is None else scale
+    shown = sea.imshow(
+        elevation.values, origin="lower", extent=extent, cmap="ocean", vmin=low, vmax=high
+    )
     # the grid covers the first frame's footprint; the platform's ground point, if on it
     sea.plot(float(ds.platform_x[frame]), float(ds.platform_y[frame]), "r+", markersize=10)
     sea.set_xlim(extent[:2])
@@ -226,14 +246,18 @@ def save_preview(
     full_range: bool = False,
     title: str = "",
     measurements=None,
+    dpi: float | None = None,
 ) -> int:
     """Write a PNG of one frame (`frame`, default 0), or an animated GIF of every frame.
 
     Each gate has its colour scale (`colour_scales`): over the frame drawn in a PNG, over
     every frame in a GIF, from the least value to the `CLIP_PERCENTILE` th percentile (the
     greatest with `full_range`). With `shared_scale`, one scale for every gate (and every
-    frame of a GIF), so brightness compares across gates too. ``title`` and
-    ``measurements`` are passed to `preview_figure`.
+    frame of a GIF), so brightness compares across gates too. The sea's scale spans the
+    elevations of every frame drawn (all of a GIF's). ``title`` and ``measurements`` are
+    passed to `preview_figure`. `dpi`: the picture's dots per inch (its panels are
+    `PANEL_INCHES` wide); None: `DPI`, or more where a gate's image would be drawn with
+    fewer than `PIXEL_SIDE` screen pixels across each of its pixels.
 
     Returns
     -------
@@ -256,13 +280,36 @@ def save_preview(
         raise BadOptionError(f"--frame {frame}: a GIF holds every frame; write a .png for one")
     drawn = range(count) if gif or shared_scale else [frame or 0]
     clip = None if full_range else CLIP_PERCENTILE
+    if dpi is not None and not 0 < dpi <= MAX_DPI:
+        raise BadOptionError(f"--dpi {dpi}: give dots per inch, above 0 and at most {MAX_DPI}")
     scales = colour_scales(ds["image"].values[list(drawn)], clip=clip, shared=shared_scale)
+    indices = list(drawn) if gif else [frame or 0]
+    sea = None
+    if "surface_elevation" in ds:
+        elevation = ds["surface_elevation"].values[indices]
+        sea = (float(elevation.min()), float(elevation.max()))
     draw = functools.partial(
-        preview_figure, ds, title=title, measurements=measurements, scales=scales
+        preview_figure, ds, title=title, measurements=measurements, scales=scales, sea_scale=sea
     )
-    frames = [figure_pixels(draw(frame=index)) for index in (drawn if gif else [frame or 0])]
+    first = draw(frame=indices[0])
+    dpi = _legible_dpi(first, pixels=ds.sizes["x"]) if dpi is None else dpi
+    frames = []
+    for index in indices:  # one figure at a time
+        figure = first if index == indices[0] else draw(frame=index)
+        figure.set_dpi(dpi)
+        frames.append(figure_pixels(figure))
     frames[0].save(path, save_all=gif, append_images=frames[1:], duration=200, loop=0)
     return len(frames)
+
+
+def _legible_dpi(figure, *, pixels: int) -> float:
+    """`DPI`, or the least DPI that draws each image pixel `PIXEL_SIDE` screen pixels wide.
+
+    `pixels` is the first gate's image width; its panel's width is measured on `figure`.
+    """
+    figure.canvas.draw()  # the panels' places, their images' aspect applied
+    width = figure.axes[0].get_window_extent().width
+    return max(DPI, math.ceil(figure.dpi * PIXEL_SIDE * pixels / width))
 
 
 def statistics_title(stats: xr.Dataset) -> str:
@@ -274,50 +321,93 @@ def statistics_title(stats: xr.Dataset) -> str:
 def plot_statistics(stats: xr.Dataset, path: str) -> None:
     """Target contrast and contrast-to-noise ratio against each swept parameter, per gate.
 
-    The CNR of a point with a target is drawn filled, its ``cnr_without_target`` hollow
-    beside it. Titled by `statistics_title`: the store and how many of its samples the
-    statistics hold.
+    One colour per gate; points that share every other parameter are joined by a line,
+    one marker per such combination, named in the column's legend. The CNR of a point with
+    a target is drawn filled, its ``cnr_without_target`` hollow beside it. A parameter that
+    takes one value among the points with a target (``target.shape`` beside its twins)
+    gets no column, unless no parameter takes two; a category's axis has no unit. Titled
+    by `statistics_title`: the store and how many of its samples the statistics hold.
     """
     swept = list(swept_parameters(stats))
     if not swept:
         raise BadSweepError("the store sweeps no parameter: nothing to plot against")
-    figure = _figure(figsize=(3.2 * len(swept), 5.0))
-    axes = figure.subplots(2, len(swept), squeeze=False)
+    measured = np.isfinite(stats["target_contrast"].values).any(axis=1)
+    rows = np.flatnonzero(measured) if measured.any() else np.arange(stats.sizes["point"])
+    varied = [name for name in swept if _categories_among(stats[name].values[rows]) > 1]
+    columns = varied or swept[:1]
+    figure = _figure(figsize=(3.4 * len(columns), 5.4))
+    axes = figure.subplots(2, len(columns), squeeze=False)
     twin = stats["cnr_without_target"].values if "cnr_without_target" in stats else None
     if twin is not None and not np.isfinite(twin).any():
         twin = None  # no point has a target-free twin: nothing drawn hollow
-    for column, name in enumerate(swept):
-        values = stats[name].values
-        labels = values if values.dtype.kind in "biuf" else np.asarray([str(v) for v in values])
-        order = np.argsort(labels, kind="stable")
+    for column, name in enumerate(columns):
+        position, categories = _parameter_position(stats[name].values)
+        series = _series(stats, [n for n in varied if n != name], rows)
         for row, quantity in enumerate(("target_contrast", "cnr")):
             ax = axes[row, column]
             data = stats[quantity].values
             for g in range(stats.sizes["gate"]):
                 top, bottom = float(stats.gate_top[g]), float(stats.gate_bottom[g])
                 gate = f"{int(stats['gate'][g])}: {top:.1f}–{bottom:.1f} m"
-                shown = ax.plot(labels[order], data[order, g], "o", ms=4, label=gate)
-                if row == 1 and twin is not None:  # the same reading without the target
-                    ax.plot(
-                        labels[order],
-                        twin[order, g],
-                        "o",
-                        ms=4,
-                        mfc="none",
-                        c=shown[0].get_color(),
-                    )
-            units = stats[name].attrs.get("units", "1")
-            ax.set_xlabel(f"{stats[name].attrs['parameter']} ({units})", fontsize=8)
+                for s, members in enumerate(series.values()):
+                    at = members[np.argsort(position[members], kind="stable")]
+                    style = {"marker": MARKERS[s % len(MARKERS)], "ms": 4, "color": f"C{g}"}
+                    ax.plot(position[at], data[at, g], "-", lw=0.5, **style)
+                    if row == 1 and twin is not None:  # the same reading without the target
+                        ax.plot(position[at], twin[at, g], linestyle="none", mfc="none", **style)
+                if row == column == 0:  # the gates' legend
+                    ax.plot([], [], "o", ms=4, color=f"C{g}", label=gate)
+            ax.set_xlabel(_axis_label(stats[name], categories), fontsize=8)
             ax.set_ylabel("target contrast" if row == 0 else "CNR", fontsize=8)
             ax.axhline(0.0, color="0.7", linewidth=0.5)
             ax.tick_params(labelsize=7)
-    if twin is not None:
-        axes[1, 0].plot([], [], "o", ms=4, mfc="none", c="0.3", label="without the target")
-        axes[1, 0].legend(fontsize=6)
+            if categories:
+                ax.set_xticks(range(len(categories)), categories)
+        for s, combination in enumerate(series):
+            if combination:
+                marker = MARKERS[s % len(MARKERS)]
+                axes[1, column].plot([], [], marker, ms=4, color="0.3", label=combination)
+        if twin is not None:
+            axes[1, column].plot(
+                [], [], "o", ms=4, mfc="none", c="0.3", label="without the target"
+            )
+        if axes[1, column].get_legend_handles_labels()[0]:
+            axes[1, column].legend(fontsize=5)
     axes[0, 0].legend(fontsize=6, title="gate", title_fontsize=6)
-    figure.suptitle(textwrap.fill(statistics_title(stats), 48 * len(swept)), fontsize=9)
+    figure.suptitle(textwrap.fill(statistics_title(stats), 48 * len(columns)), fontsize=9)
     figure.tight_layout()
     figure.savefig(path, dpi=DPI)
+
+
+MARKERS = "osD^vP*Xh<>p"
+"""One marker per combination of the other parameters (`_series`), in turn."""
+
+
+def _categories_among(values) -> int:
+    """How many distinct values `values` holds (as its axis would show them)."""
+    return len(np.unique(np.asarray([str(v) for v in values])))
+
+
+def _axis_label(variable: xr.DataArray, categories) -> str:
+    """A parameter axis' label: its name, and its unit unless its values are categories."""
+    name = variable.attrs.get("parameter", str(variable.name))
+    return name if categories else f"{name} ({variable.attrs.get('units', '1')})"
+
+
+def _series(ds: xr.Dataset, others, rows) -> dict[str, np.ndarray]:
+    """The points of `rows` grouped by their values of the parameters `others`.
+
+    Returns ``{"name=value, ...": points}`` in the order the combinations first occur
+    (``{"": rows}`` when `others` is empty), each name its dotted path's last part.
+    """
+    groups: dict[str, list[int]] = {}
+    for i in rows:
+        label = ", ".join(
+            f"{ds[n].attrs.get('parameter', n).split('.')[-1]}={rounded(ds[n].values[i])}"
+            for n in others
+        )
+        groups.setdefault(label, []).append(int(i))
+    return {label: np.asarray(points) for label, points in groups.items()}
 
 
 def _parameter_position(values) -> tuple[np.ndarray, list[str] | None]:
@@ -338,12 +428,17 @@ def plot_detection(detection: xr.Dataset, path: str) -> None:
     path : str
         PNG to write. Top: one ROC panel per point with a target (every detector, false
         alarms on a log axis, ties drawn as the diagonal they stand for). Below, per swept
-        parameter (other than the target's shape): the AUC with its 95 % interval, and Pd
-        at Pfa = 10⁻² where the negatives measure it (points where it is unavailable are
-        left out), one colour per detector; points that share every other parameter are
-        joined by a line.
+        parameter (other than the target's shape) that takes two values or more: the AUC
+        with its 95 % interval, and Pd at Pfa = 10⁻² where the negatives measure it
+        (points where it is unavailable are left out), one colour per detector; points
+        that share every other parameter are joined by a line, one marker per such
+        combination, named in the Pd panel's legend.
     """
-    swept = [n for n, path in swept_parameters(detection).items() if path != "target.shape"]
+    swept = [
+        name
+        for name, path in swept_parameters(detection).items()
+        if path != "target.shape" and _categories_among(detection[name].values) > 1
+    ]
     points = detection.sizes["point"]
     columns = max(4, len(swept))
     roc_rows = -(-points // columns)
@@ -379,21 +474,17 @@ def plot_detection(detection: xr.Dataset, path: str) -> None:
     for column in range(len(swept), columns):
         axes[roc_rows, column].axis("off")
         axes[roc_rows + 1, column].axis("off")
-    positions = [_parameter_position(detection[name].values) for name in swept]
     for column, name in enumerate(swept):
-        position, categories = positions[column]
-        others = [positions[c][0] for c in range(len(swept)) if c != column]
-        series = np.zeros(points, dtype=int)
-        if others:
-            series = np.unique(np.stack(others, axis=1), axis=0, return_inverse=True)[1].ravel()
+        position, categories = _parameter_position(detection[name].values)
+        series = _series(detection, [n for n in swept if n != name], range(points))
         step = 0.015 * (np.ptp(position) or 1.0)
         for d, detector in enumerate(detectors):
             shift = position + (d - (len(detectors) - 1) / 2) * step
             auc = detection["auc"].values[:, d]
             pd = detection["pd"].sel(pfa=1e-2).values[:, d]
-            for group in np.unique(series):
-                rows = np.flatnonzero(series == group)
+            for group, rows in enumerate(series.values()):
                 rows = rows[np.argsort(position[rows], kind="stable")]
+                marker = MARKERS[group % len(MARKERS)]
                 axes[roc_rows, column].errorbar(
                     shift[rows],
                     auc[rows],
@@ -401,7 +492,7 @@ def plot_detection(detection: xr.Dataset, path: str) -> None:
                         auc[rows] - detection["auc_low"].values[rows, d],
                         detection["auc_high"].values[rows, d] - auc[rows],
                     ],
-                    fmt=".-",
+                    fmt=f"{marker}-",
                     color=colours[d],
                     linewidth=0.5,
                     elinewidth=0.8,
@@ -410,8 +501,14 @@ def plot_detection(detection: xr.Dataset, path: str) -> None:
                 )
                 shown = rows[~np.isnan(pd[rows])]
                 axes[roc_rows + 1, column].plot(
-                    shift[shown], pd[shown], ".-", color=colours[d], linewidth=0.5, markersize=3
+                    shift[shown], pd[shown], f"{marker}-", color=colours[d], lw=0.5, ms=3
                 )
+        for group, combination in enumerate(series):
+            if combination:
+                marker = MARKERS[group % len(MARKERS)]
+                axes[roc_rows + 1, column].plot([], [], marker, ms=3, c="0.3", label=combination)
+        if axes[roc_rows + 1, column].get_legend_handles_labels()[0]:
+            axes[roc_rows + 1, column].legend(fontsize=5)
         for row, label in ((roc_rows, "AUC"), (roc_rows + 1, "Pd at Pfa = 1e-2")):
             ax = axes[row, column]
             ax.set_ylabel(label, fontsize=7)

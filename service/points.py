@@ -42,7 +42,8 @@ class Scenes(Sequence):
     points : sequence of dict
         Each point's swept values, by dotted path.
     check : callable
-        Called with a point's raw scene (a dict) before it is validated: the memory limit
+        Called with a point's raw scene (a dict) once it is validated (`build_all`, on
+        first use) or, by `survey`, unvalidated: the memory limit
         (`service.sweep.memory_estimate`).
 
     Attributes
@@ -118,7 +119,6 @@ class Scenes(Sequence):
         key = json.dumps(data, sort_keys=True, default=str)
         if key in self._by_values:
             return self._by_values[key]
-        self._run_check(point, data)
         try:
             scene = Scene.model_validate(data)
             image = check_scene(data, scene)
@@ -128,6 +128,7 @@ class Scenes(Sequence):
             ) from None
         except InputError as error:
             raise type(error)(f"{self._where(point)}:\n{error}") from None
+        self._run_check(point, data)  # on values the schema took
         self.images.setdefault(scene, image)
         self._by_values[key] = scene
         return scene

@@ -21,10 +21,12 @@ from pydantic import (
     Field,
     StrictBool,
     Tag,
+    field_validator,
     model_validator,
 )
 
 from service.errors import BadSweepError
+from service.inputs import shown
 from workers.scene import Scene
 
 __all__ = [
@@ -200,6 +202,13 @@ class Sweep(_Model):
     scene: dict[str, Any] = Field(default_factory=dict)
     sweep: SweepSpec = SweepSpec()
     store: StoreSpec = StoreSpec()
+
+    @field_validator("output")
+    @classmethod
+    def _printable(cls, output: str) -> str:
+        if any(ord(character) < 32 or ord(character) == 127 for character in output):
+            raise ValueError(f"control characters are not allowed, got {shown(output)}")
+        return output
 
 
 def scene_field(path: str):

@@ -29,14 +29,22 @@ __all__ = ["SweepStream"]
 PRESENCE = "target_present"
 """The one label a sample's scene fixes that a stream item holds (the rest are rendered)."""
 
+ORDER_STREAM = 4
+"""First spawn key of the points' order (`SweepStream.order`), apart from the samples'
+streams (`workers.seeds`) and the sweep's draws (`service.sweep`: 2, 3)."""
+
 
 class SweepStream(IterableDataset):
     """A sweep's samples rendered as they are read: an ``IterableDataset`` for training.
 
-    Items come realisation by realisation, every point of the realisation in point order
-    (realisation ``first``'s points, then ``first + 1``'s, ...). Given to a
-    ``torch.utils.data.DataLoader`` with worker processes, worker k of n renders the items
-    k, k + n, k + 2n, ... of that order: each item once, whatever the workers.
+    Items come realisation by realisation (realisation ``first``'s points, then
+    ``first + 1``'s, ...), each realisation's points in a seeded shuffled order (`order`;
+    point order with ``shuffle=False``). Given to a ``torch.utils.data.DataLoader`` with
+    worker processes, worker k of n renders the items k, k + n, k + 2n, ... of that
+    sequence: each item once, whatever the workers, and a worker's batches mix the points
+    (in point order, 2 workers of a grid whose last parameter alternates, ``target.shape``,
+    would each render one of its values only). A ``DataLoader`` without ``batch_size``
+    gives the sequence itself, whatever its workers.
 
     Parameters
     ----------
@@ -69,6 +77,8 @@ class SweepStream(IterableDataset):
         The array backend and device to render on, passed to
         `workers.render.render_arrays` when given (a store's bytes are those of the
         backend that wrote it: its ``render_backend``, ``render_device``).
+    shuffle : bool, optional
+        Shuffle each realisation's points (`order`; default), or keep point order.
 
     Notes
     -----
@@ -89,6 +99,7 @@ class SweepStream(IterableDataset):
         image_dtype=None,
         backend: str | None = None,
         device: str | None = None,
+        shuffle: bool = True,
     ) -> None:
         super().__init__()
         self.plan = sweep if isinstance(sweep, Plan) else load_sweep(Path(sweep))
@@ -120,19 +131,48 @@ class SweepStream(IterableDataset):
         self.options = {
             key: value for key, value in (("backend", backend), ("device", device)) if value
         }
+        self.shuffle, self.epoch = bool(shuffle), 0
 
     def __len__(self) -> int:
         if self.realisations is None:
             raise TypeError("an endless SweepStream (realisations=None) has no length")
         return len(self.points) * self.realisations
 
+    def set_epoch(self, epoch: int) -> None:
+        """Shuffle the points anew for `epoch` (>= 0), as a sampler's ``set_epoch`` does.
+
+        Call it before each epoch's loop: the ``DataLoader``'s workers take the stream as
+        it is when the loop starts.
+        """
+        if not isinstance(epoch, int | np.integer) or isinstance(epoch, bool) or epoch < 0:
+            raise ValueError(f"epoch must be an integer >= 0, got {epoch!r}")
+        self.epoch = int(epoch)
+
+    def order(self, realisation: int) -> tuple[int, ...]:
+        """The points of `realisation` in the order the stream gives them.
+
+        A permutation of `points` drawn from the sweep's seed, the epoch (`set_epoch`) and
+        the realisation (``SeedSequence(seed, spawn_key=(ORDER_STREAM, epoch,
+        realisation))``): the same whatever the workers, ``first`` or the items read
+        before. `points` in their order with ``shuffle=False``.
+        """
+        if not self.shuffle:
+            return self.points
+        key = (ORDER_STREAM, self.epoch, int(realisation))
+        rng = np.random.default_rng(np.random.SeedSequence(self.plan.sweep.seed, spawn_key=key))
+        return tuple(self.points[i] for i in rng.permutation(len(self.points)))
+
     def __iter__(self):
         worker = get_worker_info()
         start, step = (0, 1) if worker is None else (worker.id, worker.num_workers)
         end = None if self.realisations is None else len(self)
+        realisation, order = None, ()
         for item in itertools.islice(itertools.count(), start, end, step):
-            realisation, position = divmod(item, len(self.points))
-            yield self.item(point=self.points[position], realisation=self.first + realisation)
+            offset, position = divmod(item, len(self.points))
+            if self.first + offset != realisation:
+                realisation = self.first + offset
+                order = self.order(realisation)
+            yield self.item(point=order[position], realisation=realisation)
 
     def item(self, *, point: int, realisation: int) -> dict[str, np.ndarray]:
         """The sample of `point` and `realisation`, rendered (any realisation, >= 0)."""

@@ -252,7 +252,7 @@ def _sample_bytes(scene: Scene, *, image: int, floats: int) -> int:
 def memory_estimate(scene: dict) -> int:
     """Memory [bytes] that rendering one sample of a raw scene needs: an upper estimate.
 
-    Read from the scene's raw values before anything is built. An empirical bound on
+    Read from the scene's raw values before anything is rendered. An empirical bound on
     peak allocations (traced by ``tracemalloc``, every cache of `workers` empty) of the
     multi-scale, compiled renderer of 2026-11-23: the shipped configs need 1.25 to 7 times
     less (`tests/test_sweep.py` holds it to small scenes of every kind). Once a sample: a
@@ -269,7 +269,8 @@ def memory_estimate(scene: dict) -> int:
     Returns
     -------
     int
-        The estimate; 0 if the values are not numbers (validation then says why).
+        The estimate; 0 if the values are not numbers or leave their range (a field of
+        view of 0, no batches: validation says why).
     """
     try:
         grid = int(raw_value(scene, "surface.grid_size"))
@@ -289,7 +290,7 @@ def memory_estimate(scene: dict) -> int:
         times = len({point[3] if len(point) > 3 else 0.0 for point in points})
         patches = (scene.get("surface") or {}).get("coarse_patches")
         cascades = MAX_CASCADES if patches is None else len(patches) + 1
-    except (TypeError, ValueError, AttributeError, IndexError):
+    except (TypeError, ValueError, AttributeError, IndexError, ArithmeticError):
         return 0
     once = 384 * MAX_COARSE**2 + 128 * grid**2 * cascades
     render = once + frames * (512 * side**2 * (gates + 1) + 32 * grid**2 * cascades)
@@ -309,11 +310,10 @@ def _transport_memory(scene: dict, *, pixels: int, gates: int) -> int:
         if raw_value(scene, "transport.method") != "monte_carlo":
             return 0
         batches = int(raw_value(scene, "transport.batches"))
-        photons = int(raw_value(scene, "transport.photons"))
-    except (TypeError, ValueError):
+        launch = 64 * min(LAUNCH_CHUNK, -(-int(raw_value(scene, "transport.photons")) // batches))
+    except (TypeError, ValueError, ArithmeticError):
         return 0
     images = 3 * 8 * batches * gates * pixels**2
-    launch = 64 * min(LAUNCH_CHUNK, -(-photons // batches))
     cells = (4 * pixels) ** 2
     return images + launch + 64 * cells + 12 * min(LOOKUP_ENTRIES, 100 * cells)
 
@@ -332,7 +332,9 @@ def load_sweep(path, *, max_memory: float | None = DEFAULT_MAX_MEMORY) -> Plan:
     """Read, validate and expand a sweep file.
 
     `max_memory` (bytes; None: no limit) is the most one sample may need to render
-    (`memory_estimate`), checked before any scene is built.
+    (`memory_estimate`), checked once each scene is validated, before any is rendered (a
+    value out of its range is refused by the schema, naming its field, before the estimate
+    reads it).
 
     Raises
     ------
@@ -371,12 +373,12 @@ def read_header(
     except ValidationError as error:
         raise BadSweepError(format_errors(error)) from None
     strict_numbers(data, sweep.model_dump(), "")
-    _check_memory(sweep.scene, max_memory=max_memory, remedy=memory_remedy)
     try:
         default = Scene.model_validate(sweep.scene)
     except ValidationError as error:
         raise BadSweepError(format_errors(error, "scene")) from None
     check_scene(sweep.scene, default)
+    _check_memory(sweep.scene, max_memory=max_memory, remedy=memory_remedy)
     for path in sweep.sweep.parameters:
         scene_field(path)
     return sweep

@@ -18,6 +18,7 @@ from dask.utils import format_time
 
 from service import package_version, plots
 from service.cli import main
+from service.cli.parser import parser
 from service.cli.run_commands import run_time
 from service.cluster import QUIET, dask_client
 from service.run import render_shard, task_batches
@@ -295,3 +296,73 @@ def test_jobs_of_an_unknown_state_are_refused(cli, tmp_path):
     assert result.returncode == 2
     assert "argument --state: invalid choice: 'bogus'" in result.stderr
     assert "queued" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_verbosity_flags_go_before_or_after_the_command(tmp_path, capsys):
+    # issue #37 item 18: `validate x.yaml -q` was refused ("unrecognized arguments")
+    assert main(["validate", str(tiny(tmp_path)), "--no-estimate", "-q"]) == 0
+    for argv, verbose, quiet in [
+        (["run", "x.yaml", "-q"], 0, 1),
+        (["-q", "run", "x.yaml"], 0, 1),
+        (["-v", "run", "x.yaml", "-qq"], 1, 2),
+        (["-q", "info", "x.zarr", "-q"], 0, 1),  # given after, it replaces the count
+        (["schema", "-vv"], 2, 0),
+    ]:
+        args = parser().parse_args(argv)
+        assert (args.verbose, args.quiet) == (verbose, quiet), argv
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["run", "{sweep}", "--output", ""], "argument --output: must name a path or URL"),
+        (["run", "{sweep}", "--output", " "], "argument --output: must name a path or URL"),
+        (["run", "{sweep}", "--output", "a\nb.zarr"], "control characters are not allowed"),
+        (["detect", "{sweep}", "--output", ""], "argument --output: must name a path or URL"),
+        (["run", "{nul}"], "output: Value error, control characters are not allowed"),
+        (["validate", "{nul}"], "output: Value error, control characters are not allowed"),
+    ],
+    ids=["run-empty", "run-blank", "run-newline", "detect-empty", "run-nul", "validate-nul"],
+)
+def test_an_output_that_names_nothing_is_refused(tmp_path, capsys, monkeypatch, argv, message):
+    # issue #37 item 15: `--output ''` was ignored (the sweep's own output written) and
+    # `output: "a\0b.zarr"` ended in a traceback (embedded null byte)
+    monkeypatch.chdir(tmp_path)
+    sweep = tiny(tmp_path)
+    nul = tmp_path / "nul.yaml"
+    nul.write_text(sweep.read_text().replace("output: t.zarr", 'output: "a\\0b.zarr"'))
+    argv = [arg.format(sweep=sweep, nul=nul) for arg in argv]
+    try:
+        status = main(argv)
+    except SystemExit as error:  # argparse's refusal
+        status = error.code
+    err = capsys.readouterr().err
+    assert status == 2 and message in err and "Traceback" not in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["nul.yaml", "t.yaml"]
+
+
+def test_preview_picks_a_sample_by_point_and_realisation(stored, tmp_path, capsys, monkeypatch):
+    # issue #37 item 19: a sample could be named by its index alone
+    titles = []
+    figure = plots.preview_figure
+    monkeypatch.setattr(
+        plots, "preview_figure", lambda ds, **k: titles.append(k["title"]) or figure(ds, **k)
+    )
+    picture = str(tmp_path / "p.png")
+    assert (
+        main(["preview", stored, "--point", "1", "--realisation", "1", "--output", picture]) == 0
+    )
+    assert "sample 3 (point 1: target.shape=none; realisation 1)" in titles[-1]
+    assert main(["preview", stored, "--point", "1", "--output", picture, "--dpi", "30"]) == 0
+    assert "sample 2 (point 1: target.shape=none; realisation 0)" in titles[-1]
+    sweep = str(tiny(tmp_path))  # a sweep file's samples alike
+    assert main(["preview", sweep, "--point", "1", "--realisation", "1", "--output", picture]) == 0
+    assert "sample 3 (point 1: target.shape=none; realisation 1)" in titles[-1]
+    for flags, message in [
+        (["--point", "2"], "--point 2 --realisation 0: the sweep has points 0..1"),
+        (["--point", "0", "--realisation", "2"], "realisations 0..1"),
+        (["--realisation", "1"], "--realisation needs --point"),
+        (["--dpi", "0"], "--dpi 0.0: give dots per inch"),
+    ]:
+        assert main(["preview", stored, *flags, "--output", picture]) == 2, flags
+        assert message in capsys.readouterr().err, flags

@@ -10,6 +10,7 @@ import zarr
 from conftest import TINY_SCENE, cf_failures, on_cluster, same_values
 from scipy.stats import multivariate_normal, norm, poisson
 
+import service.plots
 from service.cli import main
 from service.dataset import open_dataset
 from service.detect import pair_points
@@ -571,3 +572,32 @@ def test_detect_refuses_stores_it_cannot_evaluate(tmp_path, capsys, change, real
     # a "Task exception was never retrieved")
     assert "scoring" not in err and "Traceback" not in err and "Task exception" not in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["t.zarr"]
+
+
+def test_the_detection_plot_names_each_combination_and_no_category_alone(
+    detection, tmp_path, monkeypatch
+):
+    # issue #37 item 19: lines of AUC and Pd against a parameter, one per combination of
+    # the others, were drawn alike with nothing to say which is which; a parameter that
+    # takes one value got a panel of its own
+    _, det = detection
+    det = det.assign(
+        target_radius=("point", np.full(4, 0.3), {"parameter": "target.radius", "units": "m"})
+    )
+    drawn = []
+    original = service.plots._figure
+    monkeypatch.setattr(
+        service.plots, "_figure", lambda **k: drawn.append(original(**k)) or drawn[-1]
+    )
+    service.plots.plot_detection(det, str(tmp_path / "d.png"))
+    auc, pd = drawn[0].axes[4:8], drawn[0].axes[8:12]  # one ROC row of 4, then AUC, Pd
+    assert [ax.get_xlabel() for ax in auc[:2]] == ["target_depth (m)", "water_preset"]
+    assert not any(ax.axison for ax in (*auc[2:], *pd[2:]))  # no radius column
+    assert [t.get_text() for t in pd[0].get_legend().get_texts()] == [
+        "preset=clear_ocean",
+        "preset=coastal",
+    ]
+    assert [t.get_text() for t in pd[1].get_legend().get_texts()] == ["depth=1.5", "depth=5"]
+    # each AUC line: one detector's points of one water, in its marker
+    markers = {line.get_marker() for line in auc[0].lines if len(line.get_xdata()) == 2}
+    assert markers == set(service.plots.MARKERS[:2])

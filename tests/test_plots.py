@@ -27,10 +27,12 @@ def test_preview_png_has_one_panel_per_gate_and_the_sea(tmp_path, capsys):
     assert main(["preview", str(PAPER / "mldc-strip.yaml"), "--output", str(target)]) == 0
     with Image.open(target) as picture:
         picture.verify()
-    with Image.open(target) as picture:
-        assert picture.size == (round(PANEL_INCHES * 7 * DPI), round((PANEL_INCHES + 0.6) * DPI))
     ds = render_preview(load_sweep(PAPER / "mldc-strip.yaml"), 0)
     figure = preview_figure(ds)
+    with Image.open(target) as picture:  # 7 panels at the DPI that gives 128 pixels 256
+        dpi = service.plots._legible_dpi(figure, pixels=128)
+        assert dpi > DPI
+        assert picture.size == (int(PANEL_INCHES * 7 * dpi), int((PANEL_INCHES + 0.6) * dpi))
     assert len(image_axes(figure)) == 7
     titles = [ax.get_title() for ax in image_axes(figure)]
     assert titles[0] == "gate 1: 3.7–9.8 m" and titles[-1].startswith("sea")
@@ -51,7 +53,7 @@ def synthetic_sample(*, frames=1, gates=3, pixels=40, seed=0):
     image = rng.poisson(100.0, size=(frames, gates, pixels, pixels)).astype(np.uint16)
     mask = np.zeros((frames, pixels, pixels), dtype=np.uint8)
     mask[:, 15:25, 15:25] = 1
-    visibility = np.tile(np.array([1, 3, 0][:gates], dtype=np.uint8), (frames, 1))
+    visibility = np.tile(np.resize(np.array([1, 3, 0], dtype=np.uint8), gates), (frames, 1))
     return xr.Dataset(
         {
             "image": (
@@ -202,7 +204,8 @@ def test_plot_draws_contrast_and_cnr_against_each_swept_parameter(
     with Image.open(target) as picture:
         picture.verify()
     with Image.open(target) as picture:
-        assert picture.size == (round(3.2 * 2 * DPI), round(5.0 * DPI))
+        # one column: target.shape takes one value among the points with a target
+        assert picture.size == (round(3.4 * 1 * DPI), round(5.4 * DPI))
     # a folder that is not there: bad input, no traceback (issue #26 item 11)
     monkeypatch.chdir(tmp_path)
     assert main(["plot", url, "--output", "missing/stats.png"]) == 2
@@ -310,3 +313,135 @@ def test_statistics_of_an_incomplete_store_are_refused_unless_partial(
     assert (stats.attrs["samples_complete"], stats.attrs["samples_total"]) == (6, 6)
     assert stats["samples"].values.tolist() == [3, 3]
     assert service.plots.statistics_title(stats) == "s.zarr: statistics of 6 of 6 samples (100 %)"
+
+
+def sample_with_sea(*, frames=3, pixels=128, gates=6):
+    """`synthetic_sample` with a sea whose swell grows fourfold by the last frame."""
+    ds = synthetic_sample(frames=frames, gates=gates, pixels=pixels)
+    x = np.linspace(-2.0, 2.0, 32)
+    swell = np.sin(x)[np.newaxis, :] * np.cos(x)[:, np.newaxis]
+    growth = np.linspace(1.0, 4.0, frames)[:, np.newaxis, np.newaxis]
+    return ds.assign(
+        surface_elevation=(("frame", "sy", "sx"), 0.1 * growth * swell),
+        platform_x=("frame", np.zeros(frames)),
+        platform_y=("frame", np.zeros(frames)),
+        platform_z=("frame", np.full(frames, 34.0)),
+    ).assign_coords(sx=x, sy=x, time=("frame", 0.1 * np.arange(frames)))
+
+
+def test_a_preview_shows_every_image_pixel_or_the_dpi_asked(tmp_path, monkeypatch):
+    # issue #37 item 19: six 128-pixel gates came out 1320 x 280 px, a gate's image about
+    # 150 screen pixels for 128 (the target's outline in fragments), with no option; now
+    # each image pixel takes 2 screen pixels across at least (`PIXEL_SIDE`)
+    figures = []
+    original = service.plots.preview_figure
+    monkeypatch.setattr(
+        service.plots,
+        "preview_figure",
+        lambda *a, **k: figures.append(original(*a, **k)) or figures[-1],
+    )
+    ds = synthetic_sample(pixels=128, gates=6)
+    service.plots.save_preview(ds, str(tmp_path / "a.png"))
+    gates = image_axes(figures[0])
+    assert len(gates) == 6 and all(ax.get_window_extent().width >= 2 * 128 for ax in gates)
+    with Image.open(tmp_path / "a.png") as picture:
+        assert picture.size[0] > PANEL_INCHES * 6 * DPI
+    service.plots.save_preview(ds, str(tmp_path / "b.png"), dpi=50)
+    with Image.open(tmp_path / "b.png") as picture:
+        assert picture.size == (round(PANEL_INCHES * 6 * 50), round((PANEL_INCHES + 0.6) * 50))
+    with pytest.raises(service.plots.BadOptionError, match="--dpi"):
+        service.plots.save_preview(ds, str(tmp_path / "c.png"), dpi=0)
+
+
+def test_a_gifs_sea_keeps_one_colour_scale(tmp_path, monkeypatch):
+    # issue #37 item 19: the sea's scale was each frame's own, so a growing swell looked
+    # the same from frame to frame; the gates' scales were shared already
+    figures = []
+    original = service.plots.preview_figure
+    monkeypatch.setattr(
+        service.plots,
+        "preview_figure",
+        lambda *a, **k: figures.append(original(*a, **k)) or figures[-1],
+    )
+    ds = sample_with_sea(pixels=16, gates=2)
+    assert service.plots.save_preview(ds, str(tmp_path / "a.gif"), dpi=40) == 3
+    elevation = ds["surface_elevation"].values
+    scales = [image_axes(figure)[-1].get_images()[0].get_clim() for figure in figures]
+    assert scales == [(elevation.min(), elevation.max())] * 3
+    figures.clear()  # a PNG's, its frame's
+    service.plots.save_preview(ds, str(tmp_path / "a.png"), frame=0, dpi=40)
+    assert image_axes(figures[0])[-1].get_images()[0].get_clim() == (
+        elevation[0].min(),
+        elevation[0].max(),
+    )
+
+
+def synthetic_statistics():
+    """Statistics of 8 points, 2 gates: depth x water x shape, and a radius never swept."""
+    depth, water, shape = (
+        a.ravel()
+        for a in np.meshgrid([3.0, 6.0], ["clear", "coastal"], ["sphere", "none"], indexing="ij")
+    )
+    rng = np.random.default_rng(1)
+    present = (shape == "sphere")[:, np.newaxis]
+    contrast = np.where(present, rng.uniform(1.0, 5.0, (8, 2)), np.nan)
+    parameter = {
+        "target_depth": (depth, "target.depth", "m"),
+        "water_preset": (water, "water.preset", "1"),
+        "target_shape": (shape, "target.shape", "1"),
+        "target_radius": (np.full(8, 0.3), "target.radius", "m"),
+    }
+    return xr.Dataset(
+        {
+            **{
+                name: ("point", v, {"parameter": p, "units": u})
+                for name, (v, p, u) in parameter.items()
+            },
+            "target_contrast": (("point", "gate"), contrast),
+            "cnr": (("point", "gate"), rng.uniform(0.0, 3.0, (8, 2))),
+            "cnr_without_target": (
+                ("point", "gate"),
+                np.where(present, np.full((8, 2), 0.1), np.nan),
+            ),
+            "samples": ("point", np.full(8, 4)),
+        },
+        coords={
+            "gate": [1, 2],
+            "gate_top": ("gate", [1.0, 4.0]),
+            "gate_bottom": ("gate", [5.0, 8.0]),
+        },
+        attrs={"samples_total": 32, "samples_store": "s.zarr"},
+    )
+
+
+def test_the_statistics_plot_names_each_combination_and_no_category_alone(tmp_path, monkeypatch):
+    # issue #37 item 19: target.shape had a panel of one category (the twins measure no
+    # contrast), "(1)" after a category's name, and points of other parameters' values
+    # drawn alike with nothing to tell them apart
+    drawn = []
+    original = service.plots._figure
+    monkeypatch.setattr(
+        service.plots, "_figure", lambda **k: drawn.append(original(**k)) or drawn[-1]
+    )
+    stats = synthetic_statistics()
+    service.plots.plot_statistics(stats, str(tmp_path / "s.png"))
+    axes = drawn[0].axes
+    assert [ax.get_xlabel() for ax in axes] == ["target.depth (m)", "water.preset"] * 2
+    assert [t.get_text() for t in axes[1].get_xticklabels()] == ["clear", "coastal"]
+    # against depth, one line per water and gate, named in the CNR panel's legend
+    legend = [t.get_text() for t in axes[2].get_legend().get_texts()]
+    assert legend == ["preset=clear", "preset=coastal", "without the target"]
+    lines = [
+        line
+        for line in axes[0].lines
+        if len(line.get_xdata()) == 2 and line.get_marker() != "None"
+    ]
+    assert len(lines) == 4  # 2 gates x 2 waters
+    for line in lines:
+        gate = int(line.get_color()[1])
+        water = "clear" if line.get_marker() == service.plots.MARKERS[0] else "coastal"
+        rows = np.flatnonzero(
+            (stats.water_preset.values == water) & (stats.target_shape.values == "sphere")
+        )
+        np.testing.assert_array_equal(line.get_xdata(), stats.target_depth.values[rows])
+        np.testing.assert_array_equal(line.get_ydata(), stats.target_contrast.values[rows, gate])

@@ -28,17 +28,25 @@ def scene(**sections):
     return Scene.model_validate(base)
 
 
-def clear_water(absorption=0.1, scattering=0.0, backscatter=0.0):
+def clear_water(absorption=0.1, scattering=0.0, backscatter=0.0, phase_function="fournier_forand"):
     return {
         "preset": None,
         "absorption": absorption,
         "scattering": scattering,
         "backscatter": backscatter,
+        "phase_function": phase_function,
     }
 
 
-SLIGHTLY_TURBID = {"absorption": 0.15, "scattering": 0.01, "backscatter": 0.01}
-"""Water for the single-scattering backscatter checks (scene and oracle alike)."""
+SLIGHTLY_TURBID = {
+    "absorption": 0.15,
+    "scattering": 0.01,
+    "backscatter": 0.01,
+    "phase_function": "paper",
+}
+"""Water for the single-scattering backscatter checks (scene and oracle alike): b_b = b,
+no forward scattering, so the paper's phase function (the Fournier-Forand fit has no
+member that scatters only backwards) and no small-angle spread."""
 
 
 def water_column(gate, **sections):
@@ -563,7 +571,9 @@ def gated_water(gates, *, nadir, laser=None):
     """
     return scene(
         surface={"spectrum": "flat", "allow_repeat": True},
-        water=clear_water(absorption=0.2, scattering=0.01, backscatter=0.01),
+        water=clear_water(
+            absorption=0.2, scattering=0.01, backscatter=0.01, phase_function="paper"
+        ),
         target={"shape": "none"},
         receiver={"gates": [list(g) for g in gates]},
         platform={"nadir_deg": nadir},

@@ -284,3 +284,19 @@ def test_a_render_never_round_trips_its_scene_through_json(monkeypatch):
     monkeypatch.setattr(Scene, "model_validate_json", refused)
     ds = render(scene, seed=1)
     assert ds.expected.shape == (1, 1, 16, 16)
+
+
+@pytest.mark.parametrize("fraction", [0.001, 0.5, 1.0], ids=["below", "half", "all"])
+def test_a_backscatter_fraction_the_fit_cannot_meet_is_refused_whatever_it_is(fraction):
+    # issue #37 item 15: b_b = b (no forward scattering) was accepted and rendered while
+    # b_b/b = 0.5 was refused; the Fournier-Forand fit needs 0.002 <= b_b/b <= 0.095
+    # (`workers.phase.FF_FRACTIONS`) whatever b_f, so both are refused, naming the field
+    water = {"preset": None, "absorption": 0.1, "scattering": 0.4, "backscatter": 0.4 * fraction}
+    with pytest.raises(ValidationError, match=r"water\.backscatter: b_b/b = .* water\.phase"):
+        Scene.model_validate({"water": water})
+    # the paper's phase function is not fitted to b_b/b: any b_b <= b goes
+    paper = Scene.model_validate({"water": {**water, "phase_function": "paper"}})
+    assert paper.water.coefficients["backscatter"] == 0.4 * fraction
+    # nor does a water that does not scatter need one
+    still = {**water, "scattering": 0.0, "backscatter": 0.0}
+    assert Scene.model_validate({"water": still}).water.coefficients["scattering"] == 0.0

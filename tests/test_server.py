@@ -520,6 +520,17 @@ BAD_SWEEPS = {
     "not yaml": ("name: [unclosed", None),
     "no seed": ("name: x\noutput: x.zarr\n", "seed"),
     "bad value": (sweep("x.zarr").replace("pixels: 16", "pixels: -3"), "scene.receiver.pixels"),
+    # issue #37 item 14: a ZeroDivisionError in the memory estimate was a 500
+    "no field of view": (
+        sweep("x.zarr").replace("pixels: 16", "pixels: 16, field_of_view_deg: 0"),
+        "scene.receiver.field_of_view_deg",
+    ),
+    "no batches": (
+        sweep("x.zarr").replace(
+            "scene:\n", "scene:\n  transport: {method: monte_carlo, batches: 0}\n"
+        ),
+        "scene.transport.batches",
+    ),
     "unknown parameter": (
         sweep("x.zarr").replace("target.shape", "target.colour"),
         "sweep.parameters.target.colour",
@@ -559,7 +570,8 @@ def test_bad_sweeps_are_400_with_the_cli_message_and_nothing_written(service, tm
     message = service.wait(answer["id"], finished)["message"]
     assert "split it into smaller sweeps" in message and "--no-limits" not in message
     # and so does the memory limit, not the CLI's --max-memory
-    status, answer = service.submit(sweep("heavy.zarr").replace("pixels: 16", "pixels: 4096"))
+    heavy = sweep("heavy.zarr").replace("pixels: 16", "pixels: 2048")
+    status, answer = service.submit(heavy.replace("scene:\n", "scene:\n  sequence: {frames: 4}\n"))
     assert status == 400 and "make each sample smaller" in answer["error"], answer
     assert "--max-memory" not in answer["error"] and "--no-limits" not in answer["error"]
     outside = tempfile.mkdtemp()

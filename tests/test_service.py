@@ -2,6 +2,7 @@
 
 import os
 import re
+import shlex
 import signal
 import subprocess
 import textwrap
@@ -499,3 +500,29 @@ def test_a_scene_that_cannot_be_rendered_is_refused_once_with_its_parameters(tmp
     assert refused[4][1] == "target.depth=3.0, target.shape='none'; realisation 1"
     assert " failed: " not in err
     assert "Traceback" not in result.stderr
+
+
+def test_readme_commands_read_only_stores_that_earlier_ones_make():
+    # issue #37 item 18: "Using it" listed `detect detection-study.zarr` with no `run`
+    # making it, and the SweepStream example named "detection-study.yaml" (under configs/)
+    readme = (ROOT / "README.md").read_text()
+    start, _, _, lines = next(
+        block
+        for block in code_blocks(readme)
+        if readme.splitlines()[block[0] - 3] == "## Using it"
+    )
+    made = set()
+    for line in lines:
+        words = shlex.split(line.split("#")[0])
+        if words[:2] == ["oceanlidar", "run"]:
+            made.add(yaml.safe_load((ROOT / words[2]).read_text())["output"])
+        elif words[:2] == ["oceanlidar", "detect"]:
+            assert words[2] in made, line
+            made.add(words[2].removesuffix(".zarr") + ".detect.zarr")
+        elif words[:1] == ["oceanlidar"] and words[1] in ("info", "stats", "plot", "preview"):
+            assert not words[2].endswith(".zarr") or words[2] in made, line
+    assert {"detection-study.zarr", "detection-study.detect.zarr"} <= made
+    for start, _, language, lines in code_blocks(readme):
+        if language == "python":
+            for path in re.findall(r"\"([\w/.-]+\.yaml)\"", "\n".join(lines)):
+                assert (ROOT / path).is_file(), f"README line {start}: no file {path}"

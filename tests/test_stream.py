@@ -4,7 +4,7 @@ import itertools
 
 import numpy as np
 import pytest
-from conftest import TINY_SWEEP, on_cluster
+from conftest import TINY_SCENE, TINY_SWEEP, on_cluster
 from torch.utils.data import DataLoader
 
 from service.cli import main
@@ -40,11 +40,16 @@ def test_items_are_the_stores_samples_byte_for_byte(sweep):
         for name in NAMES:
             a, b = np.asarray(item[name]), np.asarray(reference[name])
             assert (a.dtype, a.shape, a.tobytes()) == (b.dtype, b.shape, b.tobytes()), name
-    # realisation by realisation: both points of realisation 0 first
-    assert [(int(i["point"]), int(i["realisation"])) for i in items[:3]] == [
+    # realisation by realisation: both points of realisation 0 first, in a seeded order
+    assert [int(i["realisation"]) for i in items] == [0, 0, 1, 1, 2, 2, 3, 3, 4, 4]
+    for r in range(5):
+        assert [int(i["point"]) for i in items[2 * r : 2 * r + 2]] == list(stream.order(r))
+    in_order = SweepStream(plan, realisations=2, arrays=(), labels=(), shuffle=False)
+    assert [(int(i["point"]), int(i["realisation"])) for i in in_order] == [
         (0, 0),
         (1, 0),
         (0, 1),
+        (1, 1),
     ]
 
 
@@ -102,3 +107,41 @@ def test_positions_and_image_types_that_would_misread_are_refused(sweep):
         SweepStream(plan, image_dtype=np.int8)
     assert np.iinfo(largest).max > 127
     assert SweepStream(plan, image_dtype=np.float32).dtypes["image"] == np.float32
+
+
+DETECTION_GRID = """\
+sweep:
+  method: grid
+  parameters:
+    target.depth: {values: [3.0, 6.0, 9.0]}
+    surface.wind_speed: {values: [3.0, 10.0]}
+    water.preset: {values: [clear_ocean, coastal]}
+    target.shape: {values: [sphere, none]}
+"""
+"""`configs/detection-study.yaml`'s grid: 24 points, the target's presence alternating."""
+
+
+def test_workers_batches_mix_the_labels(tmp_path):
+    # issue #37 item 3: worker k of 2 took items k, k + 2, ... in point order, so every
+    # batch was all targets or none. Now each realisation's 24 points come in a seeded
+    # order: a batch of 8 of one worker is 8 of a random 12 of them, all one label with
+    # probability about 2 C(12,8)/C(24,8) = 0.0013 (seed fixed: the same batches each time)
+    path = tmp_path / "grid.yaml"
+    text = TINY_SCENE.format(name="grid", seed=7, realisations=2, output="grid.zarr")
+    path.write_text(text + DETECTION_GRID)
+    stream = SweepStream(path, realisations=2, arrays=(), labels=("target_present",))
+    loader = DataLoader(stream, batch_size=8, num_workers=2)
+    batches = [(b["target_present"].tolist(), b["point"].tolist()) for b in loader]
+    assert len(batches) == 6 and all(len(set(present)) == 2 for present, _ in batches)
+    seen = sorted(p for _, points in batches for p in points)
+    assert seen == sorted(list(range(24)) * 2)  # every item once
+    # the sequence is the workers' in turn: a loader without batches gives it whatever
+    # its workers; another epoch, another order of the same items
+    sequence = [(int(i["point"]), int(i["realisation"])) for i in stream]
+    loaded = DataLoader(stream, batch_size=None, num_workers=2)
+    assert [(int(i["point"]), int(i["realisation"])) for i in loaded] == sequence
+    stream.set_epoch(1)
+    again = [(int(i["point"]), int(i["realisation"])) for i in stream]
+    assert again != sequence and sorted(again) == sorted(sequence)
+    with pytest.raises(ValueError, match="epoch"):
+        stream.set_epoch(-1)

@@ -1,17 +1,24 @@
 """Sweep files: schema, safe loading, expansion, seeds and plans."""
 
+import copy
+import math
 import os
 import subprocess
 import sys
 import textwrap
 import tracemalloc
+import typing
 
+import annotated_types
 import numpy as np
 import pytest
 import xarray as xr
+import yaml
 from conftest import cli_command, run_cli
+from pydantic import BaseModel
 
 from service.errors import InputError
+from service.points import assign
 from service.store import template
 from service.store.location import Store
 from service.store.template import create_store
@@ -554,3 +561,44 @@ def test_sobol_points_form_a_net_over_two_parameters():
 def test_sobol_needs_a_power_of_two():
     with pytest.raises(InputError, match="power of two, not 12"):
         design("sobol", 12)
+
+
+def _numeric_fields(model=Scene, prefix=""):
+    """Every numeric leaf of the scene: (dotted path, its lower bound or None)."""
+    for name, field in model.model_fields.items():
+        if isinstance(field.annotation, type) and issubclass(field.annotation, BaseModel):
+            yield from _numeric_fields(field.annotation, f"{prefix}{name}.")
+        elif typing.get_origin(field.annotation) is not tuple and set(
+            typing.get_args(field.annotation) or (field.annotation,)
+        ) - {type(None)} <= {int, float}:
+            bounds = (annotated_types.Ge, annotated_types.Gt)
+            lower = [m for m in field.metadata if isinstance(m, bounds)]
+            yield f"{prefix}{name}", lower[0] if lower else None
+
+
+@pytest.mark.parametrize(("path", "lower"), list(_numeric_fields()), ids=lambda v: str(v))
+def test_zero_negative_and_nan_are_refused_by_the_schema_naming_the_field(path, lower):
+    # issue #37 item 14: the memory estimate read raw values before the schema checked
+    # them (receiver.field_of_view_deg 0, transport.batches 0: ZeroDivisionError, exit 1);
+    # every numeric field, in the default scene and swept, is refused naming itself (a
+    # value below its bound, NaN: ``scene.PATH`` or ``sweep.parameters.PATH``) or
+    # accepted, never a traceback
+    data = yaml.safe_load(BASE)
+    if path.startswith("transport."):  # read by the Monte Carlo renderer only
+        data["scene"]["transport"] = {"method": "monte_carlo", "photons": 2000}
+    for value in (0, -1, -1e300, math.nan):
+        within = lower is None or (
+            value >= lower.ge if isinstance(lower, annotated_types.Ge) else value > lower.gt
+        )
+        below = math.isnan(value) or not within
+        scene = copy.deepcopy(data)
+        assign(scene["scene"], path, value)
+        swept = copy.deepcopy(data)
+        swept["sweep"] = {"parameters": {path: {"values": [value]}}}
+        for where, sweep_data in (("scene", scene), ("swept", swept)):
+            try:
+                parse_sweep(yaml.safe_dump(sweep_data))
+            except InputError as error:
+                assert not below or path in str(error), (where, value, str(error))
+            else:
+                assert not below, (where, value, "accepted")

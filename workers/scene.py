@@ -211,13 +211,8 @@ class Scene(Section):
     @model_validator(mode="after")
     def _phase_function_for_the_water(self) -> Scene:
         t, water = self.transport, self.water.coefficients
-        users = []
-        forward = water["scattering"] > water["backscatter"]
-        if (
-            self.water.phase_function == "fournier_forand"
-            and t.method == "small_angle"
-            and forward
-        ):
+        users = []  # b_b = b too: no Fournier-Forand function scatters only backwards
+        if self.water.phase_function == "fournier_forand" and t.method == "small_angle":
             users.append(("water.phase_function", "water.phase_function: paper"))
         if t.phase_function == "fournier_forand" and t.method == "monte_carlo":
             users.append(("transport.phase_function", "transport.phase_function: paper"))

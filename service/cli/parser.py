@@ -32,6 +32,15 @@ def _port(text: str) -> int:
     return port
 
 
+def _output(text: str) -> str:
+    """A path or URL to write (argparse's type for ``--output``): not empty, printable."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("must name a path or URL, got an empty one")
+    if any(ord(character) < 32 or ord(character) == 127 for character in text):
+        raise argparse.ArgumentTypeError(f"control characters are not allowed, got {text!r}")
+    return text
+
+
 def _storage_options(command) -> None:
     command.add_argument(
         "--storage-options", type=json_object, default=None, help="fsspec options as JSON"
@@ -63,7 +72,9 @@ def _limits(command) -> None:
 def _run(commands) -> None:
     run = commands.add_parser("run", help="run a sweep into a zarr store")
     run.add_argument("sweep", help="sweep YAML file")
-    run.add_argument("--output", help="store path or fsspec URL (default: the file's output)")
+    run.add_argument(
+        "--output", type=_output, help="store path or fsspec URL (default: the file's output)"
+    )
     where = run.add_mutually_exclusive_group()
     where.add_argument(
         "--workers",
@@ -113,7 +124,14 @@ def _preview(commands) -> None:
         help="draw one sample's gated images, rendered from a sweep or read from a store",
     )
     preview.add_argument("source", help="sweep YAML file (rendered now) or store path or URL")
-    preview.add_argument("--sample", type=int, default=0, help="sample index (default 0)")
+    which = preview.add_mutually_exclusive_group()
+    which.add_argument("--sample", type=int, default=None, help="sample index (default 0)")
+    which.add_argument(
+        "--point", type=int, default=None, help="parameter point (with --realisation)"
+    )
+    preview.add_argument(
+        "--realisation", type=int, default=None, help="realisation of --point (default 0)"
+    )
     preview.add_argument(
         "--frame", type=int, default=None, help="frame to draw as PNG (default 0)"
     )
@@ -129,7 +147,16 @@ def _preview(commands) -> None:
         help="colour scales up to the brightest pixel (default: the 99.5th percentile, so "
         "that a few hot caustic pixels saturate instead of darkening the rest)",
     )
-    preview.add_argument("--output", required=True, help="FILE.png, or FILE.gif for a sequence")
+    preview.add_argument(
+        "--output", type=_output, required=True, help="FILE.png, or FILE.gif for a sequence"
+    )
+    preview.add_argument(
+        "--dpi",
+        type=float,
+        default=None,
+        help="dots per inch (default: 100, or more where a gate's image would have fewer "
+        "than 2 screen pixels across each of its pixels)",
+    )
     _limits(preview)
     _storage_options(preview)
 
@@ -253,16 +280,7 @@ def parser() -> argparse.ArgumentParser:
         description="Simulate airborne range-gated LIDAR images through a rough sea.",
     )
     top.add_argument("--version", action=_Version)
-    top.add_argument(
-        "-v",
-        "--verbose",
-        action="count",
-        default=0,
-        help="more messages: -v dask's and the workers' warnings, -vv debugging",
-    )
-    top.add_argument(
-        "-q", "--quiet", action="count", default=0, help="errors only (no plan, no progress)"
-    )
+    _verbosity(top, default=0)
     commands = top.add_subparsers(dest="command", required=True)
     _run(commands)
 
@@ -311,7 +329,9 @@ def parser() -> argparse.ArgumentParser:
         "detect", help="detection study of a store: ROC, AUC and Pd per parameter point"
     )
     detect.add_argument("store", help="store path or URL")
-    detect.add_argument("--output", help="DET.zarr (default: beside the store, .detect.zarr)")
+    detect.add_argument(
+        "--output", type=_output, help="DET.zarr (default: beside the store, .detect.zarr)"
+    )
     detect.add_argument(
         "--workers",
         type=int,
@@ -332,9 +352,31 @@ def parser() -> argparse.ArgumentParser:
     plot = commands.add_parser("plot", help="plot a store's statistics or a detection dataset")
     plot.add_argument("store", help="store path or URL")
     plot.add_argument(
-        "--output", required=True, help="FILE.png (or .pdf, .svg: what matplotlib writes)"
+        "--output",
+        type=_output,
+        required=True,
+        help="FILE.png (or .pdf, .svg: what matplotlib writes)",
     )
     _storage_options(plot)
     _check(commands)
     _job_commands(commands)
+    for command in commands.choices.values():  # after the command too: run x.yaml -q
+        _verbosity(command, default=argparse.SUPPRESS)
     return top
+
+
+def _verbosity(parser: argparse.ArgumentParser, *, default) -> None:
+    """``-v`` and ``-q``, before the command (`default` 0) or after it (unset if not given).
+
+    Given after the command, a flag's count replaces the one given before it.
+    """
+    parser.add_argument(
+        "-v",
+        "--verbose",
+        action="count",
+        default=default,
+        help="more messages: -v dask's and the workers' warnings, -vv debugging",
+    )
+    parser.add_argument(
+        "-q", "--quiet", action="count", default=default, help="errors only (no plan, no progress)"
+    )

@@ -16,6 +16,8 @@ import logging
 import os
 import sys
 
+import numpy as np
+
 from service.devices import BACKEND_ATTR, DEVICE_ATTR, stored
 from service.errors import BadOptionError, DamagedStoreError, InputError, UnusableOutputError
 from service.inputs import shown
@@ -226,6 +228,28 @@ def _stored_sample(store: Store, sample: int):
     return one, _sample_title(name, sample, point, values, realisation)
 
 
+def _sample_of(args, *, points, realisations) -> int:
+    """The sample ``--sample`` names, or ``--point`` and ``--realisation`` (default 0).
+
+    `points` and `realisations` are every sample's, in sample order.
+
+    Raises
+    ------
+    BadOptionError
+        If no sample is that point's realisation.
+    """
+    if args.point is None:
+        return 0 if args.sample is None else args.sample
+    realisation = 0 if args.realisation is None else args.realisation
+    found = np.flatnonzero((points == args.point) & (realisations == realisation))
+    if not len(found):
+        raise BadOptionError(
+            f"--point {args.point} --realisation {realisation}: the sweep has points "
+            f"0..{int(points.max())} of realisations 0..{int(realisations.max())}"
+        )
+    return int(found[0])
+
+
 def _sample_title(name: str, sample: int, point: int, values: dict, realisation: int) -> str:
     """A preview's title: the sweep, the sample, its point's swept values (rounded)."""
     from service.plots import rounded
@@ -274,16 +298,26 @@ def cmd_preview(args) -> int:
     from service.plots import PREVIEW_FORMATS, render_preview, save_preview
 
     _check_picture(args.output, PREVIEW_FORMATS)
+    if args.realisation is not None and args.point is None:
+        raise BadOptionError("--realisation needs --point: the sample of that point")
     if os.path.isfile(args.source):
         plan = load_sweep(args.source, max_memory=None if args.no_limits else memory_limit(args))
-        address = plan.sample(args.sample)
-        ds = render_preview(plan, args.sample)
+        sample = _sample_of(
+            args,
+            points=np.arange(len(plan.points)).repeat(plan.realisations),
+            realisations=np.tile(np.arange(plan.realisations), len(plan.points)),
+        )
+        address = plan.sample(sample)
+        ds = render_preview(plan, sample)
         title = _sample_title(
-            plan.sweep.name, args.sample, address.point, address.values, address.realisation
+            plan.sweep.name, sample, address.point, address.values, address.realisation
         )
         measurements = address.scene.surface.conditioning.points
     else:
-        ds, title = _stored_sample(_store(args, args.source), args.sample)
+        store = _store(args, args.source)
+        ds = _open(store)
+        sample = _sample_of(args, points=ds["point"].values, realisations=ds["realisation"].values)
+        ds, title = _stored_sample(store, sample)
         measurements = None
     with _saving(args.output):
         frames = save_preview(
@@ -294,6 +328,7 @@ def cmd_preview(args) -> int:
             full_range=args.full_range,
             title=title,
             measurements=measurements,
+            dpi=args.dpi,
         )
     log.info("%s: %d frame(s)", args.output, frames)
     return EXIT_OK
