@@ -389,7 +389,7 @@ def test_a_photon_meets_the_surface_from_below_as_fresnel_says(angle):
         np.array([N_WATER, 0, 0, 0, 0, 0, 0, 0, 0.0]),
         np.zeros(4),
         np.linspace(0, np.pi, 5),
-        np.array([1e9, 34.0, 0.0, 0.0, 10, 0.2]),
+        np.array([1e9, 34.0, 0.0, 0.0, 10, 0.2, 0.5]),
         np.array([0.0, 0.0, 34.0]),
         np.zeros((1, 1)),
         np.zeros(4),
