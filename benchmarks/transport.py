@@ -9,6 +9,9 @@ a 0.3 m sphere at 5 m (the quickstart's) is rendered by photon transport
 - per gate, the median relative standard error of the 4 × 4-pixel block means over the
   blocks the beam lights (block mean above a tenth of the brightest block), and the time
   it would take to bring it to 2 % (the error falls as 1/√photons: time × (error/2 %)²);
+- the same for the light over the target's mask in gate 2, whose top (4.9 m) cuts the
+  sphere (the estimator's hard case: forward-scattered light of the target, docs/model.md
+  §9), its error from the pixels' errors as if independent;
 - the same for the FFT of the same size, as a yardstick of the machine's speed (one
   64² float32 rfft2+irfft2 pair, scipy.fft).
 
@@ -136,6 +139,12 @@ def main(argv=None) -> None:
                 + " ".join(f"{100 * e:5.1f}%" for e in errors)
                 + "\n   time to 2 %           "
                 + " ".join(f"{t:6.0f}s" for t in to_two)
+            )
+            mask = frame.mask.astype(bool)
+            edge = np.sqrt((frame.stderr[1][mask] ** 2).sum()) / frame.expected[1][mask].sum()
+            print(
+                f"   target's mask, gate 2: error {100 * edge:.1f}%, "
+                f"time to 2 % {total * (edge / 0.02) ** 2:.0f}s"
             )
 
 

@@ -20,6 +20,7 @@ import pytest
 from scipy.stats import chi2
 from test_montecarlo import scene
 
+from workers import montecarlo
 from workers.optics import fresnel_reflectance
 from workers.render import render_arrays
 from workers.sensor import scene_setup, sensor_at, target_centre
@@ -143,7 +144,7 @@ def single_scattering_quadrature(s, *, sub=4, nodes=48):
     """
     lines = FlatSeaLines(s, sub)
     c = lines.setup.water.attenuation
-    beta_pi = BETA_PI_PER_BACKSCATTER * s.water.backscatter  # β(π) = b β̃(π) [1/(m sr)]
+    beta_pi = BETA_PI_PER_BACKSCATTER * s.water.coefficients["backscatter"]  # β(π) [1/(m sr)]
     x, w = np.polynomial.legendre.leggauss(nodes)
     images = []
     for g in range(len(lines.paths)):
@@ -302,3 +303,59 @@ def test_the_way_to_the_receiver_refracts_into_it():
         # and toward the camera: the horizontal way up and on through the air line up
         cross = (ux * lateral[1] - uy * lateral[0]) / max(np.linalg.norm(lateral), 1e-12)
         assert abs(cross) < 1e-9
+
+
+def test_the_reflections_biased_draw_is_weighted_back_to_lambert():
+    # the target's reflection draws a direction from (1 - e) cos/pi + e p(a.u) (about the
+    # way a to the receiver) and weights it by (cos/pi) / mixture: for any function f of
+    # the direction, E[weight f] is the Lambertian integral of f. Here f = p(a'.u), the
+    # next scattering's estimate toward a receiver a' 2 mrad off a (the forward peak that
+    # the biasing is for), and f = 1 (all the reflected light), against quadrature.
+    from workers.scattering import phase_value, reflection_weight, turn
+
+    table = montecarlo.scene_phase_table(scene(water={"preset": "coastal"}))
+    phase = np.concatenate([[table.log_theta0, table.log_step], np.log(table.values)])
+    share, count = montecarlo.TARGET_BIAS, 400_000
+    normal = np.array([0.6, 0.0, 0.8])
+    aim = np.array([0.0, 0.0, 1.0])
+    other = np.array([np.sin(0.002), 0.0, np.cos(0.002)])
+    rng = np.random.default_rng(1)
+    biased = rng.random(count) < share
+    theta = np.where(
+        biased,
+        np.interp(rng.random(count), np.linspace(0, 1, table.quantiles.size), table.quantiles),
+        np.arccos(np.sqrt(rng.random(count))),
+    )
+    phi = 2 * np.pi * rng.random(count)
+    values = np.empty((count, 2))
+    for i in range(count):
+        axis = aim if biased[i] else normal
+        u = turn(*axis, np.cos(theta[i]), np.sin(theta[i]), phi[i])
+        w = reflection_weight(*normal, *aim, *u, phase, share)
+        cos_t = float(np.dot(other, u))
+        sin_t = float(np.linalg.norm(np.cross(other, u)))
+        values[i] = w, w * phase_value(cos_t, sin_t, phase[0], phase[1], phase[2:])
+    mean = values.mean(axis=0)
+    error = values.std(axis=0, ddof=1) / np.sqrt(count)
+    # Lambert: ∫ cos/pi dΩ = 1; ∫ cos/pi p(a'.u) dΩ over the hemisphere about the normal,
+    # in polar angle about a' (the peak resolved on a log grid)
+    psi = np.geomspace(1e-7, np.pi, 4001)
+    azimuth = np.linspace(0, 2 * np.pi, 721)[:-1]
+    p = np.exp(
+        np.interp(
+            np.log(psi),
+            table.log_theta0 + table.log_step * np.arange(table.values.size),
+            np.log(table.values),
+        )
+    )
+    e1 = np.cross(other, [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(other, e1)
+    ring = np.cos(azimuth)[:, None, None] * e1 + np.sin(azimuth)[:, None, None] * e2
+    dirs = np.cos(psi)[None, :, None] * other + np.sin(psi)[None, :, None] * ring
+    lam = np.maximum(dirs @ normal, 0) / np.pi
+    inner = lam.mean(axis=0) * 2 * np.pi * np.sin(psi) * p
+    closed = np.trapezoid(inner, psi)
+    np.testing.assert_allclose(mean[0], 1.0, atol=4 * error[0])
+    assert error[1] < 0.01 * closed, (error[1], closed)
+    np.testing.assert_allclose(mean[1], closed, atol=4 * error[1])
