@@ -33,6 +33,13 @@ turbid harbour  flat   160 000       157 000       1019, 4847, 7296, 11850, ... 
 turbid harbour  5 m/s  81 000        79 000        starved: most blocks hold one batch
 =============== ====== ============= ============= ==================================
 
+The target's light over its mask in gate 2, flat sea, 10⁶ photons (2026-11-28, load 8 on
+two cores): coastal 4.3 % (20 s to 2 %), clear 2.4 % (1 s); before the target's reflection
+was biased toward the receiver (issue #36) the same runs reported 16.8 % (258 s) and
+11.2 % (27 s), and the runs' real spread was several times their reported error
+(heavy-tailed, docs/model.md §9). The gates' 4 × 4 blocks in the same runs: coastal
+7.2, 7.2, 8.3, 9.9, 14.3, 16.4 % (before 12.0, 7.4, 8.3, 9.9, 14.4, 16.5 %).
+
 Over a rough sea a local estimate is found in 4-5 cells' triangles on average (the lines
 fold under focusing waves at these depths) among about 50 candidates, against 1 among 5
 over a flat sea: that, not the photons' flights, is where the time goes (the kernel without
