@@ -311,7 +311,7 @@ def test_the_reflections_biased_draw_is_weighted_back_to_lambert():
     # the direction, E[weight f] is the Lambertian integral of f. Here f = p(a'.u), the
     # next scattering's estimate toward a receiver a' 2 mrad off a (the forward peak that
     # the biasing is for), and f = 1 (all the reflected light), against quadrature.
-    from workers.scattering import phase_value, reflection_weight, turn
+    from workers.scattering import reflection_weight, turn
 
     table = montecarlo.scene_phase_table(scene(water={"preset": "coastal"}))
     phase = np.concatenate([[table.log_theta0, table.log_step], np.log(table.values)])
@@ -327,34 +327,33 @@ def test_the_reflections_biased_draw_is_weighted_back_to_lambert():
         np.arccos(np.sqrt(rng.random(count))),
     )
     phi = 2 * np.pi * rng.random(count)
-    values = np.empty((count, 2))
+    angles = table.log_theta0 + table.log_step * np.arange(table.values.size)
+
+    def phase_at(psi):  # the table, log-linear in ln θ (as the kernels read it)
+        psi = np.maximum(psi, np.exp(angles[0]))
+        return np.exp(np.interp(np.log(psi), angles, np.log(table.values)))
+
+    directions = np.empty((count, 3))
+    weights = np.empty(count)
     for i in range(count):
         axis = aim if biased[i] else normal
-        u = turn(*axis, np.cos(theta[i]), np.sin(theta[i]), phi[i])
-        w = reflection_weight(*normal, *aim, *u, phase, share)
-        cos_t = float(np.dot(other, u))
-        sin_t = float(np.linalg.norm(np.cross(other, u)))
-        values[i] = w, w * phase_value(cos_t, sin_t, phase[0], phase[1], phase[2:])
+        directions[i] = turn(*axis, np.cos(theta[i]), np.sin(theta[i]), phi[i])
+        weights[i] = reflection_weight(*normal, *aim, *directions[i], phase, share)
+    off = np.arctan2(np.linalg.norm(np.cross(directions, other), axis=-1), directions @ other)
+    values = np.stack([weights, weights * phase_at(off)], axis=-1)
     mean = values.mean(axis=0)
     error = values.std(axis=0, ddof=1) / np.sqrt(count)
     # Lambert: ∫ cos/pi dΩ = 1; ∫ cos/pi p(a'.u) dΩ over the hemisphere about the normal,
     # in polar angle about a' (the peak resolved on a log grid)
     psi = np.geomspace(1e-7, np.pi, 4001)
     azimuth = np.linspace(0, 2 * np.pi, 721)[:-1]
-    p = np.exp(
-        np.interp(
-            np.log(psi),
-            table.log_theta0 + table.log_step * np.arange(table.values.size),
-            np.log(table.values),
-        )
-    )
     e1 = np.cross(other, [0.0, 1.0, 0.0])
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(other, e1)
     ring = np.cos(azimuth)[:, None, None] * e1 + np.sin(azimuth)[:, None, None] * e2
     dirs = np.cos(psi)[None, :, None] * other + np.sin(psi)[None, :, None] * ring
     lam = np.maximum(dirs @ normal, 0) / np.pi
-    inner = lam.mean(axis=0) * 2 * np.pi * np.sin(psi) * p
+    inner = lam.mean(axis=0) * 2 * np.pi * np.sin(psi) * phase_at(psi)
     closed = np.trapezoid(inner, psi)
     np.testing.assert_allclose(mean[0], 1.0, atol=4 * error[0])
     assert error[1] < 0.01 * closed, (error[1], closed)
