@@ -9,6 +9,9 @@ a 0.3 m sphere at 5 m (the quickstart's) is rendered by photon transport
 - per gate, the median relative standard error of the 4 × 4-pixel block means over the
   blocks the beam lights (block mean above a tenth of the brightest block), and the time
   it would take to bring it to 2 % (the error falls as 1/√photons: time × (error/2 %)²);
+- the same for the light over the target's mask in gate 2, whose top (4.9 m) cuts the
+  sphere (the estimator's hard case: forward-scattered light of the target, docs/model.md
+  §9), its error from the pixels' errors as if independent;
 - the same for the FFT of the same size, as a yardstick of the machine's speed (one
   64² float32 rfft2+irfft2 pair, scipy.fft).
 
@@ -29,6 +32,13 @@ coastal         5 m/s  103 000       100 000       448, 385, 440, 588, 985, 2693
 turbid harbour  flat   160 000       157 000       1019, 4847, 7296, 11850, ... (starved)
 turbid harbour  5 m/s  81 000        79 000        starved: most blocks hold one batch
 =============== ====== ============= ============= ==================================
+
+The target's light over its mask in gate 2, flat sea, 10⁶ photons (2026-11-28, load 8 on
+two cores): coastal 4.3 % (20 s to 2 %), clear 2.4 % (1 s); before the target's reflection
+was biased toward the receiver (issue #36) the same runs reported 16.8 % (258 s) and
+11.2 % (27 s), and the runs' real spread was several times their reported error
+(heavy-tailed, docs/model.md §9). The gates' 4 × 4 blocks in the same runs: coastal
+7.2, 7.2, 8.3, 9.9, 14.3, 16.4 % (before 12.0, 7.4, 8.3, 9.9, 14.4, 16.5 %).
 
 Over a rough sea a local estimate is found in 4-5 cells' triangles on average (the lines
 fold under focusing waves at these depths) among about 50 candidates, against 1 among 5
@@ -136,6 +146,12 @@ def main(argv=None) -> None:
                 + " ".join(f"{100 * e:5.1f}%" for e in errors)
                 + "\n   time to 2 %           "
                 + " ".join(f"{t:6.0f}s" for t in to_two)
+            )
+            mask = frame.mask.astype(bool)
+            edge = np.sqrt((frame.stderr[1][mask] ** 2).sum()) / frame.expected[1][mask].sum()
+            print(
+                f"   target's mask, gate 2: error {100 * edge:.1f}%, "
+                f"time to 2 % {total * (edge / 0.02) ** 2:.0f}s"
             )
 
 

@@ -28,7 +28,9 @@ from workers.scattering import (
     mixture_weight,
     phase_value,
     photon_state,
+    reflection_weight,
     scattering_angle,
+    toward_receiver,
     turn,
     uniform,
 )
@@ -236,7 +238,8 @@ def transport(
         The table's scattering angles at equal steps of probability [rad].
     limits : ndarray
         (longest gated path [m], least air path back [m], lowest and highest surface
-        [m], most scattering events).
+        [m], most scattering events, share of scatterings and of reflections off the
+        target drawn about the way to the receiver).
     camera : ndarray
         The receiver's pinhole (x, y, z) [m].
     surface, grid : ndarray
@@ -258,7 +261,7 @@ def transport(
     n_w, a, b = optics[0], optics[2], optics[3]
     longest, air_back, lowest, highest = limits[0], limits[1], limits[2], limits[3]
     most = int(limits[4])
-    bias = limits[5]
+    bias, reflect = limits[5], limits[6]
     state = np.empty(1, dtype=np.uint64)
     for i in range(launch.shape[1]):
         w = launch[6, i]
@@ -352,9 +355,22 @@ def transport(
                 )
                 tallies[3] += w * (1.0 - rho)
                 w *= rho
-                cos_t = math.sqrt(uniform(state))
-                sin_t = math.sqrt(max(1.0 - cos_t * cos_t, 0.0))
-                dx, dy, dz = turn(nx, ny, nz, cos_t, sin_t, 2.0 * math.pi * uniform(state))
+                # Lambertian, or (share reflect) about the way to the receiver, weighted
+                ax, ay, az = toward_receiver(x, y, z, camera, n_w)
+                if uniform(state) < reflect:
+                    theta = scattering_angle(uniform(state), quantiles)
+                    cos_t, sin_t = math.cos(theta), math.sin(theta)
+                    ux, uy, uz = ax, ay, az
+                else:
+                    cos_t = math.sqrt(uniform(state))
+                    sin_t = math.sqrt(max(1.0 - cos_t * cos_t, 0.0))
+                    ux, uy, uz = nx, ny, nz
+                dx, dy, dz = turn(ux, uy, uz, cos_t, sin_t, 2.0 * math.pi * uniform(state))
+                old = w
+                w *= reflection_weight(nx, ny, nz, ax, ay, az, dx, dy, dz, phase, reflect)
+                tallies[4] -= w - old
+                if w <= 0.0:
+                    break  # drawn into the target: its weight is in the cut tally
             else:
                 _estimate(
                     x,
@@ -379,10 +395,7 @@ def transport(
                 if events >= most:
                     tallies[4] += w
                     break
-                # toward the receiver's image under a flat sea (nH high)
-                ax, ay, az = camera[0] - x, camera[1] - y, n_w * camera[2] - z
-                norm = 1.0 / math.sqrt(ax * ax + ay * ay + az * az)
-                ax, ay, az = ax * norm, ay * norm, az * norm
+                ax, ay, az = toward_receiver(x, y, z, camera, n_w)
                 biased = uniform(state) < bias
                 theta = scattering_angle(uniform(state), quantiles)
                 phi = 2.0 * math.pi * uniform(state)

@@ -2,8 +2,9 @@
 
 Counter-keyed streams (a photon's state from its index and the frame's key: SplitMix64,
 then xorshift64*), directions turned by a polar and an azimuthal angle, the tabulated phase
-function (`workers.transport.PhaseTable`) evaluated and sampled, and the weight of a
-direction drawn from the angular-biasing mixture (`workers.montecarlo.ANGULAR_BIAS`).
+function (`workers.transport.PhaseTable`) evaluated and sampled, the way from a point in
+the water to the receiver through a flat sea, and the weights of directions drawn from the
+angular-biasing mixtures (`workers.montecarlo.ANGULAR_BIAS`, `workers.montecarlo.TARGET_BIAS`).
 Used by `workers.photons`.
 """
 
@@ -19,8 +20,10 @@ __all__ = [
     "mixture_weight",
     "phase_value",
     "photon_state",
+    "reflection_weight",
     "scattering_angle",
     "splitmix",
+    "toward_receiver",
     "turn",
     "uniform",
 ]
@@ -115,3 +118,53 @@ def mixture_weight(dx, dy, dz, ax, ay, az, nx, ny, nz, phase, bias):
     own = phase_value(c1, s1, phase[0], phase[1], phase[2:])
     toward = phase_value(c2, s2, phase[0], phase[1], phase[2:])
     return own / ((1.0 - bias) * own + bias * toward)
+
+
+@numba.njit(cache=True)
+def reflection_weight(nx, ny, nz, ax, ay, az, ux, uy, uz, phase, bias):
+    """Weight factor of a direction u reflected off a Lambertian surface of normal n.
+
+    The direction is drawn from the mixture (1 − ε) cos(n·u)/π + ε p(a·u), the phase
+    function about the way a to the receiver (one-sample multiple importance sampling,
+    the balance heuristic): the factor (cos/π) / mixture, 0 into the surface, at most
+    1/(1 − ε).
+    """
+    cos_n = nx * ux + ny * uy + nz * uz
+    if cos_n <= 0.0:
+        return 0.0
+    own = cos_n / math.pi
+    if bias == 0.0:
+        return 1.0
+    c, s = angle_between(ax, ay, az, ux, uy, uz)
+    toward = phase_value(c, s, phase[0], phase[1], phase[2:])
+    return own / ((1.0 - bias) * own + bias * toward)
+
+
+@numba.njit(cache=True)
+def toward_receiver(x, y, z, camera, n_w):
+    """Unit direction from a point in the water to the receiver through a flat sea.
+
+    The point (x, y, z) [m] below the mean sea level (a point above it is taken just
+    below), the pinhole `camera` (x, y, z) [m] above it: the crossing at horizontal
+    distance r from the point toward the camera obeys Snell's law,
+    n r / √(r² + d²) = (D − r) / √((D − r)² + H²), solved by Newton's method from the
+    paraxial r = D d / (d + n H) (the receiver's image n H high), to 1e-12 of D.
+    """
+    ex, ey = camera[0] - x, camera[1] - y
+    reach = math.sqrt(ex * ex + ey * ey)
+    d = max(-z, 1e-9)
+    height = camera[2]
+    if reach < 1e-12:
+        return 0.0, 0.0, 1.0
+    r = reach * d / (d + n_w * height)
+    for _ in range(20):
+        lw = math.sqrt(r * r + d * d)
+        la = math.sqrt((reach - r) ** 2 + height * height)
+        f = n_w * r / lw - (reach - r) / la
+        slope = n_w * d * d / lw**3 + height * height / la**3
+        step = f / slope
+        r = min(max(r - step, 0.0), reach)
+        if abs(step) < 1e-12 * reach:
+            break
+    norm = 1.0 / math.sqrt(r * r + d * d)
+    return ex / reach * r * norm, ey / reach * r * norm, d * norm
