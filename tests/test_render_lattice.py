@@ -154,6 +154,7 @@ def test_the_rough_sea_signal_matches_a_ray_trace_read_at_the_same_scale():
                     "absorption": 0.05,
                     "scattering": 5e-4,
                     "backscatter": 5e-4,
+                    "phase_function": "paper",  # b_b = b: outside the Fournier-Forand fit
                 },
                 "surface": {
                     "spectrum": "flat" if flat else "elfouhaily",
