@@ -129,18 +129,21 @@ def start_cli(*args, cwd, env=None, **popen):
 
 @contextlib.contextmanager
 def sigint_default():
-    """SIGINT handled (as Python's default) in this process, so in the processes it starts.
+    """SIGINT handled (as Python's default) and unblocked here, so in the processes started.
 
-    A handler set in Python is the system's default in a program it executes; an ignored
-    signal stays ignored. Only the main thread sets handlers: elsewhere, nothing changes.
+    A handler set in Python is the system's default in a program it executes, while an
+    ignored signal stays ignored, and a blocked one blocked (the starting thread's mask).
+    Only the main thread sets handlers: elsewhere, nothing changes.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    blocked = signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     try:
         yield
     finally:  # None: a handler not set from Python, the system's default
+        signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
         signal.signal(signal.SIGINT, signal.SIG_DFL if previous is None else previous)
 
 
