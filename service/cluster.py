@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import functools
 import importlib.util
 import logging
 import os
@@ -78,10 +79,36 @@ def dask_setup(worker) -> None:
     scheduler). A worker still exits when its nanny's process does, however it ends
     (``distributed``'s parent watch). A worker that is a thread of another process (not
     its main thread) leaves that process's handling alone.
+
+    Such a worker process also closes without waiting for the tasks it is executing
+    (`close_without_waiting`): when the run is interrupted, a sample mid-render is abandoned
+    (not marked complete: ``--resume`` renders it again), and the worker exits within the
+    few seconds its nanny gives it. Otherwise it waited for the task, and the nanny killed
+    it once those seconds were up: killed, it left numcodecs' blosc lock (a named
+    semaphore each worker creates as it first compresses) registered, and the resource
+    tracker warned of a "leaked semaphore" as the run ended.
     """
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        worker.close = close_without_waiting(worker.close)
+
+
+def close_without_waiting(close):
+    """`close`, a worker's ``close`` method, that never waits for its executing tasks.
+
+    Its nanny asks a worker process to close waiting for its executor's threads
+    (``executor_wait=True``, which no setting changes) and kills it a few seconds later
+    (`dask_setup`). The tasks themselves are cancelled by the run's client first; a task
+    that is still executing is in compiled code no cancel stops, and its process exits
+    without it.
+    """
+
+    @functools.wraps(close)
+    async def closing(*args, **kwargs):
+        return await close(*args, **{**kwargs, "executor_wait": False})
+
+    return closing
 
 
 def hold(start: int) -> None:
@@ -91,6 +118,8 @@ def hold(start: int) -> None:
     sample) says so by a file ``shard-START`` there; then, once as many shards as the
     folder's file ``hold`` says are written, it waits until the run lets it go (its client
     gone, interrupted: the task is cancelled, or its worker closes), at most `HOLD_LIMIT`.
+    With a file ``busy`` there too, it waits `HOLD_LIMIT` whatever happens, as a sample
+    mid-render in compiled code does (no cancel stops it).
     """
     folder = os.environ.get(HOLD)
     if not folder:
@@ -102,12 +131,11 @@ def hold(start: int) -> None:
     worker = get_worker()
     task = worker.state.tasks[thread_state.key]
     deadline = time.monotonic() + HOLD_LIMIT
+    busy = (folder / "busy").exists()
     # a worker closing with its cluster (the run interrupted) may not cancel it first
     while (
-        task.state == "executing"
-        and worker.status == Status.running
-        and time.monotonic() < deadline
-    ):
+        busy or (task.state == "executing" and worker.status == Status.running)
+    ) and time.monotonic() < deadline:
         time.sleep(0.05)
 
 

@@ -2,9 +2,11 @@
 
 import contextlib
 import os
+import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -112,22 +114,67 @@ def run_cli(*args, cwd, env=None, timeout=300):
 
 
 def start_cli(*args, cwd, env=None, **popen):
-    """Start `oceanlidar ARGS` in a fresh process and return it (a `subprocess.Popen`)."""
+    """Start `oceanlidar ARGS` in a fresh process and return it (a `subprocess.Popen`).
+
+    It starts as a terminal's foreground job does, with SIGINT at its default: a Ctrl-C
+    raises KeyboardInterrupt in it. A process inherits an ignored signal, and a test
+    process may ignore SIGINT: a suite started as a background job of a non-interactive
+    shell (``pytest &`` in a script, as a CI runner may start it) has SIGINT ignored
+    (POSIX), and so had every run it started, which a Ctrl-C then left running.
+    """
     command, env = cli_command(*args, env=env)
-    return subprocess.Popen(command, cwd=cwd, env=env, **popen)
+    with sigint_default():
+        return subprocess.Popen(command, cwd=cwd, env=env, **popen)
 
 
-def holding(folder, shards):
+@contextlib.contextmanager
+def sigint_default():
+    """SIGINT handled (as Python's default) and unblocked here, so in the processes started.
+
+    A handler set in Python is the system's default in a program it executes, while an
+    ignored signal stays ignored, and a blocked one blocked (the starting thread's mask).
+    Only the main thread sets handlers: elsewhere, nothing changes.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    blocked = signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:  # None: a handler not set from Python, the system's default
+        signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+        signal.signal(signal.SIGINT, signal.SIG_DFL if previous is None else previous)
+
+
+def ended(process, timeout=120):
+    """The output of `process` (``out, err``), once it ends within `timeout` s.
+
+    Else it is killed with its process group (started with ``start_new_session``) and the
+    test fails with what it had written: no run is left holding its tasks behind.
+    """
+    try:
+        return process.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(process.pid, signal.SIGKILL)
+        _, err = process.communicate()
+        pytest.fail(f"the run had not ended {timeout} s after the signal; it wrote:\n{err}")
+
+
+def holding(folder, shards, *, busy=False):
     """The environment of a run whose tasks hold once `shards` shards are written.
 
     `service.cluster.hold`: each task marks its written shard in `folder`; from the
     `shards`-th on, they wait until the run is interrupted (the interrupt tests signal a
-    run at that point, not at a time).
+    run at that point, not at a time), or if `busy` for `service.cluster.HOLD_LIMIT`
+    whatever happens (a sample mid-render, which no cancel stops).
     """
     from service.cluster import HOLD
 
     folder.mkdir()
     (folder / "hold").write_text(str(shards))
+    if busy:
+        (folder / "busy").touch()
     return {HOLD: str(folder)}
 
 
