@@ -222,25 +222,33 @@ def job_page(job: Job, *, viewer: str, csrf: str) -> str:
     return page(title, body, script=not job.state.final)
 
 
-def same_origin(headers) -> bool:
-    """Whether a form comes from this service's own pages (by ``Origin`` and ``Sec-Fetch-Site``).
+def same_origin(headers, *, required: bool = True) -> bool:
+    """Whether a request comes from this service's own pages (``Origin``, ``Sec-Fetch-Site``).
 
-    Browsers send ``Origin`` with every ``POST``; one that names another host (or ``null``)
-    is another site's, as is a ``Sec-Fetch-Site`` other than ``same-origin``. A form with
-    neither header came from no browser page and is refused too (scripts cancel through the
-    API's ``DELETE`` with a token).
+    Browsers send ``Origin`` with every ``POST``: one that names another host is another
+    site's, as is a ``Sec-Fetch-Site`` other than ``same-origin`` (or ``none``, a request the
+    user made). ``Origin: null`` is what a sandboxed frame of any site sends (and every form,
+    under ``Referrer-Policy: no-referrer``): it passes only where the browser vouches for
+    the page with ``Sec-Fetch-Site: same-origin``, a header no page can set. With
+    `required`, a request with neither header (it came from no browser page) is refused too
+    (scripts cancel through the API's ``DELETE`` with a token); without, it passes (the
+    API's clients are no browsers).
 
     Parameters
     ----------
     headers : Mapping
         The request's headers (lower-case names).
+    required : bool, optional
+        Whether a request must say where it comes from.
     """
     origin, site = headers.get("origin"), headers.get("sec-fetch-site")
     if origin is None and site is None:
+        return not required
+    if site not in (None, "same-origin", "none"):
         return False
-    if origin is not None and urllib.parse.urlsplit(origin).netloc != headers.get("host"):
-        return False
-    return site in (None, "same-origin", "none")
+    if origin == "null":
+        return site == "same-origin"
+    return origin is None or urllib.parse.urlsplit(origin).netloc == headers.get("host")
 
 
 FORM_BYTES = 4096

@@ -25,6 +25,7 @@ import os
 import secrets
 import socket
 import sys
+import urllib.parse
 
 import uvicorn
 from starlette.applications import Starlette
@@ -77,10 +78,21 @@ SECURITY_HEADERS = [
     ),
     (b"x-frame-options", b"DENY"),
     (b"x-content-type-options", b"nosniff"),
-    (b"referrer-policy", b"no-referrer"),
+    (b"referrer-policy", b"same-origin"),
 ]
 """Sent with every answer: the pages load nothing but their own pictures, script and event
-streams, in no frame."""
+streams, in no frame. ``same-origin``: another site learns no page address of the service,
+while the service's own forms keep their ``Origin`` (under ``no-referrer`` browsers send
+``Origin: null`` with every form, and the cancel button was refused)."""
+SWEEP_TYPES = (
+    "application/yaml",
+    "application/x-yaml",
+    "text/yaml",
+    "text/x-yaml",
+    "application/json",
+)
+"""The ``Content-Type``s a submission may carry: none is one a page of another site may send
+without the browser asking the service first (a CORS preflight, which it does not answer)."""
 
 
 def read_tokens(path: str | None) -> dict[str, str]:
@@ -163,6 +175,10 @@ class _Service:
         async def guarded(request: Request):
             if lost := self.table.lost():
                 return _error(503, f"{lost}: restart the service on its table")
+            if request.method not in SAFE_METHODS and not same_origin(
+                request.headers, required=False
+            ):
+                return _error(403, "a request from another site's page is refused")
             request.state.owner = self.owner(request)
             if request.state.owner is not None:
                 return await endpoint(request)
@@ -195,6 +211,13 @@ class _Service:
         return Response(SCRIPT, media_type="text/javascript")
 
     async def submit(self, request: Request) -> JSONResponse:
+        kind = request.headers.get("content-type", "").partition(";")[0].strip().lower()
+        if kind not in SWEEP_TYPES:
+            return _error(
+                415,
+                f"Content-Type {kind or '(none)'}: send the sweep as application/yaml (or "
+                f"one of {', '.join(SWEEP_TYPES[1:])})",
+            )
         if any(len(request.query_params.getlist(n)) > 1 for n in ("mode", "submission_id")):
             return _error(400, "mode and submission_id: each may be given once")
         body = b""
@@ -352,9 +375,41 @@ def _secured(app):
     return secured
 
 
+def _loopback_only(app):
+    """`app` (ASGI) answering only requests whose ``Host`` names a loopback address.
+
+    For a service without tokens (``--no-auth``, on loopback only): a page of another site
+    that makes its own name resolve to 127.0.0.1 (DNS rebinding) has its requests sent with
+    its own name as ``Host``, and is refused (``403``); the port is not looked at (an SSH
+    tunnel's port differs).
+    """
+
+    async def checked(scope, receive, send):
+        if scope["type"] == "http":
+            host = dict(scope["headers"]).get(b"host", b"").decode("latin-1")
+            try:
+                name = urllib.parse.urlsplit(f"//{host}").hostname
+            except ValueError:  # a port that is not a number
+                name = None
+            if name not in LOOPBACK:
+                refusal = _error(
+                    403,
+                    f"Host {host!r}: this service answers its loopback address only "
+                    "(127.0.0.1, localhost, ::1)",
+                )
+                return await refusal(scope, receive, send)
+        await app(scope, receive, send)
+
+    return checked
+
+
 def create_app(runner: Runner, tokens: dict[str, str]):
-    """The ASGI application over a started `runner`; no token: no authentication."""
-    return _secured(Starlette(routes=_Service(runner, tokens).routes()))
+    """The ASGI application over a started `runner`; no token: no authentication.
+
+    Without tokens it answers requests to a loopback ``Host`` alone (`_loopback_only`).
+    """
+    app = Starlette(routes=_Service(runner, tokens).routes())
+    return _secured(app if tokens else _loopback_only(app))
 
 
 def serve(args, security) -> int:

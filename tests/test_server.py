@@ -18,6 +18,7 @@ import urllib.parse
 import urllib.request
 
 import pytest
+from browser import FLAGS, Browser, chromium_binary
 from conftest import (
     TINY_SWEEP,
     assert_same_samples,
@@ -85,6 +86,8 @@ class Server:
 
     def request(self, method, path, body=None, *, token=None):
         request = urllib.request.Request(self.url + path, data=body, method=method)
+        if body is not None:
+            request.add_header("Content-Type", "application/yaml")
         if token or self.token:
             request.add_header("Authorization", f"Bearer {token or self.token}")
         try:
@@ -417,20 +420,18 @@ def test_bad_serve_settings_are_refused_before_anything_is_made(cli, tmp_path, s
 def test_the_cookie_only_reads_and_pages_are_not_framed(service):
     """A page of another site (another port of this host) cannot submit with the cookie."""
     before = len(service.request("GET", "/v1/jobs")[1]["jobs"])
-    forged = {
-        "Cookie": f"oceanlidar_token={TOKEN}",
-        "Content-Type": "text/plain",
-        "Origin": f"http://127.0.0.1:{free_port()}",
-    }
+    cookie = {"Cookie": f"oceanlidar_token={TOKEN}", "Content-Type": "application/yaml"}
+    foreign = {"Origin": f"http://127.0.0.1:{free_port()}"}
     connection = http.client.HTTPConnection("127.0.0.1", service.port, timeout=30)
     for method, path, body in [
         ("POST", "/v1/jobs?mode=overwrite", sweep("forged.zarr", realisations=1)),
         ("DELETE", "/v1/jobs/0123456789ab", None),
     ]:
-        connection.request(method, path, body=body, headers=forged)
-        answer = connection.getresponse()
-        assert answer.status == 401, (method, answer.read())
-        answer.read()
+        for headers, refused in [(cookie, 401), ({**cookie, **foreign}, 403)]:
+            connection.request(method, path, body=body, headers=headers)
+            answer = connection.getresponse()
+            assert answer.status == refused, (method, headers, answer.read())
+            answer.read()
     assert len(service.request("GET", "/v1/jobs")[1]["jobs"]) == before
     for path in ("/", "/v1/jobs"):  # the cookie reads pages and the API
         connection.request("GET", path, headers={"Cookie": f"oceanlidar_token={TOKEN}"})
@@ -485,6 +486,9 @@ def test_the_job_page_follows_its_events_and_its_owner_cancels_it(service):
     forged = [
         (TOKEN, {"csrf": csrf}, cross, 403),  # another site's page: refused by origin
         (TOKEN, {"csrf": csrf}, {"Sec-Fetch-Site": "cross-site"}, 403),
+        # a sandboxed frame of any site posts with Origin: null
+        (TOKEN, {"csrf": csrf}, {"Origin": "null"}, 403),
+        (TOKEN, {"csrf": csrf}, {"Origin": "null", "Sec-Fetch-Site": "cross-site"}, 403),
         (TOKEN, {"csrf": csrf}, {"Referer": "http://evil.example/"}, 403),  # names no origin
         (TOKEN, {}, own, 403),  # no form token: the cookie alone is not enough
         (TOKEN, {"csrf": "0" * 64}, own, 403),
@@ -622,22 +626,81 @@ def test_queue_limit_is_429(open_service):
     assert open_service.wait(job["id"], finished)["state"] == "succeeded"
 
 
-def chromium(*args, folder):
-    binary = shutil.which("chromium") or shutil.which("chromium-browser")
-    if binary is None:
-        pytest.skip("no chromium binary (apt-get install chromium); the page is not tested")
-    command = [
-        binary,
-        "--headless",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--disable-background-networking",
-        "--disable-component-update",
-        "--disable-sync",
-        "--no-first-run",
-        f"--user-data-dir={folder / 'profile'}",
-        *args,
+def test_a_server_without_tokens_refuses_other_sites_and_other_hosts(open_service, tmp_path):
+    """Issue #37 item 8: no cross-site or DNS-rebinding write reaches a ``--no-auth`` server.
+
+    A page another site serves may post a ``text/plain`` body without asking the service
+    (no CORS preflight); one whose name resolves to 127.0.0.1 (rebinding) sends its own
+    name as ``Host``.
+    """
+    before = open_service.request("GET", "/v1/jobs")[1]["jobs"]
+    port = open_service.port
+    text = sweep("first.zarr", realisations=1)
+    yaml = {"Content-Type": "application/yaml"}
+    refusals = [
+        ("POST", "/v1/jobs?mode=overwrite", {"Content-Type": "text/plain"}, 415),
+        ("POST", "/v1/jobs?mode=overwrite", {}, 415),
+        ("POST", "/v1/jobs", {"Content-Type": "application/x-www-form-urlencoded"}, 415),
+        ("POST", "/v1/jobs", {"Content-Type": "multipart/form-data; boundary=x"}, 415),
+        ("POST", "/v1/jobs?mode=overwrite", {**yaml, "Origin": "http://evil.example"}, 403),
+        ("POST", "/v1/jobs", {**yaml, "Origin": f"http://127.0.0.1:{free_port()}"}, 403),
+        ("POST", "/v1/jobs", {**yaml, "Origin": "null"}, 403),
+        ("POST", "/v1/jobs", {**yaml, "Sec-Fetch-Site": "cross-site"}, 403),
+        ("POST", "/v1/jobs", {**yaml, "Host": f"evil.example:{port}"}, 403),
+        ("POST", "/v1/jobs", {**yaml, "Host": f"127.0.0.1.evil.example:{port}"}, 403),
+        ("DELETE", "/v1/jobs/0123456789ab", {"Origin": "http://evil.example"}, 403),
+        ("DELETE", "/v1/jobs/0123456789ab", {"Host": "evil.example"}, 403),
+        ("GET", "/v1/jobs", {"Host": f"evil.example:{port}"}, 403),  # nor reads it
+        ("GET", "/", {"Host": "evil.example"}, 403),
     ]
+    connection = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
+    for method, path, headers, status in refusals:
+        body = text if method == "POST" else None
+        connection.request(method, path, body=body, headers=headers)
+        answer = connection.getresponse()
+        assert answer.status == status, (method, path, headers, answer.read())
+        assert json.loads(answer.read())["error"], headers
+    connection.close()
+    assert open_service.request("GET", "/v1/jobs")[1]["jobs"] == before
+    # the service's own names pass, whatever the port (an SSH tunnel's)
+    for host in (f"localhost:{port}", f"127.0.0.1:{port}", "localhost:9999"):
+        status, _, _ = page_request(open_service, "GET", "/", headers={"Host": host})
+        assert status == 200, host
+
+
+def test_the_cancel_button_works_in_a_browser(service, tmp_path):
+    """Issue #37 item 12: log in, open a running job's page, click cancel, read the page.
+
+    Under ``Referrer-Policy: no-referrer`` Chromium posted the form with ``Origin: null``,
+    which the service refused (403) for every click.
+    """
+    job_id = service.submit(sweep("clicked.zarr", realisations=1000))[1]["id"]
+    service.wait(job_id, lambda job: job["state"] == "running")
+    with Browser(tmp_path) as browser:
+        browser.go(f"{service.url}/login")
+        browser.evaluate(f"document.querySelector('input[name=token]').value = '{TOKEN}'")
+        browser.click("form button")
+        browser.wait("document.title === 'oceanlidar jobs'")
+        assert job_id in browser.evaluate("document.body.innerText")
+        browser.go(f"{service.url}/jobs/{job_id}")
+        assert browser.evaluate("document.querySelector('[data-field=state]').textContent") == (
+            "running"
+        )
+        browser.click("form[action$='/cancel'] button")
+        shown = browser.wait(
+            "document.title === 'refused' ? document.body.innerText : "
+            "document.querySelector('[data-field=state]')?.textContent === 'cancelled' && "
+            "location.pathname"
+        )
+        assert shown == f"/jobs/{job_id}", shown
+        assert "cancel the job" not in browser.evaluate("document.body.innerText")
+        message = browser.evaluate("document.querySelector('.message').textContent")
+    assert message.startswith("cancelled; submit it again with resume"), message
+    assert service.job(job_id)["state"] == "cancelled"
+
+
+def chromium(*args, folder):
+    command = [chromium_binary(), *FLAGS, f"--user-data-dir={folder / 'profile'}", *args]
     result = subprocess.run(command, capture_output=True, text=True, timeout=120, cwd=folder)
     assert result.returncode == 0, result.stderr
     return result.stdout

@@ -87,6 +87,8 @@ def _request(args, method: str, path: str, body: bytes | None = None, *, stream=
     """
     base = _server(args)
     request = urllib.request.Request(base.rstrip("/") + path, data=body, method=method)
+    if body is not None:  # a sweep (the service refuses the types a web page may post)
+        request.add_header("Content-Type", "application/yaml")
     if token := _token(args):
         request.add_header("Authorization", f"Bearer {token}")
     try:
