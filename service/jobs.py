@@ -27,7 +27,7 @@ import threading
 import time
 import uuid
 
-from service.admission import SERVICE, admit_header, admit_job, parents
+from service.admission import SERVICE, admit_header, admit_job, confine_output, parents
 from service.devices import NUMPY
 from service.errors import (
     BadOptionError,
@@ -305,6 +305,9 @@ class Runner:
                 self.table.log(job.id, f"{done}/{job.total} samples written, {rate:.2f}/s")
 
         try:
+            # a symbolic link planted in the data root since the job was admitted could
+            # lead its output out of it: the output is confined again as it starts
+            confine_output(job.output, self.data_root.url)
             plan = parse_sweep(job.sweep, folder=self.data_root.url, max_memory=None)
             store = self.data_root.other(job.url)
             # an interrupted job resumes its own store (this sweep's, by its hash); one that

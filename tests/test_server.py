@@ -757,6 +757,51 @@ def test_outputs_stay_under_the_data_root(tmp_path):
     for output in [*ESCAPES, "memory::a.zarr", "a.zarr::s3://bucket", ".", "a/../.."]:
         with pytest.raises(InputError, match=r"^output: "):
             confine_output(output, str(root))
+    # a link that leads inside the data root is refused too (issue #37 item 10)
+    (root / "real").mkdir()
+    os.symlink(root / "real", root / "inner")
+    os.symlink(root / "real" / "b.zarr", root / "real" / "c.zarr")
+    assert confine_output("real/a.zarr", str(root)) == f"{root}/real/a.zarr"
+    for output, link in [("inner/a.zarr", "inner"), ("real/c.zarr", "real/c.zarr")]:
+        with pytest.raises(InputError, match=f"^output: .* the symbolic link '{link}'"):
+            confine_output(output, str(root))
+
+
+def test_a_link_planted_after_admission_leads_no_job_out(tmp_path, session_cluster):
+    """Issue #37 item 10: the output is confined again as the job starts."""
+    from service.jobs import Runner
+    from service.table import JobTable
+
+    data, outside = tmp_path / "data", tmp_path / "outside"
+    (data / "runs").mkdir(parents=True)
+    outside.mkdir()
+    table = JobTable(str(tmp_path / "jobs.sqlite"))
+    runner = Runner(
+        table,
+        session_cluster,
+        data_root=Store(str(data)),
+        max_running=0,  # validated and queued, not started
+        queue_limit=10,
+        batch_size=1,
+    )
+    runner.start()
+    try:
+        job, _ = runner.submit(sweep("runs/x.zarr", realisations=1), owner="alice")
+        deadline = time.monotonic() + 60
+        while table.get(job.id).state != "queued" and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert table.get(job.id).state == "queued"
+        (data / "runs").rmdir()
+        os.symlink(outside, data / "runs")
+        runner.max_running = 1
+        while not table.get(job.id).state.final and time.monotonic() < deadline + 60:
+            time.sleep(0.05)
+    finally:
+        runner.stop()
+    job = table.get(job.id)
+    assert job.state == "failed", job
+    assert job.message == "output: 'runs/x.zarr' leads out of the service's data root", job
+    assert os.listdir(outside) == []
 
 
 def test_an_object_storage_data_root_reads_no_measurement_file():
@@ -827,6 +872,42 @@ def test_one_service_a_table_whatever_path_reaches_it(tmp_path, link):
     assert table.lost() is None
     (tmp_path / "jobs.sqlite").unlink()  # a table lost while served is noticed
     assert "is gone" in table.lost()
+
+
+@pytest.mark.parametrize("how", ["copied over", "truncated"])
+def test_a_job_table_overwritten_in_place_is_lost(tmp_path, how):
+    """Issue #37 item 11: ``cp other.sqlite jobs.sqlite`` and ``truncate -s 0`` keep the
+    file (its inode) and change what it holds: noticed, and for good."""
+    from service.records import Job, JobState
+    from service.table import JobTable
+
+    path = tmp_path / "jobs.sqlite"
+    table = JobTable(str(path))
+    job = Job(
+        id="0123456789ab",
+        owner="alice",
+        name="x",
+        state=JobState.QUEUED,
+        mode="new",
+        sweep="",
+        output="x.zarr",
+        url="x.zarr",
+        submitted=time.time(),
+        total=1,
+    )
+    table.add(job)
+    assert table.lost() is None and table.get(job.id) is not None
+    inode = path.stat().st_ino
+    shutil.copyfile(path, tmp_path / "saved.sqlite")
+    if how == "copied over":
+        JobTable(str(tmp_path / "other.sqlite"))  # another service's table
+        shutil.copyfile(tmp_path / "other.sqlite", path)
+    else:
+        os.truncate(path, 0)
+    assert path.stat().st_ino == inode
+    assert "was overwritten or truncated in place" in table.lost()
+    shutil.copyfile(tmp_path / "saved.sqlite", path)  # nor trusted once put back
+    assert "was overwritten or truncated in place" in table.lost()
 
 
 def test_a_lost_job_table_stops_the_service_and_stores_keep_their_owner(tmp_path):
