@@ -5,6 +5,7 @@ import http.client
 import json
 import os
 import re
+import resource
 import shutil
 import signal
 import socket
@@ -44,8 +45,9 @@ def sweep(output, *, realisations=LONG, name="served"):
 class Server:
     """An `oceanlidar serve` process in its own process group (its workers with it)."""
 
-    def __init__(self, folder, *args, token=TOKEN):
+    def __init__(self, folder, *args, token=TOKEN, descriptors=None):
         self.folder, self.args, self.token = folder, args, token
+        self.descriptors = descriptors  # its RLIMIT_NOFILE, if not this process's
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.process = None
@@ -74,6 +76,7 @@ class Server:
             stdout=self.log,
             stderr=self.log,
             start_new_session=True,
+            preexec_fn=None if self.descriptors is None else self._limit,
         )
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:
@@ -83,6 +86,9 @@ class Server:
                     return self
             time.sleep(0.2)
         raise AssertionError("the server did not answer within 60 s")
+
+    def _limit(self):
+        resource.setrlimit(resource.RLIMIT_NOFILE, (self.descriptors, self.descriptors))
 
     def request(self, method, path, body=None, *, token=None):
         request = urllib.request.Request(self.url + path, data=body, method=method)
@@ -324,6 +330,43 @@ def test_sigkill_mid_job_then_restart_resumes(reference, tmp_path, monkeypatch, 
         assert not (tmp_path / "data" / "dropped.zarr").exists()
     finally:
         server.stop()
+
+
+def test_half_sent_requests_exhaust_no_descriptor_and_fail_no_job(tmp_path):
+    """Issue #37 item 9: a client that opens connections and never ends its request's
+    headers held a descriptor each until the service had none (``EMFILE``): its health
+    check timed out, its running job failed and its log filled with tracebacks."""
+    descriptors = 256
+    held = descriptors + 100
+    server = Server(tmp_path, "--max-running", "1", descriptors=descriptors)
+    attackers = []
+    try:
+        server.start()
+        job_id = server.submit(sweep("held.zarr", realisations=2000))[1]["id"]
+        server.wait(job_id, lambda job: job["samples"]["done"] >= 1)
+        for _ in range(held):
+            attacker = socket.create_connection(("127.0.0.1", server.port), timeout=30)
+            attacker.sendall(b"GET /v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\n")
+            attackers.append(attacker)
+        # a client that sends its request at once is answered meanwhile
+        assert server.request("GET", "/v1/health")[0] == 200
+        # and the half-sent ones are closed, the last within the header deadline
+        for attacker in attackers:
+            with contextlib.suppress(ConnectionResetError):
+                while attacker.recv(4096):  # until the service closes it (503s read past)
+                    pass
+        during = server.job(job_id)
+        assert during["state"] == "running" and during["errors"] == {}, during
+        server.wait(job_id, lambda job: job["samples"]["done"] > during["samples"]["done"])
+        assert server.request("DELETE", f"/v1/jobs/{job_id}")[0] == 200
+        job = server.wait(job_id, finished)
+        assert job["state"] == "cancelled" and job["errors"] == {}, job
+    finally:
+        for attacker in attackers:
+            attacker.close()
+        server.stop()
+    log = (tmp_path / "server.log").read_text()
+    assert "Traceback" not in log and len(log) < 10_000, log[-3000:]
 
 
 def test_a_terminated_service_closes_its_cluster_and_exits_0(tmp_path):
