@@ -36,7 +36,7 @@ from service.errors import (
     SubmissionConflictError,
 )
 from service.inputs import shown
-from service.records import ACTIVE, Job, JobState
+from service.records import ACTIVE, WRITING_STATISTICS, Job, JobState
 from service.run import Cancel, execute
 from service.store.template import OWNER
 from service.sweep import parse_sweep
@@ -62,6 +62,25 @@ class QueueFullError(RuntimeError):
 
 class ForbiddenError(RuntimeError):
     """A submitter acts on another owner's job or store."""
+
+
+class _JobCancel(Cancel):
+    """A job's `Cancel`, which marks the job `WRITING_STATISTICS` as the run closes it.
+
+    The run closes it once its samples are written; the phase is then in the table, for
+    the API, the job page and ``oceanlidar status``.
+    """
+
+    def __init__(self, table, job_id: str):
+        super().__init__()
+        self.table, self.job_id = table, job_id
+
+    def close(self) -> bool:
+        closed = super().close()
+        if closed:
+            self.table.update(self.job_id, phase=WRITING_STATISTICS)
+            self.table.log(self.job_id, "every sample written: writing the statistics")
+        return closed
 
 
 class Runner:
@@ -288,7 +307,7 @@ class Runner:
                 log=f"started{again}",
             ):
                 continue
-            cancel = Cancel()
+            cancel = _JobCancel(self.table, job.id)
             thread = threading.Thread(
                 target=self._run, args=(job, cancel), name=f"job-{job.id}", daemon=True
             )
@@ -337,6 +356,7 @@ class Runner:
                 JobState.FAILED,
                 finished=time.time(),
                 message=message,
+                phase=None,
                 log=f"failed: {message}",
                 level="error",
             )
@@ -346,7 +366,7 @@ class Runner:
             for samples in result.problems().values()
             for sample, reason in samples
         }
-        finished = {"errors": errors, "finished": time.time()}
+        finished = {"errors": errors, "finished": time.time(), "phase": None}
         for kind, samples in result.problems().items():
             sample, reason = samples[0]
             self.table.log(

@@ -25,14 +25,17 @@ _SCHEMA = (
     submitted REAL NOT NULL, started REAL, finished REAL, total INTEGER NOT NULL,
     done INTEGER NOT NULL DEFAULT 0, rate REAL NOT NULL DEFAULT 0, message TEXT,
     errors TEXT NOT NULL DEFAULT '{}', interrupted INTEGER NOT NULL DEFAULT 0,
-    submission_id TEXT
+    submission_id TEXT, phase TEXT
 )""",
     """CREATE TABLE IF NOT EXISTS job_log (
     job TEXT NOT NULL, time REAL NOT NULL, level TEXT NOT NULL, message TEXT NOT NULL
 )""",
     "CREATE INDEX IF NOT EXISTS job_log_job ON job_log (job)",
 )
-_MIGRATIONS = {"submission_id": "ALTER TABLE jobs ADD COLUMN submission_id TEXT"}
+_MIGRATIONS = {
+    "submission_id": "ALTER TABLE jobs ADD COLUMN submission_id TEXT",
+    "phase": "ALTER TABLE jobs ADD COLUMN phase TEXT",
+}
 """Columns added since the first job tables, and how an older table gains each."""
 IDENTITY = 68
 """Offset [bytes] of the table's identity in its file: SQLite's header field
@@ -251,6 +254,6 @@ class JobTable:
         """Queue again, to resume, the jobs a previous service left running; how many."""
         with self._lock:
             return self._db.execute(
-                "UPDATE jobs SET state = ?, interrupted = 1 WHERE state = ?",
+                "UPDATE jobs SET state = ?, interrupted = 1, phase = NULL WHERE state = ?",
                 (str(JobState.QUEUED), str(JobState.RUNNING)),
             ).rowcount

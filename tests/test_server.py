@@ -30,6 +30,9 @@ from conftest import (
 )
 
 from service.cli import main
+from service.cli.job_commands import _line
+from service.pages import job_page
+from service.server import HEADER_TIMEOUT
 from service.store.location import KIND, Store
 from service.store.template import OWNER
 
@@ -351,7 +354,9 @@ def test_half_sent_requests_exhaust_no_descriptor_and_fail_no_job(tmp_path):
         # a client that sends its request at once is answered meanwhile
         assert server.request("GET", "/v1/health")[0] == 200
         # and the half-sent ones are closed, the last within the header deadline
+        deadline = time.monotonic() + 4 * HEADER_TIMEOUT
         for attacker in attackers:
+            attacker.settimeout(max(0.01, deadline - time.monotonic()))
             with contextlib.suppress(ConnectionResetError):
                 while attacker.recv(4096):  # until the service closes it (503s read past)
                     pass
@@ -512,7 +517,7 @@ def test_the_job_page_follows_its_events_and_its_owner_cancels_it(service):
     for fact in ("rate", "time left", "started", "elapsed", "data-field='elapsed'"):
         assert fact in text, fact
     assert '<script src="/job.js" defer></script>' in text
-    assert f"<form method='post' action='{path}/cancel'>" in text
+    assert f"<form class='cancel' method='post' action='{path}/cancel'>" in text
     csrf = re.search(r"name='csrf' value='([0-9a-f]{64})'", text).group(1)
     assert "script-src 'self'" in headers["content-security-policy"]
     assert headers["x-frame-options"] == "DENY"
@@ -758,6 +763,8 @@ def test_page_shows_the_job_in_a_browser(open_service, tmp_path):
     page = chromium("--dump-dom", f"{open_service.url}/jobs/{job['id']}", folder=tmp_path)
     assert "succeeded" in page and "target.shape" in page  # its parameters
     assert f"/jobs/{job['id']}/statistics.png" in page and f"/jobs/{job['id']}/preview.png" in page
+    for picture in ("statistics", "preview"):  # drawn (the page has loaded): no placeholder
+        assert re.search(f'<p class="placeholder" id="{picture}-placeholder" hidden', page)
     for picture in ("statistics", "preview"):
         with urllib.request.urlopen(f"{open_service.url}/jobs/{job['id']}/{picture}.png") as r:
             assert r.headers["content-type"] == "image/png"
@@ -1010,6 +1017,14 @@ def test_a_job_writing_its_statistics_can_no_longer_be_cancelled(tmp_path, threa
             job, _ = runner.submit(sweep("late.zarr", realisations=1), owner="alice")
             assert writing.wait(120)
             assert not runner.cancel(job.id)  # the samples are written: too late
+            # and the job, its page and `status` say what it does (issue #37 item 13)
+            held = runner.table.get(job.id)
+            assert (held.state, held.phase) == ("running", "writing statistics"), held
+            page = job_page(held, viewer="alice", csrf="0" * 64)
+            assert "<span data-field='state'>running: writing statistics</span>" in page
+            assert "<span data-field='left'>0 s (writing statistics)</span>" in page
+            assert "cancel the job" not in page
+            assert ", writing statistics  " in _line(held.public())
             release.set()
             deadline = time.monotonic() + 120
             while not runner.table.get(job.id).state.final and time.monotonic() < deadline:
@@ -1018,7 +1033,49 @@ def test_a_job_writing_its_statistics_can_no_longer_be_cancelled(tmp_path, threa
             release.set()
             runner.stop()
     assert runner.table.get(job.id).state == "succeeded"
+    assert runner.table.get(job.id).phase is None
     assert Store(job.url).stats.attributes()[KIND] == "statistics"
+    assert "writing the statistics" in " ".join(
+        line["message"] for line in runner.table.lines(job.id)
+    )
+
+
+@pytest.mark.parametrize(
+    "state, rate, left",
+    [
+        ("succeeded", "2.50 samples/s", "0 s"),
+        ("cancelled", "2.50 samples/s", "none (cancelled)"),
+        ("failed", "2.50 samples/s", "none (failed)"),
+        ("queued", "-", "-"),
+    ],
+)
+def test_a_finished_jobs_page_shows_its_rate_and_no_time_left(state, rate, left):
+    """Issue #37 item 13: a finished job showed "-" for both; a succeeded one's pictures
+    show a placeholder until they are drawn (seconds, the first time)."""
+    from service.records import Job, JobState
+
+    job = Job(
+        id="0123456789ab",
+        owner="alice",
+        name="x",
+        state=JobState(state),
+        mode="new",
+        sweep="",
+        output="x.zarr",
+        url="x.zarr",
+        submitted=100.0,
+        started=None if state == "queued" else 110.0,
+        finished=None if state == "queued" else 130.0,
+        total=50,
+        done=0 if state == "queued" else 50,
+        rate=0.0 if state == "queued" else 2.5,
+    )
+    page = job_page(job, viewer="alice", csrf="0" * 64)
+    assert f"<span data-field='rate'>{rate}</span>" in page
+    assert f"<span data-field='left'>{left}</span>" in page
+    placeholders = re.findall(r"<p class='placeholder' id='(\w+)-placeholder'>drawing", page)
+    assert placeholders == (["statistics", "preview"] if state == "succeeded" else [])
+    assert ('<script src="/job.js"' in page) == (state in ("succeeded", "queued"))
 
 
 def get_concurrently(url, paths, headers=None):

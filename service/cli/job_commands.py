@@ -115,8 +115,10 @@ def _request(args, method: str, path: str, body: bytes | None = None, *, stream=
 def _line(job: dict) -> str:
     done, total = job["samples"]["done"], job["samples"]["total"]
     left = f", {job['seconds_left']:.0f} s left" if job.get("seconds_left") is not None else ""
+    phase = f", {job['phase']}" if job.get("phase") else ""
     return (
-        f"{job['id']}  {job['state']:<9}  {done}/{total} samples  {job['rate']:.2f}/s{left}  "
+        f"{job['id']}  {job['state']:<9}  {done}/{total} samples{phase}  "
+        f"{job['rate']:.2f}/s{left}  "
         f"{job['name']} -> {job['url']}"
     )
 
