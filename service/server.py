@@ -10,9 +10,13 @@ send (no cross-site request forgery through the cookie). The one exception, a jo
 cancel form (``POST /jobs/ID/cancel``), carries a token derived from the cookie that only
 the service's own pages hold (`service.pages.csrf_token`), and is refused from another
 origin. Every answer forbids framing, sniffing and anything
-the pages do not load from the service itself (`SECURITY_HEADERS`). A service whose job
-table was lost (the file deleted or replaced while it serves) answers ``503`` everywhere,
-health included.
+the pages do not load from the service itself (`SECURITY_HEADERS`). No request that changes
+something is taken from another site's page: a foreign ``Origin`` is refused, and a
+submission must carry a type no page may post unasked (`SWEEP_TYPES`); a service without
+tokens answers a loopback ``Host`` alone (`_loopback_only`: DNS rebinding). Connections are
+bounded in number and in the time they take to send their headers (`_Connection`). A
+service whose job table was lost (the file deleted, replaced, overwritten or truncated
+while it serves) answers ``503`` everywhere, health included.
 """
 
 from __future__ import annotations
