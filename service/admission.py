@@ -221,8 +221,10 @@ def confine_output(output: str, data_root: str) -> str:
     Raises
     ------
     UnusableOutputError
-        If `output` is a URL (chained ``::`` ones included) or an absolute path, or climbs
-        out of `data_root`, as written or through links.
+        If `output` is a URL (chained ``::`` ones included) or an absolute path, climbs
+        out of `data_root`, as written or through links, or lies under (or is) a symbolic
+        link of a local `data_root` (wherever it leads: a link planted later could lead
+        out; the service checks again as the job starts, `service.jobs.Runner`).
     """
     if any(ord(character) < 32 for character in output):
         raise UnusableOutputError(
@@ -249,6 +251,13 @@ def confine_output(output: str, data_root: str) -> str:
             raise UnusableOutputError(
                 f"output: {shown(output)} leads out of the service's data root"
             )
+        parts = normal.split(os.sep)
+        for depth in range(1, len(parts) + 1):
+            if os.path.islink(os.path.join(data_root, *parts[:depth])):
+                raise UnusableOutputError(
+                    f"output: {shown(output)} lies under the symbolic link "
+                    f"{shown(os.path.join(*parts[:depth]))} of the data root; outputs may not"
+                )
     return url
 
 

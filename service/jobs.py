@@ -27,7 +27,7 @@ import threading
 import time
 import uuid
 
-from service.admission import SERVICE, admit_header, admit_job, parents
+from service.admission import SERVICE, admit_header, admit_job, confine_output, parents
 from service.devices import NUMPY
 from service.errors import (
     BadOptionError,
@@ -36,7 +36,7 @@ from service.errors import (
     SubmissionConflictError,
 )
 from service.inputs import shown
-from service.records import ACTIVE, Job, JobState
+from service.records import ACTIVE, WRITING_STATISTICS, Job, JobState
 from service.run import Cancel, execute
 from service.store.template import OWNER
 from service.sweep import parse_sweep
@@ -62,6 +62,25 @@ class QueueFullError(RuntimeError):
 
 class ForbiddenError(RuntimeError):
     """A submitter acts on another owner's job or store."""
+
+
+class _JobCancel(Cancel):
+    """A job's `Cancel`, which marks the job `WRITING_STATISTICS` as the run closes it.
+
+    The run closes it once its samples are written; the phase is then in the table, for
+    the API, the job page and ``oceanlidar status``.
+    """
+
+    def __init__(self, table, job_id: str):
+        super().__init__()
+        self.table, self.job_id = table, job_id
+
+    def close(self) -> bool:
+        closed = super().close()
+        if closed:
+            self.table.update(self.job_id, phase=WRITING_STATISTICS)
+            self.table.log(self.job_id, "every sample written: writing the statistics")
+        return closed
 
 
 class Runner:
@@ -288,7 +307,7 @@ class Runner:
                 log=f"started{again}",
             ):
                 continue
-            cancel = Cancel()
+            cancel = _JobCancel(self.table, job.id)
             thread = threading.Thread(
                 target=self._run, args=(job, cancel), name=f"job-{job.id}", daemon=True
             )
@@ -305,6 +324,9 @@ class Runner:
                 self.table.log(job.id, f"{done}/{job.total} samples written, {rate:.2f}/s")
 
         try:
+            # a symbolic link planted in the data root since the job was admitted could
+            # lead its output out of it: the output is confined again as it starts
+            confine_output(job.output, self.data_root.url)
             plan = parse_sweep(job.sweep, folder=self.data_root.url, max_memory=None)
             store = self.data_root.other(job.url)
             # an interrupted job resumes its own store (this sweep's, by its hash); one that
@@ -334,6 +356,7 @@ class Runner:
                 JobState.FAILED,
                 finished=time.time(),
                 message=message,
+                phase=None,
                 log=f"failed: {message}",
                 level="error",
             )
@@ -343,7 +366,7 @@ class Runner:
             for samples in result.problems().values()
             for sample, reason in samples
         }
-        finished = {"errors": errors, "finished": time.time()}
+        finished = {"errors": errors, "finished": time.time(), "phase": None}
         for kind, samples in result.problems().items():
             sample, reason = samples[0]
             self.table.log(

@@ -2,11 +2,13 @@
 
 HTML built from the `service.records.Job`s the server reads, every text escaped. A job's
 page fits a 1000 px window (long paths and sweeps wrap, pictures shrink to its width) and
-shows its state, progress, rate, time left, start and elapsed times; while the job is
-unfinished `SCRIPT` (served by the service itself, as its content security policy asks)
-follows the job's event stream (``GET /v1/jobs/ID/events``) instead of reloading the page.
-Its owner cancels it with a form that carries a token derived from the login cookie
-(`csrf_token`): another site's page can neither read that token nor send the cookie.
+shows its state (with its phase: ``writing statistics``), progress, rate, time left, start
+and elapsed times, and once it has succeeded its pictures, each behind a placeholder until
+it is drawn; while the job is unfinished `SCRIPT` (served by the service itself, as its
+content security policy asks) follows the job's event stream (``GET /v1/jobs/ID/events``)
+instead of reloading the page. Its owner cancels it with a form that carries a token
+derived from the login cookie (`csrf_token`): another site's page can neither read that
+token nor send the cookie.
 """
 
 from __future__ import annotations
@@ -70,17 +72,40 @@ function set(field, text) {
   if (element) element.textContent = text;
 }
 
+// as job_page writes them (service/pages.py: shown_state, shown_rate, shown_left)
+function left() {
+  if (job.phase) return `0 s (${job.phase})`;
+  if (job.state === "running") return duration(job.seconds_left);
+  if (job.state === "succeeded") return "0 s";
+  return FINAL.includes(job.state) ? `none (${job.state})` : "-";
+}
+
 function show() {
   const bar = page.querySelector("progress");
   bar.max = job.samples.total;
   bar.value = job.samples.done;
-  set("state", job.state);
+  set("state", job.phase ? `${job.state}: ${job.phase}` : job.state);
   set("samples", `${job.samples.done}/${job.samples.total} samples`);
-  set("rate", job.state === "running" ? `${job.rate.toFixed(2)} samples/s` : "-");
-  set("left", duration(job.seconds_left));
+  set("rate", job.rate > 0 ? `${job.rate.toFixed(2)} samples/s` : "-");
+  set("left", left());
   set("started", when(job.started));
   const end = job.finished || Date.now() / 1000;
   set("elapsed", job.started ? duration(end - job.started) : "-");
+  const cancel = page.querySelector("form.cancel");
+  if (cancel && job.phase) cancel.hidden = true;  // too late to cancel
+}
+
+// a picture is drawn the first time it is asked for: its placeholder says so until then
+for (const picture of document.querySelectorAll("img[data-picture]")) {
+  const note = document.getElementById(`${picture.id}-placeholder`);
+  const drawn = () => { note.hidden = true; };
+  const failed = () => { note.textContent = `the ${picture.alt} could not be drawn`; };
+  if (picture.complete) {
+    (picture.naturalWidth ? drawn : failed)();
+  } else {
+    picture.addEventListener("load", drawn);
+    picture.addEventListener("error", failed);
+  }
 }
 
 if (page && !FINAL.includes(page.dataset.state)) {
@@ -133,8 +158,36 @@ def duration(seconds: float | None) -> str:
     return shown + f"{seconds % 60} s"
 
 
+def shown_state(job: Job) -> str:
+    """A job's state as its page shows it, with its phase (``running: writing statistics``)."""
+    return f"{job.state}: {job.phase}" if job.phase else str(job.state)
+
+
+def shown_rate(job: Job) -> str:
+    """A job's rate (samples/s of its run) as its page shows it, finished or not."""
+    return f"{job.rate:.2f} samples/s" if job.rate > 0 else "-"
+
+
+def shown_left(job: Job) -> str:
+    """A job's time left as its page shows it.
+
+    None once finished (0 s if it succeeded), 0 s while its statistics are written, ``-``
+    while nothing says.
+    """
+    if job.phase:
+        return f"0 s ({job.phase})"
+    if job.state is JobState.RUNNING:
+        return duration(job.public()["seconds_left"])
+    if job.state is JobState.SUCCEEDED:
+        return "0 s"
+    return f"none ({job.state})" if job.state.final else "-"
+
+
 def page(title: str, body: str, *, refresh: bool = False, script: bool = False) -> str:
-    """A whole page; `refresh` reloads it every 3 s, `script` loads the live view."""
+    """A whole page; `refresh` reloads it every 3 s, `script` loads `SCRIPT`.
+
+    `SCRIPT` is the live view and hides the pictures' placeholders once they are drawn.
+    """
     meta = '<meta http-equiv="refresh" content="3">' if refresh else ""
     meta += '<script src="/job.js" defer></script>' if script else ""
     return (
@@ -174,18 +227,16 @@ def job_page(job: Job, *, viewer: str, csrf: str) -> str:
     csrf : str
         The viewer's `csrf_token`, carried by the cancel form.
     """
-    public = job.public()
     end = job.finished or time.time()
-    rate = f"{job.rate:.2f} samples/s" if job.state is JobState.RUNNING else "-"
     facts = [
-        ("state", f"<span data-field='state'>{job.state}</span>"),
+        ("state", f"<span data-field='state'>{shown_state(job)}</span>"),
         (
             "progress",
             f"<progress value='{job.done}' max='{job.total}'></progress> "
             f"<span data-field='samples'>{job.done}/{job.total} samples</span>",
         ),
-        ("rate", f"<span data-field='rate'>{rate}</span>"),
-        ("time left", f"<span data-field='left'>{duration(public['seconds_left'])}</span>"),
+        ("rate", f"<span data-field='rate'>{shown_rate(job)}</span>"),
+        ("time left", f"<span data-field='left'>{shown_left(job)}</span>"),
         ("submitted", when(job.submitted)),
         ("started", f"<span data-field='started'>{when(job.started)}</span>"),
         (
@@ -198,9 +249,9 @@ def job_page(job: Job, *, viewer: str, csrf: str) -> str:
     ]
     rows = "".join(f"<tr><th>{name}</th><td>{value}</td></tr>" for name, value in facts)
     parts = [f"<table class='facts'>{rows}</table>"]
-    if not job.state.final and viewer == job.owner:
+    if not job.state.final and viewer == job.owner and not job.phase:
         parts.append(
-            f"<form method='post' action='/jobs/{job.id}/cancel'>"
+            f"<form class='cancel' method='post' action='/jobs/{job.id}/cancel'>"
             f"<input type='hidden' name='csrf' value='{csrf}'>"
             "<button>cancel the job</button></form>"
         )
@@ -211,36 +262,48 @@ def job_page(job: Job, *, viewer: str, csrf: str) -> str:
         parts.append(f"<ul class='errors'>{errors}</ul>")
     if job.state is JobState.SUCCEEDED:
         parts += [
-            f"<h2>statistics</h2><img id='statistics' src='/jobs/{job.id}/statistics.png'"
-            " alt='statistics plot'>",
-            f"<h2>first samples</h2><img id='preview' src='/jobs/{job.id}/preview.png'"
-            " alt='preview strip'>",
+            f"<h2>{heading}</h2><p class='placeholder' id='{kind}-placeholder'>drawing the "
+            f"{alt} (a few seconds, the first time it is shown)…</p><img id='{kind}' "
+            f"data-picture src='/jobs/{job.id}/{kind}.png' alt='{alt}'>"
+            for heading, kind, alt in (
+                ("statistics", "statistics", "statistics plot"),
+                ("first samples", "preview", "preview strip"),
+            )
         ]
     parts.append(f"<h2>sweep</h2><pre class='sweep'>{html.escape(job.sweep)}</pre>")
     body = f"<div data-job='{job.id}' data-state='{job.state}'>{''.join(parts)}</div>"
     title = f"oceanlidar job {job.id}: {html.escape(job.name)}"
-    return page(title, body, script=not job.state.final)
+    live = not job.state.final or job.state is JobState.SUCCEEDED  # events, or placeholders
+    return page(title, body, script=live)
 
 
-def same_origin(headers) -> bool:
-    """Whether a form comes from this service's own pages (by ``Origin`` and ``Sec-Fetch-Site``).
+def same_origin(headers, *, required: bool = True) -> bool:
+    """Whether a request comes from this service's own pages (``Origin``, ``Sec-Fetch-Site``).
 
-    Browsers send ``Origin`` with every ``POST``; one that names another host (or ``null``)
-    is another site's, as is a ``Sec-Fetch-Site`` other than ``same-origin``. A form with
-    neither header came from no browser page and is refused too (scripts cancel through the
-    API's ``DELETE`` with a token).
+    Browsers send ``Origin`` with every ``POST``: one that names another host is another
+    site's, as is a ``Sec-Fetch-Site`` other than ``same-origin`` (or ``none``, a request the
+    user made). ``Origin: null`` is what a sandboxed frame of any site sends (and every form,
+    under ``Referrer-Policy: no-referrer``): it passes only where the browser vouches for
+    the page with ``Sec-Fetch-Site: same-origin``, a header no page can set. With
+    `required`, a request with neither header (it came from no browser page) is refused too
+    (scripts cancel through the API's ``DELETE`` with a token); without, it passes (the
+    API's clients are no browsers).
 
     Parameters
     ----------
     headers : Mapping
         The request's headers (lower-case names).
+    required : bool, optional
+        Whether a request must say where it comes from.
     """
     origin, site = headers.get("origin"), headers.get("sec-fetch-site")
     if origin is None and site is None:
+        return not required
+    if site not in (None, "same-origin", "none"):
         return False
-    if origin is not None and urllib.parse.urlsplit(origin).netloc != headers.get("host"):
-        return False
-    return site in (None, "same-origin", "none")
+    if origin == "null":
+        return site == "same-origin"
+    return origin is None or urllib.parse.urlsplit(origin).netloc == headers.get("host")
 
 
 FORM_BYTES = 4096

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     import numpy as np
 
-__all__ = ["ACTIVE", "Job", "JobState", "RunResult"]
+__all__ = ["ACTIVE", "WRITING_STATISTICS", "Job", "JobState", "RunResult"]
 
 
 class JobState(StrEnum):
@@ -44,6 +44,9 @@ class JobState(StrEnum):
 
 ACTIVE = (JobState.VALIDATING, JobState.QUEUED, JobState.RUNNING)
 """The states of unfinished jobs (each holds its output: no other job may write it)."""
+WRITING_STATISTICS = "writing statistics"
+"""The phase of a running job whose samples are all written (`Job.phase`): it can no longer
+be cancelled, and ends when its statistics are written."""
 
 
 @dataclass
@@ -76,6 +79,8 @@ class Job:
     submission_id : str or None
         The submitter's id of the submission (`service.jobs.SUBMISSION_ID`): the same id
         from the same owner answers this job again.
+    phase : str or None
+        What a running job does, if not rendering samples: `WRITING_STATISTICS`.
     """
 
     id: str
@@ -96,6 +101,7 @@ class Job:
     errors: dict[str, str] = field(default_factory=dict)
     interrupted: bool = False
     submission_id: str | None = None
+    phase: str | None = None
 
     @classmethod
     def from_row(cls, row: dict) -> Job:
@@ -143,6 +149,7 @@ class Job:
             "resumed": self.interrupted,
             "errors": self.errors,
             "submission_id": self.submission_id,
+            "phase": self.phase,
         }
 
 

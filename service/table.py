@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import fcntl
 import os
+import secrets
 import sqlite3
 import threading
 import time
@@ -24,21 +25,32 @@ _SCHEMA = (
     submitted REAL NOT NULL, started REAL, finished REAL, total INTEGER NOT NULL,
     done INTEGER NOT NULL DEFAULT 0, rate REAL NOT NULL DEFAULT 0, message TEXT,
     errors TEXT NOT NULL DEFAULT '{}', interrupted INTEGER NOT NULL DEFAULT 0,
-    submission_id TEXT
+    submission_id TEXT, phase TEXT
 )""",
     """CREATE TABLE IF NOT EXISTS job_log (
     job TEXT NOT NULL, time REAL NOT NULL, level TEXT NOT NULL, message TEXT NOT NULL
 )""",
     "CREATE INDEX IF NOT EXISTS job_log_job ON job_log (job)",
 )
-_MIGRATIONS = {"submission_id": "ALTER TABLE jobs ADD COLUMN submission_id TEXT"}
+_MIGRATIONS = {
+    "submission_id": "ALTER TABLE jobs ADD COLUMN submission_id TEXT",
+    "phase": "ALTER TABLE jobs ADD COLUMN phase TEXT",
+}
 """Columns added since the first job tables, and how an older table gains each."""
+IDENTITY = 68
+"""Offset [bytes] of the table's identity in its file: SQLite's header field
+``application_id``, 4 random bytes drawn when the table is made (an older table gets them
+when it is opened). Read from the file itself at every look (`JobTable.lost`), not through
+SQLite, which may answer from its cache of the file it opened."""
 _LOG = "INSERT INTO job_log (job, time, level, message) VALUES (?, ?, ?, ?)"
 _UNIQUE = "CREATE UNIQUE INDEX IF NOT EXISTS jobs_submission ON jobs (owner, submission_id)"
 
 
 class JobTable:
     """Jobs in an SQLite file, safe to use from several threads, owned by one service.
+
+    The file carries the table's identity (`IDENTITY`): a file copied over it or
+    truncated is noticed (`lost`).
 
     The service holds an exclusive lock (``flock``) on the database file itself while the
     table is open: a second service is refused whatever path reaches the file (a symbolic
@@ -87,17 +99,37 @@ class JobTable:
                 if column not in columns:
                     self._query(statement)
             self._query(_UNIQUE)
+            self._identity = self._identify()
         except sqlite3.DatabaseError as error:  # a file that is not a job table
             self._db.close()
             os.close(self._owner)
             raise BadFileError(f"--db {path}: not an SQLite job table ({error})") from None
+        self._lost: str | None = None
+
+    def _identify(self) -> bytes:
+        """The table's identity (`IDENTITY`) as its file holds it; drawn for a table without.
+
+        The header is checkpointed out of the write-ahead log into the file first.
+        """
+        if not self._query("PRAGMA application_id")[0]["application_id"]:
+            self._query(f"PRAGMA application_id = {secrets.randbelow(2**31 - 1) + 1}")
+        self._query("PRAGMA wal_checkpoint(TRUNCATE)")
+        return os.pread(self._owner, 4, IDENTITY)
 
     def lost(self) -> str | None:
-        """Why the table is no longer the file at its path (deleted, replaced); None if it is.
+        """Why the table is no longer the file at its path; None if it is.
 
-        A service whose table was lost would forget every job and owner at its next start:
-        it must not go on (the server answers ``503``, `service.server`).
+        Deleted, replaced by another file (``mv``), or overwritten or truncated in place
+        (``cp other.sqlite``, ``truncate``: the file's `IDENTITY` differs). A service whose
+        table was lost would forget every job and owner at its next start: it must not go
+        on (the server answers ``503``, `service.server`); once lost, always lost (a table
+        put back is not trusted: restart the service on it).
         """
+        if self._lost is None:
+            self._lost = self._missing()
+        return self._lost
+
+    def _missing(self) -> str | None:
         held = os.fstat(self._owner)
         try:
             there = os.stat(self.path)
@@ -105,6 +137,11 @@ class JobTable:
             return f"the job table --db {self.path} is gone ({error.strerror})"
         if (there.st_dev, there.st_ino) != (held.st_dev, held.st_ino):
             return f"the job table --db {self.path} was replaced by another file"
+        if os.pread(self._owner, 4, IDENTITY) != self._identity:
+            return (
+                f"the job table --db {self.path} was overwritten or truncated in place (it "
+                "no longer holds this service's table)"
+            )
         return None
 
     def _query(self, sql: str, parameters=()) -> list[dict]:
@@ -217,6 +254,6 @@ class JobTable:
         """Queue again, to resume, the jobs a previous service left running; how many."""
         with self._lock:
             return self._db.execute(
-                "UPDATE jobs SET state = ?, interrupted = 1 WHERE state = ?",
+                "UPDATE jobs SET state = ?, interrupted = 1, phase = NULL WHERE state = ?",
                 (str(JobState.QUEUED), str(JobState.RUNNING)),
             ).rowcount

@@ -5,6 +5,7 @@ import http.client
 import json
 import os
 import re
+import resource
 import shutil
 import signal
 import socket
@@ -18,6 +19,7 @@ import urllib.parse
 import urllib.request
 
 import pytest
+from browser import FLAGS, Browser, chromium_binary
 from conftest import (
     TINY_SWEEP,
     assert_same_samples,
@@ -28,6 +30,9 @@ from conftest import (
 )
 
 from service.cli import main
+from service.cli.job_commands import _line
+from service.pages import job_page
+from service.server import HEADER_TIMEOUT
 from service.store.location import KIND, Store
 from service.store.template import OWNER
 
@@ -43,8 +48,9 @@ def sweep(output, *, realisations=LONG, name="served"):
 class Server:
     """An `oceanlidar serve` process in its own process group (its workers with it)."""
 
-    def __init__(self, folder, *args, token=TOKEN):
+    def __init__(self, folder, *args, token=TOKEN, descriptors=None):
         self.folder, self.args, self.token = folder, args, token
+        self.descriptors = descriptors  # its RLIMIT_NOFILE, if not this process's
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.process = None
@@ -73,6 +79,7 @@ class Server:
             stdout=self.log,
             stderr=self.log,
             start_new_session=True,
+            preexec_fn=None if self.descriptors is None else self._limit,
         )
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:
@@ -83,8 +90,13 @@ class Server:
             time.sleep(0.2)
         raise AssertionError("the server did not answer within 60 s")
 
+    def _limit(self):
+        resource.setrlimit(resource.RLIMIT_NOFILE, (self.descriptors, self.descriptors))
+
     def request(self, method, path, body=None, *, token=None):
         request = urllib.request.Request(self.url + path, data=body, method=method)
+        if body is not None:
+            request.add_header("Content-Type", "application/yaml")
         if token or self.token:
             request.add_header("Authorization", f"Bearer {token or self.token}")
         try:
@@ -323,6 +335,45 @@ def test_sigkill_mid_job_then_restart_resumes(reference, tmp_path, monkeypatch, 
         server.stop()
 
 
+def test_half_sent_requests_exhaust_no_descriptor_and_fail_no_job(tmp_path):
+    """Issue #37 item 9: a client that opens connections and never ends its request's
+    headers held a descriptor each until the service had none (``EMFILE``): its health
+    check timed out, its running job failed and its log filled with tracebacks."""
+    descriptors = 256
+    held = descriptors + 100
+    server = Server(tmp_path, "--max-running", "1", descriptors=descriptors)
+    attackers = []
+    try:
+        server.start()
+        job_id = server.submit(sweep("held.zarr", realisations=2000))[1]["id"]
+        server.wait(job_id, lambda job: job["samples"]["done"] >= 1)
+        for _ in range(held):
+            attacker = socket.create_connection(("127.0.0.1", server.port), timeout=30)
+            attacker.sendall(b"GET /v1/health HTTP/1.1\r\nHost: 127.0.0.1\r\n")
+            attackers.append(attacker)
+        # a client that sends its request at once is answered meanwhile
+        assert server.request("GET", "/v1/health")[0] == 200
+        # and the half-sent ones are closed, the last within the header deadline
+        deadline = time.monotonic() + 4 * HEADER_TIMEOUT
+        for attacker in attackers:
+            attacker.settimeout(max(0.01, deadline - time.monotonic()))
+            with contextlib.suppress(ConnectionResetError):
+                while attacker.recv(4096):  # until the service closes it (503s read past)
+                    pass
+        during = server.job(job_id)
+        assert during["state"] == "running" and during["errors"] == {}, during
+        server.wait(job_id, lambda job: job["samples"]["done"] > during["samples"]["done"])
+        assert server.request("DELETE", f"/v1/jobs/{job_id}")[0] == 200
+        job = server.wait(job_id, finished)
+        assert job["state"] == "cancelled" and job["errors"] == {}, job
+    finally:
+        for attacker in attackers:
+            attacker.close()
+        server.stop()
+    log = (tmp_path / "server.log").read_text()
+    assert "Traceback" not in log and len(log) < 10_000, log[-3000:]
+
+
 def test_a_terminated_service_closes_its_cluster_and_exits_0(tmp_path):
     # issue #27: uvicorn raised the SIGTERM it had caught again under the system's default
     # handler, which ended the process before its cluster closed: killed by the signal,
@@ -417,20 +468,18 @@ def test_bad_serve_settings_are_refused_before_anything_is_made(cli, tmp_path, s
 def test_the_cookie_only_reads_and_pages_are_not_framed(service):
     """A page of another site (another port of this host) cannot submit with the cookie."""
     before = len(service.request("GET", "/v1/jobs")[1]["jobs"])
-    forged = {
-        "Cookie": f"oceanlidar_token={TOKEN}",
-        "Content-Type": "text/plain",
-        "Origin": f"http://127.0.0.1:{free_port()}",
-    }
+    cookie = {"Cookie": f"oceanlidar_token={TOKEN}", "Content-Type": "application/yaml"}
+    foreign = {"Origin": f"http://127.0.0.1:{free_port()}"}
     connection = http.client.HTTPConnection("127.0.0.1", service.port, timeout=30)
     for method, path, body in [
         ("POST", "/v1/jobs?mode=overwrite", sweep("forged.zarr", realisations=1)),
         ("DELETE", "/v1/jobs/0123456789ab", None),
     ]:
-        connection.request(method, path, body=body, headers=forged)
-        answer = connection.getresponse()
-        assert answer.status == 401, (method, answer.read())
-        answer.read()
+        for headers, refused in [(cookie, 401), ({**cookie, **foreign}, 403)]:
+            connection.request(method, path, body=body, headers=headers)
+            answer = connection.getresponse()
+            assert answer.status == refused, (method, headers, answer.read())
+            answer.read()
     assert len(service.request("GET", "/v1/jobs")[1]["jobs"]) == before
     for path in ("/", "/v1/jobs"):  # the cookie reads pages and the API
         connection.request("GET", path, headers={"Cookie": f"oceanlidar_token={TOKEN}"})
@@ -468,7 +517,7 @@ def test_the_job_page_follows_its_events_and_its_owner_cancels_it(service):
     for fact in ("rate", "time left", "started", "elapsed", "data-field='elapsed'"):
         assert fact in text, fact
     assert '<script src="/job.js" defer></script>' in text
-    assert f"<form method='post' action='{path}/cancel'>" in text
+    assert f"<form class='cancel' method='post' action='{path}/cancel'>" in text
     csrf = re.search(r"name='csrf' value='([0-9a-f]{64})'", text).group(1)
     assert "script-src 'self'" in headers["content-security-policy"]
     assert headers["x-frame-options"] == "DENY"
@@ -485,6 +534,9 @@ def test_the_job_page_follows_its_events_and_its_owner_cancels_it(service):
     forged = [
         (TOKEN, {"csrf": csrf}, cross, 403),  # another site's page: refused by origin
         (TOKEN, {"csrf": csrf}, {"Sec-Fetch-Site": "cross-site"}, 403),
+        # a sandboxed frame of any site posts with Origin: null
+        (TOKEN, {"csrf": csrf}, {"Origin": "null"}, 403),
+        (TOKEN, {"csrf": csrf}, {"Origin": "null", "Sec-Fetch-Site": "cross-site"}, 403),
         (TOKEN, {"csrf": csrf}, {"Referer": "http://evil.example/"}, 403),  # names no origin
         (TOKEN, {}, own, 403),  # no form token: the cookie alone is not enough
         (TOKEN, {"csrf": "0" * 64}, own, 403),
@@ -634,22 +686,81 @@ def test_queue_limit_is_429(open_service):
     assert open_service.wait(job["id"], finished)["state"] == "succeeded"
 
 
-def chromium(*args, folder):
-    binary = shutil.which("chromium") or shutil.which("chromium-browser")
-    if binary is None:
-        pytest.skip("no chromium binary (apt-get install chromium); the page is not tested")
-    command = [
-        binary,
-        "--headless",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--disable-background-networking",
-        "--disable-component-update",
-        "--disable-sync",
-        "--no-first-run",
-        f"--user-data-dir={folder / 'profile'}",
-        *args,
+def test_a_server_without_tokens_refuses_other_sites_and_other_hosts(open_service, tmp_path):
+    """Issue #37 item 8: no cross-site or DNS-rebinding write reaches a ``--no-auth`` server.
+
+    A page another site serves may post a ``text/plain`` body without asking the service
+    (no CORS preflight); one whose name resolves to 127.0.0.1 (rebinding) sends its own
+    name as ``Host``.
+    """
+    before = open_service.request("GET", "/v1/jobs")[1]["jobs"]
+    port = open_service.port
+    text = sweep("first.zarr", realisations=1)
+    yaml = {"Content-Type": "application/yaml"}
+    refusals = [
+        ("POST", "/v1/jobs?mode=overwrite", {"Content-Type": "text/plain"}, 415),
+        ("POST", "/v1/jobs?mode=overwrite", {}, 415),
+        ("POST", "/v1/jobs", {"Content-Type": "application/x-www-form-urlencoded"}, 415),
+        ("POST", "/v1/jobs", {"Content-Type": "multipart/form-data; boundary=x"}, 415),
+        ("POST", "/v1/jobs?mode=overwrite", {**yaml, "Origin": "http://evil.example"}, 403),
+        ("POST", "/v1/jobs", {**yaml, "Origin": f"http://127.0.0.1:{free_port()}"}, 403),
+        ("POST", "/v1/jobs", {**yaml, "Origin": "null"}, 403),
+        ("POST", "/v1/jobs", {**yaml, "Sec-Fetch-Site": "cross-site"}, 403),
+        ("POST", "/v1/jobs", {**yaml, "Host": f"evil.example:{port}"}, 403),
+        ("POST", "/v1/jobs", {**yaml, "Host": f"127.0.0.1.evil.example:{port}"}, 403),
+        ("DELETE", "/v1/jobs/0123456789ab", {"Origin": "http://evil.example"}, 403),
+        ("DELETE", "/v1/jobs/0123456789ab", {"Host": "evil.example"}, 403),
+        ("GET", "/v1/jobs", {"Host": f"evil.example:{port}"}, 403),  # nor reads it
+        ("GET", "/", {"Host": "evil.example"}, 403),
     ]
+    connection = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
+    for method, path, headers, status in refusals:
+        body = text if method == "POST" else None
+        connection.request(method, path, body=body, headers=headers)
+        answer = connection.getresponse()
+        assert answer.status == status, (method, path, headers, answer.read())
+        assert json.loads(answer.read())["error"], headers
+    connection.close()
+    assert open_service.request("GET", "/v1/jobs")[1]["jobs"] == before
+    # the service's own names pass, whatever the port (an SSH tunnel's)
+    for host in (f"localhost:{port}", f"127.0.0.1:{port}", "localhost:9999"):
+        status, _, _ = page_request(open_service, "GET", "/", headers={"Host": host})
+        assert status == 200, host
+
+
+def test_the_cancel_button_works_in_a_browser(service, tmp_path):
+    """Issue #37 item 12: log in, open a running job's page, click cancel, read the page.
+
+    Under ``Referrer-Policy: no-referrer`` Chromium posted the form with ``Origin: null``,
+    which the service refused (403) for every click.
+    """
+    job_id = service.submit(sweep("clicked.zarr", realisations=1000))[1]["id"]
+    service.wait(job_id, lambda job: job["state"] == "running")
+    with Browser(tmp_path) as browser:
+        browser.go(f"{service.url}/login")
+        browser.evaluate(f"document.querySelector('input[name=token]').value = '{TOKEN}'")
+        browser.click("form button")
+        browser.wait("document.title === 'oceanlidar jobs'")
+        assert job_id in browser.evaluate("document.body.innerText")
+        browser.go(f"{service.url}/jobs/{job_id}")
+        assert browser.evaluate("document.querySelector('[data-field=state]').textContent") == (
+            "running"
+        )
+        browser.click("form[action$='/cancel'] button")
+        shown = browser.wait(
+            "document.title === 'refused' ? document.body.innerText : "
+            "document.querySelector('[data-field=state]')?.textContent === 'cancelled' && "
+            "location.pathname"
+        )
+        assert shown == f"/jobs/{job_id}", shown
+        assert "cancel the job" not in browser.evaluate("document.body.innerText")
+        message = browser.evaluate("document.querySelector('.message').textContent")
+    assert message.startswith("cancelled; submit it again with resume"), message
+    assert service.job(job_id)["state"] == "cancelled"
+
+
+def chromium(*args, folder):
+    command = [chromium_binary(), *FLAGS, f"--user-data-dir={folder / 'profile'}", *args]
     result = subprocess.run(command, capture_output=True, text=True, timeout=120, cwd=folder)
     assert result.returncode == 0, result.stderr
     return result.stdout
@@ -664,6 +775,8 @@ def test_page_shows_the_job_in_a_browser(open_service, tmp_path):
     page = chromium("--dump-dom", f"{open_service.url}/jobs/{job['id']}", folder=tmp_path)
     assert "succeeded" in page and "target.shape" in page  # its parameters
     assert f"/jobs/{job['id']}/statistics.png" in page and f"/jobs/{job['id']}/preview.png" in page
+    for picture in ("statistics", "preview"):  # drawn (the page has loaded): no placeholder
+        assert re.search(f'<p class="placeholder" id="{picture}-placeholder" hidden', page)
     for picture in ("statistics", "preview"):
         with urllib.request.urlopen(f"{open_service.url}/jobs/{job['id']}/{picture}.png") as r:
             assert r.headers["content-type"] == "image/png"
@@ -706,6 +819,51 @@ def test_outputs_stay_under_the_data_root(tmp_path):
     for output in [*ESCAPES, "memory::a.zarr", "a.zarr::s3://bucket", ".", "a/../.."]:
         with pytest.raises(InputError, match=r"^output: "):
             confine_output(output, str(root))
+    # a link that leads inside the data root is refused too (issue #37 item 10)
+    (root / "real").mkdir()
+    os.symlink(root / "real", root / "inner")
+    os.symlink(root / "real" / "b.zarr", root / "real" / "c.zarr")
+    assert confine_output("real/a.zarr", str(root)) == f"{root}/real/a.zarr"
+    for output, link in [("inner/a.zarr", "inner"), ("real/c.zarr", "real/c.zarr")]:
+        with pytest.raises(InputError, match=f"^output: .* the symbolic link '{link}'"):
+            confine_output(output, str(root))
+
+
+def test_a_link_planted_after_admission_leads_no_job_out(tmp_path, session_cluster):
+    """Issue #37 item 10: the output is confined again as the job starts."""
+    from service.jobs import Runner
+    from service.table import JobTable
+
+    data, outside = tmp_path / "data", tmp_path / "outside"
+    (data / "runs").mkdir(parents=True)
+    outside.mkdir()
+    table = JobTable(str(tmp_path / "jobs.sqlite"))
+    runner = Runner(
+        table,
+        session_cluster,
+        data_root=Store(str(data)),
+        max_running=0,  # validated and queued, not started
+        queue_limit=10,
+        batch_size=1,
+    )
+    runner.start()
+    try:
+        job, _ = runner.submit(sweep("runs/x.zarr", realisations=1), owner="alice")
+        deadline = time.monotonic() + 60
+        while table.get(job.id).state != "queued" and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert table.get(job.id).state == "queued"
+        (data / "runs").rmdir()
+        os.symlink(outside, data / "runs")
+        runner.max_running = 1
+        while not table.get(job.id).state.final and time.monotonic() < deadline + 60:
+            time.sleep(0.05)
+    finally:
+        runner.stop()
+    job = table.get(job.id)
+    assert job.state == "failed", job
+    assert job.message == "output: 'runs/x.zarr' leads out of the service's data root", job
+    assert os.listdir(outside) == []
 
 
 def test_an_object_storage_data_root_reads_no_measurement_file():
@@ -778,6 +936,42 @@ def test_one_service_a_table_whatever_path_reaches_it(tmp_path, link):
     assert "is gone" in table.lost()
 
 
+@pytest.mark.parametrize("how", ["copied over", "truncated"])
+def test_a_job_table_overwritten_in_place_is_lost(tmp_path, how):
+    """Issue #37 item 11: ``cp other.sqlite jobs.sqlite`` and ``truncate -s 0`` keep the
+    file (its inode) and change what it holds: noticed, and for good."""
+    from service.records import Job, JobState
+    from service.table import JobTable
+
+    path = tmp_path / "jobs.sqlite"
+    table = JobTable(str(path))
+    job = Job(
+        id="0123456789ab",
+        owner="alice",
+        name="x",
+        state=JobState.QUEUED,
+        mode="new",
+        sweep="",
+        output="x.zarr",
+        url="x.zarr",
+        submitted=time.time(),
+        total=1,
+    )
+    table.add(job)
+    assert table.lost() is None and table.get(job.id) is not None
+    inode = path.stat().st_ino
+    shutil.copyfile(path, tmp_path / "saved.sqlite")
+    if how == "copied over":
+        JobTable(str(tmp_path / "other.sqlite"))  # another service's table
+        shutil.copyfile(tmp_path / "other.sqlite", path)
+    else:
+        os.truncate(path, 0)
+    assert path.stat().st_ino == inode
+    assert "was overwritten or truncated in place" in table.lost()
+    shutil.copyfile(tmp_path / "saved.sqlite", path)  # nor trusted once put back
+    assert "was overwritten or truncated in place" in table.lost()
+
+
 def test_a_lost_job_table_stops_the_service_and_stores_keep_their_owner(tmp_path):
     (tmp_path / "tokens").write_text(f"alice {TOKEN}\nbob {OTHER_TOKEN}\n")
     server = Server(tmp_path, "--token-file", tmp_path / "tokens")
@@ -835,6 +1029,14 @@ def test_a_job_writing_its_statistics_can_no_longer_be_cancelled(tmp_path, threa
             job, _ = runner.submit(sweep("late.zarr", realisations=1), owner="alice")
             assert writing.wait(120)
             assert not runner.cancel(job.id)  # the samples are written: too late
+            # and the job, its page and `status` say what it does (issue #37 item 13)
+            held = runner.table.get(job.id)
+            assert (held.state, held.phase) == ("running", "writing statistics"), held
+            page = job_page(held, viewer="alice", csrf="0" * 64)
+            assert "<span data-field='state'>running: writing statistics</span>" in page
+            assert "<span data-field='left'>0 s (writing statistics)</span>" in page
+            assert "cancel the job" not in page
+            assert ", writing statistics  " in _line(held.public())
             release.set()
             deadline = time.monotonic() + 120
             while not runner.table.get(job.id).state.final and time.monotonic() < deadline:
@@ -843,7 +1045,49 @@ def test_a_job_writing_its_statistics_can_no_longer_be_cancelled(tmp_path, threa
             release.set()
             runner.stop()
     assert runner.table.get(job.id).state == "succeeded"
+    assert runner.table.get(job.id).phase is None
     assert Store(job.url).stats.attributes()[KIND] == "statistics"
+    assert "writing the statistics" in " ".join(
+        line["message"] for line in runner.table.lines(job.id)
+    )
+
+
+@pytest.mark.parametrize(
+    "state, rate, left",
+    [
+        ("succeeded", "2.50 samples/s", "0 s"),
+        ("cancelled", "2.50 samples/s", "none (cancelled)"),
+        ("failed", "2.50 samples/s", "none (failed)"),
+        ("queued", "-", "-"),
+    ],
+)
+def test_a_finished_jobs_page_shows_its_rate_and_no_time_left(state, rate, left):
+    """Issue #37 item 13: a finished job showed "-" for both; a succeeded one's pictures
+    show a placeholder until they are drawn (seconds, the first time)."""
+    from service.records import Job, JobState
+
+    job = Job(
+        id="0123456789ab",
+        owner="alice",
+        name="x",
+        state=JobState(state),
+        mode="new",
+        sweep="",
+        output="x.zarr",
+        url="x.zarr",
+        submitted=100.0,
+        started=None if state == "queued" else 110.0,
+        finished=None if state == "queued" else 130.0,
+        total=50,
+        done=0 if state == "queued" else 50,
+        rate=0.0 if state == "queued" else 2.5,
+    )
+    page = job_page(job, viewer="alice", csrf="0" * 64)
+    assert f"<span data-field='rate'>{rate}</span>" in page
+    assert f"<span data-field='left'>{left}</span>" in page
+    placeholders = re.findall(r"<p class='placeholder' id='(\w+)-placeholder'>drawing", page)
+    assert placeholders == (["statistics", "preview"] if state == "succeeded" else [])
+    assert ('<script src="/job.js"' in page) == (state in ("succeeded", "queued"))
 
 
 def get_concurrently(url, paths, headers=None):

@@ -60,6 +60,8 @@ class Service:
     def request(self, method, path, body=None, *, token=TOKEN):
         request = urllib.request.Request(self.url + path, data=body, method=method)
         request.add_header("Authorization", f"Bearer {token}")
+        if body is not None:
+            request.add_header("Content-Type", "application/yaml")
         try:
             with urllib.request.urlopen(request, timeout=30) as response:
                 text = response.read()

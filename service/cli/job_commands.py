@@ -87,6 +87,8 @@ def _request(args, method: str, path: str, body: bytes | None = None, *, stream=
     """
     base = _server(args)
     request = urllib.request.Request(base.rstrip("/") + path, data=body, method=method)
+    if body is not None:  # a sweep (the service refuses the types a web page may post)
+        request.add_header("Content-Type", "application/yaml")
     if token := _token(args):
         request.add_header("Authorization", f"Bearer {token}")
     try:
@@ -113,8 +115,10 @@ def _request(args, method: str, path: str, body: bytes | None = None, *, stream=
 def _line(job: dict) -> str:
     done, total = job["samples"]["done"], job["samples"]["total"]
     left = f", {job['seconds_left']:.0f} s left" if job.get("seconds_left") is not None else ""
+    phase = f", {job['phase']}" if job.get("phase") else ""
     return (
-        f"{job['id']}  {job['state']:<9}  {done}/{total} samples  {job['rate']:.2f}/s{left}  "
+        f"{job['id']}  {job['state']:<9}  {done}/{total} samples{phase}  "
+        f"{job['rate']:.2f}/s{left}  "
         f"{job['name']} -> {job['url']}"
     )
 
