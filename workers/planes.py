@@ -30,6 +30,7 @@ from workers.sensor import (
     scene_setup,
     sensor_at,
     sight_grid,
+    subgrid_sway,
 )
 from workers.shadows import gate_shadow
 from workers.spread import (
@@ -52,6 +53,9 @@ TAIL_STEP = 2
 """Pitch of the beam tail's lattice, in laser-lattice steps (1 for an odd lattice, so the
 tail's cells end where the traced lattice's begin)."""
 
+SWAY_FLOOR = 1e-4
+"""Share of a pixel's view below which the swayed silhouette is none (the FFT's ring)."""
+
 LATTICE_MARGIN = 8
 """Laser rays traced through the wavy surface beyond the field, on each side."""
 
@@ -67,7 +71,10 @@ class Plane:
     (`workers.shadows.gate_shadow`), `occlusion` is the share of the laser's light the
     gate's water keeps, per cell of this fine grid, and `seen` the share of a pixel's view
     the target stops, per cell of the target plane's fine grid: a pixel keeps
-    (1 − seen)·occlusion, each read where its line of sight crosses the plane.
+    (1 − seen)·occlusion, each read where its line of sight crosses the plane. On the
+    target's plane, `rise` is the spread of the target's light on the way up: `spread`
+    and the sub-grid slopes' sway of the lines of sight (`workers.sensor.subgrid_sway`;
+    `spread` itself over a sea without them).
     """
 
     levels: Levels
@@ -75,6 +82,7 @@ class Plane:
     tail: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None
     occlusion: np.ndarray | None = None
     seen: np.ndarray | None = None
+    rise: Spread | None = None
 
     @property
     def grid(self) -> PlaneGrid:
@@ -89,6 +97,7 @@ class Plane:
             self,
             levels=self.levels.on(backend),
             spread=self.spread.on(backend),
+            rise=None if self.rise is None else self.rise.on(backend),
             tail=_moved(self.tail, backend),
             occlusion=_moved(self.occlusion, backend),
             seen=_moved(self.seen, backend),
@@ -343,7 +352,20 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
             fine, coarse = light
             source = levels.downsample(fine) + coarse
             light = spread.filtered(fine, source, far_out=gate is None)
-        planes.append(Plane(levels=levels, spread=spread, tail=light))
+        rise = None
+        if gate is None:  # the target's plane: its light's way up
+            sway = subgrid_sway(setup, levels.fine, distance=depth)
+            rise = spread
+            if sway is not None:
+                rise = Spread.build(
+                    water=water,
+                    levels=levels,
+                    distance=depth,
+                    truncation=scene.water.psf_truncation,
+                    blur=read_blur(scene, sensor, levels.fine, uses=2),
+                    sway=sway,
+                )
+        planes.append(Plane(levels=levels, spread=spread, tail=light, rise=rise))
     target_plane = impostor = target_light = sight = sight_occupancy = None
     sight_support = (0, 0, 0, 0)
     if t.shape != "none":
@@ -352,7 +374,12 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
         target_light = _target_light(setup, sensor, target_plane.levels)
         guard = max(int(np.ceil(GUARD * camera.pixels)), 1)
         sight = sight_grid(sensor, t.depth, water.refractive_index, guard=guard)
+        sway = subgrid_sway(setup, sight, distance=t.depth)
         sight_occupancy = impostor_on(setup, sight).occupancy
+        if sway is not None:  # each pixel's share, as the sub-grid slopes sway its view
+            swayed = sight.convolved(sight_occupancy, np.ones_like, sway=sway)
+            sight_occupancy = np.where(swayed > SWAY_FLOOR, np.minimum(swayed, 1.0), 0.0)
+        sight_occupancy = sight_occupancy.astype(np.float32)
         sight_support = _support(sight_occupancy)
     gate_planes = []
     for g, plane in enumerate(planes):

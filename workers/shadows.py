@@ -16,7 +16,7 @@ import numpy as np
 
 from workers.gates import hidden_fraction
 from workers.geometry import PlaneGrid
-from workers.sensor import central_point, gate_bounds, impostor_on, lines_of_sight
+from workers.sensor import central_point, gate_bounds, impostor_on, lines_of_sight, subgrid_sway
 
 __all__ = ["gate_shadow"]
 
@@ -74,6 +74,13 @@ def gate_shadow(setup, sensor, *, gate_grid, target_grid, sight, paths):
       references 0.1 shallower than transport; read at the line, they agree within
       0.06: ``docs/model.md`` §10.)
 
+    Over a rough sea the slopes below the finest grid (`workers.sensor.subgrid_sway`)
+    sway the lines: `seen` is read along the pixels' lines through the resolved sea,
+    blurred by the sway over z_t; the laser's light, refracted by facets of its own,
+    reaches the water behind the target from directions that sway the shadow over Δz,
+    so `lit` is blurred by that too (and read along the pixel's line with its own
+    sub-grid slope, as the gate's light is).
+
     The pixel keeps (1 − seen)(1 − lit) of the gate's light. The water's absorption and
     backscatter (K) act alike with and without the target, so only the shapes enter.
     Convolutions are linear (zero-padded FFTs) on each plane's fine grid.
@@ -102,8 +109,10 @@ def gate_shadow(setup, sensor, *, gate_grid, target_grid, sight, paths):
         return b_f * z_t * (sigma - 1.0) + one_way(f, drop)
 
     return (
-        _blurred(sight, seen, lambda f: one_way(f, z_t)),
-        _blurred(gate_grid, lit, behind),
+        _blurred(
+            sight, seen, lambda f: one_way(f, z_t), sway=subgrid_sway(setup, sight, distance=z_t)
+        ),
+        _blurred(gate_grid, lit, behind, sway=subgrid_sway(setup, gate_grid, distance=drop)),
     )
 
 
@@ -147,7 +156,10 @@ def _deficit(setup, sensor, grid: PlaneGrid, paths, impostor) -> np.ndarray:
     return deficit
 
 
-def _blurred(grid: PlaneGrid, field: np.ndarray, exponent) -> np.ndarray:
-    """`field` convolved (linear, zero-padded) with the kernel of transfer e^exponent(f)."""
-    out = grid.convolved(field, lambda frequency: np.exp(exponent(frequency)))
+def _blurred(grid: PlaneGrid, field: np.ndarray, exponent, *, sway=None) -> np.ndarray:
+    """`field` convolved (linear, zero-padded) with the kernel of transfer e^exponent(f).
+
+    And with the Gaussian of covariance `sway` (`PlaneGrid.convolved`) when given.
+    """
+    out = grid.convolved(field, lambda frequency: np.exp(exponent(frequency)), sway=sway)
     return np.clip(out, 0.0, 1.0).astype(np.float32)
