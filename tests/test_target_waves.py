@@ -17,7 +17,7 @@ from workers import montecarlo
 from workers.render import render_arrays, render_pair
 from workers.scene import Scene
 from workers.seeds import SampleSeed
-from workers.sensor import scene_setup
+from workers.sensor import Setup, scene_setup
 
 SEED = SampleSeed(root=2)
 PHOTONS = 1_000_000
@@ -73,3 +73,52 @@ def test_the_sphere_spreads_into_the_sea_as_transport_spreads_it(renders):
     sigma = np.hypot(inside, whole) / reference.sum()
     # before: 0.8 of the light inside the mask, where transport puts 0.5
     assert abs(share - truth) < 0.05 + 3 * sigma, (share, truth, sigma)
+
+
+class Raised:
+    """A calm sea raised by `height` [m] everywhere: no slopes, no sub-grid slopes."""
+
+    def __init__(self, height):
+        self.height = np.float32(height)
+
+    def elevation_at(self, x, y, frame=0):
+        return np.full(np.shape(x), self.height, dtype=np.float32)
+
+    def slopes_at(self, x, y, frame=0):
+        flat = np.zeros(np.shape(x), dtype=np.float32)
+        return flat, flat
+
+
+def target_light(scene: Scene) -> np.ndarray:
+    """Per gate, the sphere's light over the whole image (the sample less its twin)."""
+    expected, _, twin, _ = render_pair(scene, seed=SEED, twin_seed=SEED)
+    return (expected - twin)[0].sum(axis=(1, 2))
+
+
+def test_a_raised_sea_moves_the_gate_edge_over_the_sphere(monkeypatch):
+    # A sea raised by h is a flat sea h higher: the platform h nearer and the sphere h
+    # deeper below it, and gates opening at the same times, h/n deeper (the air path
+    # shorter by h, the water's n times slower by h). Gate 2 opens 0.18 m below the
+    # sphere's top: raised by 0.4 m, its edge moves 0.10 m up the sphere, and the share of
+    # the sphere's light it holds grows from 0.06 of gate 1's to 0.42 (before: 0.06, the
+    # flat sea's edge).
+    height = 0.4
+    base = wavy_scene(method="small_angle")
+    gates = [list(gate) for gate in base.receiver.gate_depths]
+    data = base.model_dump()
+    data["receiver"]["gates"] = gates
+    raised = Scene.model_validate(data)
+    monkeypatch.setattr(Setup, "surface", lambda *_, **__: Raised(height))
+    light = target_light(raised)
+    monkeypatch.undo()
+    n = base.water.refractive_index
+    data["surface"] = {"spectrum": "flat"}
+    data["platform"]["altitude"] -= height
+    data["target"]["depth"] += height
+    data["receiver"]["gates"] = [[top + height / n, bottom + height / n] for top, bottom in gates]
+    equivalent = target_light(Scene.model_validate(data))
+    assert light[1] / light[0] > 0.3  # the edge moved: 0.06 where it stays
+    assert abs((light[1] / light[0]) / (equivalent[1] / equivalent[0]) - 1) < 0.02, (
+        light,
+        equivalent,
+    )

@@ -117,6 +117,12 @@ class TargetLight:
     gates: tuple[tuple[int, ...], ...]
     rows: slice
 
+    def on(self, backend: Backend) -> TargetLight:
+        """The maps on `backend` (itself on numpy)."""
+        if backend.name == "numpy":
+            return self
+        return replace(self, weights=_moved(self.weights, backend))
+
 
 def _moved(values, backend: Backend):
     """Host arrays (nested in tuples; None kept) as arrays of `backend`; numbers as floats."""
@@ -136,7 +142,8 @@ class FrameGeometry:
     With a target, `sight` is the pixels' own grid at its depth (`workers.sensor.sight_grid`)
     and `sight_occupancy` the target's silhouette on it: each pixel's share, for its mask;
     `sight_support` the first row, last row + 1, first column and last column + 1 of its
-    non-zero cells.
+    non-zero cells. `target_light` is the target's maps under the flat sea,
+    `target_gating` what makes them at any height of the sea over the target.
     """
 
     position: np.ndarray
@@ -148,6 +155,7 @@ class FrameGeometry:
     target_plane: Plane | None
     impostor: Impostor | None
     target_light: TargetLight | None
+    target_gating: TargetGating | None = None
     sight: PlaneGrid | None = None
     sight_occupancy: np.ndarray | None = None
     sight_support: tuple[int, int, int, int] = (0, 0, 0, 0)
@@ -170,7 +178,7 @@ class FrameGeometry:
         if backend not in self._on:
             light = self.target_light
             if light is not None:
-                light = replace(light, weights=_moved(light.weights, backend))
+                light = light.on(backend)
             self._on[backend] = replace(
                 self,
                 pixel_rays=_moved(self.pixel_rays, backend),
@@ -366,12 +374,13 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
                     sway=sway,
                 )
         planes.append(Plane(levels=levels, spread=spread, tail=light, rise=rise))
-    target_plane = impostor = target_light = sight = sight_occupancy = None
+    target_plane = impostor = target_light = gating = sight = sight_occupancy = None
     sight_support = (0, 0, 0, 0)
     if t.shape != "none":
         target_plane, planes = planes[0], planes[1:]
         impostor = impostor_on(setup, target_plane.grid)
-        target_light = _target_light(setup, sensor, target_plane.levels)
+        gating = TargetGating.build(setup, sensor, target_plane.levels)
+        target_light = gating.light()
         guard = max(int(np.ceil(GUARD * camera.pixels)), 1)
         sight = sight_grid(sensor, t.depth, water.refractive_index, guard=guard)
         sway = subgrid_sway(setup, sight, distance=t.depth)
@@ -405,6 +414,7 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
         target_plane=target_plane,
         impostor=impostor,
         target_light=target_light,
+        target_gating=gating,
         sight=sight,
         sight_occupancy=sight_occupancy,
         sight_support=sight_support,
@@ -432,70 +442,176 @@ def _gated(setup, grid, impostor, top, bottom, *, delays, shares) -> np.ndarray:
     return held
 
 
-def _target_light(setup, sensor, levels: Levels) -> TargetLight:
-    r"""Reflectance of the part of the target each gate holds, from its true depth.
+SHIFT_STEP = 0.01
+"""Step of the gate shifts at which a target's gated shares are computed [m]; a sample's
+shift is interpolated linearly between the two nearest (`TargetGating.light`)."""
 
-    The target plane's light carries the attenuation of the plane through the target's
-    centre; a cell whose line meets the target's surface at depth z_s (above the centre
-    plane, on the lit cap) is reached by a path shorter by (z_c − z_s) sec ϑ each way, so
-    its weight is multiplied by :math:`e^{K\sec\vartheta\,(z_c - z_s)}` for the way up,
-    and for the way down by the beam's irradiance at z_s over its irradiance at z_c
-    (`_beam_depth_ratio`, log-linear in depth between the sphere's top and centre). A
-    gate holds the part of each cell's return whose path it holds: the sphere's annulus between the
-    gate's depths on the cell's line (`workers.target.gated_share`), its unscattered share
-    on time and the rest late by the path stretch of its scatterings
-    (`workers.delays.return_delays`).
+
+@dataclass(frozen=True, eq=False)
+class TargetGating:
+    r"""What each gate holds of the target's cells, for any shift of the gates' depths.
+
+    Per level of the target's plane (the fine grid, and the coarse one where a large
+    target reaches beyond it): the cells the target covers (`cells`, flat indices), their
+    lit reflectance (`lit`: weight × the way up's and down's depth corrections, dense),
+    and each gate's depth bounds along their flat-sea lines of sight (`bounds`, shape
+    (gate, 2, cells)); the return's parts, on time and late (`delays`, `shares`).
+
+    A sea raised by h over the target moves every gate's depths up by
+    h (1 − cos ϑ_w / (n cos ϑ_a)) (`gate_shift`): the light's path in the air is shorter
+    by h / cos ϑ_a and in the water longer by h / cos ϑ_w, n times slower. `light` gives
+    the maps at such a shift, from shares computed at multiples of `SHIFT_STEP` (kept,
+    once each) and interpolated between them.
     """
-    water = setup.water
 
-    def lit(grid, impostor):
-        rise = grid.depth - np.asarray(impostor.surface_depth, dtype=np.float64)
-        lift = np.exp(water.diffuse_attenuation * setup.secant * rise)  # the way up
-        radius = setup.scene.target.radius
-        if setup.scene.target.shape == "sphere":
-            ratio = _beam_depth_ratio(setup, sensor, grid, rise=min(radius, grid.depth))
-            lift *= ratio ** np.clip(rise / radius, 0.0, 1.0)  # the way down
-        return impostor.weight * lift
+    setup: Setup
+    grids: tuple[PlaneGrid, ...]
+    impostors: tuple[Impostor, ...]
+    lit: tuple[np.ndarray, ...]
+    cells: tuple[np.ndarray, ...]
+    bounds: tuple[np.ndarray, ...]
+    delays: tuple[float, ...]
+    shares: tuple[float, ...]
+    _steps: dict = field(default_factory=dict, init=False, repr=False)
 
-    fine_impostor = impostor_on(setup, levels.fine)
-    coarse_impostor = impostor_on(setup, levels.coarse)
-    outside = coarse_impostor.occupancy.copy()
-    outside[levels.block] = 0.0
-    levels_lit = [(levels.fine, fine_impostor, lit(levels.fine, fine_impostor))]
-    if outside.any():
-        levels_lit.append((levels.coarse, coarse_impostor, lit(levels.coarse, coarse_impostor)))
-    n_w = water.refractive_index
-    sights = [lines_of_sight(sensor, grid, n_w) for grid, *_ in levels_lit]
-    unscattered, delays = return_delays(
-        water,
-        path=levels.fine.depth * setup.secant,
-        beam_radius=sensor.reference_range * np.tan(0.5 * sensor.laser_fov),
-        target_radius=setup.scene.target.radius,
-    )
-    parts = (0.0, *delays)
-    weights = (unscattered, *((1.0 - unscattered) / len(delays),) * len(delays))
-    maps, members = {}, {}
-    for g, paths in enumerate(sensor.paths):
-        pair, signature = [], b""
-        for (grid, impostor, weight), sight in zip(levels_lit, sights, strict=True):
-            top, bottom = gate_bounds(sight, paths, n_w)
-            share = _gated(setup, grid, impostor, top, bottom, delays=parts, shares=weights)
+    @classmethod
+    def build(cls, setup: Setup, sensor: Sensor, levels: Levels) -> TargetGating:
+        r"""The target's gating on its plane `levels` for `sensor`'s gates.
+
+        The target plane's light carries the attenuation of the plane through the
+        target's centre; a cell whose line meets the target's surface at depth z_s
+        (above the centre plane, on the lit cap) is reached by a path shorter by
+        (z_c − z_s) sec ϑ each way, so its weight is multiplied by
+        :math:`e^{K\sec\vartheta\,(z_c - z_s)}` for the way up, and for the way down
+        by the beam's irradiance at z_s over its irradiance at z_c
+        (`_beam_depth_ratio`, log-linear in depth between the sphere's top and centre).
+        A gate holds the part of each cell's return whose path it holds: the sphere's
+        annulus between the gate's depths on the cell's line
+        (`workers.target.gated_share`), its unscattered share on time and the rest late
+        by the path stretch of its scatterings (`workers.delays.return_delays`).
+        """
+        water = setup.water
+
+        def lit(grid, impostor):
+            rise = grid.depth - np.asarray(impostor.surface_depth, dtype=np.float64)
+            lift = np.exp(water.diffuse_attenuation * setup.secant * rise)  # the way up
+            radius = setup.scene.target.radius
+            if setup.scene.target.shape == "sphere":
+                ratio = _beam_depth_ratio(setup, sensor, grid, rise=min(radius, grid.depth))
+                lift *= ratio ** np.clip(rise / radius, 0.0, 1.0)  # the way down
+            return impostor.weight * lift
+
+        fine_impostor = impostor_on(setup, levels.fine)
+        coarse_impostor = impostor_on(setup, levels.coarse)
+        outside = coarse_impostor.occupancy.copy()
+        outside[levels.block] = 0.0
+        chosen = [(levels.fine, fine_impostor)]
+        if outside.any():
+            chosen.append((levels.coarse, coarse_impostor))
+        n_w = water.refractive_index
+        cells, bounds = [], []
+        for grid, impostor in chosen:
+            on = impostor.occupancy > 0
             if grid is levels.coarse:
-                share[levels.block] = 0.0
-            pair.append((weight * share).astype(np.float32))
-            signature += share.tobytes()
-        if not any(m.any() for m in pair):
-            continue
-        if signature not in maps:
-            maps[signature] = (pair[0], pair[1] if len(pair) > 1 else None)
-            members[signature] = []
-        members[signature].append(g)
-    used = np.flatnonzero(sum((fine.any(axis=1) for fine, _ in maps.values()), start=False))
-    return TargetLight(
-        weights=tuple(maps.values()),
-        gates=tuple(tuple(m) for m in members.values()),
-        rows=slice(int(used[0]), int(used[-1]) + 1) if used.size else slice(0, 0),
-    )
+                on[levels.block] = False
+            flat = np.flatnonzero(on)
+            sight = lines_of_sight(sensor, grid, n_w, flat)
+            cells.append(flat)
+            bounds.append(
+                np.array([gate_bounds(sight, paths, n_w) for paths in sensor.paths]).reshape(
+                    len(sensor.paths), 2, flat.size
+                )
+            )
+        unscattered, delays = return_delays(
+            water,
+            path=levels.fine.depth * setup.secant,
+            beam_radius=sensor.reference_range * np.tan(0.5 * sensor.laser_fov),
+            target_radius=setup.scene.target.radius,
+        )
+        return cls(
+            setup=setup,
+            grids=tuple(grid for grid, _ in chosen),
+            impostors=tuple(impostor for _, impostor in chosen),
+            lit=tuple(lit(grid, impostor) for grid, impostor in chosen),
+            cells=tuple(cells),
+            bounds=tuple(bounds),
+            delays=(0.0, *delays),
+            shares=(unscattered, *((1.0 - unscattered) / len(delays),) * len(delays)),
+        )
+
+    def _held(self, step: int) -> tuple[np.ndarray, ...]:
+        """Per level, each gate's share of its cells' return, gates shallower by `step`."""
+        if step not in self._steps:
+            shift = step * SHIFT_STEP
+            held = []
+            for grid, impostor, cells, bounds in zip(
+                self.grids, self.impostors, self.cells, self.bounds, strict=True
+            ):
+                on = np.zeros(grid.shape, dtype=bool)
+                on.ravel()[cells] = True
+                shares = np.zeros((bounds.shape[0], cells.size))
+                for g, (top, bottom) in enumerate(bounds):
+                    dense = [np.zeros(grid.shape), np.zeros(grid.shape)]
+                    dense[0].ravel()[cells] = top - shift
+                    dense[1].ravel()[cells] = bottom - shift
+                    share = _gated(
+                        self.setup,
+                        grid,
+                        impostor,
+                        *dense,
+                        delays=self.delays,
+                        shares=self.shares,
+                    )
+                    shares[g] = share.ravel()[cells]
+                held.append(shares)
+            self._steps[step] = tuple(held)
+        return self._steps[step]
+
+    def light(self, shift: float = 0.0) -> TargetLight:
+        """The target's maps per gate, every gate's depths `shift` shallower [m].
+
+        Gates whose maps are alike share one (`TargetLight`); the shares are interpolated
+        linearly between the two nearest multiples of `SHIFT_STEP` (exact at 0).
+        """
+        position = shift / SHIFT_STEP
+        step = int(np.floor(position))
+        part = position - step
+        held = self._held(step)
+        if part > 0.0:
+            held = tuple(
+                (1.0 - part) * low + part * high
+                for low, high in zip(held, self._held(step + 1), strict=True)
+            )
+        maps, members = {}, {}
+        for g in range(self.bounds[0].shape[0]):
+            pair, signature = [], b""
+            for grid, weight, cells, shares in zip(
+                self.grids, self.lit, self.cells, held, strict=True
+            ):
+                share = np.zeros(grid.shape)
+                share.ravel()[cells] = np.clip(shares[g], 0.0, 1.0)
+                pair.append((weight * share).astype(np.float32))
+                signature += share.tobytes()
+            if not any(m.any() for m in pair):
+                continue
+            if signature not in maps:
+                maps[signature] = (pair[0], pair[1] if len(pair) > 1 else None)
+                members[signature] = []
+            members[signature].append(g)
+        used = np.flatnonzero(sum((fine.any(axis=1) for fine, _ in maps.values()), start=False))
+        return TargetLight(
+            weights=tuple(maps.values()),
+            gates=tuple(tuple(m) for m in members.values()),
+            rows=slice(int(used[0]), int(used[-1]) + 1) if used.size else slice(0, 0),
+        )
+
+
+def gate_shift(setup: Setup, height: float) -> float:
+    """How much shallower a sea raised by `height` [m] gates every depth [m] (float)."""
+    scene = setup.scene
+    cos_air = np.cos(np.radians(scene.platform.nadir_deg))
+    cos_water = np.cos(setup.refracted_nadir)
+    return float(height * (1.0 - cos_water / (scene.water.refractive_index * cos_air)))
 
 
 def _beam_depth_ratio(setup, sensor, grid: PlaneGrid, *, rise: float) -> np.ndarray:

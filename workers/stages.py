@@ -20,7 +20,7 @@ import numpy as np
 from workers.backend import Backend
 from workers.interface import Projected, through_surface
 from workers.kernels import Cells
-from workers.planes import FrameGeometry, Plane
+from workers.planes import FrameGeometry, Plane, gate_shift
 from workers.sensor import Setup
 
 __all__ = ["FrameLight", "PlaneLight", "SeaRays", "Splat", "frame_light"]
@@ -45,6 +45,8 @@ class SeaRays:
         [1], float32.
     up_transmittance, sight_transmittance : array
         Each line of sight's Fresnel transmittance, `up`'s and `sight`'s [1], float32.
+    sight_height : array
+        The sea's elevation where each of `sight`'s lines meets it [m], float32.
     down_excess, up_excess : array
         Each ray's air path less the central ray's [m], float32: its gates' timing.
     """
@@ -55,6 +57,7 @@ class SeaRays:
     power: object
     up_transmittance: object
     sight_transmittance: object
+    sight_height: object
     down_excess: object
     up_excess: object
 
@@ -193,6 +196,7 @@ def _sea_rays(setup: Setup, geometry: FrameGeometry, surface, frame: int) -> Sea
         power=geometry.laser_power * down.transmittance,
         up_transmittance=up.transmittance,
         sight_transmittance=sight.transmittance,
+        sight_height=sight.z,
         down_excess=down.air - central,
         up_excess=up.air - central,
     )
@@ -225,6 +229,14 @@ def _target_frame(geometry: FrameGeometry, rays: SeaRays, images, backend: Backe
     extra = rays.down.extra(levels.fine.depth)
     sight_extra = rays.sight.extra(levels.fine.depth)
     light = geometry.target_light
+    if geometry.target_gating is not None:
+        # the sea's height over the target moves the gates' depths across it
+        held = xp.sum(silhouette)
+        if float(held) > 0.0:
+            height = float(xp.sum(silhouette * rays.sight_height) / held)
+            shift = gate_shift(geometry.target_gating.setup, height)
+            if shift != 0.0:
+                light = geometry.target_gating.light(shift).on(backend)
     rows = light.rows
     wide = any(coarse is not None for _, coarse in light.weights)
     splat = _splat(plane, rays.down, rays.power * extra, backend)
