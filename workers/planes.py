@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -540,32 +541,57 @@ class TargetGating:
         )
 
     def _held(self, step: int) -> tuple[np.ndarray, ...]:
-        """Per level, each gate's share of its cells' return, gates shallower by `step`."""
+        """Per level, each gate's share of its cells' return, gates shallower by `step`.
+
+        A gate that holds the whole target, or none of it, at every delay holds each
+        cell's whole return (1, or 0 where it returns nothing), or none: only the gates
+        whose depths cut it (one or two) are integrated.
+        """
         if step not in self._steps:
             shift = step * SHIFT_STEP
+            margin = self.setup.scene.target.radius  # the cells' centre depths, oblique
+            late = max(self.delays)
             held = []
-            for grid, impostor, cells, bounds in zip(
-                self.grids, self.impostors, self.cells, self.bounds, strict=True
+            for level, (impostor, cells, bounds) in enumerate(
+                zip(self.impostors, self.cells, self.bounds, strict=True)
             ):
-                on = np.zeros(grid.shape, dtype=bool)
-                on.ravel()[cells] = True
                 shares = np.zeros((bounds.shape[0], cells.size))
-                for g, (top, bottom) in enumerate(bounds):
-                    dense = [np.zeros(grid.shape), np.zeros(grid.shape)]
-                    dense[0].ravel()[cells] = top - shift
-                    dense[1].ravel()[cells] = bottom - shift
-                    share = _gated(
-                        self.setup,
-                        grid,
-                        impostor,
-                        *dense,
-                        delays=self.delays,
-                        shares=self.shares,
-                    )
-                    shares[g] = share.ravel()[cells]
+                for g, (top, bottom) in enumerate(bounds - shift):
+                    shallowest, deepest = impostor.top - margin, impostor.bottom + margin
+                    if bottom.max() <= shallowest or top.min() - late >= deepest:
+                        continue
+                    if top.max() <= shallowest and bottom.min() - late >= deepest:
+                        shares[g] = self._whole[level]
+                        continue
+                    shares[g] = self._share(level, top, bottom)
                 held.append(shares)
             self._steps[step] = tuple(held)
         return self._steps[step]
+
+    @functools.cached_property
+    def _whole(self) -> tuple[np.ndarray, ...]:
+        """Per level, the share of its cells' return a gate holding all the target holds."""
+        far = 1e6  # [m]
+        return tuple(
+            self._share(level, np.full(cells.size, -far), np.full(cells.size, far))
+            for level, cells in enumerate(self.cells)
+        )
+
+    def _share(self, level: int, top, bottom) -> np.ndarray:
+        """`_gated` on the cells of `level` between depths `top` and `bottom` [m]."""
+        grid, cells = self.grids[level], self.cells[level]
+        dense = [np.zeros(grid.shape), np.zeros(grid.shape)]
+        dense[0].ravel()[cells] = top
+        dense[1].ravel()[cells] = bottom
+        share = _gated(
+            self.setup,
+            grid,
+            self.impostors[level],
+            *dense,
+            delays=self.delays,
+            shares=self.shares,
+        )
+        return share.ravel()[cells]
 
     def light(self, shift: float = 0.0) -> TargetLight:
         """The target's maps per gate, every gate's depths `shift` shallower [m].
