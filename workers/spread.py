@@ -505,7 +505,7 @@ class Spread:
             The coarse level, far wider, is left as it is.
         sway : ndarray, optional
             The covariance along (u, v) of a further Gaussian on the fine level [m²]
-            (`workers.planes.subgrid_sway`: where the sub-grid slopes move the lines of
+            (`workers.sensor.subgrid_sway`: where the sub-grid slopes move the lines of
             sight); None: none.
 
         Returns

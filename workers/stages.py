@@ -38,8 +38,8 @@ class SeaRays:
         The pixels' lines of sight in the water.
     sight : Projected
         The pixels' lines of sight through the resolved sea alone (without the sub-grid
-        slopes; `up` itself without them): what reads the target's light and the view it
-        stops, which `workers.planes.subgrid_sway` blurs instead.
+        slopes; `up` itself without them or without a target): what reads the target's
+        light and the view it stops, which `workers.sensor.subgrid_sway` blurs instead.
     power : array
         Each laser ray's power through the surface (beam share × Fresnel transmittance)
         [1], float32.
@@ -185,7 +185,7 @@ def _sea_rays(setup: Setup, geometry: FrameGeometry, surface, frame: int) -> Sea
     up = through_surface(geometry.pixel_rays, surface, frame, n_w)
     lines = up.on_axes(axes_grid, K)
     sight, sight_lines = up, lines
-    if getattr(surface, "subgrid", None) is not None:
+    if getattr(surface, "subgrid", None) is not None and geometry.impostor is not None:
         resolved = dataclasses.replace(surface, subgrid=None)
         sight = through_surface(geometry.pixel_rays, resolved, frame, n_w)
         sight_lines = sight.on_axes(axes_grid, K)
