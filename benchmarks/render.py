@@ -186,6 +186,17 @@ one pass over the pixels, and the cascades summed over the footprint once before
 surface iteration are the changes to make. Even then the FFT passes of the present planes
 (about 20 pairs a sample, all FFTs counted) leave the aim of 20 out of reach of the
 two-level spread as it is.
+
+Issue #36 item 2 (the target read through the resolved sea with the sub-grid sway, one
+more trace of the pixels' lines with a target; its gates moved by the sea's height over
+it): on the loaded 2-core machine (load 8–10) the medians jump by ±15 % between runs of
+the same code (the target-free samples, whose code did not change, read 44–58 pairs), so
+the code before (05c28fd) and after were also timed by a plain loop, alternated twice,
+CPU time, 128 px, coastal, the 5 m/s sea: medians over 40 new seas 30.6, 30.3 ms before,
+27.6, 32.3 after; the same seas again 32.6, 29.7 before, 27.7, 33.3 after: the same within
+the noise. The first ten seas of a scene cost 38.6, 42.6 ms against 22.9, 31.3: each new
+centimetre of the sea's height over the target integrates the gates that cut the target
+once (about 5 ms, `workers.planes.TargetGating`), kept for the scene's later samples.
 """
 
 import argparse
