@@ -20,7 +20,7 @@ from workers.seeds import SampleSeed
 from workers.sensor import Setup, scene_setup
 
 SEED = SampleSeed(root=2)
-PHOTONS = 1_000_000
+PHOTONS = 500_000
 
 
 def wavy_scene(*, method: str, shape: str = "sphere") -> Scene:
