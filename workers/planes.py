@@ -72,10 +72,7 @@ class Plane:
     (`workers.shadows.gate_shadow`), `occlusion` is the share of the laser's light the
     gate's water keeps, per cell of this fine grid, and `seen` the share of a pixel's view
     the target stops, per cell of the target plane's fine grid: a pixel keeps
-    (1 − seen)·occlusion, each read where its line of sight crosses the plane. On the
-    target's plane, `rise` is the spread of the target's light on the way up: `spread`
-    and the sub-grid slopes' sway of the lines of sight (`workers.sensor.subgrid_sway`;
-    `spread` itself over a sea without them).
+    (1 − seen)·occlusion, each read where its line of sight crosses the plane.
     """
 
     levels: Levels
@@ -83,7 +80,6 @@ class Plane:
     tail: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None
     occlusion: np.ndarray | None = None
     seen: np.ndarray | None = None
-    rise: Spread | None = None
 
     @property
     def grid(self) -> PlaneGrid:
@@ -98,7 +94,6 @@ class Plane:
             self,
             levels=self.levels.on(backend),
             spread=self.spread.on(backend),
-            rise=None if self.rise is None else self.rise.on(backend),
             tail=_moved(self.tail, backend),
             occlusion=_moved(self.occlusion, backend),
             seen=_moved(self.seen, backend),
@@ -125,6 +120,68 @@ class TargetLight:
         return replace(self, weights=_moved(self.weights, backend))
 
 
+@dataclass(frozen=True)
+class Resample:
+    """Bilinear resampling of a plane's fields onto a grid of the same axes and depth.
+
+    `fine` and `coarse` each hold a pair of matrices (rows, columns), float32: a field
+    ``f`` on the source level reads ``rows @ f @ columns.T`` on the target level (zero
+    beyond the source grid). `first` and `last` hold, per target fine row, the first and
+    last + 1 source fine rows it reads.
+    """
+
+    fine: tuple[np.ndarray, np.ndarray]
+    coarse: tuple[np.ndarray, np.ndarray]
+    first: tuple[int, ...]
+    last: tuple[int, ...]
+
+    @classmethod
+    def between(cls, source: Levels, target: Levels) -> Resample:
+        """The resampling from `source`'s levels onto `target`'s."""
+        fine = _interpolation(source.fine, target.fine)
+        rows = fine[0] > 0
+        first = np.argmax(rows, axis=1)
+        last = rows.shape[1] - np.argmax(rows[:, ::-1], axis=1)
+        last = np.where(rows.any(axis=1), last, first)
+        return cls(
+            fine=fine,
+            coarse=_interpolation(source.coarse, target.coarse),
+            first=tuple(int(f) for f in first),
+            last=tuple(int(f) for f in last),
+        )
+
+    def source_rows(self, rows: slice) -> slice:
+        """The source fine rows that the target fine `rows` read."""
+        if rows.start >= rows.stop:
+            return slice(0, 0)
+        return slice(min(self.first[rows]), max(self.last[rows]))
+
+    def on(self, backend: Backend) -> Resample:
+        """The matrices on `backend` (itself on numpy)."""
+        if backend.name == "numpy":
+            return self
+        return replace(self, fine=_moved(self.fine, backend), coarse=_moved(self.coarse, backend))
+
+
+def _interpolation(source: PlaneGrid, target: PlaneGrid) -> tuple[np.ndarray, np.ndarray]:
+    """Linear interpolation matrices (rows, columns) from `source`'s nodes to `target`'s."""
+    offset = np.asarray(target.origin) - np.asarray(source.origin)
+    matrices = []
+    for axis, size, spacing, count, step in (
+        (target.axis_v, target.shape[0], target.spacing_v, source.shape[0], source.spacing_v),
+        (target.axis_u, target.shape[1], target.spacing_u, source.shape[1], source.spacing_u),
+    ):
+        position = (offset @ np.asarray(axis) + np.arange(size) * spacing) / step
+        low = np.floor(position).astype(int)
+        part = position - low
+        matrix = np.zeros((size, count))
+        for node, weight in ((low, 1.0 - part), (low + 1, part)):
+            inside = (node >= 0) & (node < count)
+            matrix[np.flatnonzero(inside), node[inside]] += weight[inside]
+        matrices.append(matrix.astype(np.float32))
+    return matrices[0], matrices[1]
+
+
 def _moved(values, backend: Backend):
     """Host arrays (nested in tuples; None kept) as arrays of `backend`; numbers as floats."""
     if values is None:
@@ -145,6 +202,12 @@ class FrameGeometry:
     `sight_support` the first row, last row + 1, first column and last column + 1 of its
     non-zero cells. `target_light` is the target's maps under the flat sea,
     `target_gating` what makes them at any height of the sea over the target.
+
+    `target_plane` is lit by the laser's lattice; the target's maps, and its light's way
+    up (`target_rise`: its spread with the sub-grid slopes' sway of the lines of sight,
+    `workers.sensor.subgrid_sway`), are on the plane's grid at the pixels' pitch, the
+    default lattice's, whatever `laser.rays`: `resample` carries the light from the one
+    to the other (None where they are the same grid).
     """
 
     position: np.ndarray
@@ -157,6 +220,8 @@ class FrameGeometry:
     impostor: Impostor | None
     target_light: TargetLight | None
     target_gating: TargetGating | None = None
+    target_rise: Plane | None = None
+    resample: Resample | None = None
     sight: PlaneGrid | None = None
     sight_occupancy: np.ndarray | None = None
     sight_support: tuple[int, int, int, int] = (0, 0, 0, 0)
@@ -187,6 +252,8 @@ class FrameGeometry:
                 laser_power=backend.asarray(self.laser_power),
                 gate_planes=tuple(plane.on(backend) for plane in self.gate_planes),
                 target_plane=None if self.target_plane is None else self.target_plane.on(backend),
+                target_rise=None if self.target_rise is None else self.target_rise.on(backend),
+                resample=None if self.resample is None else self.resample.on(backend),
                 target_light=light,
                 sight_occupancy=_moved(self.sight_occupancy, backend),
             )
@@ -238,11 +305,14 @@ def read_blur(scene: Scene, sensor: Sensor, grid: PlaneGrid, *, uses: int) -> tu
     return blur[0], blur[1]
 
 
-def _plane_levels(setup: Setup, sensor: Sensor, depth: float, passes: int) -> tuple[Levels, int]:
+def _plane_levels(
+    setup: Setup, sensor: Sensor, depth: float, passes: int, *, reach: float = 0.0
+) -> tuple[Levels, int]:
     """The two-level grid of a plane, and its fine guard band [cells].
 
     The coarse margin holds `SPREAD_FRACTION` of the scattered light one way, twice that
-    radius for a round trip (two independent spreads).
+    radius for a round trip (two independent spreads); the guard band is at least `reach`
+    [m] wide.
     """
     n_w = setup.water.refractive_index
     bare = fine_grid(sensor, depth, n_w, guard=0, multiple=1)
@@ -250,7 +320,11 @@ def _plane_levels(setup: Setup, sensor: Sensor, depth: float, passes: int) -> tu
     margin = passes * encircled_radius(setup.water, distance=depth, fraction=SPREAD_FRACTION)
     span = max(bare.shape) * spacing
     factor = coarse_factor(spacing=spacing, extent=span + 2 * margin)
-    guard = max(int(np.ceil(GUARD * sensor.camera.pixels)), NEAR_SUPPORT * factor)
+    guard = max(
+        int(np.ceil(GUARD * sensor.camera.pixels)),
+        NEAR_SUPPORT * factor,
+        int(np.ceil(reach / spacing)),
+    )
     fine = fine_grid(sensor, depth, n_w, guard=guard, multiple=factor)
     return Levels.around(fine, factor=factor, margin=margin), guard
 
@@ -312,6 +386,19 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
         _plane_levels(setup, sensor, depth, count)
         for depth, count in zip(depths, passes, strict=True)
     ]
+    # the target's maps and its light's way up on the default lattice's grid (the pixels'
+    # pitch), lit from the laser's lattice on a grid reaching beyond it
+    sight_sensor, rise_levels = sensor, None
+    if t.shape != "none":
+        if sensor.laser_rays != scene.pixel_pitch_rays:
+            sight_sensor = sensor_at(setup, frame, rays=scene.pixel_pitch_rays)
+        rise_levels, guard = _plane_levels(setup, sight_sensor, t.depth, 1)
+        if sight_sensor is sensor:
+            rise_levels = built[0][0]
+        else:
+            fine = rise_levels.fine
+            reach = (guard + 1) * max(fine.spacing_u, fine.spacing_v)
+            built[0] = _plane_levels(setup, sensor, t.depth, 1, reach=reach)
     # the traced lattice reaches LATTICE_MARGIN rays beyond the field; the beam's tail
     # beyond it crosses the mean sea (within the beam's extent). The lattice is offset
     # from the pixels' lines of sight (`workers.sensor.lattice_offset`).
@@ -346,6 +433,13 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
     for (levels, _), depth, count, gain, gate in zip(
         built, depths, passes, gains, gate_index, strict=True
     ):
+        # a gate's round trip is one filter; the target's plane spreads down and up, read
+        # at the pixels' pitch
+        blur = (
+            read_blur(scene, sensor, levels.fine, uses=1)
+            if gate is not None
+            else read_blur(scene, sight_sensor, rise_levels.fine, uses=2)
+        )
         spread = Spread.build(
             water=water,
             levels=levels,
@@ -353,34 +447,35 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
             truncation=scene.water.psf_truncation,
             passes=count,
             gain=gain,
-            # a gate's round trip is one filter; the target's plane spreads down and up
-            blur=read_blur(scene, sensor, levels.fine, uses=1 if gate is not None else 2),
+            blur=blur,
         )
         light = _beam_tail(setup, sensor, levels, tail, gate)
         if light is not None:
             fine, coarse = light
             source = levels.downsample(fine) + coarse
             light = spread.filtered(fine, source, far_out=gate is None)
-        rise = None
-        if gate is None:  # the target's plane: its light's way up
-            sway = subgrid_sway(setup, levels.fine, distance=depth)
-            rise = spread
-            if sway is not None:
-                rise = Spread.build(
-                    water=water,
-                    levels=levels,
-                    distance=depth,
-                    truncation=scene.water.psf_truncation,
-                    blur=read_blur(scene, sensor, levels.fine, uses=2),
-                    sway=sway,
-                )
-        planes.append(Plane(levels=levels, spread=spread, tail=light, rise=rise))
-    target_plane = impostor = target_light = gating = sight = sight_occupancy = None
+        planes.append(Plane(levels=levels, spread=spread, tail=light))
+    target_plane = target_rise = resample = None
+    impostor = target_light = gating = sight = sight_occupancy = None
     sight_support = (0, 0, 0, 0)
     if t.shape != "none":
         target_plane, planes = planes[0], planes[1:]
-        impostor = impostor_on(setup, target_plane.grid)
-        gating = TargetGating.build(setup, sensor, target_plane.levels)
+        rise = target_plane.spread  # the target's light's way up
+        sway = subgrid_sway(setup, rise_levels.fine, distance=t.depth)
+        if sway is not None or rise_levels is not target_plane.levels:
+            rise = Spread.build(
+                water=water,
+                levels=rise_levels,
+                distance=t.depth,
+                truncation=scene.water.psf_truncation,
+                blur=read_blur(scene, sight_sensor, rise_levels.fine, uses=2),
+                sway=sway,
+            )
+        target_rise = Plane(levels=rise_levels, spread=rise, tail=None)
+        if rise_levels is not target_plane.levels:
+            resample = Resample.between(target_plane.levels, rise_levels)
+        impostor = impostor_on(setup, rise_levels.fine)
+        gating = TargetGating.build(setup, sight_sensor, rise_levels)
         target_light = gating.light()
         guard = max(int(np.ceil(GUARD * camera.pixels)), 1)
         sight = sight_grid(sensor, t.depth, water.refractive_index, guard=guard)
@@ -398,7 +493,7 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
                 setup,
                 sensor,
                 gate_grid=plane.grid,
-                target_grid=target_plane.grid,
+                target_grid=rise_levels.fine,
                 sight=sight,
                 paths=sensor.paths[g],
             )
@@ -416,6 +511,8 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
         impostor=impostor,
         target_light=target_light,
         target_gating=gating,
+        target_rise=target_rise,
+        resample=resample,
         sight=sight,
         sight_occupancy=sight_occupancy,
         sight_support=sight_support,

@@ -196,9 +196,13 @@ class Sensor:
         return float(self.position[2] / np.cos(self.camera.nadir))
 
 
-def sensor_at(setup: Setup, frame: int) -> Sensor:
-    """Camera, laser and gate timing of `frame` (no plane yet)."""
+def sensor_at(setup: Setup, frame: int, *, rays: int | None = None) -> Sensor:
+    """Camera, laser and gate timing of `frame` (no plane yet).
+
+    `rays` per side of the laser lattice: the scene's (`Scene.laser_rays`) when None.
+    """
     scene = setup.scene
+    rays = scene.laser_rays if rays is None else rays
     p, r = scene.platform, scene.receiver
     position = platform_position(scene, frame * scene.sequence.interval)
     camera = PinholeCamera(
@@ -213,7 +217,7 @@ def sensor_at(setup: Setup, frame: int) -> Sensor:
     offset = lattice_offset(
         pixels=r.pixels,
         field_of_view=camera.field_of_view,
-        rays=scene.laser_rays,
+        rays=rays,
         laser_field_of_view=laser_fov,
     )
     lattice = LaserRays.central(
@@ -221,7 +225,7 @@ def sensor_at(setup: Setup, frame: int) -> Sensor:
         rotation=camera.rotation,
         beam=scene.laser.beam,
         field_of_view=laser_fov,
-        rays=scene.laser_rays,
+        rays=rays,
         reference_range=reference_range,
         offset=offset,
     )
@@ -235,7 +239,7 @@ def sensor_at(setup: Setup, frame: int) -> Sensor:
         position=position,
         camera=camera,
         laser_fov=laser_fov,
-        laser_rays=scene.laser_rays,
+        laser_rays=rays,
         reference_range=reference_range,
         lattice=lattice,
         paths=paths,

@@ -214,14 +214,15 @@ def _gate_gains(setup: Setup, excess, backend: Backend) -> list:
 def _target_frame(geometry: FrameGeometry, rays: SeaRays, images, backend: Backend):
     """Add the target's light to each gate's `images`; return the pixels' silhouette.
 
-    The target's plane is lit by the spread light of the laser's rays at its depth, times
-    each gate's reflectance map (`workers.planes.TargetLight`), spread up again (with the
-    sub-grid slopes' sway, `workers.planes.Plane.rise`) and gathered where the pixels'
-    lines through the resolved sea cross the plane.
+    The target's plane is lit by the spread light of the laser's rays at its depth,
+    brought to the pixels' pitch (`workers.planes.Resample`, where the laser's lattice
+    is not at it), times each gate's reflectance map (`workers.planes.TargetLight`),
+    spread up again (with the sub-grid slopes' sway, `FrameGeometry.target_rise`) and
+    gathered where the pixels' lines through the resolved sea cross the plane.
     """
     xp = backend.xp
-    plane = geometry.target_plane
-    levels = plane.levels
+    plane, rise = geometry.target_plane, geometry.target_rise
+    levels, resample = plane.levels, geometry.resample
     occupancy = geometry.sight_occupancy
     silhouette = _sample(
         rays.sight, geometry.sight_cells, (occupancy,), geometry.sight_support, backend
@@ -238,37 +239,43 @@ def _target_frame(geometry: FrameGeometry, rays: SeaRays, images, backend: Backe
             if shift != 0.0:
                 light = geometry.target_gating.light(shift).on(backend)
     rows = light.rows
+    lit = rows if resample is None else resample.source_rows(rows)
     wide = any(coarse is not None for _, coarse in light.weights)
     splat = _splat(plane, rays.down, rays.power * extra, backend)
-    reach = _reach(plane, rays.sight, backend)
+    reach = _reach(rise, rays.sight, backend)
     near, far, beyond = plane.spread.filtered(
         splat.fine,
         splat.source,
         rows_in=splat.rows,
-        rows_out=(rows, levels.coarse_rows(rows)),
+        rows_out=(lit, levels.coarse_rows(lit)),
         far_out=wide,
     )
     if plane.tail is not None:
-        near += plane.tail[0][rows]
+        near += plane.tail[0][lit]
         far += plane.tail[1]
         if wide:
             beyond += plane.tail[2]
-    near += levels.upsample(far, rows=rows)
-    inside = (rows, levels.coarse_rows(rows))
-    weight = rays.sight_transmittance * sight_extra
+    near += levels.upsample(far, rows=lit)
     fine = splat.fine
+    if resample is not None:  # the light at the pixels' pitch
+        across, along = resample.fine
+        near = across[rows, lit] @ near @ along.T
+        if wide:
+            across, along = resample.coarse
+            beyond = across @ beyond @ along.T
+        fine = xp.zeros(rise.grid.shape, dtype=xp.float32, device=backend.device)
+    inside = (rows, rise.levels.coarse_rows(rows))
+    weight = rays.sight_transmittance * sight_extra
     for (weights, coarse), gates in zip(light.weights, light.gates, strict=True):
         fine[...] = 0.0
         fine[rows] = near * weights[rows]
-        source = levels.downsample(fine, rows)
+        source = rise.levels.downsample(fine, rows)
         if coarse is not None:
             source += beyond * coarse
         seen = xp.zeros(images.shape[1], dtype=xp.float32, device=backend.device)
         rows_in = inside if coarse is None else (rows, slice(None))
-        spread = _spread(
-            plane, rays.sight, Splat(fine, source, rows_in), backend, reach=reach, up=True
-        )
-        _gather(plane, rays.sight, spread, ((weight, seen, None),), backend)
+        spread = _spread(rise, rays.sight, Splat(fine, source, rows_in), backend, reach=reach)
+        _gather(rise, rays.sight, spread, ((weight, seen, None),), backend)
         for g in gates:
             images[g] += seen
     return silhouette
@@ -297,18 +304,16 @@ def _spread(
     *,
     reach=None,
     tail=None,
-    up=False,
 ):
     """A splat spread on its plane, on the rows the pixels' `sight` reaches.
 
     The light of the beam's `tail` (`Plane.tail`) is added to the spread. Only the rows
     that the sights read (their `reach`, `_reach`: found here when None) are brought back
-    from the spectra. With `up`, the target's light spreads on its way up (`Plane.rise`).
+    from the spectra.
     """
     window, coarse = _reach(plane, sight, backend) if reach is None else reach
     rows = slice(*window[:2])
-    spread = plane.rise if up else plane.spread
-    near, far, _ = spread.filtered(
+    near, far, _ = plane.spread.filtered(
         splat.fine, splat.source, rows_in=splat.rows, rows_out=(rows, coarse)
     )
     none = _none(backend)
