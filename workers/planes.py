@@ -493,7 +493,7 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
                 setup,
                 sensor,
                 gate_grid=plane.grid,
-                target_grid=rise_levels.fine,
+                target_grid=target_plane.grid,
                 sight=sight,
                 paths=sensor.paths[g],
             )
