@@ -123,6 +123,12 @@ def gate_shadow(setup, sensor, *, gate_grid, target_grid, sight, paths):
 FACET_NODES = 8
 """Gauss–Hermite nodes per axis over a pixel's sub-grid facets (`_through_facets`)."""
 
+NODE_FLOOR = 1e-4
+"""Least weight of a node of the product rule kept (32 of the 64)."""
+
+SHADOW_FLOOR = 1e-3
+"""Deficit below which a cell's light is taken as whole (the blurs' FFT ring)."""
+
 
 def _through_facets(sensor, n_w, sight, seen, gate_grid, lit, target_grid, *, sway) -> np.ndarray:
     r"""The share of a pixel's view of the gate's water the target stops, through facets.
@@ -145,10 +151,14 @@ def _through_facets(sensor, n_w, sight, seen, gate_grid, lit, target_grid, *, sw
     weights = weights / weights.sum()
     zeta = np.stack(np.meshgrid(nodes, nodes, indexing="ij"), axis=-1).reshape(-1, 2)
     shares = np.outer(weights, weights).ravel()
+    used = shares >= NODE_FLOOR  # the outermost nodes hold 8e-4 of the weight
+    shares, zeta = shares[used] / shares[used].sum(), zeta[used]
     steps = zeta @ np.linalg.cholesky(sway).T  # (u, v) per metre of depth, per node
     axes = np.array([sight.axis_u, sight.axis_v])  # rows: u and v in world (x, y)
     x, y = sight.cell_centres()
     points = np.stack([x, y], axis=-1)
+    window = _window(sight, seen, gate_grid, lit, points, np.abs(steps).max(axis=0))
+    points = points[window]
     # the flat-sea lines through the sight grid's cells, where they cross the gate's plane
     # (as `_seen_through`: about the central ray, scaled by the planes' pitches)
     centre_t, centre_g = (central_point(sensor, g.depth, n_w) for g in (target_grid, gate_grid))
@@ -159,12 +169,38 @@ def _through_facets(sensor, n_w, sight, seen, gate_grid, lit, target_grid, *, sw
         ]
     )
     crossing = centre_g[:2] + (((points - centre_t[:2]) @ axes.T) * scale) @ axes
-    kept = np.zeros(sight.shape)
+    kept = np.zeros(points.shape[:2])
     for step, share in zip(steps, shares, strict=True):
         seen_at = _read(sight, seen, points + target_grid.depth * step @ axes)
         lit_at = _read(gate_grid, lit, crossing + gate_grid.depth * step @ axes)
         kept += share * (1.0 - seen_at) * (1.0 - lit_at)
-    return np.clip(1.0 - kept, 0.0, 1.0).astype(np.float32)
+    deficit = np.zeros(sight.shape, dtype=np.float32)
+    deficit[window] = np.clip(1.0 - kept, 0.0, 1.0)
+    return deficit
+
+
+def _window(sight, seen, gate_grid, lit, points, reach) -> tuple[slice, slice]:
+    """The cells of `sight` whose lines a facet can take to either deficit (the others: 0).
+
+    `reach` is the largest displacement per metre of depth along u and v [m]; the light's
+    deficit is placed on `sight` by its cells' world positions scaled about the grids'
+    common centre (its plane is deeper: its lines spread more, so this holds it).
+    """
+    margin = gate_grid.depth * reach / np.array([sight.spacing_u, sight.spacing_v]) + 2
+    rows, cols = [], []
+    for grid, field in ((sight, seen), (gate_grid, lit)):
+        held = np.argwhere(field > SHADOW_FLOOR)
+        if held.size:
+            x, y = grid.cell_centres()
+            row, col = sight.cell_coordinates(x[tuple(held.T)], y[tuple(held.T)])
+            rows += [row.min(), row.max()]
+            cols += [col.min(), col.max()]
+    if not rows:
+        return slice(0, 0), slice(0, 0)
+    first = np.floor([min(rows) - margin[1], min(cols) - margin[0]]).astype(int)
+    last = np.ceil([max(rows) + margin[1], max(cols) + margin[0]]).astype(int) + 1
+    first = np.maximum(first, 0)
+    return slice(first[0], last[0]), slice(first[1], last[1])
 
 
 def _seen_through(sensor, grid: PlaneGrid, target_grid: PlaneGrid, n_w: float) -> PlaneGrid:
