@@ -45,10 +45,12 @@ def gate_shadow(setup, sensor, *, gate_grid, target_grid, sight, paths):
     -------
     seen : ndarray or None
         On `sight`, the share of a pixel's view of the gate's water that the target
-        stops, at the place where the pixel's line of sight crosses the target's depth [1].
+        stops, at the place where the pixel's line of sight crosses the target's depth [1]
+        (over a rough sea, with the laser's light it stops: `_through_facets`).
     lit : ndarray or None
         On `gate_grid`, the share of the laser's light that the target keeps from the
-        gate's water along the line of sight through each cell [1].
+        gate's water along the line of sight through each cell [1] (None over a rough
+        sea: in `seen`).
 
     Notes
     -----
@@ -75,14 +77,14 @@ def gate_shadow(setup, sensor, *, gate_grid, target_grid, sight, paths):
       references 0.1 shallower than transport; read at the line, they agree within
       0.06: ``docs/model.md`` §10.)
 
-    Over a rough sea the slopes below the finest grid (`workers.sensor.subgrid_sway`)
-    sway the lines: `seen` is read along the pixels' lines through the resolved sea,
-    blurred by the sway over z_t; the laser's light, refracted by facets of its own,
-    reaches the water behind the target from directions that sway the shadow over Δz,
-    so `lit` is blurred by that too (and read along the pixel's line with its own
-    sub-grid slope, as the gate's light is).
-
-    The pixel keeps (1 − seen)(1 − lit) of the gate's light. The water's absorption and
+    The pixel keeps (1 − seen)(1 − lit) of the gate's light. Over a rough sea the slopes
+    below the finest grid (`workers.sensor.subgrid_sway`) sway the lines: the laser's
+    light, refracted by facets of its own, reaches the water behind the target from
+    directions that sway its shadow over Δz, so `lit` is blurred by that; and the view
+    of that water and the water itself move with the same facet of the pixel's view, at
+    z_t and at z_g, so the kept share is the expectation of the product over that facet
+    (`_through_facets`), returned as `seen` and read along the pixels' lines through the
+    resolved sea. The water's absorption and
     backscatter (K) act alike with and without the target, so only the shapes enter.
     Convolutions are linear (zero-padded FFTs) on each plane's fine grid.
     """
