@@ -13,7 +13,6 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from scipy.ndimage import map_coordinates
 
 from workers.gates import hidden_fraction
 from workers.geometry import PlaneGrid
@@ -171,10 +170,13 @@ def _through_facets(sensor, n_w, sight, seen, gate_grid, lit, target_grid, *, sw
         ]
     )
     crossing = centre_g[:2] + (((points - centre_t[:2]) @ axes.T) * scale) @ axes
+    # the grids share their axes: each cell's (row, col) on both, a row's the same along it
+    on_sight = sight.cell_coordinates(points[..., 0], points[..., 1])
+    on_gate = gate_grid.cell_coordinates(crossing[..., 0], crossing[..., 1])
     kept = np.zeros(points.shape[:2])
     for step, share in zip(steps, shares, strict=True):
-        seen_at = _read(sight, seen, points + target_grid.depth * step @ axes)
-        lit_at = _read(gate_grid, lit, crossing + gate_grid.depth * step @ axes)
+        seen_at = _read(seen, on_sight, target_grid.depth * step, sight)
+        lit_at = _read(lit, on_gate, gate_grid.depth * step, gate_grid)
         kept += share * (1.0 - seen_at) * (1.0 - lit_at)
     deficit = np.zeros(sight.shape, dtype=np.float32)
     deficit[window] = np.clip(1.0 - kept, 0.0, 1.0)
@@ -245,10 +247,35 @@ def _deficit(setup, sensor, grid: PlaneGrid, paths, impostor) -> np.ndarray:
     return deficit
 
 
-def _read(grid: PlaneGrid, field: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """`field` on `grid` read bilinearly at world `points` (..., 2) [m] (0 off the grid)."""
-    row, col = grid.cell_coordinates(points[..., 0], points[..., 1])
-    return map_coordinates(field, [row, col], order=1, mode="constant", cval=0.0)
+def _read(field: np.ndarray, cells, shift, grid: PlaneGrid) -> np.ndarray:
+    """`field` on `grid` read bilinearly at its (row, col) `cells` moved by `shift` (u, v) [m].
+
+    The rows of `cells` hold one row coordinate and its columns one column coordinate
+    (the points lie on a grid of `grid`'s axes), so the read is separable: four gathers.
+    Zero beyond the field.
+    """
+    padded = np.pad(field, 1)
+    rows = _linear(cells[0][:, 0] + shift[1] / grid.spacing_v, field.shape[0])
+    cols = _linear(cells[1][0, :] + shift[0] / grid.spacing_u, field.shape[1])
+    total = np.zeros((rows[0][0].size, cols[0][0].size))
+    for row, row_weight in rows:
+        for col, col_weight in cols:
+            total += row_weight[:, None] * col_weight[None, :] * padded[np.ix_(row, col)]
+    return total
+
+
+def _linear(position: np.ndarray, size: int) -> tuple:
+    """The two (index, weight) pairs of a linear read at `position` of a zero-padded axis.
+
+    Indices are into the axis padded by one zero on each side (its 0 and size + 1).
+    """
+    low = np.floor(position)
+    part = position - low
+    index = low.astype(int) + 1
+    return (
+        (np.clip(index, 0, size + 1), 1.0 - part),
+        (np.clip(index + 1, 0, size + 1), part),
+    )
 
 
 def _blurred(grid: PlaneGrid, field: np.ndarray, exponent, *, sway=None) -> np.ndarray:
