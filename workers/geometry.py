@@ -24,6 +24,7 @@ __all__ = [
     "fast_length",
     "flat_sea_point",
     "footprint_length",
+    "gaussian_transfer",
     "pan_tilt_rotation",
 ]
 
@@ -646,7 +647,7 @@ class PlaneGrid:
         values *= located.weights
         return values.sum(axis=0)
 
-    def convolved(self, field, transfer):
+    def convolved(self, field, transfer, *, sway=None):
         """`field` on this grid convolved, linearly (zero-padded to twice its size).
 
         Parameters
@@ -656,6 +657,9 @@ class PlaneGrid:
         transfer : callable
             The kernel's transfer function of the spatial-frequency magnitude [cycles/m]
             (an ndarray), real and even [1].
+        sway : ndarray, optional
+            The covariance, along (u, v), of a Gaussian also convolved [m²]
+            (`gaussian_transfer`); None: none.
 
         Returns
         -------
@@ -666,7 +670,14 @@ class PlaneGrid:
         fv = np.fft.fftfreq(shape[0], d=self.spacing_v)[:, np.newaxis]
         fu = np.fft.rfftfreq(shape[1], d=self.spacing_u)[np.newaxis, :]
         spectrum = np.fft.rfft2(field, s=shape) * transfer(np.hypot(fv, fu))
+        if sway is not None:
+            spectrum *= gaussian_transfer(fu, fv, sway)
         return np.fft.irfft2(spectrum, s=shape)[:rows, :cols]
+
+    def on_axes(self, covariance) -> np.ndarray:
+        """A horizontal covariance in world (x, y) [m²] along this grid's (u, v) axes."""
+        axes = np.array([self.axis_u, self.axis_v], dtype=np.float64)
+        return axes @ np.asarray(covariance, dtype=np.float64) @ axes.T
 
     def frequency(self):
         """Spatial-frequency magnitude on the rfft2 grid of the cells [cycles/m]."""
@@ -674,3 +685,22 @@ class PlaneGrid:
         fv = np.fft.fftfreq(rows, d=self.spacing_v)
         fu = np.fft.rfftfreq(cols, d=self.spacing_u)
         return np.hypot(fv[:, np.newaxis], fu[np.newaxis, :])
+
+
+def gaussian_transfer(fu, fv, covariance):
+    r"""Transfer function of a 2-D Gaussian kernel [1].
+
+    Parameters
+    ----------
+    fu, fv : ndarray
+        Spatial frequencies along the u and v axes [cycles/m] (broadcast together).
+    covariance : array_like, shape (2, 2)
+        The kernel's covariance along (u, v) [m²].
+
+    Returns
+    -------
+    ndarray
+        :math:`\exp(-2\pi^2\,\mathbf f^\top C\,\mathbf f)`, float64.
+    """
+    (uu, uv), (_, vv) = np.asarray(covariance, dtype=np.float64)
+    return np.exp(-2.0 * np.pi**2 * (uu * fu * fu + 2.0 * uv * fu * fv + vv * fv * fv))

@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -30,6 +31,7 @@ from workers.sensor import (
     scene_setup,
     sensor_at,
     sight_grid,
+    subgrid_sway,
 )
 from workers.shadows import gate_shadow
 from workers.spread import (
@@ -51,6 +53,9 @@ BEAM_EXTENT = 2.5
 TAIL_STEP = 2
 """Pitch of the beam tail's lattice, in laser-lattice steps (1 for an odd lattice, so the
 tail's cells end where the traced lattice's begin)."""
+
+SWAY_FLOOR = 1e-4
+"""Share of a pixel's view below which the swayed silhouette is none (the FFT's ring)."""
 
 LATTICE_MARGIN = 8
 """Laser rays traced through the wavy surface beyond the field, on each side."""
@@ -108,6 +113,74 @@ class TargetLight:
     gates: tuple[tuple[int, ...], ...]
     rows: slice
 
+    def on(self, backend: Backend) -> TargetLight:
+        """The maps on `backend` (itself on numpy)."""
+        if backend.name == "numpy":
+            return self
+        return replace(self, weights=_moved(self.weights, backend))
+
+
+@dataclass(frozen=True)
+class Resample:
+    """Bilinear resampling of a plane's fields onto a grid of the same axes and depth.
+
+    `fine` and `coarse` each hold a pair of matrices (rows, columns), float32: a field
+    ``f`` on the source level reads ``rows @ f @ columns.T`` on the target level (zero
+    beyond the source grid). `first` and `last` hold, per target fine row, the first and
+    last + 1 source fine rows it reads.
+    """
+
+    fine: tuple[np.ndarray, np.ndarray]
+    coarse: tuple[np.ndarray, np.ndarray]
+    first: tuple[int, ...]
+    last: tuple[int, ...]
+
+    @classmethod
+    def between(cls, source: Levels, target: Levels) -> Resample:
+        """The resampling from `source`'s levels onto `target`'s."""
+        fine = _interpolation(source.fine, target.fine)
+        rows = fine[0] > 0
+        first = np.argmax(rows, axis=1)
+        last = rows.shape[1] - np.argmax(rows[:, ::-1], axis=1)
+        last = np.where(rows.any(axis=1), last, first)
+        return cls(
+            fine=fine,
+            coarse=_interpolation(source.coarse, target.coarse),
+            first=tuple(int(f) for f in first),
+            last=tuple(int(f) for f in last),
+        )
+
+    def source_rows(self, rows: slice) -> slice:
+        """The source fine rows that the target fine `rows` read."""
+        if rows.start >= rows.stop:
+            return slice(0, 0)
+        return slice(min(self.first[rows]), max(self.last[rows]))
+
+    def on(self, backend: Backend) -> Resample:
+        """The matrices on `backend` (itself on numpy)."""
+        if backend.name == "numpy":
+            return self
+        return replace(self, fine=_moved(self.fine, backend), coarse=_moved(self.coarse, backend))
+
+
+def _interpolation(source: PlaneGrid, target: PlaneGrid) -> tuple[np.ndarray, np.ndarray]:
+    """Linear interpolation matrices (rows, columns) from `source`'s nodes to `target`'s."""
+    offset = np.asarray(target.origin) - np.asarray(source.origin)
+    matrices = []
+    for axis, size, spacing, count, step in (
+        (target.axis_v, target.shape[0], target.spacing_v, source.shape[0], source.spacing_v),
+        (target.axis_u, target.shape[1], target.spacing_u, source.shape[1], source.spacing_u),
+    ):
+        position = (offset @ np.asarray(axis) + np.arange(size) * spacing) / step
+        low = np.floor(position).astype(int)
+        part = position - low
+        matrix = np.zeros((size, count))
+        for node, weight in ((low, 1.0 - part), (low + 1, part)):
+            inside = (node >= 0) & (node < count)
+            matrix[np.flatnonzero(inside), node[inside]] += weight[inside]
+        matrices.append(matrix.astype(np.float32))
+    return matrices[0], matrices[1]
+
 
 def _moved(values, backend: Backend):
     """Host arrays (nested in tuples; None kept) as arrays of `backend`; numbers as floats."""
@@ -127,7 +200,14 @@ class FrameGeometry:
     With a target, `sight` is the pixels' own grid at its depth (`workers.sensor.sight_grid`)
     and `sight_occupancy` the target's silhouette on it: each pixel's share, for its mask;
     `sight_support` the first row, last row + 1, first column and last column + 1 of its
-    non-zero cells.
+    non-zero cells. `target_light` is the target's maps under the flat sea,
+    `target_gating` what makes them at any height of the sea over the target.
+
+    `target_plane` is lit by the laser's lattice; the target's maps, and its light's way
+    up (`target_rise`: its spread with the sub-grid slopes' sway of the lines of sight,
+    `workers.sensor.subgrid_sway`), are on the plane's grid at the pixels' pitch, the
+    default lattice's, whatever `laser.rays`: `resample` carries the light from the one
+    to the other (None where they are the same grid).
     """
 
     position: np.ndarray
@@ -139,6 +219,9 @@ class FrameGeometry:
     target_plane: Plane | None
     impostor: Impostor | None
     target_light: TargetLight | None
+    target_gating: TargetGating | None = None
+    target_rise: Plane | None = None
+    resample: Resample | None = None
     sight: PlaneGrid | None = None
     sight_occupancy: np.ndarray | None = None
     sight_support: tuple[int, int, int, int] = (0, 0, 0, 0)
@@ -161,7 +244,7 @@ class FrameGeometry:
         if backend not in self._on:
             light = self.target_light
             if light is not None:
-                light = replace(light, weights=_moved(light.weights, backend))
+                light = light.on(backend)
             self._on[backend] = replace(
                 self,
                 pixel_rays=_moved(self.pixel_rays, backend),
@@ -169,6 +252,8 @@ class FrameGeometry:
                 laser_power=backend.asarray(self.laser_power),
                 gate_planes=tuple(plane.on(backend) for plane in self.gate_planes),
                 target_plane=None if self.target_plane is None else self.target_plane.on(backend),
+                target_rise=None if self.target_rise is None else self.target_rise.on(backend),
+                resample=None if self.resample is None else self.resample.on(backend),
                 target_light=light,
                 sight_occupancy=_moved(self.sight_occupancy, backend),
             )
@@ -220,11 +305,14 @@ def read_blur(scene: Scene, sensor: Sensor, grid: PlaneGrid, *, uses: int) -> tu
     return blur[0], blur[1]
 
 
-def _plane_levels(setup: Setup, sensor: Sensor, depth: float, passes: int) -> tuple[Levels, int]:
+def _plane_levels(
+    setup: Setup, sensor: Sensor, depth: float, passes: int, *, reach: float = 0.0
+) -> tuple[Levels, int]:
     """The two-level grid of a plane, and its fine guard band [cells].
 
     The coarse margin holds `SPREAD_FRACTION` of the scattered light one way, twice that
-    radius for a round trip (two independent spreads).
+    radius for a round trip (two independent spreads); the guard band is at least `reach`
+    [m] wide.
     """
     n_w = setup.water.refractive_index
     bare = fine_grid(sensor, depth, n_w, guard=0, multiple=1)
@@ -232,7 +320,11 @@ def _plane_levels(setup: Setup, sensor: Sensor, depth: float, passes: int) -> tu
     margin = passes * encircled_radius(setup.water, distance=depth, fraction=SPREAD_FRACTION)
     span = max(bare.shape) * spacing
     factor = coarse_factor(spacing=spacing, extent=span + 2 * margin)
-    guard = max(int(np.ceil(GUARD * sensor.camera.pixels)), NEAR_SUPPORT * factor)
+    guard = max(
+        int(np.ceil(GUARD * sensor.camera.pixels)),
+        NEAR_SUPPORT * factor,
+        int(np.ceil(reach / spacing)),
+    )
     fine = fine_grid(sensor, depth, n_w, guard=guard, multiple=factor)
     return Levels.around(fine, factor=factor, margin=margin), guard
 
@@ -294,6 +386,19 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
         _plane_levels(setup, sensor, depth, count)
         for depth, count in zip(depths, passes, strict=True)
     ]
+    # the target's maps and its light's way up on the default lattice's grid (the pixels'
+    # pitch), lit from the laser's lattice on a grid reaching beyond it
+    sight_sensor, rise_levels = sensor, None
+    if t.shape != "none":
+        if sensor.laser_rays != scene.pixel_pitch_rays:
+            sight_sensor = sensor_at(setup, frame, rays=scene.pixel_pitch_rays)
+        rise_levels, guard = _plane_levels(setup, sight_sensor, t.depth, 1)
+        if sight_sensor is sensor:
+            rise_levels = built[0][0]
+        else:
+            fine = rise_levels.fine
+            reach = (guard + 1) * max(fine.spacing_u, fine.spacing_v)
+            built[0] = _plane_levels(setup, sensor, t.depth, 1, reach=reach)
     # the traced lattice reaches LATTICE_MARGIN rays beyond the field; the beam's tail
     # beyond it crosses the mean sea (within the beam's extent). The lattice is offset
     # from the pixels' lines of sight (`workers.sensor.lattice_offset`).
@@ -328,6 +433,13 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
     for (levels, _), depth, count, gain, gate in zip(
         built, depths, passes, gains, gate_index, strict=True
     ):
+        # a gate's round trip is one filter; the target's plane spreads down and up, read
+        # at the pixels' pitch
+        blur = (
+            read_blur(scene, sensor, levels.fine, uses=1)
+            if gate is not None
+            else read_blur(scene, sight_sensor, rise_levels.fine, uses=2)
+        )
         spread = Spread.build(
             water=water,
             levels=levels,
@@ -335,8 +447,7 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
             truncation=scene.water.psf_truncation,
             passes=count,
             gain=gain,
-            # a gate's round trip is one filter; the target's plane spreads down and up
-            blur=read_blur(scene, sensor, levels.fine, uses=1 if gate is not None else 2),
+            blur=blur,
         )
         light = _beam_tail(setup, sensor, levels, tail, gate)
         if light is not None:
@@ -344,15 +455,36 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
             source = levels.downsample(fine) + coarse
             light = spread.filtered(fine, source, far_out=gate is None)
         planes.append(Plane(levels=levels, spread=spread, tail=light))
-    target_plane = impostor = target_light = sight = sight_occupancy = None
+    target_plane = target_rise = resample = None
+    impostor = target_light = gating = sight = sight_occupancy = None
     sight_support = (0, 0, 0, 0)
     if t.shape != "none":
         target_plane, planes = planes[0], planes[1:]
-        impostor = impostor_on(setup, target_plane.grid)
-        target_light = _target_light(setup, sensor, target_plane.levels)
+        rise = target_plane.spread  # the target's light's way up
+        sway = subgrid_sway(setup, rise_levels.fine, distance=t.depth)
+        if sway is not None or rise_levels is not target_plane.levels:
+            rise = Spread.build(
+                water=water,
+                levels=rise_levels,
+                distance=t.depth,
+                truncation=scene.water.psf_truncation,
+                blur=read_blur(scene, sight_sensor, rise_levels.fine, uses=2),
+                sway=sway,
+            )
+        target_rise = Plane(levels=rise_levels, spread=rise, tail=None)
+        if rise_levels is not target_plane.levels:
+            resample = Resample.between(target_plane.levels, rise_levels)
+        impostor = impostor_on(setup, rise_levels.fine)
+        gating = TargetGating.build(setup, sight_sensor, rise_levels)
+        target_light = gating.light()
         guard = max(int(np.ceil(GUARD * camera.pixels)), 1)
         sight = sight_grid(sensor, t.depth, water.refractive_index, guard=guard)
+        sway = subgrid_sway(setup, sight, distance=t.depth)
         sight_occupancy = impostor_on(setup, sight).occupancy
+        if sway is not None:  # each pixel's share, as the sub-grid slopes sway its view
+            swayed = sight.convolved(sight_occupancy, np.ones_like, sway=sway)
+            sight_occupancy = np.where(swayed > SWAY_FLOOR, np.minimum(swayed, 1.0), 0.0)
+        sight_occupancy = sight_occupancy.astype(np.float32)
         sight_support = _support(sight_occupancy)
     gate_planes = []
     for g, plane in enumerate(planes):
@@ -378,6 +510,9 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
         target_plane=target_plane,
         impostor=impostor,
         target_light=target_light,
+        target_gating=gating,
+        target_rise=target_rise,
+        resample=resample,
         sight=sight,
         sight_occupancy=sight_occupancy,
         sight_support=sight_support,
@@ -405,70 +540,201 @@ def _gated(setup, grid, impostor, top, bottom, *, delays, shares) -> np.ndarray:
     return held
 
 
-def _target_light(setup, sensor, levels: Levels) -> TargetLight:
-    r"""Reflectance of the part of the target each gate holds, from its true depth.
+SHIFT_STEP = 0.01
+"""Step of the gate shifts at which a target's gated shares are computed [m]; a sample's
+shift is interpolated linearly between the two nearest (`TargetGating.light`)."""
 
-    The target plane's light carries the attenuation of the plane through the target's
-    centre; a cell whose line meets the target's surface at depth z_s (above the centre
-    plane, on the lit cap) is reached by a path shorter by (z_c − z_s) sec ϑ each way, so
-    its weight is multiplied by :math:`e^{K\sec\vartheta\,(z_c - z_s)}` for the way up,
-    and for the way down by the beam's irradiance at z_s over its irradiance at z_c
-    (`_beam_depth_ratio`, log-linear in depth between the sphere's top and centre). A
-    gate holds the part of each cell's return whose path it holds: the sphere's annulus between the
-    gate's depths on the cell's line (`workers.target.gated_share`), its unscattered share
-    on time and the rest late by the path stretch of its scatterings
-    (`workers.delays.return_delays`).
+
+@dataclass(frozen=True, eq=False)
+class TargetGating:
+    r"""What each gate holds of the target's cells, for any shift of the gates' depths.
+
+    Per level of the target's plane (the fine grid, and the coarse one where a large
+    target reaches beyond it): the cells the target covers (`cells`, flat indices), their
+    lit reflectance (`lit`: weight × the way up's and down's depth corrections, dense),
+    and each gate's depth bounds along their flat-sea lines of sight (`bounds`, shape
+    (gate, 2, cells)); the return's parts, on time and late (`delays`, `shares`).
+
+    A sea raised by h over the target moves every gate's depths up by
+    h (1 − cos ϑ_w / (n cos ϑ_a)) (`gate_shift`): the light's path in the air is shorter
+    by h / cos ϑ_a and in the water longer by h / cos ϑ_w, n times slower. `light` gives
+    the maps at such a shift, from shares computed at multiples of `SHIFT_STEP` (kept,
+    once each) and interpolated between them.
     """
-    water = setup.water
 
-    def lit(grid, impostor):
-        rise = grid.depth - np.asarray(impostor.surface_depth, dtype=np.float64)
-        lift = np.exp(water.diffuse_attenuation * setup.secant * rise)  # the way up
-        radius = setup.scene.target.radius
-        if setup.scene.target.shape == "sphere":
-            ratio = _beam_depth_ratio(setup, sensor, grid, rise=min(radius, grid.depth))
-            lift *= ratio ** np.clip(rise / radius, 0.0, 1.0)  # the way down
-        return impostor.weight * lift
+    setup: Setup
+    grids: tuple[PlaneGrid, ...]
+    impostors: tuple[Impostor, ...]
+    lit: tuple[np.ndarray, ...]
+    cells: tuple[np.ndarray, ...]
+    bounds: tuple[np.ndarray, ...]
+    delays: tuple[float, ...]
+    shares: tuple[float, ...]
+    _steps: dict = field(default_factory=dict, init=False, repr=False)
 
-    fine_impostor = impostor_on(setup, levels.fine)
-    coarse_impostor = impostor_on(setup, levels.coarse)
-    outside = coarse_impostor.occupancy.copy()
-    outside[levels.block] = 0.0
-    levels_lit = [(levels.fine, fine_impostor, lit(levels.fine, fine_impostor))]
-    if outside.any():
-        levels_lit.append((levels.coarse, coarse_impostor, lit(levels.coarse, coarse_impostor)))
-    n_w = water.refractive_index
-    sights = [lines_of_sight(sensor, grid, n_w) for grid, *_ in levels_lit]
-    unscattered, delays = return_delays(
-        water,
-        path=levels.fine.depth * setup.secant,
-        beam_radius=sensor.reference_range * np.tan(0.5 * sensor.laser_fov),
-        target_radius=setup.scene.target.radius,
-    )
-    parts = (0.0, *delays)
-    weights = (unscattered, *((1.0 - unscattered) / len(delays),) * len(delays))
-    maps, members = {}, {}
-    for g, paths in enumerate(sensor.paths):
-        pair, signature = [], b""
-        for (grid, impostor, weight), sight in zip(levels_lit, sights, strict=True):
-            top, bottom = gate_bounds(sight, paths, n_w)
-            share = _gated(setup, grid, impostor, top, bottom, delays=parts, shares=weights)
+    @classmethod
+    def build(cls, setup: Setup, sensor: Sensor, levels: Levels) -> TargetGating:
+        r"""The target's gating on its plane `levels` for `sensor`'s gates.
+
+        The target plane's light carries the attenuation of the plane through the
+        target's centre; a cell whose line meets the target's surface at depth z_s
+        (above the centre plane, on the lit cap) is reached by a path shorter by
+        (z_c − z_s) sec ϑ each way, so its weight is multiplied by
+        :math:`e^{K\sec\vartheta\,(z_c - z_s)}` for the way up, and for the way down
+        by the beam's irradiance at z_s over its irradiance at z_c
+        (`_beam_depth_ratio`, log-linear in depth between the sphere's top and centre).
+        A gate holds the part of each cell's return whose path it holds: the sphere's
+        annulus between the gate's depths on the cell's line
+        (`workers.target.gated_share`), its unscattered share on time and the rest late
+        by the path stretch of its scatterings (`workers.delays.return_delays`).
+        """
+        water = setup.water
+
+        def lit(grid, impostor):
+            rise = grid.depth - np.asarray(impostor.surface_depth, dtype=np.float64)
+            lift = np.exp(water.diffuse_attenuation * setup.secant * rise)  # the way up
+            radius = setup.scene.target.radius
+            if setup.scene.target.shape == "sphere":
+                ratio = _beam_depth_ratio(setup, sensor, grid, rise=min(radius, grid.depth))
+                lift *= ratio ** np.clip(rise / radius, 0.0, 1.0)  # the way down
+            return impostor.weight * lift
+
+        fine_impostor = impostor_on(setup, levels.fine)
+        coarse_impostor = impostor_on(setup, levels.coarse)
+        outside = coarse_impostor.occupancy.copy()
+        outside[levels.block] = 0.0
+        chosen = [(levels.fine, fine_impostor)]
+        if outside.any():
+            chosen.append((levels.coarse, coarse_impostor))
+        n_w = water.refractive_index
+        cells, bounds = [], []
+        for grid, impostor in chosen:
+            on = impostor.occupancy > 0
             if grid is levels.coarse:
-                share[levels.block] = 0.0
-            pair.append((weight * share).astype(np.float32))
-            signature += share.tobytes()
-        if not any(m.any() for m in pair):
-            continue
-        if signature not in maps:
-            maps[signature] = (pair[0], pair[1] if len(pair) > 1 else None)
-            members[signature] = []
-        members[signature].append(g)
-    used = np.flatnonzero(sum((fine.any(axis=1) for fine, _ in maps.values()), start=False))
-    return TargetLight(
-        weights=tuple(maps.values()),
-        gates=tuple(tuple(m) for m in members.values()),
-        rows=slice(int(used[0]), int(used[-1]) + 1) if used.size else slice(0, 0),
-    )
+                on[levels.block] = False
+            flat = np.flatnonzero(on)
+            sight = lines_of_sight(sensor, grid, n_w, flat)
+            cells.append(flat)
+            bounds.append(
+                np.array([gate_bounds(sight, paths, n_w) for paths in sensor.paths]).reshape(
+                    len(sensor.paths), 2, flat.size
+                )
+            )
+        unscattered, delays = return_delays(
+            water,
+            path=levels.fine.depth * setup.secant,
+            beam_radius=sensor.reference_range * np.tan(0.5 * sensor.laser_fov),
+            target_radius=setup.scene.target.radius,
+        )
+        return cls(
+            setup=setup,
+            grids=tuple(grid for grid, _ in chosen),
+            impostors=tuple(impostor for _, impostor in chosen),
+            lit=tuple(lit(grid, impostor) for grid, impostor in chosen),
+            cells=tuple(cells),
+            bounds=tuple(bounds),
+            delays=(0.0, *delays),
+            shares=(unscattered, *((1.0 - unscattered) / len(delays),) * len(delays)),
+        )
+
+    def _held(self, step: int) -> tuple[np.ndarray, ...]:
+        """Per level, each gate's share of its cells' return, gates shallower by `step`.
+
+        A gate that holds the whole target, or none of it, at every delay holds each
+        cell's whole return (1, or 0 where it returns nothing), or none: only the gates
+        whose depths cut it (one or two) are integrated.
+        """
+        if step not in self._steps:
+            shift = step * SHIFT_STEP
+            margin = self.setup.scene.target.radius  # the cells' centre depths, oblique
+            late = max(self.delays)
+            held = []
+            for level, (impostor, cells, bounds) in enumerate(
+                zip(self.impostors, self.cells, self.bounds, strict=True)
+            ):
+                shares = np.zeros((bounds.shape[0], cells.size))
+                for g, (top, bottom) in enumerate(bounds - shift):
+                    shallowest, deepest = impostor.top - margin, impostor.bottom + margin
+                    if bottom.max() <= shallowest or top.min() - late >= deepest:
+                        continue
+                    if top.max() <= shallowest and bottom.min() - late >= deepest:
+                        shares[g] = self._whole[level]
+                        continue
+                    shares[g] = self._share(level, top, bottom)
+                held.append(shares)
+            self._steps[step] = tuple(held)
+        return self._steps[step]
+
+    @functools.cached_property
+    def _whole(self) -> tuple[np.ndarray, ...]:
+        """Per level, the share of its cells' return a gate holding all the target holds."""
+        far = 1e6  # [m]
+        return tuple(
+            self._share(level, np.full(cells.size, -far), np.full(cells.size, far))
+            for level, cells in enumerate(self.cells)
+        )
+
+    def _share(self, level: int, top, bottom) -> np.ndarray:
+        """`_gated` on the cells of `level` between depths `top` and `bottom` [m]."""
+        grid, cells = self.grids[level], self.cells[level]
+        dense = [np.zeros(grid.shape), np.zeros(grid.shape)]
+        dense[0].ravel()[cells] = top
+        dense[1].ravel()[cells] = bottom
+        share = _gated(
+            self.setup,
+            grid,
+            self.impostors[level],
+            *dense,
+            delays=self.delays,
+            shares=self.shares,
+        )
+        return share.ravel()[cells]
+
+    def light(self, shift: float = 0.0) -> TargetLight:
+        """The target's maps per gate, every gate's depths `shift` shallower [m].
+
+        Gates whose maps are alike share one (`TargetLight`); the shares are interpolated
+        linearly between the two nearest multiples of `SHIFT_STEP` (exact at 0).
+        """
+        position = shift / SHIFT_STEP
+        step = int(np.floor(position))
+        part = position - step
+        held = self._held(step)
+        if part > 0.0:
+            held = tuple(
+                (1.0 - part) * low + part * high
+                for low, high in zip(held, self._held(step + 1), strict=True)
+            )
+        maps, members = {}, {}
+        for g in range(self.bounds[0].shape[0]):
+            pair, signature = [], b""
+            for grid, weight, cells, shares in zip(
+                self.grids, self.lit, self.cells, held, strict=True
+            ):
+                share = np.zeros(grid.shape)
+                share.ravel()[cells] = np.clip(shares[g], 0.0, 1.0)
+                pair.append((weight * share).astype(np.float32))
+                signature += share.tobytes()
+            if not any(m.any() for m in pair):
+                continue
+            if signature not in maps:
+                maps[signature] = (pair[0], pair[1] if len(pair) > 1 else None)
+                members[signature] = []
+            members[signature].append(g)
+        used = np.flatnonzero(sum((fine.any(axis=1) for fine, _ in maps.values()), start=False))
+        return TargetLight(
+            weights=tuple(maps.values()),
+            gates=tuple(tuple(m) for m in members.values()),
+            rows=slice(int(used[0]), int(used[-1]) + 1) if used.size else slice(0, 0),
+        )
+
+
+def gate_shift(setup: Setup, height: float) -> float:
+    """How much shallower a sea raised by `height` [m] gates every depth [m] (float)."""
+    scene = setup.scene
+    cos_air = np.cos(np.radians(scene.platform.nadir_deg))
+    cos_water = np.cos(setup.refracted_nadir)
+    return float(height * (1.0 - cos_water / (scene.water.refractive_index * cos_air)))
 
 
 def _beam_depth_ratio(setup, sensor, grid: PlaneGrid, *, rise: float) -> np.ndarray:

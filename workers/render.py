@@ -22,7 +22,9 @@ The image-formation model, per frame:
 3. The target is an impostor on the plane through its centre: downwelling irradiance
    there times its reflectance map, lit and attenuated at each cell's true depth on the
    target (not at the centre plane), restricted to each cell's share of the return inside
-   the gate (on time and delayed by scattering), spread up and gathered.
+   the gate (on time and delayed by scattering), spread up and gathered. Over a rough sea
+   it is read along the pixels' lines through the resolved sea, blurred by where the
+   sub-grid slopes move them (`workers.sensor.subgrid_sway`), as is the target's mask.
 4. Where a pixel's line of sight meets the target, the water behind the target is
    neither lit nor seen: the slab's backscatter loses the fraction lying behind the
    target's surface, half on the way down and half on the way up (square roots), each

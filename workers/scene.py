@@ -115,9 +115,14 @@ class Scene(Section):
 
     @property
     def laser_rays(self) -> int:
-        """Rays per side of the laser lattice: `laser.rays`, or the pixels' angular pitch."""
+        """Rays per side of the laser lattice: `laser.rays`, or `pixel_pitch_rays`."""
         if self.laser.rays is not None:
             return self.laser.rays
+        return self.pixel_pitch_rays
+
+    @property
+    def pixel_pitch_rays(self) -> int:
+        """Rays per side of a lattice at the pixels' angular pitch (`laser.rays`' default)."""
         return max(
             8, round(self.receiver.pixels * self._laser_half_width / self._receiver_half_width)
         )

@@ -13,7 +13,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from workers.backend import Backend
-from workers.cascades import Sea
+from workers.cascades import Sea, subgrid_slope_covariance
 from workers.gates import central_paths, gate_gains, sight_lines, slab_bounds
 from workers.geometry import LaserRays, PinholeCamera, PlaneGrid, flat_sea_point
 from workers.optics import fresnel_reflectance
@@ -196,9 +196,13 @@ class Sensor:
         return float(self.position[2] / np.cos(self.camera.nadir))
 
 
-def sensor_at(setup: Setup, frame: int) -> Sensor:
-    """Camera, laser and gate timing of `frame` (no plane yet)."""
+def sensor_at(setup: Setup, frame: int, *, rays: int | None = None) -> Sensor:
+    """Camera, laser and gate timing of `frame` (no plane yet).
+
+    `rays` per side of the laser lattice: the scene's (`Scene.laser_rays`) when None.
+    """
     scene = setup.scene
+    rays = scene.laser_rays if rays is None else rays
     p, r = scene.platform, scene.receiver
     position = platform_position(scene, frame * scene.sequence.interval)
     camera = PinholeCamera(
@@ -213,7 +217,7 @@ def sensor_at(setup: Setup, frame: int) -> Sensor:
     offset = lattice_offset(
         pixels=r.pixels,
         field_of_view=camera.field_of_view,
-        rays=scene.laser_rays,
+        rays=rays,
         laser_field_of_view=laser_fov,
     )
     lattice = LaserRays.central(
@@ -221,7 +225,7 @@ def sensor_at(setup: Setup, frame: int) -> Sensor:
         rotation=camera.rotation,
         beam=scene.laser.beam,
         field_of_view=laser_fov,
-        rays=scene.laser_rays,
+        rays=rays,
         reference_range=reference_range,
         offset=offset,
     )
@@ -235,7 +239,7 @@ def sensor_at(setup: Setup, frame: int) -> Sensor:
         position=position,
         camera=camera,
         laser_fov=laser_fov,
-        laser_rays=scene.laser_rays,
+        laser_rays=rays,
         reference_range=reference_range,
         lattice=lattice,
         paths=paths,
@@ -392,6 +396,43 @@ def gated_share_on(setup: Setup, grid: PlaneGrid, top, bottom, *, on, delays, sh
         delays=delays,
         shares=shares,
     )
+
+
+def subgrid_sway(setup: Setup, grid: PlaneGrid, *, distance: float) -> np.ndarray | None:
+    r"""Where the sub-grid slopes move a line `distance` below where they tilt it.
+
+    Parameters
+    ----------
+    setup : Setup
+        The scene's setup (its sea and water).
+    grid : PlaneGrid
+        The plane whose axes the covariance is on.
+    distance : float
+        The water path d below the tilt [m]: a plane's depth for the lines of sight.
+
+    Returns
+    -------
+    ndarray or None
+        The (u, v) covariance [m²] of :math:`(1 - 1/n)\,d\,\mathbf s`, s the slopes
+        below the finest grid (`workers.cascades.subgrid_slope_covariance`): a facet of
+        slope s tilts a line refracted into the water by about −(1 − 1/n)s. None over
+        a flat sea.
+
+    Notes
+    -----
+    A pixel looks through many cells of the finest grid, each with its own sub-grid
+    slope (`workers.surface.SubgridSlopes`), so it sees a point of the target blurred
+    by this Gaussian; its one line of sight would instead read the target at one random
+    displacement, the same one that sets its mask (`workers.labels.target_mask`), and
+    keep the target's light inside the mask. The target's light and the view it stops
+    are therefore read along the lines through the resolved sea and blurred by it, as
+    the Monte Carlo renderer's way up does (docs/model.md §9). The scene's covariance is
+    used (`surface.max_elevation`'s rescaling of a sample is not applied to it).
+    """
+    if setup.sea is None:
+        return None
+    reach = (1.0 - 1.0 / setup.water.refractive_index) * distance
+    return reach**2 * grid.on_axes(subgrid_slope_covariance(setup.sea))
 
 
 def impostor_on(setup: Setup, grid: PlaneGrid) -> Impostor:

@@ -16,7 +16,7 @@ import numpy as np
 
 from workers.gates import hidden_fraction
 from workers.geometry import PlaneGrid
-from workers.sensor import central_point, gate_bounds, impostor_on, lines_of_sight
+from workers.sensor import central_point, gate_bounds, impostor_on, lines_of_sight, subgrid_sway
 
 __all__ = ["gate_shadow"]
 
@@ -44,10 +44,12 @@ def gate_shadow(setup, sensor, *, gate_grid, target_grid, sight, paths):
     -------
     seen : ndarray or None
         On `sight`, the share of a pixel's view of the gate's water that the target
-        stops, at the place where the pixel's line of sight crosses the target's depth [1].
+        stops, at the place where the pixel's line of sight crosses the target's depth [1]
+        (over a rough sea, with the laser's light it stops: `_through_facets`).
     lit : ndarray or None
         On `gate_grid`, the share of the laser's light that the target keeps from the
-        gate's water along the line of sight through each cell [1].
+        gate's water along the line of sight through each cell [1] (None over a rough
+        sea: in `seen`).
 
     Notes
     -----
@@ -74,7 +76,14 @@ def gate_shadow(setup, sensor, *, gate_grid, target_grid, sight, paths):
       references 0.1 shallower than transport; read at the line, they agree within
       0.06: ``docs/model.md`` §10.)
 
-    The pixel keeps (1 − seen)(1 − lit) of the gate's light. The water's absorption and
+    The pixel keeps (1 − seen)(1 − lit) of the gate's light. Over a rough sea the slopes
+    below the finest grid (`workers.sensor.subgrid_sway`) sway the lines: the laser's
+    light, refracted by facets of its own, reaches the water behind the target from
+    directions that sway its shadow over Δz, so `lit` is blurred by that; and the view
+    of that water and the water itself move with the same facet of the pixel's view, at
+    z_t and at z_g, so the kept share is the expectation of the product over that facet
+    (`_through_facets`), returned as `seen` and read along the pixels' lines through the
+    resolved sea. The water's absorption and
     backscatter (K) act alike with and without the target, so only the shapes enter.
     Convolutions are linear (zero-padded FFTs) on each plane's fine grid.
     """
@@ -101,10 +110,101 @@ def gate_shadow(setup, sensor, *, gate_grid, target_grid, sight, paths):
         sigma = water.mtf_exponent(psi) + (next(steps) - next(steps)) / (2 * _LOG_STEP)
         return b_f * z_t * (sigma - 1.0) + one_way(f, drop)
 
-    return (
-        _blurred(sight, seen, lambda f: one_way(f, z_t)),
-        _blurred(gate_grid, lit, behind),
+    seen = _blurred(sight, seen, lambda f: one_way(f, z_t))
+    lit = _blurred(gate_grid, lit, behind, sway=subgrid_sway(setup, gate_grid, distance=drop))
+    unit = subgrid_sway(setup, sight, distance=1.0)
+    if unit is None:
+        return seen, lit
+    through = _through_facets(
+        sensor, water.refractive_index, sight, seen, gate_grid, lit, target_grid, sway=unit
     )
+    return through, None
+
+
+FACET_NODES = 8
+"""Gauss–Hermite nodes per axis over a pixel's sub-grid facets (`_through_facets`)."""
+
+NODE_FLOOR = 1e-4
+"""Least weight of a node of the product rule kept (32 of the 64)."""
+
+SHADOW_FLOOR = 1e-3
+"""Deficit below which a cell's light is taken as whole (the blurs' FFT ring)."""
+
+
+def _through_facets(sensor, n_w, sight, seen, gate_grid, lit, target_grid, *, sway) -> np.ndarray:
+    r"""The share of a pixel's view of the gate's water the target stops, through facets.
+
+    A pixel looks through many facets below the sea's grid; a facet of slope s moves its
+    straight line in the water by :math:`\boldsymbol\delta = (1 - 1/n)\,d\,\mathbf s`
+    at depth d (covariance d² `sway`). The gate's water at depth z_g seen through it lies
+    at δ(z_g) from the pixel's line; the view to it is stopped where the same line
+    crosses the target's depth, at δ(z_t), and the laser's light to it where that
+    light's own line crosses it (`lit`, read at the point). The pixel keeps
+    :math:`E_s[(1 - B(\mathbf x + \boldsymbol\delta(z_t)))\,
+    (1 - L(\mathbf x_g + \boldsymbol\delta(z_g)))]`, B the view's deficit on `sight`
+    (`seen`), L the light's on `gate_grid` (`lit`), x and x_g the line's crossings of
+    the two planes along the flat sea; the two deficits come through the same facet, so
+    the expectation is taken of their product (a product of the two expectations reads
+    the shadows 1.1–1.4 times too deep, `benchmarks.shadow_sway`). Returned on `sight`
+    (1 − the kept share), to be read where the pixel's line crosses the target's depth.
+    """
+    nodes, weights = np.polynomial.hermite_e.hermegauss(FACET_NODES)
+    weights = weights / weights.sum()
+    zeta = np.stack(np.meshgrid(nodes, nodes, indexing="ij"), axis=-1).reshape(-1, 2)
+    shares = np.outer(weights, weights).ravel()
+    used = shares >= NODE_FLOOR  # the outermost nodes hold 8e-4 of the weight
+    shares, zeta = shares[used] / shares[used].sum(), zeta[used]
+    steps = zeta @ np.linalg.cholesky(sway).T  # (u, v) per metre of depth, per node
+    axes = np.array([sight.axis_u, sight.axis_v])  # rows: u and v in world (x, y)
+    x, y = sight.cell_centres()
+    points = np.stack([x, y], axis=-1)
+    window = _window(sight, seen, gate_grid, lit, points, np.abs(steps).max(axis=0))
+    points = points[window]
+    # the flat-sea lines through the sight grid's cells, where they cross the gate's plane
+    # (as `_seen_through`: about the central ray, scaled by the planes' pitches)
+    centre_t, centre_g = (central_point(sensor, g.depth, n_w) for g in (target_grid, gate_grid))
+    scale = np.array(
+        [
+            gate_grid.spacing_u / target_grid.spacing_u,
+            gate_grid.spacing_v / target_grid.spacing_v,
+        ]
+    )
+    crossing = centre_g[:2] + (((points - centre_t[:2]) @ axes.T) * scale) @ axes
+    # the grids share their axes: each cell's (row, col) on both, a row's the same along it
+    on_sight = sight.cell_coordinates(points[..., 0], points[..., 1])
+    on_gate = gate_grid.cell_coordinates(crossing[..., 0], crossing[..., 1])
+    kept = np.zeros(points.shape[:2])
+    for step, share in zip(steps, shares, strict=True):
+        seen_at = _read(seen, on_sight, target_grid.depth * step, sight)
+        lit_at = _read(lit, on_gate, gate_grid.depth * step, gate_grid)
+        kept += share * (1.0 - seen_at) * (1.0 - lit_at)
+    deficit = np.zeros(sight.shape, dtype=np.float32)
+    deficit[window] = np.clip(1.0 - kept, 0.0, 1.0)
+    return deficit
+
+
+def _window(sight, seen, gate_grid, lit, points, reach) -> tuple[slice, slice]:
+    """The cells of `sight` whose lines a facet can take to either deficit (the others: 0).
+
+    `reach` is the largest displacement per metre of depth along u and v [m]; the light's
+    deficit is placed on `sight` by its cells' world positions scaled about the grids'
+    common centre (its plane is deeper: its lines spread more, so this holds it).
+    """
+    margin = gate_grid.depth * reach / np.array([sight.spacing_u, sight.spacing_v]) + 2
+    rows, cols = [], []
+    for grid, field in ((sight, seen), (gate_grid, lit)):
+        held = np.argwhere(field > SHADOW_FLOOR)
+        if held.size:
+            x, y = grid.cell_centres()
+            row, col = sight.cell_coordinates(x[tuple(held.T)], y[tuple(held.T)])
+            rows += [row.min(), row.max()]
+            cols += [col.min(), col.max()]
+    if not rows:
+        return slice(0, 0), slice(0, 0)
+    first = np.floor([min(rows) - margin[1], min(cols) - margin[0]]).astype(int)
+    last = np.ceil([max(rows) + margin[1], max(cols) + margin[0]]).astype(int) + 1
+    first = np.maximum(first, 0)
+    return slice(first[0], last[0]), slice(first[1], last[1])
 
 
 def _seen_through(sensor, grid: PlaneGrid, target_grid: PlaneGrid, n_w: float) -> PlaneGrid:
@@ -147,7 +247,41 @@ def _deficit(setup, sensor, grid: PlaneGrid, paths, impostor) -> np.ndarray:
     return deficit
 
 
-def _blurred(grid: PlaneGrid, field: np.ndarray, exponent) -> np.ndarray:
-    """`field` convolved (linear, zero-padded) with the kernel of transfer e^exponent(f)."""
-    out = grid.convolved(field, lambda frequency: np.exp(exponent(frequency)))
+def _read(field: np.ndarray, cells, shift, grid: PlaneGrid) -> np.ndarray:
+    """`field` on `grid` read bilinearly at its (row, col) `cells` moved by `shift` (u, v) [m].
+
+    The rows of `cells` hold one row coordinate and its columns one column coordinate
+    (the points lie on a grid of `grid`'s axes), so the read is separable: four gathers.
+    Zero beyond the field.
+    """
+    padded = np.pad(field, 1)
+    rows = _linear(cells[0][:, 0] + shift[1] / grid.spacing_v, field.shape[0])
+    cols = _linear(cells[1][0, :] + shift[0] / grid.spacing_u, field.shape[1])
+    total = np.zeros((rows[0][0].size, cols[0][0].size))
+    for row, row_weight in rows:
+        for col, col_weight in cols:
+            total += row_weight[:, None] * col_weight[None, :] * padded[np.ix_(row, col)]
+    return total
+
+
+def _linear(position: np.ndarray, size: int) -> tuple:
+    """The two (index, weight) pairs of a linear read at `position` of a zero-padded axis.
+
+    Indices are into the axis padded by one zero on each side (its 0 and size + 1).
+    """
+    low = np.floor(position)
+    part = position - low
+    index = low.astype(int) + 1
+    return (
+        (np.clip(index, 0, size + 1), 1.0 - part),
+        (np.clip(index + 1, 0, size + 1), part),
+    )
+
+
+def _blurred(grid: PlaneGrid, field: np.ndarray, exponent, *, sway=None) -> np.ndarray:
+    """`field` convolved (linear, zero-padded) with the kernel of transfer e^exponent(f).
+
+    And with the Gaussian of covariance `sway` (`PlaneGrid.convolved`) when given.
+    """
+    out = grid.convolved(field, lambda frequency: np.exp(exponent(frequency)), sway=sway)
     return np.clip(out, 0.0, 1.0).astype(np.float32)

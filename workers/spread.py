@@ -42,7 +42,7 @@ import scipy.fft
 from scipy import integrate, special
 
 from workers.backend import Backend, get_backend
-from workers.geometry import PlaneGrid, fast_length
+from workers.geometry import PlaneGrid, fast_length, gaussian_transfer
 from workers.water import WaterOptics
 
 __all__ = [
@@ -478,6 +478,7 @@ class Spread:
         passes: int = 1,
         gain: float = 1.0,
         blur: tuple[float, float] = (0.0, 0.0),
+        sway: np.ndarray | None = None,
     ) -> Spread:
         r"""The filters of the water path `distance` for the plane `levels`.
 
@@ -502,6 +503,10 @@ class Spread:
             the fine level's kernel [m] (default none): what brings the splat and gather
             of the rays to the scale the light is read at (`workers.planes.read_blur`).
             The coarse level, far wider, is left as it is.
+        sway : ndarray, optional
+            The covariance along (u, v) of a further Gaussian on the fine level [m²]
+            (`workers.sensor.subgrid_sway`: where the sub-grid slopes move the lines of
+            sight); None: none.
 
         Returns
         -------
@@ -524,10 +529,12 @@ class Spread:
         f_fine = fine.frequency()
         low = np.exp(-((f_fine / cutoff) ** 2))
         mtf = water.mtf(f_fine, distance=distance).astype(np.float64) ** passes
-        if any(blur):
+        if any(blur) or sway is not None:
             fv = np.fft.fftfreq(fine.shape[0], d=fine.spacing_v)[:, None]
             fu = np.fft.rfftfreq(fine.shape[1], d=fine.spacing_u)[None, :]
             mtf = mtf * np.exp(-2.0 * np.pi**2 * ((blur[0] * fu) ** 2 + (blur[1] * fv) ** 2))
+            if sway is not None:
+                mtf = mtf * gaussian_transfer(fu, fv, sway)
         near = mtf - scattered_mtf(water, f_fine, distance=distance, passes=passes) * low
         rows, cols = coarse.shape
         fv = np.fft.fftfreq(rows, d=coarse.spacing_v)[:, None]

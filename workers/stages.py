@@ -12,6 +12,7 @@ renderer's code, byte for byte. The model is in `workers.render`'s docstring and
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,7 +20,7 @@ import numpy as np
 from workers.backend import Backend
 from workers.interface import Projected, through_surface
 from workers.kernels import Cells
-from workers.planes import FrameGeometry, Plane
+from workers.planes import FrameGeometry, Plane, gate_shift
 from workers.sensor import Setup
 
 __all__ = ["FrameLight", "PlaneLight", "SeaRays", "Splat", "frame_light"]
@@ -35,19 +36,28 @@ class SeaRays:
         The laser's rays in the water.
     up : Projected
         The pixels' lines of sight in the water.
+    sight : Projected
+        The pixels' lines of sight through the resolved sea alone (without the sub-grid
+        slopes; `up` itself without them or without a target): what reads the target's
+        light and the view it stops, which `workers.sensor.subgrid_sway` blurs instead.
     power : array
         Each laser ray's power through the surface (beam share × Fresnel transmittance)
         [1], float32.
-    up_transmittance : array
-        Each line of sight's Fresnel transmittance [1], float32.
+    up_transmittance, sight_transmittance : array
+        Each line of sight's Fresnel transmittance, `up`'s and `sight`'s [1], float32.
+    sight_height : array
+        The sea's elevation where each of `sight`'s lines meets it [m], float32.
     down_excess, up_excess : array
         Each ray's air path less the central ray's [m], float32: its gates' timing.
     """
 
     down: Projected
     up: Projected
+    sight: Projected
     power: object
     up_transmittance: object
+    sight_transmittance: object
+    sight_height: object
     down_excess: object
     up_excess: object
 
@@ -146,7 +156,7 @@ def frame_light(
         if plane.seen is not None:
             # the pixels whose lines of sight the target stops, where they cross it
             whole = (0, *plane.seen.shape[:1], 0, plane.seen.shape[1])
-            hidden = _sample(rays.up, geometry.sight_cells, (plane.seen,), whole, backend)[0]
+            hidden = _sample(rays.sight, geometry.sight_cells, (plane.seen,), whole, backend)[0]
             weight = weight * (1.0 - hidden)
         outputs.append((weight, images[g], plane.occlusion))
         splat = _splat(plane, rays.down, ray_power, backend)
@@ -173,11 +183,20 @@ def _sea_rays(setup: Setup, geometry: FrameGeometry, surface, frame: int) -> Sea
     down = through_surface(geometry.laser_rays, surface, frame, n_w)
     # the pixels' lines of sight are never laser rays (`workers.sensor.lattice_offset`)
     up = through_surface(geometry.pixel_rays, surface, frame, n_w)
+    lines = up.on_axes(axes_grid, K)
+    sight, sight_lines = up, lines
+    if getattr(surface, "subgrid", None) is not None and geometry.impostor is not None:
+        resolved = dataclasses.replace(surface, subgrid=None)
+        sight = through_surface(geometry.pixel_rays, resolved, frame, n_w)
+        sight_lines = sight.on_axes(axes_grid, K)
     return SeaRays(
         down=down.on_axes(axes_grid, K),
-        up=up.on_axes(axes_grid, K),
+        up=lines,
+        sight=sight_lines,
         power=geometry.laser_power * down.transmittance,
         up_transmittance=up.transmittance,
+        sight_transmittance=sight.transmittance,
+        sight_height=sight.z,
         down_excess=down.air - central,
         up_excess=up.air - central,
     )
@@ -195,50 +214,68 @@ def _gate_gains(setup: Setup, excess, backend: Backend) -> list:
 def _target_frame(geometry: FrameGeometry, rays: SeaRays, images, backend: Backend):
     """Add the target's light to each gate's `images`; return the pixels' silhouette.
 
-    The target's plane is lit by the spread light of the laser's rays at its depth, times
-    each gate's reflectance map (`workers.planes.TargetLight`), spread up again and
-    gathered at the pixels.
+    The target's plane is lit by the spread light of the laser's rays at its depth,
+    brought to the pixels' pitch (`workers.planes.Resample`, where the laser's lattice
+    is not at it), times each gate's reflectance map (`workers.planes.TargetLight`),
+    spread up again (with the sub-grid slopes' sway, `FrameGeometry.target_rise`) and
+    gathered where the pixels' lines through the resolved sea cross the plane.
     """
     xp = backend.xp
-    plane = geometry.target_plane
-    levels = plane.levels
+    plane, rise = geometry.target_plane, geometry.target_rise
+    levels, resample = plane.levels, geometry.resample
     occupancy = geometry.sight_occupancy
     silhouette = _sample(
-        rays.up, geometry.sight_cells, (occupancy,), geometry.sight_support, backend
+        rays.sight, geometry.sight_cells, (occupancy,), geometry.sight_support, backend
     )[0]
     extra = rays.down.extra(levels.fine.depth)
-    sight_extra = rays.up.extra(levels.fine.depth)
+    sight_extra = rays.sight.extra(levels.fine.depth)
     light = geometry.target_light
+    if geometry.target_gating is not None:
+        # the sea's height over the target moves the gates' depths across it
+        held = xp.sum(silhouette)
+        if float(held) > 0.0:
+            height = float(xp.sum(silhouette * rays.sight_height) / held)
+            shift = gate_shift(geometry.target_gating.setup, height)
+            if shift != 0.0:
+                light = geometry.target_gating.light(shift).on(backend)
     rows = light.rows
+    lit = rows if resample is None else resample.source_rows(rows)
     wide = any(coarse is not None for _, coarse in light.weights)
     splat = _splat(plane, rays.down, rays.power * extra, backend)
-    reach = _reach(plane, rays.up, backend)
+    reach = _reach(rise, rays.sight, backend)
     near, far, beyond = plane.spread.filtered(
         splat.fine,
         splat.source,
         rows_in=splat.rows,
-        rows_out=(rows, levels.coarse_rows(rows)),
+        rows_out=(lit, levels.coarse_rows(lit)),
         far_out=wide,
     )
     if plane.tail is not None:
-        near += plane.tail[0][rows]
+        near += plane.tail[0][lit]
         far += plane.tail[1]
         if wide:
             beyond += plane.tail[2]
-    near += levels.upsample(far, rows=rows)
-    inside = (rows, levels.coarse_rows(rows))
-    weight = rays.up_transmittance * sight_extra
+    near += levels.upsample(far, rows=lit)
     fine = splat.fine
+    if resample is not None:  # the light at the pixels' pitch
+        across, along = resample.fine
+        near = across[rows, lit] @ near @ along.T
+        if wide:
+            across, along = resample.coarse
+            beyond = across @ beyond @ along.T
+        fine = xp.zeros(rise.grid.shape, dtype=xp.float32, device=backend.device)
+    inside = (rows, rise.levels.coarse_rows(rows))
+    weight = rays.sight_transmittance * sight_extra
     for (weights, coarse), gates in zip(light.weights, light.gates, strict=True):
         fine[...] = 0.0
         fine[rows] = near * weights[rows]
-        source = levels.downsample(fine, rows)
+        source = rise.levels.downsample(fine, rows)
         if coarse is not None:
             source += beyond * coarse
         seen = xp.zeros(images.shape[1], dtype=xp.float32, device=backend.device)
         rows_in = inside if coarse is None else (rows, slice(None))
-        spread = _spread(plane, rays.up, Splat(fine, source, rows_in), backend, reach=reach)
-        _gather(plane, rays.up, spread, ((weight, seen, None),), backend)
+        spread = _spread(rise, rays.sight, Splat(fine, source, rows_in), backend, reach=reach)
+        _gather(rise, rays.sight, spread, ((weight, seen, None),), backend)
         for g in gates:
             images[g] += seen
     return silhouette
@@ -260,7 +297,13 @@ def _splat(plane: Plane, rays: Projected, power, backend: Backend) -> Splat:
 
 
 def _spread(
-    plane: Plane, sight: Projected, splat: Splat, backend: Backend, *, reach=None, tail=None
+    plane: Plane,
+    sight: Projected,
+    splat: Splat,
+    backend: Backend,
+    *,
+    reach=None,
+    tail=None,
 ):
     """A splat spread on its plane, on the rows the pixels' `sight` reaches.
 

@@ -295,20 +295,28 @@ def gated_share(*, grid, centre, radius, refracted_nadir, top, bottom, on, delay
     farthest = np.hypot(reach_u[1], reach_w[1])
 
     def held_within(depth):
-        """Each cell's return from the disc of the sphere's points shallower than `depth`."""
+        """Each cell's return from the disc of the sphere's points shallower than `depth`.
+
+        `depth` is (depths, cells): every depth's cut cells in one `disc_cover`.
+        """
         chord = np.clip((base - depth) / cos_t, 0.0, radius)
         limit = np.sqrt(radius**2 - chord**2)
         out = np.where(farthest <= limit, whole, 0.0)
         cut = (nearest < limit) & (farthest > limit)
         if cut.any():
-            part = {key: value[cut] if np.ndim(value) else value for key, value in cells.items()}
+            part = {
+                key: np.broadcast_to(value, cut.shape)[cut] if np.ndim(value) else value
+                for key, value in cells.items()
+            }
             out[cut] = disc_cover(**part, within=limit[cut])[1]
         return out
 
     top, bottom = (np.asarray(v, dtype=np.float64)[on] for v in (top, bottom))
+    delays = np.asarray(delays, dtype=np.float64)[:, np.newaxis]
+    below, above = np.split(held_within(np.concatenate([bottom - delays, top - delays])), 2)
     held = np.zeros(whole.shape)
-    for delay, share in zip(delays, shares, strict=True):
-        held += share * (held_within(bottom - delay) - held_within(top - delay))
+    for share, low, high in zip(shares, below, above, strict=True):
+        held += share * (low - high)
     out = np.zeros(grid.shape)
     out[on] = np.clip(np.divide(held, whole, out=np.zeros(whole.shape), where=whole > 0), 0, 1)
     return out
