@@ -13,8 +13,8 @@ gate's edge cuts it, shadows within 0.05, each plus two standard errors.
 
 The data are regenerated with ``python -m benchmarks.fidelity_reference --force`` after a
 change of the transport physics, never to make a test pass. A scene that fails names its
-gates and measures: on main at the time of writing, the fast renderer misses several over
-waves (issue #36 item 2), and these tests say which.
+gates and measures; the four the fast renderer does not hold yet are strict expected
+failures (`GAPS`, docs/model.md §10).
 """
 
 import json
@@ -60,7 +60,26 @@ def failures(checks) -> list[str]:
     return lines
 
 
-@pytest.mark.parametrize("name", list(SCENES))
+GAPS = {
+    "nadir-20": "gate 2's edge at 20° off nadir: fast 1.88 against transport 2.39 ± 0.06",
+    "wind-1": "gate 2's edge over a 1 m/s sea: fast 0.80 against transport 1.28 ± 0.08",
+    "wind-10": "the sphere in gate 1 over a 10 m/s sea: fast 17.2 against transport 23.1 ± 0.7",
+    "coastal-wind-5": "coastal shadows in gates 5-6 over a 5 m/s sea: fast -0.56, -0.54 against "
+    "transport -0.76 ± 0.04, -0.68 ± 0.04",
+}
+"""The scenes the fast renderer does not yet hold (issue #36 item 2, docs/model.md §10), each
+a measured gap: strict, so that the test says when one closes."""
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        pytest.param(name, marks=pytest.mark.xfail(strict=True, reason=GAPS[name]))
+        if name in GAPS
+        else name
+        for name in SCENES
+    ],
+)
 def test_fast_renderer_holds_to_the_reference_scene(name):
     scene, reference = stored(name)
     fast = fast_light(scene, seed=SampleSeed(root=SEED))
