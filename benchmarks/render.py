@@ -196,7 +196,7 @@ CPU time, 128 px, coastal, the 5 m/s sea: medians over 40 new seas 30.6, 30.3 ms
 27.6, 32.3 after; the same seas again 32.6, 29.7 before, 27.7, 33.3 after: the same within
 the noise. The first ten seas of a scene cost 38.6, 42.6 ms against 22.9, 31.3: each new
 centimetre of the sea's height over the target integrates the gates that cut the target
-once (about 5 ms, `workers.planes.TargetGating`), kept for the scene's later samples.
+once (about 5 ms, `workers.targetgating.TargetGating`), kept for the scene's later samples.
 Since each step's depths (on time and late, both gate edges) go through one
 `workers.target.disc_cover` (the same bytes), a step takes 1.3 ms at 32 px and 2.0 ms at
 128 px where it took 6.1 and 7.4 (the test's 10 m/s scene, 20 new steps); the first ten

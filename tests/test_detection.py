@@ -379,7 +379,12 @@ def test_auc_falls_with_depth_and_turbidity(detection):
     ideal = det.sel(detector="ideal_observer")
     for shallow, deep in ((0, 2), (1, 3)):
         assert float(ideal["auc_low"][shallow]) > float(ideal["auc_high"][deep])
-    assert float(ideal["auc_low"][2]) > float(ideal["auc_high"][3])  # clear > coastal, 5 m
+    # clear > coastal at 5 m, one-sided at 95 % on the difference (each AUC's standard error
+    # from its 95 % bootstrap interval, 2 x 1.96 wide): since the target is seen through the
+    # sub-grid slopes (issue #36) the clear water's sphere spreads as the coastal one already
+    # did, and the gap (0.07) no longer clears both intervals at 120 realisations
+    error = np.hypot(*((ideal["auc_high"][i] - ideal["auc_low"][i]) / 3.92 for i in (2, 3)))
+    assert float(ideal["auc"][2] - ideal["auc"][3]) > 1.645 * float(error)
     for name in ("ideal_observer", "matched_filter"):
         area = det["auc"].sel(detector=name).values
         assert area[0] > area[2] and area[1] > area[3], name

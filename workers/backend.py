@@ -146,3 +146,14 @@ def get_backend(name: str = "numpy", device: str = "cpu") -> Backend:
                 f"{torch.cuda.device_count()} CUDA device(s)"
             )
     return Backend(name=name, device=device)
+
+
+def moved(values, backend: Backend):
+    """Host arrays (nested in tuples; None kept) as arrays of `backend`; numbers as floats."""
+    if values is None:
+        return None
+    if isinstance(values, tuple):
+        return tuple(moved(v, backend) for v in values)
+    if np.ndim(values) == 0:  # a ray origin shared by every ray: a float32 value
+        return float(values)
+    return backend.asarray(values)

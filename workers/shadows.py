@@ -160,6 +160,8 @@ def _through_facets(sensor, n_w, sight, seen, gate_grid, lit, target_grid, *, sw
     points = np.stack([x, y], axis=-1)
     window = _window(sight, seen, gate_grid, lit, points, np.abs(steps).max(axis=0))
     points = points[window]
+    if not points.size:  # no deficit above the floor reaches the sight grid
+        return np.zeros(sight.shape, dtype=np.float32)
     # the flat-sea lines through the sight grid's cells, where they cross the gate's plane
     # (as `_seen_through`: about the central ray, scaled by the planes' pitches)
     centre_t, centre_g = (central_point(sensor, g.depth, n_w) for g in (target_grid, gate_grid))

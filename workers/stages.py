@@ -20,8 +20,9 @@ import numpy as np
 from workers.backend import Backend
 from workers.interface import Projected, through_surface
 from workers.kernels import Cells
-from workers.planes import FrameGeometry, Plane, gate_shift
+from workers.planes import FrameGeometry, Plane
 from workers.sensor import Setup
+from workers.targetgating import gate_shift
 
 __all__ = ["FrameLight", "PlaneLight", "SeaRays", "Splat", "frame_light"]
 
@@ -216,7 +217,7 @@ def _target_frame(geometry: FrameGeometry, rays: SeaRays, images, backend: Backe
 
     The target's plane is lit by the spread light of the laser's rays at its depth,
     brought to the pixels' pitch (`workers.planes.Resample`, where the laser's lattice
-    is not at it), times each gate's reflectance map (`workers.planes.TargetLight`),
+    is not at it), times each gate's reflectance map (`workers.targetgating.TargetLight`),
     spread up again (with the sub-grid slopes' sway, `FrameGeometry.target_rise`) and
     gathered where the pixels' lines through the resolved sea cross the plane.
     """
