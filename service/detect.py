@@ -35,8 +35,9 @@ import numpy as np
 import xarray as xr
 
 from service import package_version
+from service.detect_checks import check_store, sweep_plan, written_pairs
 from service.devices import written_by
-from service.errors import BadOptionError, BadSweepError, InputError, UnusableOutputError
+from service.errors import BadOptionError, BadSweepError, UnusableOutputError
 from service.progress import Progress, compute, phase
 from service.stats import twin_points
 from service.store.integrity import check_labels
@@ -44,7 +45,6 @@ from service.store.layout import CONVENTIONS
 from service.store.location import Store
 from service.store.shards import read_verified
 from service.store.template import swept_parameters
-from service.sweep import parse_sweep
 from workers.backend import Backend
 from workers.detection import DETECTORS, MIN_FALSE_ALARMS, evaluate_pair, held_out, roc_curve
 from workers.render import render_images, render_pair
@@ -58,9 +58,6 @@ log = logging.getLogger("oceanlidar")
 
 PFA = (1e-1, 1e-2)
 """False-alarm probabilities at which the probability of detection is reported."""
-
-MIN_REALISATIONS = 8
-"""Fewest realisations per point: half train the logistic detector, half test it."""
 
 DATASET_KIND = "detection"
 """``oceanlidar_dataset`` attribute of a detection dataset (what may be overwritten)."""
@@ -154,27 +151,6 @@ def _rendered_expected(plan, rows, both, images, backend: Backend):
     return expected
 
 
-def _written_pairs(store: Store, pairs, realisations: int) -> list[np.ndarray]:
-    """Each pair's realisations written at both points, before any is scored.
-
-    Raises
-    ------
-    BadSweepError
-        If a pair has fewer than `MIN_REALISATIONS` (nothing is scored then).
-    """
-    done = store.completed().reshape(-1, realisations)
-    written = []
-    for positive, negative in pairs:
-        both = done[positive] & done[negative]
-        if both.sum() < MIN_REALISATIONS:
-            raise BadSweepError(
-                f"points {positive} and {negative}: {both.sum()} realisations written at both, "
-                f"fewer than {MIN_REALISATIONS}; complete the run with `oceanlidar run --resume`"
-            )
-        written.append(both)
-    return written
-
-
 def _evaluate(store: Store, positive, negative, both, test, plan, backend):
     """Read one pair's samples (the realisations `both` written at both points), score them.
 
@@ -214,39 +190,6 @@ def _evaluate(store: Store, positive, negative, both, test, plan, backend):
         full[:, both] = metrics[name]
         metrics[name] = full
     return metrics
-
-
-def _check_store(ds: xr.Dataset, url: str) -> None:
-    for name in ("image", "completed", "target_present"):
-        if name not in ds:
-            raise BadSweepError(f"{url}: the store has no {name!r}: not a sweep's store")
-    if ds["image"].dtype.kind != "u":
-        raise BadSweepError(
-            f"{url}: images are {ds['image'].attrs.get('long_name')!r}, not photoelectrons: "
-            "detection needs shot noise with no gain (radiometry with photons, noise.gain 1)"
-        )
-    if int(ds.attrs["realisations"]) < MIN_REALISATIONS:
-        raise BadSweepError(
-            f"{url}: {ds.attrs['realisations']} realisations per point; detection needs at "
-            f"least {MIN_REALISATIONS} (half train the logistic detector, half test it)"
-        )
-
-
-def _sweep_plan(ds: xr.Dataset, url: str):
-    """The store's sweep, read again from its text, to render samples again."""
-    try:
-        plan = parse_sweep(ds.attrs["sweep"])
-    except InputError as error:
-        raise type(error)(
-            f"{url}: the store has no 'expected' images, and its sweep cannot be read again "
-            f"to render them: {error}"
-        ) from None
-    if plan.digest != ds.attrs.get("sweep_sha256"):
-        raise BadSweepError(
-            f"{url}: the store has no 'expected' images, and its sweep reads differently now "
-            "(another oceanlidar version?): they cannot be rendered again"
-        )
-    return plan
 
 
 def _dataset(ds, pairs, results, realisations, test, detectors) -> xr.Dataset:
@@ -462,16 +405,16 @@ def _write_detection(store: Store, target: Store, *, stream, cnn) -> tuple[Store
     """`write_detection` of `store` to `target`, holding the store's writer lock."""
     url = store.url
     ds = store.dataset()
-    _check_store(ds, url)
+    check_store(ds, url)
     pairs, unpaired = pair_points(ds)
     # an earlier detection dataset is replaced, anything else refused, before any work
     old = target.removable(DATASET_KIND)
     realisations = int(ds.attrs["realisations"])
-    written = _written_pairs(store, pairs, realisations)
+    written = written_pairs(store, pairs, realisations)
     if reason := check_labels(store):
         log.warning("%s: labels and coordinates not checked (%s)", url, reason)
     test = held_out(realisations)
-    plan = None if "expected" in ds else _sweep_plan(ds, url)
+    plan = None if "expected" in ds else sweep_plan(ds, url)
     backend = None if plan is None else written_by(ds.attrs, url)
     tasks = [
         dask.delayed(_evaluate)(store, p, q, both, test, plan, backend)

@@ -30,18 +30,18 @@ DRAWING = 2
 
 
 def statistics_png(job: Job, data_root: Store) -> bytes:
-    """The statistics plot of a finished job (`service.plots.plot_statistics`).
+    """The statistics plot of a finished job (`service.charts.plot_statistics`).
 
     Raises
     ------
     InputError
         If the sweep swept nothing: nothing to plot against.
     """
-    from service import plots
+    from service import charts
 
     stats = data_root.other(job.url).stats.dataset().load()
     buffer = io.BytesIO()
-    plots.plot_statistics(stats, buffer)
+    charts.plot_statistics(stats, buffer)
     return buffer.getvalue()
 
 

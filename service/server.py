@@ -9,14 +9,15 @@ submission, a cancel) needs the header, which another site's page cannot make a 
 send (no cross-site request forgery through the cookie). The one exception, a job page's
 cancel form (``POST /jobs/ID/cancel``), carries a token derived from the cookie that only
 the service's own pages hold (`service.pages.csrf_token`), and is refused from another
-origin. Every answer forbids framing, sniffing and anything
-the pages do not load from the service itself (`SECURITY_HEADERS`). No request that changes
-something is taken from another site's page: a foreign ``Origin`` is refused, and a
-submission must carry a type no page may post unasked (`SWEEP_TYPES`); a service without
-tokens answers a loopback ``Host`` alone (`_loopback_only`: DNS rebinding). Connections are
-bounded in number and in the time they take to send their headers (`_Connection`). A
-service whose job table was lost (the file deleted, replaced, overwritten or truncated
-while it serves) answers ``503`` everywhere, health included.
+origin. Every answer forbids framing, sniffing and anything the pages do not load from the
+service itself (`service.guards.SECURITY_HEADERS`). No request that changes something is
+taken from another site's page: a foreign ``Origin`` is refused, and a submission must
+carry a type no page may post unasked (`SWEEP_TYPES`); a service without tokens answers a
+loopback ``Host`` alone (`service.guards.loopback_only`: DNS rebinding). Connections are
+bounded in number and in the time they take to send their headers
+(`service.connections.Connection`). A service whose job table was lost (the file deleted,
+replaced, overwritten or truncated while it serves) answers ``503`` everywhere, health
+included.
 """
 
 from __future__ import annotations
@@ -27,12 +28,9 @@ import hmac
 import html
 import json
 import os
-import resource
 import secrets
 import socket
 import sys
-import time
-import urllib.parse
 
 import uvicorn
 from starlette.applications import Starlette
@@ -46,12 +44,13 @@ from starlette.responses import (
     StreamingResponse,
 )
 from starlette.routing import Route
-from uvicorn.protocols.http.h11_impl import H11Protocol
 
 from service import package_version
 from service.cluster import dask_client
+from service.connections import Connection, Server, connection_limit
 from service.devices import choose
-from service.errors import BadFileError, BadOptionError, InputError
+from service.errors import BadOptionError, InputError
+from service.guards import LOOPBACK, loopback_only, read_tokens, secured
 from service.inputs import MAX_FILE_BYTES
 from service.jobs import ForbiddenError, QueueFullError, Runner
 from service.pages import (
@@ -69,29 +68,13 @@ from service.records import JobState
 from service.store.location import Store
 from service.table import JobTable
 
-__all__ = ["LOOPBACK", "create_app", "read_tokens", "serve"]
+__all__ = ["create_app", "serve"]
 
-LOOPBACK = ("127.0.0.1", "localhost", "::1")
 COOKIE = "oceanlidar_token"
 EVENT_TICK = 0.5
 """Seconds between looks at a job for its event stream."""
 SAFE_METHODS = ("GET", "HEAD")
 """Requests the login cookie may authenticate: they read, never change anything."""
-SECURITY_HEADERS = [
-    (
-        b"content-security-policy",
-        b"default-src 'none'; img-src 'self'; style-src 'unsafe-inline'; "
-        b"script-src 'self'; connect-src 'self'; form-action 'self'; "
-        b"frame-ancestors 'none'; base-uri 'none'",
-    ),
-    (b"x-frame-options", b"DENY"),
-    (b"x-content-type-options", b"nosniff"),
-    (b"referrer-policy", b"same-origin"),
-]
-"""Sent with every answer: the pages load nothing but their own pictures, script and event
-streams, in no frame. ``same-origin``: another site learns no page address of the service,
-while the service's own forms keep their ``Origin`` (under ``no-referrer`` browsers send
-``Origin: null`` with every form, and the cancel button was refused)."""
 SWEEP_TYPES = (
     "application/yaml",
     "application/x-yaml",
@@ -101,148 +84,6 @@ SWEEP_TYPES = (
 )
 """The ``Content-Type``s a submission may carry: none is one a page of another site may send
 without the browser asking the service first (a CORS preflight, which it does not answer)."""
-
-
-HEADER_TIMEOUT = 10.0
-"""Seconds a connection has to send a request's headers (from its start, or from the end of
-the previous answer): then it is closed (`_Connection`)."""
-LOG_EVERY = 60.0
-"""Seconds between two log lines of one kind of event-loop error (`_QuietErrors`)."""
-
-
-def connection_limit() -> int:
-    """The most connections the service holds open (`_Connection`).
-
-    An eighth of the process's descriptors (``RLIMIT_NOFILE``), at least 16 and at most
-    1024; as many again may be accepted at once, a few times before the surplus is closed
-    (the listening socket's backlog, `serve`): the rest are its jobs' and its cluster's.
-    """
-    soft, _ = resource.getrlimit(resource.RLIMIT_NOFILE)
-    return max(16, min(1024, (soft if soft != resource.RLIM_INFINITY else 8192) // 8))
-
-
-class _Connection(H11Protocol):
-    """uvicorn's HTTP/1.1 connection, bounded in time and number.
-
-    A connection that has not sent a whole request's headers `HEADER_TIMEOUT` seconds after
-    it opened (or after its previous answer) is closed: uvicorn waits for headers without
-    end. Past `limit` connections, the oldest of those waiting for headers is closed for the
-    new one (a client that sends its request at once is served; one that holds connections
-    open without sending loses them first); if none waits, the new one is answered ``503``.
-    uvicorn's own ``limit_concurrency`` counts connections but refuses only requests whose
-    headers came, so half-sent ones still held a descriptor each until the process had none.
-    """
-
-    def __init__(self, *args, limit: int, **options):
-        super().__init__(*args, **options)
-        self.limit = limit
-        self.waiting_since = time.monotonic()
-        self.deadline: asyncio.TimerHandle | None = None
-
-    def waiting(self) -> bool:
-        """Whether it waits for a request's headers (none is being answered), still open."""
-        waits = self.cycle is None or self.cycle.response_complete
-        return waits and not self.transport.is_closing()
-
-    def connection_made(self, transport) -> None:
-        super().connection_made(transport)
-        if len(self.connections) > self.limit:
-            idle = [c for c in self.connections if c is not self and c.waiting()]
-            if not idle:
-                transport.write(BUSY)
-                transport.close()
-                return
-            min(idle, key=lambda connection: connection.waiting_since).transport.close()
-        self._wait()
-
-    def _wait(self) -> None:
-        self.waiting_since = time.monotonic()
-        if self.deadline is not None:
-            self.deadline.cancel()
-        self.deadline = self.loop.call_later(HEADER_TIMEOUT, self._expired)
-
-    def _expired(self) -> None:
-        if self.waiting():
-            self.transport.close()
-
-    def on_response_complete(self) -> None:
-        super().on_response_complete()
-        if not self.transport.is_closing():
-            self._wait()
-
-    def connection_lost(self, exc) -> None:
-        if self.deadline is not None:
-            self.deadline.cancel()
-        super().connection_lost(exc)
-
-
-_BUSY = b'{"error": "the service holds too many connections: retry"}'
-BUSY = (
-    b"HTTP/1.1 503 Service Unavailable\r\ncontent-type: application/json\r\n"
-    b"connection: close\r\ncontent-length: %d\r\n\r\n%s" % (len(_BUSY), _BUSY)
-)
-"""The answer to a connection past the limit when every other one is being answered."""
-
-
-class _QuietErrors:
-    """An event loop's exception handler that logs each kind of error once a `LOG_EVERY`.
-
-    A process out of descriptors fails every ``accept`` (``EMFILE``) and logs a traceback
-    each time: tens of megabytes a minute. The first of a kind (by message) is logged,
-    then one a `LOG_EVERY` seconds with the count of those not logged.
-    """
-
-    def __init__(self):
-        self.logged: dict[str, float] = {}
-        self.unlogged: dict[str, int] = {}
-
-    def __call__(self, loop, context: dict) -> None:
-        kind = str(context.get("message"))
-        now = time.monotonic()
-        if now - self.logged.get(kind, -LOG_EVERY) < LOG_EVERY:
-            self.unlogged[kind] = self.unlogged.get(kind, 0) + 1
-            return
-        if unlogged := self.unlogged.pop(kind, 0):
-            context = {**context, "message": f"{kind} (and {unlogged} more since the last)"}
-        self.logged[kind] = now
-        loop.default_exception_handler(context)
-
-
-class _Server(uvicorn.Server):
-    """uvicorn's server with `_QuietErrors` on its event loop."""
-
-    async def startup(self, sockets=None) -> None:
-        asyncio.get_running_loop().set_exception_handler(_QuietErrors())
-        await super().startup(sockets=sockets)
-
-
-def read_tokens(path: str | None) -> dict[str, str]:
-    """Tokens by owner: the lines ``OWNER TOKEN`` (or ``TOKEN`` alone) of `path`.
-
-    Without `path`, the ``OCEANLIDAR_TOKEN`` environment variable, owner ``default``.
-
-    Raises
-    ------
-    BadFileError
-        If the file cannot be read, or names an owner or a token twice (a token must say
-        who sent it).
-    """
-    if path is None:
-        token = os.environ.get("OCEANLIDAR_TOKEN", "").strip()
-        return {"default": token} if token else {}
-    try:
-        with open(path, encoding="utf-8") as handle:
-            lines = [line.split() for line in handle if line.strip() and line[0] != "#"]
-    except (OSError, UnicodeDecodeError) as error:
-        raise BadFileError(f"--token-file {path}: {getattr(error, 'strerror', error)}") from None
-    if any(len(fields) > 2 for fields in lines):
-        raise BadFileError(f"--token-file {path}: one 'OWNER TOKEN' or 'TOKEN' a line")
-    owners = [fields[0] if len(fields) == 2 else "default" for fields in lines]
-    tokens = [fields[-1] for fields in lines]
-    for kind, names in (("owner", owners), ("token", tokens)):
-        if len(set(names)) < len(names):
-            raise BadFileError(f"--token-file {path}: each {kind} may appear on one line only")
-    return dict(zip(owners, tokens, strict=True))
 
 
 def _error(status: int, message: str) -> JSONResponse:
@@ -482,55 +323,13 @@ def _refused(status: int, reason: str) -> HTMLResponse:
     return HTMLResponse(page("refused", f"<p>{html.escape(reason)}</p>"), status_code=status)
 
 
-def _secured(app):
-    """`app` (ASGI) with `SECURITY_HEADERS` added to every HTTP answer."""
-
-    async def secured(scope, receive, send):
-        async def send_secured(message):
-            if message["type"] == "http.response.start":
-                message = {**message, "headers": [*message["headers"], *SECURITY_HEADERS]}
-            await send(message)
-
-        await app(scope, receive, send_secured if scope["type"] == "http" else send)
-
-    return secured
-
-
-def _loopback_only(app):
-    """`app` (ASGI) answering only requests whose ``Host`` names a loopback address.
-
-    For a service without tokens (``--no-auth``, on loopback only): a page of another site
-    that makes its own name resolve to 127.0.0.1 (DNS rebinding) has its requests sent with
-    its own name as ``Host``, and is refused (``403``); the port is not looked at (an SSH
-    tunnel's port differs).
-    """
-
-    async def checked(scope, receive, send):
-        if scope["type"] == "http":
-            host = dict(scope["headers"]).get(b"host", b"").decode("latin-1")
-            try:
-                name = urllib.parse.urlsplit(f"//{host}").hostname
-            except ValueError:  # a port that is not a number
-                name = None
-            if name not in LOOPBACK:
-                refusal = _error(
-                    403,
-                    f"Host {host!r}: this service answers its loopback address only "
-                    "(127.0.0.1, localhost, ::1)",
-                )
-                return await refusal(scope, receive, send)
-        await app(scope, receive, send)
-
-    return checked
-
-
 def create_app(runner: Runner, tokens: dict[str, str]):
     """The ASGI application over a started `runner`; no token: no authentication.
 
-    Without tokens it answers requests to a loopback ``Host`` alone (`_loopback_only`).
+    Without tokens it answers a loopback ``Host`` alone (`service.guards.loopback_only`).
     """
     app = Starlette(routes=_Service(runner, tokens).routes())
-    return _secured(app if tokens else _loopback_only(app))
+    return secured(app if tokens else loopback_only(app))
 
 
 def serve(args, security) -> int:
@@ -582,7 +381,7 @@ def serve(args, security) -> int:
                 create_app(runner, tokens),
                 log_level="warning",
                 access_log=False,
-                http=functools.partial(_Connection, limit=limit),
+                http=functools.partial(Connection, limit=limit),
                 backlog=limit,  # also the most connections accepted in one go
             )
             runner.start()
@@ -593,7 +392,7 @@ def serve(args, security) -> int:
                 flush=True,
             )
             try:
-                _Server(config).run(sockets=[listener])
+                Server(config).run(sockets=[listener])
             finally:
                 runner.stop()
     return 0

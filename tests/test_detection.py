@@ -10,6 +10,7 @@ import zarr
 from conftest import TINY_SCENE, cf_failures, on_cluster, same_values
 from scipy.stats import multivariate_normal, norm, poisson
 
+import service.charts
 import service.plots
 from service.cli import main
 from service.dataset import open_dataset
@@ -590,11 +591,11 @@ def test_the_detection_plot_names_each_combination_and_no_category_alone(
         target_radius=("point", np.full(4, 0.3), {"parameter": "target.radius", "units": "m"})
     )
     drawn = []
-    original = service.plots._figure
+    original = service.plots.new_figure
     monkeypatch.setattr(
-        service.plots, "_figure", lambda **k: drawn.append(original(**k)) or drawn[-1]
+        service.plots, "new_figure", lambda **k: drawn.append(original(**k)) or drawn[-1]
     )
-    service.plots.plot_detection(det, str(tmp_path / "d.png"))
+    service.charts.plot_detection(det, str(tmp_path / "d.png"))
     auc, pd = drawn[0].axes[4:8], drawn[0].axes[8:12]  # one ROC row of 4, then AUC, Pd
     assert [ax.get_xlabel() for ax in auc[:2]] == ["target_depth (m)", "water_preset"]
     assert not any(ax.axison for ax in (*auc[2:], *pd[2:]))  # no radius column
@@ -605,4 +606,4 @@ def test_the_detection_plot_names_each_combination_and_no_category_alone(
     assert [t.get_text() for t in pd[1].get_legend().get_texts()] == ["depth=1.5", "depth=5"]
     # each AUC line: one detector's points of one water, in its marker
     markers = {line.get_marker() for line in auc[0].lines if len(line.get_xdata()) == 2}
-    assert markers == set(service.plots.MARKERS[:2])
+    assert markers == set(service.charts.MARKERS[:2])

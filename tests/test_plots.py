@@ -8,6 +8,7 @@ import pytest
 import xarray as xr
 from PIL import Image
 
+import service.charts
 import service.plots
 from service.cli import main
 from service.plots import DPI, PANEL_INCHES, preview_figure, render_preview
@@ -182,13 +183,13 @@ def test_plot_draws_contrast_and_cnr_against_each_swept_parameter(
     url = str(tmp_path / "s.zarr")
     execute(plan, Store.at(url), workers=1, progress_stream=open(os.devnull, "w"))
     target = tmp_path / "stats.png"
-    figures, figure = [], service.plots._figure
+    figures, figure = [], service.plots.new_figure
 
     def kept(**size):
         figures.append(figure(**size))
         return figures[-1]
 
-    monkeypatch.setattr(service.plots, "_figure", kept)
+    monkeypatch.setattr(service.plots, "new_figure", kept)
     assert main(["plot", url, "--output", str(target)]) == 0
     # each gate named by its coordinate, numbered from 1 as in the store (issue #27)
     stats = Store(url).stats.dataset()
@@ -211,7 +212,7 @@ def test_plot_draws_contrast_and_cnr_against_each_swept_parameter(
     assert main(["plot", url, "--output", "missing/stats.png"]) == 2
     assert "--output 'missing/stats.png': no folder" in capsys.readouterr().err
     # an extension matplotlib cannot write: refused before drawing, naming those it can
-    monkeypatch.setattr(service.plots, "plot_statistics", lambda *a: pytest.fail("drawn"))
+    monkeypatch.setattr(service.charts, "plot_statistics", lambda *a: pytest.fail("drawn"))
     assert main(["plot", url, "--output", "stats.txt"]) == 2
     err = capsys.readouterr().err
     assert "--output 'stats.txt': cannot write a .txt picture (write " in err
@@ -285,11 +286,11 @@ def test_statistics_of_an_incomplete_store_are_refused_unless_partial(
     assert stats["samples"].values.tolist() == [2, 2]
     # the plot's title names the store and how complete its statistics are
     drawn = []
-    original = service.plots._figure
+    original = service.plots.new_figure
     monkeypatch.setattr(
-        service.plots, "_figure", lambda **k: drawn.append(original(**k)) or drawn[-1]
+        service.plots, "new_figure", lambda **k: drawn.append(original(**k)) or drawn[-1]
     )
-    service.plots.plot_statistics(stats, str(tmp_path / "p.png"))
+    service.charts.plot_statistics(stats, str(tmp_path / "p.png"))
     title = " ".join(drawn[0]._suptitle.get_text().split())  # as wrapped to the width
     assert title == "s.zarr: statistics of 4 of 6 samples (67 %)"
     # the README's comparison: the target point's CNR without its target, read on its
@@ -312,7 +313,7 @@ def test_statistics_of_an_incomplete_store_are_refused_unless_partial(
     stats = store.stats.dataset().load()
     assert (stats.attrs["samples_complete"], stats.attrs["samples_total"]) == (6, 6)
     assert stats["samples"].values.tolist() == [3, 3]
-    assert service.plots.statistics_title(stats) == "s.zarr: statistics of 6 of 6 samples (100 %)"
+    assert service.charts.statistics_title(stats) == "s.zarr: statistics of 6 of 6 samples (100 %)"
 
 
 def sample_with_sea(*, frames=3, pixels=128, gates=6):
@@ -419,12 +420,12 @@ def test_the_statistics_plot_names_each_combination_and_no_category_alone(tmp_pa
     # contrast), "(1)" after a category's name, and points of other parameters' values
     # drawn alike with nothing to tell them apart
     drawn = []
-    original = service.plots._figure
+    original = service.plots.new_figure
     monkeypatch.setattr(
-        service.plots, "_figure", lambda **k: drawn.append(original(**k)) or drawn[-1]
+        service.plots, "new_figure", lambda **k: drawn.append(original(**k)) or drawn[-1]
     )
     stats = synthetic_statistics()
-    service.plots.plot_statistics(stats, str(tmp_path / "s.png"))
+    service.charts.plot_statistics(stats, str(tmp_path / "s.png"))
     axes = drawn[0].axes
     assert [ax.get_xlabel() for ax in axes] == ["target.depth (m)", "water.preset"] * 2
     assert [t.get_text() for t in axes[1].get_xticklabels()] == ["clear", "coastal"]
@@ -439,7 +440,7 @@ def test_the_statistics_plot_names_each_combination_and_no_category_alone(tmp_pa
     assert len(lines) == 4  # 2 gates x 2 waters
     for line in lines:
         gate = int(line.get_color()[1])
-        water = "clear" if line.get_marker() == service.plots.MARKERS[0] else "coastal"
+        water = "clear" if line.get_marker() == service.charts.MARKERS[0] else "coastal"
         rows = np.flatnonzero(
             (stats.water_preset.values == water) & (stats.target_shape.values == "sphere")
         )

@@ -31,8 +31,8 @@ from conftest import (
 
 from service.cli import main
 from service.cli.job_commands import _line
+from service.connections import HEADER_TIMEOUT
 from service.pages import job_page
-from service.server import HEADER_TIMEOUT
 from service.store.location import KIND, Store
 from service.store.template import OWNER
 
@@ -793,7 +793,7 @@ def test_page_shows_the_job_in_a_browser(open_service, tmp_path):
 
 def test_token_files_name_each_owner_and_each_token_once(tmp_path):
     from service.errors import InputError
-    from service.server import read_tokens
+    from service.guards import read_tokens
 
     tokens = tmp_path / "tokens"
     tokens.write_text("# owner token\nalice a-1\nbob b-2\n")

@@ -336,9 +336,10 @@ def cmd_preview(args) -> int:
 
 def cmd_check(args) -> int:
     """Hold the fast renderer to photon transport on a few points of a sweep (exit 1: not)."""
+    from service.charts import plot_check
     from service.check import check_points, report_lines, spanning_points, transport_settings
     from service.cli.run_commands import memory_limit
-    from service.plots import PLOT_FORMATS, plot_check
+    from service.plots import PLOT_FORMATS
 
     if args.points < 1:
         raise BadOptionError(f"--points {args.points}: check at least 1 point")
@@ -370,8 +371,9 @@ def cmd_check(args) -> int:
 
 def cmd_plot(args) -> int:
     """Plot a store's statistics, or a detection dataset."""
+    from service.charts import plot_detection, plot_statistics
     from service.detect import DATASET_KIND
-    from service.plots import PLOT_FORMATS, plot_detection, plot_statistics
+    from service.plots import PLOT_FORMATS
     from service.progress import phase
 
     _check_picture(args.output, PLOT_FORMATS)

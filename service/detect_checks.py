@@ -1,0 +1,73 @@
+"""What a detection study checks of a store before it scores anything.
+
+`check_store`: the store holds a sweep's photoelectron counts and enough realisations;
+`written_pairs`: each pair's realisations written at both points; `sweep_plan`: the
+store's sweep read again, to render the expected images a store without them lacks.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import xarray as xr
+
+from service.errors import BadSweepError, InputError
+from service.store.location import Store
+from service.sweep import parse_sweep
+
+MIN_REALISATIONS = 8
+"""Fewest realisations per point: half train the logistic detector, half test it."""
+
+
+def written_pairs(store: Store, pairs, realisations: int) -> list[np.ndarray]:
+    """Each pair's realisations written at both points, before any is scored.
+
+    Raises
+    ------
+    BadSweepError
+        If a pair has fewer than `MIN_REALISATIONS` (nothing is scored then).
+    """
+    done = store.completed().reshape(-1, realisations)
+    written = []
+    for positive, negative in pairs:
+        both = done[positive] & done[negative]
+        if both.sum() < MIN_REALISATIONS:
+            raise BadSweepError(
+                f"points {positive} and {negative}: {both.sum()} realisations written at both, "
+                f"fewer than {MIN_REALISATIONS}; complete the run with `oceanlidar run --resume`"
+            )
+        written.append(both)
+    return written
+
+
+def check_store(ds: xr.Dataset, url: str) -> None:
+    """Refuse a store a study cannot read: no images, not counts, too few realisations."""
+    for name in ("image", "completed", "target_present"):
+        if name not in ds:
+            raise BadSweepError(f"{url}: the store has no {name!r}: not a sweep's store")
+    if ds["image"].dtype.kind != "u":
+        raise BadSweepError(
+            f"{url}: images are {ds['image'].attrs.get('long_name')!r}, not photoelectrons: "
+            "detection needs shot noise with no gain (radiometry with photons, noise.gain 1)"
+        )
+    if int(ds.attrs["realisations"]) < MIN_REALISATIONS:
+        raise BadSweepError(
+            f"{url}: {ds.attrs['realisations']} realisations per point; detection needs at "
+            f"least {MIN_REALISATIONS} (half train the logistic detector, half test it)"
+        )
+
+
+def sweep_plan(ds: xr.Dataset, url: str):
+    """The store's sweep, read again from its text, to render samples again."""
+    try:
+        plan = parse_sweep(ds.attrs["sweep"])
+    except InputError as error:
+        raise type(error)(
+            f"{url}: the store has no 'expected' images, and its sweep cannot be read again "
+            f"to render them: {error}"
+        ) from None
+    if plan.digest != ds.attrs.get("sweep_sha256"):
+        raise BadSweepError(
+            f"{url}: the store has no 'expected' images, and its sweep reads differently now "
+            "(another oceanlidar version?): they cannot be rendered again"
+        )
+    return plan
