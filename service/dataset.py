@@ -30,7 +30,13 @@ from service.errors import BadFileError, DamagedStoreError
 from service.inputs import position
 from service.store.integrity import check_labels, unflagged, verify
 from service.store.location import Store, old_gate_numbering
-from service.store.shards import ShardReader, sample_checksum, sample_identity, verified_by
+from service.store.shards import (
+    CHECKSUMS,
+    ShardReader,
+    sample_checksum,
+    sample_identity,
+    verified_by,
+)
 from workers.variables import rendered_order
 
 __all__ = ["SampleDataset", "image_type", "open_dataset"]
@@ -79,7 +85,10 @@ def open_dataset(
     group = store.group()
     ds = store.dataset(dask=False)
     small = [name for name, v in ds.variables.items() if set(v.dims) <= SMALL_DIMENSIONS]
-    loaded = ds[small].load()
+    # the per-sample records read through `Store.records`: a damaged file is named
+    records = [name for name in ("completed", *CHECKSUMS) if name in small and name in ds]
+    loaded = ds[[name for name in small if name not in records]].load()
+    loaded = loaded.assign({name: ds[name].copy(data=store.records(name)) for name in records})
     damaged = frozenset()
     if verify and store.kind() == "samples":
         flags, damaged = _verified(store)
@@ -352,7 +361,7 @@ def image_type(asked, *, stored: np.dtype, largest=None) -> np.dtype:
     if stored.kind == "f" and largest is None:
         return dtype
     top = np.iinfo(stored).max if largest is None else int(largest)
-    most = np.iinfo(dtype).max if dtype.kind in "ui" else np.finfo(dtype).max
+    most = int(np.iinfo(dtype).max) if dtype.kind in "ui" else float(np.finfo(dtype).max)
     if most < top:
         raise ValueError(
             f"image_dtype {dtype}: holds values up to {most}, and the images counts up to "

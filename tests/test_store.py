@@ -18,7 +18,7 @@ import zarr
 from conftest import TINY_SCENE, batch_of, cf_failures
 
 import service.tasks
-from service.dataset import SampleDataset, open_dataset
+from service.dataset import SampleDataset, image_type, open_dataset
 from service.errors import DamagedStoreError, InputError
 from service.run import execute, render_shard, task_batches
 from service.stats import write_statistics
@@ -454,6 +454,29 @@ def test_open_dataset_verified_marks_damaged_samples_incomplete(filled, tmp_path
     intact = open_dataset(url)
     for name in ("image", "target_mask"):
         assert np.array_equal(kept[name].values, intact[name].values[ds.completed.values == 1])
+
+
+@pytest.mark.parametrize("record", ["completed", "checksum_bound"])
+def test_open_dataset_names_a_record_file_that_cannot_be_read(filled, tmp_path, record):
+    # the issue #37 trial: a zero-length record file made open_dataset (verify or not)
+    # raise zarr's "Stored and computed checksum do not match", naming nothing
+    _, url = filled
+    copy = tmp_path / "t.zarr"
+    shutil.copytree(url, copy)
+    Path(copy, record, "c.1").write_bytes(b"")
+    for verify in (False, True):
+        with pytest.raises(DamagedStoreError, match=rf"{record}/c\.1: cannot be read.*--resume"):
+            open_dataset(str(copy), verify=verify)
+
+
+def test_an_image_type_too_narrow_is_refused_without_a_warning():
+    # the issue #37 trial: float16 against counts up to 140 297 printed numpy's "overflow
+    # encountered in cast" before the refusal
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError, match="image_dtype float16: holds values up to"):
+            image_type(np.float16, stored=np.dtype(np.uint32), largest=140_297)
+        assert image_type(np.float32, stored=np.dtype(np.uint32), largest=140_297) == np.float32
 
 
 def test_a_store_numbering_its_gates_from_0_is_refused_until_renumbered(filled, tmp_path, cli):
