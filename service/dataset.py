@@ -120,6 +120,13 @@ def _verified(store: Store) -> tuple[np.ndarray, frozenset[int]]:
     if reason := check_labels(store):
         warnings.warn(f"{store.url}: labels and coordinates not checked ({reason})", stacklevel=3)
     flags = store.records("completed").copy()
+    if lost := unflagged(store):
+        warnings.warn(
+            f"{store.url}: samples {_listed(lost)} hold checksums but their completion flags "
+            "are lost (or a run stopped while writing them): completed reads 0 for them; run "
+            "the sweep again with --resume --verify to recompute them",
+            stacklevel=3,
+        )
     damaged = [sample for sample, _ in verify(store)]
     if damaged:
         flags[damaged] = 0
