@@ -526,6 +526,21 @@ def test_an_empty_record_file_is_named_and_written_again(
     assert main(["info", "one.zarr", "--verify"]) == 0
 
 
+def test_info_verify_names_every_record_file_that_cannot_be_read(work, capsys):
+    # the issue #37 trial: a zero-length file of the CRC-32 checksums, which no reader
+    # checks against since checksum_bound, passed info --verify ("16 of 16 intact")
+    path = shard_file(work, "checksum", 1)
+    kept = path.read_bytes()
+    path.write_bytes(b"")
+    try:
+        assert main(["info", "one.zarr", "--verify"]) == 1
+        err = capsys.readouterr().err
+        assert "one.zarr/checksum/c.1" in err and "--resume --verify" in err, err
+    finally:
+        path.write_bytes(kept)
+    assert main(["info", "one.zarr", "--verify"]) == 0
+
+
 def test_edited_labels_stop_the_readers(work, capsys):
     # issue #37 item 5: no sample's checksum covers the labels; stats and the training
     # reader compare them with the sweep's, as info --verify does

@@ -23,7 +23,7 @@ from service.errors import BadOptionError, DamagedStoreError, InputError, Unusab
 from service.inputs import shown
 from service.store import integrity
 from service.store.location import KIND, Store
-from service.store.shards import checks_identity
+from service.store.shards import CHECKSUMS, checks_identity
 from service.store.template import swept_parameters
 from service.sweep import load_sweep
 
@@ -106,6 +106,10 @@ def cmd_info(args) -> int:
     print(f"  statistics: {stats.url if stats else '(none)'}")
     if not args.verify:
         return EXIT_OK
+    group = store.group()
+    for name in ("completed", *CHECKSUMS):  # every record readable, or named (exit 1)
+        if name in group:
+            store.records(name, group=group)
     problems = integrity.verify(store)
     print(f"  verified: {done - len(problems)} of {done} complete samples read back intact")
     if not checks_identity(store.group()):
