@@ -330,10 +330,8 @@ def sample_with_sea(*, frames=3, pixels=128, gates=6):
     ).assign_coords(sx=x, sy=x, time=("frame", 0.1 * np.arange(frames)))
 
 
-def test_a_preview_shows_every_image_pixel_or_the_dpi_asked(tmp_path, monkeypatch):
-    # issue #37 item 19: six 128-pixel gates came out 1320 x 280 px, a gate's image about
-    # 150 screen pixels for 128 (the target's outline in fragments), with no option; now
-    # each image pixel takes 2 screen pixels across at least (`PIXEL_SIDE`)
+def previews_drawn(monkeypatch) -> list:
+    """The figures `service.plots.preview_figure` draws from now on, in order."""
     figures = []
     original = service.plots.preview_figure
     monkeypatch.setattr(
@@ -341,6 +339,14 @@ def test_a_preview_shows_every_image_pixel_or_the_dpi_asked(tmp_path, monkeypatc
         "preview_figure",
         lambda *a, **k: figures.append(original(*a, **k)) or figures[-1],
     )
+    return figures
+
+
+def test_a_preview_shows_every_image_pixel_or_the_dpi_asked(tmp_path, monkeypatch):
+    # issue #37 item 19: six 128-pixel gates came out 1320 x 280 px, a gate's image about
+    # 150 screen pixels for 128 (the target's outline in fragments), with no option; now
+    # each image pixel takes 2 screen pixels across at least (`PIXEL_SIDE`)
+    figures = previews_drawn(monkeypatch)
     ds = synthetic_sample(pixels=128, gates=6)
     service.plots.save_preview(ds, str(tmp_path / "a.png"))
     gates = image_axes(figures[0])
@@ -357,13 +363,7 @@ def test_a_preview_shows_every_image_pixel_or_the_dpi_asked(tmp_path, monkeypatc
 def test_a_gifs_sea_keeps_one_colour_scale(tmp_path, monkeypatch):
     # issue #37 item 19: the sea's scale was each frame's own, so a growing swell looked
     # the same from frame to frame; the gates' scales were shared already
-    figures = []
-    original = service.plots.preview_figure
-    monkeypatch.setattr(
-        service.plots,
-        "preview_figure",
-        lambda *a, **k: figures.append(original(*a, **k)) or figures[-1],
-    )
+    figures = previews_drawn(monkeypatch)
     ds = sample_with_sea(pixels=16, gates=2)
     assert service.plots.save_preview(ds, str(tmp_path / "a.gif"), dpi=40) == 3
     elevation = ds["surface_elevation"].values
