@@ -32,7 +32,7 @@ import xarray as xr
 from service.cli import main
 from service.detect import write_detection
 from service.store.location import Store
-from workers.cnn import CnnSettings
+from workers.detectors.cnn import CnnSettings
 
 STUDY = Path(__file__).resolve().parent.parent / "configs" / "detection-study.yaml"
 

@@ -18,11 +18,11 @@ import time
 import numpy as np
 
 from service.tuning import tune_allocator
-from workers.conditioning import kriging
 from workers.render import render
-from workers.scene import Scene
-from workers.seasetup import scene_sea, surface_kriging
-from workers.surface import draw
+from workers.sea.conditioning import kriging
+from workers.sea.surface import draw
+from workers.settings.scene import Scene
+from workers.setup.seasetup import scene_sea, surface_kriging
 
 
 def scenes(n, points, times):

@@ -25,7 +25,7 @@ import numpy as np
 from scipy.stats import rankdata
 
 from service.sweep import load_sweep
-from workers.detection import BOOTSTRAP_BLOCK, bootstrap_auc
+from workers.detectors.detection import BOOTSTRAP_BLOCK, bootstrap_auc
 from workers.render import render_images, render_pair
 
 STUDY = Path(__file__).resolve().parent.parent / "configs" / "detection-study.yaml"

@@ -39,8 +39,8 @@ from pathlib import Path
 import numpy as np
 
 from workers.fidelity import Light, compare, gate_kinds, transport_light
-from workers.scene import Scene
-from workers.seeds import SampleSeed
+from workers.settings.scene import Scene
+from workers.settings.seeds import SampleSeed
 
 FOLDER = Path(__file__).resolve().parent.parent / "tests" / "data" / "fidelity_reference"
 

@@ -11,7 +11,7 @@ it says so):
    same bytes).
 2. Beside it, the FFT-only floor: the same batch's rfft2 + irfft2 pairs of the render's
    planes (float32; the fine level of each gate's plane and the target's, their sizes read
-   from the scene's first frame, `workers.planes.frame_geometry`), one pair a plane and a
+   from the scene's first frame, `workers.fast.planes.frame_geometry`), one pair a plane and a
    sample, batched over the samples: the most samples per second the spreads' FFTs allow.
 3. End to end: ``oceanlidar run --device cuda`` into a local store, 128 pixels, six gates,
    ``--samples`` samples (dask-cuda's LocalCUDACluster, one worker a GPU): samples per second
@@ -48,9 +48,9 @@ import torch
 
 from service.devices import choose
 from service.tasks import render_samples
-from workers.planes import frame_geometry
-from workers.scene import Scene
-from workers.seeds import SampleSeed
+from workers.fast.planes import frame_geometry
+from workers.settings.scene import Scene
+from workers.settings.seeds import SampleSeed
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -1,6 +1,7 @@
 """How fast are the PyTorch kernels against the numba ones? (issue #28)
 
-Times each kernel of `workers.kernels` (numba, sequential) and of `workers.kernels_torch`
+Times each kernel of `workers.backends.kernels` (numba, sequential) and of
+`workers.backends.kernels_torch`
 (on the CPU with ``--threads`` threads, and on CUDA where there is a device) on one
 sample's sizes: a 512 × 512 ray lattice splatted on a 768² fine grid (4 × 4 blocks on a
 384² coarse grid), 256 × 256 lines of sight gathered, the sea's three cascades sampled at
@@ -18,8 +19,8 @@ import time
 import numpy as np
 import torch
 
-from workers import kernels, kernels_torch
-from workers.kernels import Cells
+from workers.backends import kernels, kernels_torch
+from workers.backends.kernels import Cells
 
 FINE, COARSE, FACTOR, BLOCK = (768, 768), (384, 384), 4, (96, 96)
 CELLS = Cells(

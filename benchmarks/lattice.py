@@ -20,7 +20,7 @@ import numpy as np
 from scipy.ndimage import uniform_filter
 
 from workers.render import render_arrays
-from workers.scene import Scene
+from workers.settings.scene import Scene
 
 SEAS = {
     "coastal 5 m/s": ("coastal", 5.0),

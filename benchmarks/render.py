@@ -21,7 +21,7 @@ ratios 28 / 36 / 57), now 13 / 42 / 171 ms, ratios 57 / 76 / 106 (measured once,
 clock). Absolute radiometry adds the cost of Poisson draws at large means (about 20 ms a
 256² sample).
 
-Issue #10, compiled splats and gathers (`workers.kernels`), the beam tail spread once per
+Issue #10, compiled splats and gathers (`workers.backends.kernels`), the beam tail spread once per
 plane, FFT passes skipped on rows without light or not read: CPU time, sphere, two runs
 each on the loaded 2-core machine (load 5–6), the code before / after:
 
@@ -72,7 +72,8 @@ cells on every side is sized for light anywhere on the plane, while the traced l
 lights and the pixels read little more than the image) and fewer passes over the rays
 (each ray is located once per plane, seven times), not faster loops.
 
-Shot noise at large means, still exact (`workers.noise.poisson_counts`: compiled sequential
+Shot noise at large means, still exact (`workers.receiver.noise.poisson_counts`: compiled
+sequential
 search for 1 < λ < 10, vectorised over blocks of values, and Hörmann's PTRS for λ >= 10, in
 place of ``rng.poisson``): the draws alone, CPU time, old and new interleaved, medians of 61
 rounds, take 5.4 → 3.1 ms on the 98304 expected counts of the 128-pixel sweep scene
@@ -196,13 +197,13 @@ CPU time, 128 px, coastal, the 5 m/s sea: medians over 40 new seas 30.6, 30.3 ms
 27.6, 32.3 after; the same seas again 32.6, 29.7 before, 27.7, 33.3 after: the same within
 the noise. The first ten seas of a scene cost 38.6, 42.6 ms against 22.9, 31.3: each new
 centimetre of the sea's height over the target integrates the gates that cut the target
-once (about 5 ms, `workers.targetgating.TargetGating`), kept for the scene's later samples.
+once (about 5 ms, `workers.fast.targetgating.TargetGating`), kept for the scene's later samples.
 Since each step's depths (on time and late, both gate edges) go through one
-`workers.target.disc_cover` (the same bytes), a step takes 1.3 ms at 32 px and 2.0 ms at
+`workers.targets.impostor.disc_cover` (the same bytes), a step takes 1.3 ms at 32 px and 2.0 ms at
 128 px where it took 6.1 and 7.4 (the test's 10 m/s scene, 20 new steps); the first ten
 seas over the same seas again, 128 px, coastal, 5 m/s, two alternated runs: 1.18, 1.13
 after, 1.23, 1.28 before (the medians themselves moved by ±25 % between runs).
-Over a rough sea the shadows' facets rule (`workers.shadows._through_facets`, 32 nodes a
+Over a rough sea the shadows' facets rule (`workers.fast.shadows._through_facets`, 32 nodes a
 gate) is built with a frame's geometry, once per scene and frame: 0.31 s at 128 px and
 1.1 s at 256 px of CPU time where the geometry took 0.13 and 0.55 s (the test's 10 m/s
 scene; a sweep that changes the scene every sample pays it every sample).
@@ -218,8 +219,8 @@ import scipy.fft
 import workers
 from service.tuning import tune_allocator
 from workers.render import render_arrays as render
-from workers.scene import Scene
-from workers.seasetup import scene_sea
+from workers.settings.scene import Scene
+from workers.setup.seasetup import scene_sea
 
 
 def scene(n, *, target="sphere", mode="normalised", single=False):

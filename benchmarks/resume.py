@@ -51,7 +51,7 @@ from service.store.location import Store
 from service.store.shards import CHECKSUMS, sample_checksum, sample_identity
 from service.store.template import create_store
 from service.sweep import parse_sweep
-from workers.variables import rendered_order
+from workers.dataset.variables import rendered_order
 
 ROOT = Path(__file__).resolve().parent.parent
 SWEEP = """\

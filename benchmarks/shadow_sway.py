@@ -9,10 +9,11 @@ reaches the point x + δ(z_g) along its own facet's line, stopped where that lin
 the silhouette (blurred over z_g − z_t). Per pixel and depth, with the same facet s for
 both, that is *exact* (straight lines, single scattering, no water blur). Against it:
 
-- *look-up*: the Monte Carlo renderer's (`workers.photons`): the point looked up displaced
+- *look-up*: the Monte Carlo renderer's (`workers.montecarlo.photons`): the point looked up
+displaced
   by δ(z_g), the target's blocking tested along the resolved line through the point
   itself, i.e. at x + δ(z_g) on the target's plane;
-- *fast*: the fast renderer's (`workers.shadows.gate_shadow`): the view's share blurred by
+- *fast*: the fast renderer's (`workers.fast.shadows.gate_shadow`): the view's share blurred by
   the sway at z_t, the light's share read at the pixel's line (blurred by the laser's
   facets only), their product;
 - *swayed*: as *fast*, the light's share also blurred by the view's sway at z_g.
@@ -28,8 +29,8 @@ import argparse
 
 import numpy as np
 
-from workers.scene import Scene
-from workers.sensor import scene_setup, sensor_at, sight_grid, subgrid_sway
+from workers.settings.scene import Scene
+from workers.setup.sensor import scene_setup, sensor_at, sight_grid, subgrid_sway
 
 RADIUS, DEPTH = 0.3, 5.0
 

@@ -18,7 +18,7 @@ from service.run import render_shard, task_batches
 from service.store.location import Store
 from service.store.template import create_store
 from service.sweep import load_sweep
-from workers.variables import rendered_order
+from workers.dataset.variables import rendered_order
 
 ROOT = Path(__file__).resolve().parent.parent
 PER_SAMPLE = (*rendered_order(), "completed", "checksum")

@@ -126,7 +126,7 @@ from service.store.template import create_store
 from service.sweep import parse_sweep
 from service.tuning import tune_allocator
 from workers.render import render_arrays
-from workers.seeds import SampleSeed
+from workers.settings.seeds import SampleSeed
 
 SWEEP = """\
 name: bench

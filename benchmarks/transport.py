@@ -2,7 +2,7 @@
 
 For each water (clear, coastal, turbid) and sea (flat, 5 m/s), a 64-pixel ML(DC) scene with
 a 0.3 m sphere at 5 m (the quickstart's) is rendered by photon transport
-(`workers.montecarlo`), one frame, on one core (the kernels are sequential). Printed:
+(`workers.montecarlo.renderer`), one frame, on one core (the kernels are sequential). Printed:
 
 - photons per second of CPU time in the transport kernel, and for the whole frame
   (launch through the surface, the pixels' lookup, transport, the batches' statistics);
@@ -56,10 +56,10 @@ import time
 import numpy as np
 import scipy.fft
 
-from workers import montecarlo
-from workers.scene import Scene
-from workers.seeds import SampleSeed
-from workers.sensor import scene_setup
+from workers.montecarlo import renderer as montecarlo
+from workers.settings.scene import Scene
+from workers.settings.seeds import SampleSeed
+from workers.setup.sensor import scene_setup
 
 
 def scene(water: str, wind: float, photons: int) -> Scene:

@@ -1,6 +1,6 @@
 """Reference images by photon transport: the scenes the fast renderer is held to.
 
-Renders each scene of `SCENES` with the Monte Carlo renderer (`workers.montecarlo`) and
+Renders each scene of `SCENES` with the Monte Carlo renderer (`workers.montecarlo.renderer`) and
 writes ``tests/data/transport_reference.npz``: per scene, the noise-free image
 (``NAME/expected``), its standard error (``NAME/stderr``), the target mask
 (``NAME/mask``) and the scene itself as JSON (``NAME/scene``), so that a test can render the
@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from workers.render import render_arrays
-from workers.scene import Scene
+from workers.settings.scene import Scene
 
 OUTPUT = Path(__file__).resolve().parent.parent / "tests" / "data" / "transport_reference.npz"
 

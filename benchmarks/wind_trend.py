@@ -40,11 +40,11 @@ import xarray as xr
 
 from service.store.location import Store
 from service.sweep import parse_sweep
-from workers.labels import image_axes
+from workers.dataset.labels import image_axes
 from workers.render import render_arrays
-from workers.scene import Scene
-from workers.seeds import SampleSeed
-from workers.sensor import scene_setup
+from workers.settings.scene import Scene
+from workers.settings.seeds import SampleSeed
+from workers.setup.sensor import scene_setup
 
 TULLDAHL = ((1.0, 0.9, "above"), (6.0, 0.8, "below"))
 """Tulldahl & Steinvall's figures (wind m/s, Pd, side): above 90 % at 1 m/s, below 80 % at 6."""

@@ -28,7 +28,7 @@ from service.store import integrity
 from service.store.location import KIND, Store, old_gate_numbering
 from service.store.template import check_uniform
 from service.sweep import MEMORY_REMEDY, NO_LIMITS, Plan, parse_sweep, read_header
-from workers.backend import Backend
+from workers.backends.backend import Backend
 
 __all__ = [
     "CLI",

@@ -27,7 +27,7 @@ from workers.fidelity import (
     gate_kinds,
     transport_light,
 )
-from workers.transport import Transport
+from workers.settings.transport import Transport
 
 __all__ = ["PointCheck", "check_points", "report_lines", "spanning_points", "transport_settings"]
 

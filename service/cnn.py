@@ -1,11 +1,11 @@
 """The trained image detector of `detect --cnn`: one network per sweep, from its store.
 
-`add_cnn` trains a `workers.cnn.DetectorNet` through the training reader
+`add_cnn` trains a `workers.detectors.cnn.DetectorNet` through the training reader
 (`service.dataset.SampleDataset` in a ``torch.utils.data.DataLoader``) on the training
-realisations (`workers.detection.held_out` False) of every point `service.detect` pairs,
+realisations (`workers.detectors.detection.held_out` False) of every point `service.detect` pairs,
 positives and negatives together, their swept parameters not given to it; it scores the
 held-out realisations of the same points and appends the network's row (scores, AUC and
-its interval, Pd) to each pair's results, as `workers.detection.score_metrics` measures
+its interval, Pd) to each pair's results, as `workers.detectors.detection.score_metrics` measures
 every detector. Imports torch: `service.detect` imports this module only when asked.
 """
 
@@ -18,8 +18,14 @@ from torch.utils.data import DataLoader, Subset
 from service.dataset import SampleDataset
 from service.progress import phase
 from service.store.location import Store
-from workers.cnn import CNN_DESCRIPTION, CnnSettings, default_device, score, train_detector
-from workers.detection import score_metrics
+from workers.detectors.cnn import (
+    CNN_DESCRIPTION,
+    CnnSettings,
+    default_device,
+    score,
+    train_detector,
+)
+from workers.detectors.detection import score_metrics
 
 __all__ = ["BATCH_SIZE", "CNN", "add_cnn"]
 
@@ -58,7 +64,7 @@ def add_cnn(
     Parameters
     ----------
     results : list of dict
-        `workers.detection.evaluate_pair`'s results, one per pair, changed in place: the
+        `workers.detectors.detection.evaluate_pair`'s results, one per pair, changed in place: the
         network's scores (NaN on the training realisations and where a sample is not
         written at both points) and metrics appended after the other detectors'.
     store : Store, keyword-only
@@ -68,7 +74,7 @@ def add_cnn(
     realisations : int, keyword-only
         Realisations per point.
     test : ndarray of bool, shape (realisations,), keyword-only
-        Held-out realisations (`workers.detection.held_out`); the others train.
+        Held-out realisations (`workers.detectors.detection.held_out`); the others train.
     pfa : sequence of float, keyword-only
         False-alarm probabilities of the Pd.
     settings : CnnSettings, keyword-only

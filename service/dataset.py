@@ -37,7 +37,7 @@ from service.store.shards import (
     sample_identity,
     verified_by,
 )
-from workers.variables import rendered_order
+from workers.dataset.variables import rendered_order
 
 __all__ = ["SampleDataset", "image_type", "open_dataset"]
 

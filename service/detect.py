@@ -4,7 +4,8 @@ Pairs every parameter point with a target (a positive point) with the target-fre
 of the same scene (`pair_points`), reads both points' samples realisation by realisation
 (pairs never cross realisations: row i of both saw the same sea; a store without the
 noise-free images has them rendered again from its sweep and seeds), scores them with the
-detectors of `workers.detection` on the dask cluster in use (one task per pair) and writes
+detectors of `workers.detectors.detection` on the dask cluster in use (one task per pair) and
+writes
 a detection dataset beside the store (`detection_store`). Variables, per positive point:
 
 - ``score_positive``, ``score_negative`` (point, detector, realisation): every score, NaN
@@ -17,7 +18,7 @@ a detection dataset beside the store (`detection_store`). Variables, per positiv
 - ``gate_auc``, ``gate_auc_low``, ``gate_auc_high`` (point, gate): each gate's matched
   filter alone;
 - ``sea_auc_se``, ``auc_half_seas``, ``effective_seas``, ``seas`` (point): the
-  sea-marginal observer's Monte Carlo error (`workers.detection.sea_auc_error`);
+  sea-marginal observer's Monte Carlo error (`workers.detectors.detection.sea_auc_error`);
 - ``negative_point`` (point): the store's target-free point paired with it, and
   ``held_out`` (realisation): the realisations the trained detector and the sea-marginal
   observer are evaluated on (the others train the one and are the other's seas).
@@ -45,12 +46,18 @@ from service.store.layout import CONVENTIONS
 from service.store.location import Store
 from service.store.shards import read_verified
 from service.store.template import swept_parameters
-from workers.backend import Backend
-from workers.detection import DETECTORS, MIN_FALSE_ALARMS, evaluate_pair, held_out, roc_curve
+from workers.backends.backend import Backend
+from workers.detectors.detection import (
+    DETECTORS,
+    MIN_FALSE_ALARMS,
+    evaluate_pair,
+    held_out,
+    roc_curve,
+)
 from workers.render import render_images, render_pair
 
 if TYPE_CHECKING:
-    from workers.cnn import CnnSettings
+    from workers.detectors.cnn import CnnSettings
 
 __all__ = ["PFA", "detection_store", "pair_points", "write_detection"]
 
@@ -112,7 +119,8 @@ def _rendered_expected(plan, rows, both, images, backend: Backend):
     `rows` maps the positive and the negative point to their samples, `both` picks the
     realisations read, `images` their stored noisy images by point, `backend` the one that
     wrote them (`service.devices.written_by`: another draws other noise). A positive sample whose
-    point's target-free twin (`workers.scene.Scene.without_target`) is the negative point's
+    point's target-free twin (`workers.settings.scene.Scene.without_target`) is the negative
+    point's
     scene is rendered once with its twin (`workers.render.render_pair`: the negative
     sample's images, on the same sea, in the same pass); otherwise each sample is rendered
     on its own (`workers.render.render_images`: no twin). The noisy images rendered again
@@ -370,7 +378,7 @@ def write_detection(
     stream : file, optional
         Where to show the points scored (`service.progress.Progress`) and the set-up
         phases; None shows nothing.
-    cnn : workers.cnn.CnnSettings, optional
+    cnn : workers.detectors.cnn.CnnSettings, optional
         Train the convolutional detector too with these settings (`service.cnn.add_cnn`;
         needs torch).
 

@@ -1,8 +1,8 @@
 """Where a run renders: the array backend and device a store's samples come from.
 
 ``--backend numpy|torch`` and ``--device cpu|cuda[:N]`` (``run``, ``validate``, ``serve``)
-name a `workers.backend.Backend`: numpy on the CPU by default, and a CUDA device implies
-torch. The backend is checked by `workers.backend.get_backend` where the samples render:
+name a `workers.backends.backend.Backend`: numpy on the CPU by default, and a CUDA device implies
+torch. The backend is checked by `workers.backends.backend.get_backend` where the samples render:
 here for the embedded cluster and ``validate``, on a worker of ``--scheduler``'s cluster
 before anything is written (`check_on_worker`). Samples rendered on another backend or
 device are other bytes (torch's random streams and FFTs are not numpy's, nor CUDA's the
@@ -13,7 +13,7 @@ CPU's), so a store records where it was rendered (`recorded`) and a resume refus
 from __future__ import annotations
 
 from service.errors import BadOptionError, BadSweepError, UnusableOutputError
-from workers.backend import Backend, get_backend
+from workers.backends.backend import Backend, get_backend
 
 __all__ = [
     "BACKEND_ATTR",
@@ -45,7 +45,7 @@ def choose(backend: str | None, device: str | None, *, here: bool = True) -> Bac
         ``cpu``, ``cuda`` or ``cuda:N``; None: ``cpu``.
     here : bool, optional
         Whether this process's machine renders (``validate``, the embedded cluster): then
-        `workers.backend.get_backend` checks that it can. False for a ``--scheduler``'s
+        `workers.backends.backend.get_backend` checks that it can. False for a ``--scheduler``'s
         workers, checked there (`check_on_worker`).
 
     Returns
@@ -99,7 +99,7 @@ def check_renderers(plan, backend: Backend) -> None:
 
 
 def check_on_worker(backend: Backend) -> None:
-    """Check on a dask worker that it renders on `backend` (`workers.backend.get_backend`).
+    """Check on a dask worker that it renders on `backend` (`get_backend`).
 
     Raises
     ------

@@ -22,7 +22,7 @@ wrong without reading the message, and the job server answers each with its HTTP
 
 Failures (exit 1) are apart: a store found damaged (`DamagedStoreError`, here so that the
 command line catches it without importing zarr),
-a scene that validates but cannot be rendered (`workers.section.SceneError`), a run that
+a scene that validates but cannot be rendered (`workers.settings.section.SceneError`), a run that
 failed or was interrupted.
 """
 

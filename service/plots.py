@@ -23,8 +23,8 @@ from PIL import Image
 
 from service.errors import BadOptionError
 from service.sweep import Plan
+from workers.dataset.variables import Visibility
 from workers.render import render
-from workers.variables import Visibility
 
 __all__ = [
     "CLIP_PERCENTILE",

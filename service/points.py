@@ -1,7 +1,7 @@
 """The scenes of a sweep's points, each validated and checked when first asked for.
 
 `Scenes` is `service.sweep.Plan.scenes`: point ``i``'s scene is the sweep's default scene
-with the point's values set, validated (`workers.scene.Scene`) and checked beyond its
+with the point's values set, validated (`workers.settings.scene.Scene`) and checked beyond its
 schema (`check_scene`). `service.sweep.parse_sweep` builds them all, in point order, before
 a new run: bad input is refused before anything is written. A resume of a store of the
 same sweep, written by the same version (its points were validated when it was made),
@@ -22,8 +22,8 @@ from pydantic import ValidationError
 from service.errors import BadSweepError, InputError
 from service.inputs import shown, strict_numbers
 from service.schema import Sweep, scene_field
-from workers.scene import Scene
-from workers.variables import count_dtype
+from workers.dataset.variables import count_dtype
+from workers.settings.scene import Scene
 
 __all__ = ["MAX_TRAVEL", "Scenes", "assign", "check_scene", "format_errors", "raw_value"]
 
@@ -148,7 +148,7 @@ def check_scene(raw: dict, scene: Scene) -> np.dtype:
     """Checks of a validated scene beyond its schema; its image type.
 
     Strict numbers, a bounded track, counts that fit the store's unsigned integers
-    (`workers.variables.count_dtype`; float32 images when not counts: what
+    (`workers.dataset.variables.count_dtype`; float32 images when not counts: what
     `service.sweep.Plan.image_dtypes` holds).
     """
     strict_numbers(raw, scene.model_dump(), "scene")

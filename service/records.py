@@ -159,7 +159,7 @@ class RunResult:
 
     ``failed`` holds ``(start, count, error)`` for tasks that raised or lost their worker;
     ``refused`` holds ``(sample, reason)`` for samples whose scene cannot be rendered
-    (`workers.section.SceneError`: bad input, not retried); ``rejected`` holds
+    (`workers.settings.section.SceneError`: bad input, not retried); ``rejected`` holds
     ``(sample, reason)`` for samples rendered with invalid values
     (`service.store.integrity.invalid_values`); neither are written nor marked complete;
     ``damaged`` holds ``(sample, reason)`` for samples that ``verify`` found damaged and

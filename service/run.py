@@ -11,7 +11,8 @@ worker count, order or retries: every sample's random streams are keyed by its p
 (`service.sweep.Plan.sample`) and a retried task rewrites the same bytes.
 
 Two kinds of failure: a runtime failure (a worker lost, a storage hiccup) is retried; a
-sample whose scene cannot be rendered (`workers.section.SceneError`, an error in the input)
+sample whose scene cannot be rendered (`workers.settings.section.SceneError`, an error in the
+input)
 or whose values are invalid would fail alike on every retry, so its task reports it and
 goes on: it is never retried.
 """
@@ -43,7 +44,7 @@ from service.store.location import Store
 from service.store.template import create_store
 from service.sweep import Plan
 from service.tasks import render_shard, task_batches
-from workers.backend import Backend
+from workers.backends.backend import Backend
 
 __all__ = [
     "Cancel",
@@ -371,7 +372,7 @@ def _probe(client: Client, store: Store, token: str, backend: Backend = NUMPY) -
         raise ClusterError(
             f"no worker{gpu} answered within {PROBE_TIMEOUT} s (are any connected?)"
         ) from None
-    except ValueError as error:  # workers.backend.get_backend's, on the worker
+    except ValueError as error:  # workers.backends.backend.get_backend's, on the worker
         raise BadOptionError(f"--{error} (on the cluster's worker)") from None
 
 

@@ -27,7 +27,7 @@ from pydantic import (
 
 from service.errors import BadSweepError
 from service.inputs import shown
-from workers.scene import Scene
+from workers.settings.scene import Scene
 
 __all__ = [
     "SAMPLED",
@@ -238,17 +238,18 @@ def scene_field(path: str):
 
 
 def field_units(path: str) -> str:
-    """The unit a scene field declares (`workers.section.units`; "1": dimensionless)."""
+    """The unit a scene field declares (`workers.settings.section.units`; "1": dimensionless)."""
     return scene_field(path).json_schema_extra["units"]
 
 
 def sweep_json_schema() -> dict:
     """The JSON Schema (2020-12) of sweep files, the scene's sections and units included.
 
-    `Sweep` takes the scene as a mapping (the service validates it as `workers.scene.Scene`
+    `Sweep` takes the scene as a mapping (the service validates it as
+    `workers.settings.scene.Scene`
     once measurement files are read); here the scene's own schema stands in its place, with
     the ``file`` a conditioning may give instead of ``points`` (`service.measurements`).
-    Every scene field carries ``units`` (`workers.section.units`).
+    Every scene field carries ``units`` (`workers.settings.section.units`).
     """
     schema = Sweep.model_json_schema()
     scene = Scene.model_json_schema()

@@ -17,7 +17,7 @@ place. Variables:
   signal inside the target mask and in a ring of local background around it;
 - ``target_contrast`` (point, gate): the mean over samples and frames of each one's
   ``target_effect_relative``, (T − T₀) / T₀ with T₀ the mean of the sample's target-free
-  twin over the same mask (`workers.labels.target_effect`): what the target changes in the
+  twin over the same mask (`workers.dataset.labels.target_effect`): what the target changes in the
   expected image, before noise; 0 where it changes nothing (a local (T − B) / B would
   also hold the beam's fall-off between the mask and its ring: +0.06 to +0.20 with no
   target in the gate);
@@ -57,8 +57,8 @@ from service.store.layout import CODECS, CONVENTIONS, lazy_array, one_per_chunk,
 from service.store.location import KIND, Store
 from service.store.shards import read_verified
 from service.store.template import swept_parameters
-from workers.labels import signal_means
-from workers.variables import Visibility
+from workers.dataset.labels import signal_means
+from workers.dataset.variables import Visibility
 
 __all__ = [
     "check_computable",
@@ -93,7 +93,7 @@ def contrast_to_noise(image, mask):
     image : ndarray, shape (samples, frames, gates, y, x)
         Noisy images.
     mask : ndarray of bool, shape (samples, frames, y, x)
-        The regions read (`workers.labels.signal_means`: the mask and its ring).
+        The regions read (`workers.dataset.labels.signal_means`: the mask and its ring).
 
     Returns
     -------
@@ -117,7 +117,7 @@ def point_statistics(image, target, background, mask, relative, visibility):
         Noisy images.
     target, background : ndarray, shape (samples, frames, gates)
         Mean noise-free signal inside the target mask and in the ring around it
-        (`workers.labels.signal_means`), NaN where the region is empty.
+        (`workers.dataset.labels.signal_means`), NaN where the region is empty.
     mask : ndarray of bool, shape (samples, frames, y, x)
         Pixels whose ray meets the target.
     relative : ndarray, shape (samples, frames, gates)

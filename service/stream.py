@@ -2,7 +2,7 @@
 
 `SweepStream` is an ``IterableDataset`` that renders the samples of a sweep as they are
 asked for (`workers.render.render_arrays`), with the seeds and labels its store would hold
-(`workers.seeds.SampleSeed` keyed by the sweep's seed, the point and the realisation; the
+(`workers.settings.seeds.SampleSeed` keyed by the sweep's seed, the point and the realisation; the
 values in the store's types, `service.store.template.store_variables`), so that a training
 loop reads exactly what ``oceanlidar run`` would write, or draws fresh realisations forever:
 realisations beyond the sweep's count continue the same seed scheme. README, "Training
@@ -22,7 +22,7 @@ from service.inputs import position
 from service.store.template import store_variables
 from service.sweep import Plan, load_sweep
 from workers.render import render_arrays
-from workers.seeds import SampleSeed
+from workers.settings.seeds import SampleSeed
 
 __all__ = ["SweepStream"]
 
@@ -31,7 +31,7 @@ PRESENCE = "target_present"
 
 ORDER_STREAM = 4
 """First spawn key of the points' order (`SweepStream.order`), apart from the samples'
-streams (`workers.seeds`) and the sweep's draws (`service.sweep`: 2, 3)."""
+streams (`workers.settings.seeds`) and the sweep's draws (`service.sweep`: 2, 3)."""
 
 
 class SweepStream(IterableDataset):

@@ -6,7 +6,7 @@ point's scene, and expands the parameters into points (``grid``, ``zip``, ``rand
 the space-filling ``latin_hypercube`` and ``sobol`` of `scipy.stats.qmc`).
 `Plan.sample` addresses the samples, in one place: sample ``s`` is realisation
 ``s % realisations`` of point ``s // realisations``, with the random streams of
-`workers.seeds.SampleSeed` keyed by (root seed, point, realisation).
+`workers.settings.seeds.SampleSeed` keyed by (root seed, point, realisation).
 """
 
 from __future__ import annotations
@@ -31,12 +31,12 @@ from service.inputs import DEFAULT_MAX_MEMORY, read_text, read_yaml, shown, stri
 from service.measurements import inline_measurements
 from service.points import Scenes, check_scene, format_errors, raw_value
 from service.schema import Distribution, Sweep, Value, Values, scene_field
-from workers.cascades import MAX_CASCADES
-from workers.montecarlo import LAUNCH_CHUNK, LOOKUP_ENTRIES
-from workers.scene import Scene
-from workers.seeds import SampleSeed
-from workers.spread import MAX_COARSE
-from workers.variables import count_dtype
+from workers.dataset.variables import count_dtype
+from workers.fast.spread import MAX_COARSE
+from workers.montecarlo.renderer import LAUNCH_CHUNK, LOOKUP_ENTRIES
+from workers.sea.cascades import MAX_CASCADES
+from workers.settings.scene import Scene
+from workers.settings.seeds import SampleSeed
 
 __all__ = ["Plan", "Sample", "load_sweep", "memory_estimate", "parse_sweep", "read_header"]
 
@@ -256,9 +256,9 @@ def memory_estimate(scene: dict) -> int:
     peak allocations (traced by ``tracemalloc``, every cache of `workers` empty) of the
     multi-scale, compiled renderer of 2026-11-23: the shipped configs need 1.25 to 7 times
     less (`tests/test_sweep.py` holds it to small scenes of every kind). Once a sample: a
-    floor of 384 bytes per cell of a `workers.spread.MAX_COARSE`-sided coarse plane (the
+    floor of 384 bytes per cell of a `workers.fast.spread.MAX_COARSE`-sided coarse plane (the
     planes' least size) and 128 bytes per surface grid point and cascade
-    (``surface.coarse_patches`` plus one, or at most `workers.cascades.MAX_CASCADES` by
+    (``surface.coarse_patches`` plus one, or at most `workers.sea.cascades.MAX_CASCADES` by
     default), and the Monte Carlo renderer's arrays (`_transport_memory`); then per frame
     512 bytes per pixel (or laser ray, if the laser's lattice is
     the larger) and gate (the frame's geometry, which stays cached, its plane grids and MTF
@@ -302,7 +302,8 @@ def _transport_memory(scene: dict, *, pixels: int, gates: int) -> int:
     """Memory [bytes] the Monte Carlo renderer adds to a sample (0 for the small-angle one).
 
     Its batches' images (float64, three copies at most while their mean and spread are
-    taken), a chunk of launched photons (`workers.montecarlo.LAUNCH_CHUNK`, 64 bytes each),
+    taken), a chunk of launched photons (`workers.montecarlo.renderer.LAUNCH_CHUNK`, 64 bytes
+    each),
     the lines of sight (taken as S = 4 a pixel side, 64 bytes each) and their lookup (about
     12 bytes per slab and cell, 100 slabs, at most `LOOKUP_ENTRIES` slab-cells).
     """

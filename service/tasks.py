@@ -23,10 +23,10 @@ from service.store import integrity, shards
 from service.store.location import Store
 from service.sweep import Plan
 from service.tuning import tune_allocator
-from workers.backend import Backend
+from workers.backends.backend import Backend
 from workers.render import render_batch
-from workers.scene import Scene
-from workers.section import SceneError
+from workers.settings.scene import Scene
+from workers.settings.section import SceneError
 
 __all__ = ["render_samples", "render_shard", "task_batches"]
 
@@ -65,7 +65,8 @@ def render_shard(store: Store, jobs, backend: Backend = NUMPY):
         The store.
     jobs : list of tuple
         ``(sample, scene, seed)`` per sample, all in one shard: its index, its
-        `workers.scene.Scene` (hashable, sent as it is) and `workers.seeds.SampleSeed`.
+        `workers.settings.scene.Scene` (hashable, sent as it is) and
+        `workers.settings.seeds.SampleSeed`.
         Consecutive samples of one scene render in one batch.
     backend : Backend, optional
         Where they render (`service.devices.choose`).
@@ -74,7 +75,7 @@ def render_shard(store: Store, jobs, backend: Backend = NUMPY):
     -------
     list of tuple
         ``(sample, reason, refused)`` for every sample not written: ``refused`` True for a
-        scene that cannot be rendered (`workers.section.SceneError`), False for values
+        scene that cannot be rendered (`workers.settings.section.SceneError`), False for values
         rejected by `service.store.integrity.invalid_values`. Those are neither written nor
         marked complete; the valid samples around them are.
     """

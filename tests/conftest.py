@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from workers.geometry import LaserRays, PlaneGrid
+from workers.setup.geometry import LaserRays, PlaneGrid
 
 
 def ring_around(mask, width):

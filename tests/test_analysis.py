@@ -13,9 +13,9 @@ from service.dataset import open_dataset
 from service.store import integrity
 from service.store.location import Store
 from service.store.template import template
-from workers.geometry import PinholeCamera
-from workers.labels import image_axes
-from workers.scene import Scene
+from workers.dataset.labels import image_axes
+from workers.settings.scene import Scene
+from workers.setup.geometry import PinholeCamera
 
 SHARD = 4
 """Samples per shard of the store below: 12 samples, 3 shards."""

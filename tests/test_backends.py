@@ -1,4 +1,4 @@
-"""The array backends (`workers.backend`): what runs here, the errors, host ↔ device."""
+"""The array backends (`workers.backends.backend`): what runs here, the errors, host ↔ device."""
 
 import importlib.util
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
 
-from workers.backend import get_backend
+from workers.backends.backend import get_backend
 
 torch = pytest.importorskip("torch")
 
@@ -85,7 +85,7 @@ def test_the_numpy_backend_keeps_host_arrays_and_has_no_generator():
     assert backend.asarray(values) is values
     assert backend.generator(1) is None
     assert backend.fft.__name__ == "scipy.fft"
-    assert backend.kernels.__name__ == "workers.kernels"
+    assert backend.kernels.__name__ == "workers.backends.kernels"
 
 
 def test_a_torch_generator_is_seeded_on_its_device():

@@ -4,10 +4,10 @@ import dataclasses
 
 import numpy as np
 
-from workers import planes
-from workers.caches import held_bytes, lru_bytes
+from workers.backends.caches import held_bytes, lru_bytes
+from workers.fast import planes
 from workers.render import render
-from workers.scene import Scene
+from workers.settings.scene import Scene
 
 
 def test_held_bytes_counts_each_array_once_through_containers():

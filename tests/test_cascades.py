@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from workers.cascades import K_TOP, Sea, resolved_share, subgrid_slope_covariance
 from workers.render import render
-from workers.scene import Scene
-from workers.seasetup import scene_sea
-from workers.spectra import Elfouhaily
-from workers.surface import draw, synthesize
+from workers.sea.cascades import K_TOP, Sea, resolved_share, subgrid_slope_covariance
+from workers.sea.spectra import Elfouhaily
+from workers.sea.surface import draw, synthesize
+from workers.settings.scene import Scene
+from workers.setup.seasetup import scene_sea
 
 
 def default_sea(wind_speed, altitude=34.0):
@@ -157,7 +157,7 @@ def cox_munk(wind_speed_10):
 @pytest.mark.parametrize("wind_speed", [5.0, 7.0], ids=["U5", "U7"])
 def test_renderer_slopes_lie_within_the_cox_munk_scatter(wind_speed):
     # At 5 and 7 m/s the Elfouhaily spectrum's full band lies inside the scatter
-    # (workers.spectra.Elfouhaily); the slopes the renderer sees must too.
+    # (workers.sea.spectra.Elfouhaily); the slopes the renderer sees must too.
     mean, scatter = cox_munk(wind_speed)
     assert abs(renderer_slopes(default_sea(wind_speed)) - mean) < scatter
 

@@ -19,7 +19,7 @@ from service.cli import main
 from service.sweep import parse_sweep
 from workers import fidelity
 from workers.fidelity import BARS, Light, compare, gate_kinds
-from workers.scene import Scene
+from workers.settings.scene import Scene
 
 SWEEP = """\
 name: check-test

@@ -28,7 +28,7 @@ from service.store.location import Store
 from service.store.template import create_store
 from service.sweep import load_sweep, parse_sweep
 from workers.render import render_arrays
-from workers.scene import Scene
+from workers.settings.scene import Scene
 
 CONFIGS = sorted((ROOT / "configs").rglob("*.yaml"))
 

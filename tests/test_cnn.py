@@ -10,7 +10,7 @@ from conftest import on_cluster
 from service.cli import main
 from service.detect import write_detection
 from service.store.location import Store
-from workers.cnn import CnnSettings
+from workers.detectors.cnn import CnnSettings
 
 SWEEP = """\
 name: cnn
@@ -123,7 +123,7 @@ def test_the_same_seed_gives_the_same_scores_bytes(store, detection, tmp_path):
 
 def test_cnn_without_torch_is_refused_naming_the_extra(store, tmp_path, capsys, monkeypatch):
     monkeypatch.setitem(sys.modules, "torch", None)  # import torch fails
-    monkeypatch.delitem(sys.modules, "workers.cnn")
+    monkeypatch.delitem(sys.modules, "workers.detectors.cnn")
     output = tmp_path / "none.detect.zarr"
     assert main(["detect", store.url, "--cnn", "--output", str(output)]) == 2
     err = capsys.readouterr().err

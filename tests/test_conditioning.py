@@ -1,4 +1,4 @@
-"""Tests of workers.conditioning: surfaces drawn given measured elevations (issue #5)."""
+"""Tests of workers.sea.conditioning: surfaces drawn given measured elevations (issue #5)."""
 
 import json
 import textwrap
@@ -12,14 +12,14 @@ from pydantic import ValidationError
 from service.errors import InputError
 from service.plots import preview_figure
 from service.sweep import load_sweep, parse_sweep
-from workers.cascades import Sea
-from workers.conditioning import kriging, space_time_covariance
 from workers.render import render
-from workers.scene import Scene
-from workers.seasetup import scene_sea, surface_kriging
-from workers.section import SceneError
-from workers.spectra import Elfouhaily, dispersion
-from workers.surface import draw
+from workers.sea.cascades import Sea
+from workers.sea.conditioning import kriging, space_time_covariance
+from workers.sea.spectra import Elfouhaily, dispersion
+from workers.sea.surface import draw
+from workers.settings.scene import Scene
+from workers.settings.section import SceneError
+from workers.setup.seasetup import scene_sea, surface_kriging
 
 # 64 × 1 m: a 3 m/s sea whose correlation falls below 4 % beyond 8 m and 0.5 % beyond 16 m,
 # so "far from the data" exists on the patch.

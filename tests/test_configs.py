@@ -1,6 +1,7 @@
 """The shipped sweep files: each runs end to end, and each says what it models."""
 
 import ast
+import re
 import shutil
 
 import numpy as np
@@ -121,10 +122,25 @@ def code_lines(path):
     )
 
 
+def architecture_section(folder):
+    """The text of ARCHITECTURE.md under the heading that names `folder` (``workers/fast/``).
+
+    From that heading to the next heading of any level.
+    """
+    text = (ROOT / "ARCHITECTURE.md").read_text()
+    heading = re.search(rf"^#+ {re.escape(folder)}(?: |$)", text, flags=re.M)
+    assert heading, f"ARCHITECTURE.md has no heading for {folder}"
+    after = text[heading.end() :]
+    following = re.search(r"^#", after, flags=re.M)
+    return after[: following.start()] if following else after
+
+
 @pytest.mark.parametrize("path", MODULES, ids=[module_name(p) for p in MODULES])
 def test_every_module_is_small_and_in_the_architecture(path):
+    # issue #38 item 6: each module's row under its own folder's heading
     assert code_lines(path) <= 350
-    assert f"| `{path.name}` |" in (ROOT / "ARCHITECTURE.md").read_text()
+    folder = path.parent.relative_to(ROOT).as_posix() + "/"
+    assert f"| `{path.name}` |" in architecture_section(folder)
 
 
 def _project_imports(path, modules):
@@ -166,3 +182,37 @@ def test_no_import_circle():
 
     for module in sorted(graph):
         visit(module)
+
+
+WINGS = (
+    "backends",
+    "optics",
+    "receiver",
+    "sea",
+    "targets",
+    "settings",
+    "setup",
+    "dataset",
+    "fast",
+    "montecarlo",
+    "detectors",
+)
+"""The sub-packages of `workers`, lowest first: a wing imports only the wings before it."""
+
+
+def test_the_wings_import_down_only():
+    # issue #38 item 4: no circles, no import back up; render.py and fidelity.py sit above
+    modules = {module_name(p): p for p in MODULES + PACKAGES}
+    wings = {path.parent.name for path in (ROOT / "workers").glob("*/__init__.py")}
+    assert wings == set(WINGS)
+    for name, path in modules.items():
+        parts = name.split(".")
+        if parts[0] != "workers" or len(parts) < 3:
+            continue
+        rank = WINGS.index(parts[1])
+        for imported in _project_imports(path, modules):
+            target = imported.split(".")
+            if target[0] == "service":
+                raise AssertionError(f"{name} imports the service ({imported})")
+            assert len(target) > 2 and target[1] in WINGS, f"{name} imports {imported} above it"
+            assert WINGS.index(target[1]) <= rank, f"{name} imports {imported}, a higher wing"

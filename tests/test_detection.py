@@ -20,7 +20,8 @@ from service.store.location import Store, consolidated_v3
 from service.store.shards import sample_checksum, sample_identity
 from service.store.template import create_store
 from service.sweep import parse_sweep
-from workers.detection import (
+from workers.dataset.variables import rendered_order
+from workers.detectors.detection import (
     DETECTORS,
     _auc_rows,
     _resampled_aucs,
@@ -31,8 +32,7 @@ from workers.detection import (
     pd_at_pfa,
     roc_curve,
 )
-from workers.marginal import sea_marginal_observer
-from workers.variables import rendered_order
+from workers.detectors.marginal import sea_marginal_observer
 
 
 def rng(seed):

@@ -24,7 +24,7 @@ from service.errors import BadOptionError, UnusableOutputError
 from service.run import execute, render_shard, task_batches
 from service.store.location import Store
 from service.sweep import parse_sweep
-from workers.backend import Backend, get_backend
+from workers.backends.backend import Backend, get_backend
 
 TORCH_CPU = Backend(name="torch", device="cpu")
 
@@ -80,7 +80,7 @@ if not cuda_here():
 
 @pytest.fixture
 def without_torch(monkeypatch):
-    """This process sees no torch (`workers.backend.get_backend` looks it up afresh)."""
+    """This process sees no torch (`workers.backends.backend.get_backend` looks it up afresh)."""
     real = importlib.util.find_spec
     monkeypatch.setattr(
         importlib.util, "find_spec", lambda name, *a: None if name == "torch" else real(name, *a)
@@ -95,7 +95,8 @@ def without_torch(monkeypatch):
 def test_a_backend_that_cannot_render_here_is_refused_before_anything_is_written(
     work, cli, command, flags, message, request
 ):
-    # issue #28 item 5: checked by workers.backend.get_backend up front, the flag named, exit
+    # issue #28 item 5: checked by workers.backends.backend.get_backend up front, the flag named,
+    # exit
     # 2, no traceback, nothing written (no store, no lock; serve: no job table, no data root)
     if "no-torch" in request.node.callspec.id:
         request.getfixturevalue("without_torch")

@@ -25,8 +25,8 @@ import pytest
 
 from benchmarks.fidelity_reference import SCENES, SEED, SUMMARY_ORDER, fidelity_scene, summaries
 from workers.fidelity import Light, compare, fast_light, gate_kinds, transport_light
-from workers.scene import Scene
-from workers.seeds import SampleSeed
+from workers.settings.scene import Scene
+from workers.settings.seeds import SampleSeed
 
 DATA = Path(__file__).parent / "data" / "fidelity_reference"
 

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from workers.delays import DELAY_POINTS, return_delays
-from workers.geometry import PlaneGrid
+from workers.fast.delays import DELAY_POINTS, return_delays
+from workers.optics.water import WaterOptics
 from workers.render import render_arrays
-from workers.scene import Scene
-from workers.target import disc_cover, gated_share
-from workers.water import WaterOptics
+from workers.settings.scene import Scene
+from workers.setup.geometry import PlaneGrid
+from workers.targets.impostor import disc_cover, gated_share
 
 
 def square_grid(*, spacing, cells, depth):

@@ -5,7 +5,7 @@ import pytest
 from conftest import plane_grid
 from numpy.testing import assert_allclose
 
-from workers.geometry import (
+from workers.setup.geometry import (
     LaserRays,
     PinholeCamera,
     fast_length,
@@ -215,7 +215,7 @@ def test_the_traced_lattice_and_the_beam_tail_carry_the_whole_beam(rays):
 @pytest.mark.parametrize("offset", [0.0, 0.25, 0.5])
 @pytest.mark.parametrize("rays", [32, 33], ids=["even", "odd"])
 def test_an_offset_lattice_and_its_tail_tile_the_beam(rays, offset):
-    # shifted by `offset` steps (workers.sensor.lattice_offset), the traced square's cells
+    # shifted by `offset` steps (workers.setup.sensor.lattice_offset), the traced square's cells
     # end where the tail's begin, on every side
     cam = camera(pixels=rays)
     common = dict(

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from workers.interface import ray_components, through_surface
-from workers.optics import fresnel_reflectance, refract
+from workers.optics.fresnel import fresnel_reflectance, refract
+from workers.setup.interface import ray_components, through_surface
 
 N_WATER = 1.34
 

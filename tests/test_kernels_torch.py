@@ -1,12 +1,12 @@
-"""The PyTorch kernels against the numba ones (`workers.kernels_torch` vs `workers.kernels`)."""
+"""The PyTorch kernels against the numba ones (`kernels_torch` vs `kernels`)."""
 
 import numpy as np
 import pytest
 
 torch = pytest.importorskip("torch")
 
-from workers import kernels, kernels_torch  # noqa: E402
-from workers.kernels import Cells  # noqa: E402
+from workers.backends import kernels, kernels_torch  # noqa: E402
+from workers.backends.kernels import Cells  # noqa: E402
 
 U = 2.0**-24
 """float32's unit roundoff."""
@@ -83,7 +83,7 @@ def edge_lines():
 
 
 def numba_splat(lines, power, cells, dtype=np.float32):
-    """`workers.kernels.splat_levels` into float32 fields, or float64 ones: the same float32
+    """`kernels.splat_levels` into float32 fields, or float64 ones: the same float32
     deposits and block means summed in float64, nearly exact (a reference)."""
     fine = np.zeros(FINE, dtype)
     source = np.zeros(COARSE, dtype)
@@ -240,7 +240,7 @@ def test_span_agrees_with_numba(edges, device):
 
 
 def lift():
-    """The fine cells' lower coarse cells and weights, as `workers.spread.Levels.lift`."""
+    """The fine cells' lower coarse cells and weights, as `workers.fast.spread.Levels.lift`."""
     axes = []
     for size, shift in ((FINE[0], PLANE.shift_v), (FINE[1], PLANE.shift_u)):
         position = np.arange(size, dtype=np.float32) / np.float32(FACTOR) + shift

@@ -8,8 +8,8 @@ import pytest
 from scipy.special import roots_hermitenorm
 from scipy.stats import poisson
 
-from workers.detection import auc, bootstrap_auc, ideal_observer, sea_auc_error
-from workers.marginal import sea_likelihoods, sea_marginal_observer
+from workers.detectors.detection import auc, bootstrap_auc, ideal_observer, sea_auc_error
+from workers.detectors.marginal import sea_likelihoods, sea_marginal_observer
 
 
 def rng(seed):

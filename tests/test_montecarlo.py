@@ -11,20 +11,20 @@ from scipy.integrate import quad
 from scipy.special import erf
 from test_render_reference import Swell
 
-from workers import montecarlo
-from workers.interface import through_surface
-from workers.photons import TALLIES
+from workers.montecarlo import renderer as montecarlo
+from workers.montecarlo.photons import TALLIES
+from workers.optics.water import BETA_PI_PER_BACKSCATTER
 from workers.render import render_arrays
-from workers.scene import Scene
-from workers.seeds import SampleSeed
-from workers.sensor import scene_setup, sensor_at
-from workers.transport import (
+from workers.settings.scene import Scene
+from workers.settings.seeds import SampleSeed
+from workers.settings.transport import (
     fit_fournier_forand,
     fournier_forand,
     fournier_forand_cumulative,
     phase_table,
 )
-from workers.water import BETA_PI_PER_BACKSCATTER
+from workers.setup.interface import through_surface
+from workers.setup.sensor import scene_setup, sensor_at
 
 ALTITUDE, N_WATER, FOV_DEG, PIXELS = 34.0, 1.34, 6.7, 16
 BLOCK = slice(6, 10)  # the central 4 x 4 pixels
@@ -371,9 +371,9 @@ def test_a_photon_meets_the_surface_from_below_as_fresnel_says(angle):
     # one photon rising through clear, non-absorbing water at `angle` from the vertical:
     # the flat surface lets 1 - R out (Fresnel, water to air) and reflects R down for ever;
     # beyond the critical angle (48.3 degrees) nothing leaves.
-    from workers.optics import fresnel_reflectance
-    from workers.photons import transport
-    from workers.sightlines import build_lookup
+    from workers.montecarlo.photons import transport
+    from workers.montecarlo.sightlines import build_lookup
+    from workers.optics.fresnel import fresnel_reflectance
 
     theta = np.radians(angle)
     launch = np.array(

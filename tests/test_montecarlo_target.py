@@ -20,11 +20,11 @@ import pytest
 from scipy.stats import chi2
 from test_montecarlo import scene
 
-from workers import montecarlo
-from workers.optics import fresnel_reflectance
+from workers.montecarlo import renderer as montecarlo
+from workers.optics.fresnel import fresnel_reflectance
+from workers.optics.water import BETA_PI_PER_BACKSCATTER
 from workers.render import render_arrays
-from workers.sensor import scene_setup, sensor_at, target_centre
-from workers.water import BETA_PI_PER_BACKSCATTER
+from workers.setup.sensor import scene_setup, sensor_at, target_centre
 
 SPHERE = {"shape": "sphere", "radius": 0.3, "depth": 5.0, "reflectance": 0.2}
 CUT = [[3.0, 4.76], [4.76, 9.0]]  # the second opens across the visible cap: (q/r)³ = 1/2 of it
@@ -286,7 +286,7 @@ def test_the_target_light_a_gate_cuts_converges(cut_sphere_seeds):
 def test_the_way_to_the_receiver_refracts_into_it():
     # the biasing's aim (scatterings and the target's reflection): from a point in the
     # water, the direction whose refraction at a flat sea passes through the pinhole
-    from workers.scattering import toward_receiver
+    from workers.montecarlo.scattering import toward_receiver
 
     n, camera = 1.34, np.array([3.0, -2.0, 34.0])
     rng = np.random.default_rng(2)
@@ -311,7 +311,7 @@ def test_the_reflections_biased_draw_is_weighted_back_to_lambert():
     # the direction, E[weight f] is the Lambertian integral of f. Here f = p(a'.u), the
     # next scattering's estimate toward a receiver a' 2 mrad off a (the forward peak that
     # the biasing is for), and f = 1 (all the reflected light), against quadrature.
-    from workers.scattering import reflection_weight, turn
+    from workers.montecarlo.scattering import reflection_weight, turn
 
     table = montecarlo.scene_phase_table(scene(water={"preset": "coastal"}))
     phase = np.concatenate([[table.log_theta0, table.log_step], np.log(table.values)])

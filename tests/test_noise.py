@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from workers import noise
-from workers.noise import poisson_counts, shot_noise
+from workers.receiver import noise
+from workers.receiver.noise import poisson_counts, shot_noise
 
 MEANS = [1e-3, 0.2, 1.0, 1.5, 1.7, 5.0, 9.99, 10.0, 30.0, 1e3, 1e5, 1e7]
 """Both sides of every branch limit: inversion (λ <= 1, exactly 1 included), sequential
@@ -179,7 +179,7 @@ def test_log_pmf_of_the_rejection_test_is_accurate():
         assert abs(total - 1) < 1e-9
 
 
-# The torch path (workers.backend's torch backend): torch's draws, the same law.
+# The torch path (workers.backends.backend's torch backend): torch's draws, the same law.
 
 
 def has_cuda():
@@ -271,7 +271,7 @@ def test_torch_same_seed_same_bytes_and_zero_mean_gives_zero(device):
 
 
 def test_noise_seed_is_the_noise_streams_first_draw():
-    from workers.seeds import SampleSeed
+    from workers.settings.seeds import SampleSeed
 
     seed = SampleSeed(root=7, point=3, realisation=2)
     assert seed.noise_seed() == SampleSeed(root=7, point=3, realisation=2).noise_seed()

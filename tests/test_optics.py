@@ -1,10 +1,10 @@
-"""Tests for workers.optics: Fresnel reflectance and vector Snell refraction."""
+"""Tests for workers.optics.fresnel: Fresnel reflectance and vector Snell refraction."""
 
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from workers.optics import fresnel_reflectance, reflect, refract
+from workers.optics.fresnel import fresnel_reflectance, reflect, refract
 
 N_WATER = 1.34  # paper §4.3
 AIR_TO_WATER = {"n1": 1.0, "n2": N_WATER}

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-import workers.variables
+import workers.dataset.variables
 from benchmarks.resume import build, sweep_text
 from service.cli import main
 from service.errors import BadSweepError
@@ -15,15 +15,15 @@ POINTS = 30
 
 @pytest.fixture
 def setups(monkeypatch):
-    """The scenes set up (`workers.sensor.scene_setup` by `count_dtype`), in this process."""
+    """The scenes set up (`workers.setup.sensor.scene_setup` by `count_dtype`), in this process."""
     seen = []
-    setup = workers.variables.scene_setup
+    setup = workers.dataset.variables.scene_setup
 
     def counted(scene):
         seen.append(scene)
         return setup(scene)
 
-    monkeypatch.setattr(workers.variables, "scene_setup", counted)
+    monkeypatch.setattr(workers.dataset.variables, "scene_setup", counted)
     return seen
 
 

@@ -8,15 +8,15 @@ import yaml
 from numpy.testing import assert_allclose
 from pydantic import ValidationError
 
-from workers.optics import fresnel_reflectance
-from workers.radiometry import (
+from workers.optics.fresnel import fresnel_reflectance
+from workers.receiver.radiometry import (
     lidar_equation,
     photoelectrons_per_signal,
     photon_energy,
     pixel_solid_angle,
 )
 from workers.render import render
-from workers.scene import Scene
+from workers.settings.scene import Scene
 
 N_WATER = 1.34
 T0 = 1.0 - float(fresnel_reflectance(1.0, n1=1.0, n2=N_WATER))

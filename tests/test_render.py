@@ -5,12 +5,12 @@ import pytest
 from conftest import ring_around
 from numpy.testing import assert_allclose, assert_array_equal
 
-from workers.labels import RING_FRACTION, signal_means
-from workers.optics import fresnel_reflectance
+from workers.dataset.labels import RING_FRACTION, signal_means
+from workers.optics.fresnel import fresnel_reflectance
 from workers.render import render, render_arrays, render_images, render_pair
-from workers.scene import Scene
-from workers.seeds import SampleSeed
-from workers.sensor import scene_setup
+from workers.settings.scene import Scene
+from workers.settings.seeds import SampleSeed
+from workers.setup.sensor import scene_setup
 
 N_WATER = 1.34
 T0 = 1.0 - fresnel_reflectance(1.0, n1=1.0, n2=N_WATER)
@@ -118,7 +118,7 @@ def test_divergent_beam_spreads_as_the_apparent_range_squared():
 def test_flat_sea_water_backscatter_is_the_single_scattering_lidar_integral(gate):
     # No target, flat sea, no forward scattering: the gated return is
     # π β(π) ∫ e^(-2Kz) dz over the gate (units of the ρ = 1 plane under the surface).
-    from workers.water import WaterOptics
+    from workers.optics.water import WaterOptics
 
     s = water_column(gate)
     optics = WaterOptics(**SLIGHTLY_TURBID)
@@ -203,7 +203,7 @@ def test_target_effect_of_a_wide_disk_is_the_closed_form(depth, gate, reflectanc
     # from the gate's top to d; its twin the whole slab. The target's effect is ρ e^(-2Kd)
     # less the water it hides, from d to the gate's bottom. The beam's profile, common to
     # both, cancels from the relative effect; the absolute one is the mask's mean.
-    from workers.water import WaterOptics
+    from workers.optics.water import WaterOptics
 
     s = scene(
         surface={"spectrum": "flat"},
@@ -424,7 +424,7 @@ def test_paper_shading_returns_about_three_times_lambert():
 
 @pytest.mark.parametrize("K", [0.0, 0.05, 0.8], ids=["K0", "K0.05", "K0.8"])
 def test_hidden_fraction_is_the_share_of_the_slab_integral_behind_the_target(K):
-    from workers.gates import hidden_fraction
+    from workers.setup.gates import hidden_fraction
 
     top, bottom = 3.0, 9.0
     depths = np.array([1.0, 3.0, 5.0, 9.0, 12.0])
@@ -441,7 +441,7 @@ def test_oblique_water_backscatter_is_the_single_scattering_integral(nadir):
     # horizontal irradiance J cosθ t e^(-Kl), normal irradiance that over cosϑ, return
     # β(π) dl with dl = dz/cosϑ, so the pixel sees (units of the white plane, J = 1)
     # π β t² (cosθ/cosϑ) [e^(-2K top/cosϑ) - e^(-2K bottom/cosϑ)] / (2K) / t0².
-    from workers.water import WaterOptics
+    from workers.optics.water import WaterOptics
 
     gate = (2.0, 6.0)
     s = water_column(gate, platform={"nadir_deg": nadir})
@@ -618,7 +618,7 @@ def test_a_gate_opening_above_the_surface_holds_only_the_water():
 def test_a_crest_gates_less_water(height, monkeypatch):
     # A sea raised by η shortens the air path by η: within the same gate times the light
     # goes η/n less far into the water each way, so the gate's return changes by e^(-2Kη/n).
-    from workers.surface import Cascade, Surface
+    from workers.sea.surface import Cascade, Surface
 
     def surface(setup, seed, times, *, backend):
         n, zero = 16, np.zeros((len(times), 16, 16), np.float32)
@@ -631,7 +631,7 @@ def test_a_crest_gates_less_water(height, monkeypatch):
         update={"surface": flat.surface.model_copy(update={"spectrum": "phillips"})}
     )
     base = centre(render(flat, seed=1).expected.values[0, 0])
-    monkeypatch.setattr("workers.sensor.Setup.surface", surface)
+    monkeypatch.setattr("workers.setup.sensor.Setup.surface", surface)
     value = centre(render(raised, seed=1).expected.values[0, 0])
     K = 0.2 + 0.01
     assert_allclose(value / base, np.exp(-2 * K * height / N_WATER), rtol=0.003)

@@ -5,9 +5,9 @@ import pytest
 from numpy.testing import assert_array_equal
 
 from workers.render import render_arrays, render_batch, render_images, render_pair
-from workers.scene import Scene
-from workers.section import SceneError
-from workers.seeds import SampleSeed
+from workers.settings.scene import Scene
+from workers.settings.section import SceneError
+from workers.settings.seeds import SampleSeed
 
 torch = pytest.importorskip("torch")
 
@@ -47,7 +47,7 @@ CORPUS = {
     "wavy-sphere-oblique": scene(platform={"nadir_deg": 20.0, "azimuth_deg": 30.0}),
     "wavy-large-sphere-64px": scene(target={"radius": 2.0, "depth": 3.0}, receiver={"pixels": 64}),
     # seen through 2°, the waves' slopes bend some lines of sight off the fine grids: they
-    # read the coarse level (`workers.kernels.gather_levels`)
+    # read the coarse level (`workers.backends.kernels.gather_levels`)
     "wavy-narrow-lines-off-the-grid": scene(
         surface={"spacing": 0.02}, receiver={"pixels": 48, "field_of_view_deg": 2.0}
     ),

@@ -11,12 +11,12 @@ import pytest
 from numpy.testing import assert_allclose
 from scipy.ndimage import convolve
 
-from workers.geometry import LaserRays
-from workers.interface import ray_components, through_surface
 from workers.render import render_arrays
-from workers.scene import Scene
-from workers.seeds import SampleSeed
-from workers.sensor import lattice_offset, scene_setup, sensor_at
+from workers.settings.scene import Scene
+from workers.settings.seeds import SampleSeed
+from workers.setup.geometry import LaserRays
+from workers.setup.interface import ray_components, through_surface
+from workers.setup.sensor import lattice_offset, scene_setup, sensor_at
 
 
 def inner_mean(images):
@@ -138,7 +138,7 @@ def test_the_rough_sea_signal_matches_a_ray_trace_read_at_the_same_scale():
     # Water that neither spreads nor dims the light (b = b_b: no forward scattering), one
     # gate 4-9 m, a 32-pixel corner of the default camera (its pixels, 3.1 cm on the sea,
     # and its sea, 1.6 cm spacing), six seas. The renderer reads the light at the pixel's
-    # scale (`workers.planes.read_blur`: variance p²/3 a side, p the pixel pitch on the
+    # scale (`workers.fast.planes.read_blur`: variance p²/3 a side, p the pixel pitch on the
     # plane); the trace reads it at a disc of that variance (diameter 4p/√3) from 8 x 8
     # lines a pixel binned at 5 mm. Per sea, renderer over trace, wavy over flat each:
     # their mean is 1 within three standard errors of the six (measured 1.01 ± 0.02;

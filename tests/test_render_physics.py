@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from workers import planes as planes_module
-from workers.optics import fresnel_reflectance
+from workers.fast import planes as planes_module
+from workers.optics.fresnel import fresnel_reflectance
 from workers.render import render
-from workers.scene import Scene
-from workers.surface import Cascade, Surface
+from workers.sea.surface import Cascade, Surface
+from workers.settings.scene import Scene
 
 
 @pytest.mark.parametrize("wind_speed", [0.5, 1.0, 2.0], ids=lambda u: f"U{u:g}")
@@ -62,7 +62,7 @@ def sloped_sea(monkeypatch, *, slope_x=0.0, slope_y=0.0):
         )
         return Surface(cascades=(plane,))
 
-    monkeypatch.setattr("workers.sensor.Setup.surface", surface)
+    monkeypatch.setattr("workers.setup.sensor.Setup.surface", surface)
 
 
 def disk_scene(*, x=0.0, y=0.0, radius=0.5, depth=5.0, absorption=0.1, nadir=0.0, laser=None):
@@ -172,7 +172,7 @@ def test_a_sloped_sea_shifts_the_targets_image_as_snell_predicts(monkeypatch, sl
 
 def test_lines_of_sight_that_leave_the_fine_grid_read_the_coarse_light(monkeypatch):
     # Facets at 45° bend the pixels' lines of sight past the fine grid's guard band in the
-    # deep gates (`workers.kernels.gather_levels`): they used to read nothing, 146 to 624
+    # deep gates (`workers.backends.kernels.gather_levels`): they used to read nothing, 146 to 624
     # black pixels a deep gate in this scene, 55 to 86 % of the gate's peak off. Now they
     # read the coarse level's far light: no pixel is dark among lit neighbours, and every
     # pixel agrees with planes of 8 times the guard band (where no line leaves) within 6 %

@@ -15,8 +15,8 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 from workers.render import render
-from workers.scene import Scene
-from workers.sensor import Setup
+from workers.settings.scene import Scene
+from workers.setup.sensor import Setup
 
 REFERENCE = Path(__file__).parent / "data" / "render_reference.npz"
 

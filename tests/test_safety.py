@@ -22,8 +22,8 @@ from service.cli import main
 from service.store import integrity, lock, shards
 from service.store.location import KIND, Store
 from service.store.template import create_store
+from workers.dataset.variables import rendered_order
 from workers.render import render_arrays
-from workers.variables import rendered_order
 
 
 def sweep_file(folder, name="one", output="one.zarr", seed=3):
@@ -957,7 +957,7 @@ def test_the_template_is_built_without_rendering_a_sample(tmp_path, monkeypatch)
     def no_render(*args, **kwargs):
         raise AssertionError("the template rendered a frame")
 
-    monkeypatch.setattr("workers.stages.frame_light", no_render)
+    monkeypatch.setattr("workers.fast.stages.frame_light", no_render)
 
     text = TINY_SCENE.format(name="big", seed=1, realisations=2, output="big.zarr")
     text = text.replace("pixels: 16", "pixels: 1024").replace(

@@ -5,10 +5,10 @@ import math
 import pytest
 from pydantic import BaseModel, ValidationError
 
-from workers.instrument import MLDC_GATES
 from workers.render import render
-from workers.scene import Scene, footprint_span
-from workers.seasetup import scene_sea
+from workers.settings.instrument import MLDC_GATES
+from workers.settings.scene import Scene, footprint_span
+from workers.setup.seasetup import scene_sea
 
 
 def test_defaults_are_the_papers_example_3_geometry():
@@ -290,7 +290,7 @@ def test_a_render_never_round_trips_its_scene_through_json(monkeypatch):
 def test_a_backscatter_fraction_the_fit_cannot_meet_is_refused_whatever_it_is(fraction):
     # issue #37 item 15: b_b = b (no forward scattering) was accepted and rendered while
     # b_b/b = 0.5 was refused; the Fournier-Forand fit needs 0.002 <= b_b/b <= 0.095
-    # (`workers.phase.FF_FRACTIONS`) whatever b_f, so both are refused, naming the field
+    # (`workers.optics.phase.FF_FRACTIONS`) whatever b_f, so both are refused, naming the field
     water = {"preset": None, "absorption": 0.1, "scattering": 0.4, "backscatter": 0.4 * fraction}
     with pytest.raises(ValidationError, match=r"water\.backscatter: b_b/b = .* water\.phase"):
         Scene.model_validate({"water": water})

@@ -1,15 +1,16 @@
-"""Tests of workers.seasetup: the sea's objects built below the configuration classes."""
+"""Tests of workers.setup.seasetup: the sea's objects built below the configuration classes."""
 
 import numpy as np
 import pytest
 
-from workers import spectra
-from workers.conditioning import kriging
-from workers.scene import Scene
-from workers.sea import SurfaceSpec
-from workers.seasetup import scene_sea, surface_kriging, surface_sea, wave_spectrum
-from workers.section import SceneError
-from workers.sensor import scene_setup
+from workers.sea import spectra
+from workers.sea.conditioning import kriging
+from workers.sea.described import wave_spectrum
+from workers.settings.scene import Scene
+from workers.settings.sea import SurfaceSpec
+from workers.settings.section import SceneError
+from workers.setup.seasetup import scene_sea, surface_kriging, surface_sea
+from workers.setup.sensor import scene_setup
 
 WIND = {"wind_speed": 7.0, "wind_direction": np.radians(30.0)}
 

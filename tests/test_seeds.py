@@ -2,7 +2,7 @@
 
 import pytest
 
-from workers.seeds import SampleSeed
+from workers.settings.seeds import SampleSeed
 
 
 def draw(rng):

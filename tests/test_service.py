@@ -31,9 +31,9 @@ from service.run import execute, task_batches
 from service.store.location import Store
 from service.store.template import create_store
 from service.sweep import load_sweep, parse_sweep
-from workers.labels import RING_FRACTION
+from workers.dataset.labels import RING_FRACTION
 from workers.render import render
-from workers.seeds import SampleSeed
+from workers.settings.seeds import SampleSeed
 
 SWEEP = """\
 name: small

@@ -15,9 +15,9 @@ from service.run import execute
 from service.store import integrity
 from service.store.location import Store
 from service.sweep import parse_sweep
+from workers.dataset.variables import rendered_order
 from workers.render import render, render_arrays
-from workers.seeds import SampleSeed
-from workers.variables import rendered_order
+from workers.settings.seeds import SampleSeed
 
 SCENE = """\
 name: {name}

@@ -1,4 +1,4 @@
-"""Tests of workers.spectra: identities, closed forms and published values."""
+"""Tests of workers.sea.spectra: identities, closed forms and published values."""
 
 import dataclasses
 import math
@@ -8,10 +8,9 @@ import pytest
 from numpy.testing import assert_allclose
 from scipy import optimize, special
 
-from workers.cascades import Sea
-from workers.sea import SurfaceSpec
-from workers.seasetup import wave_spectrum
-from workers.spectra import (
+from workers.sea.cascades import Sea
+from workers.sea.described import wave_spectrum
+from workers.sea.spectra import (
     GRAVITY,
     Elfouhaily,
     Jonswap,
@@ -19,6 +18,7 @@ from workers.spectra import (
     PiersonMoskowitz,
     dispersion,
 )
+from workers.settings.sea import SurfaceSpec
 
 SPECTRA = {
     "phillips": Phillips(wind_speed=5.0),

@@ -11,13 +11,13 @@ import pytest
 from numpy.testing import assert_allclose
 from scipy import integrate, special
 
-import workers.planes as planes_module
-import workers.spread as spread_module
-from workers.geometry import PlaneGrid
+import workers.fast.planes as planes_module
+import workers.fast.spread as spread_module
+from workers.fast.spread import Levels, Spread, encircled_radius
+from workers.optics.water import PRESETS, WaterOptics
 from workers.render import render
-from workers.scene import Scene
-from workers.spread import Levels, Spread, encircled_radius
-from workers.water import PRESETS, WaterOptics
+from workers.settings.scene import Scene
+from workers.setup.geometry import PlaneGrid
 
 ALTITUDE, HALF_FOV = 34.0, np.radians(6.7 / 2)
 
@@ -254,7 +254,7 @@ def test_a_plane_holds_the_light_a_wider_one_changes_no_pixel(
     spectrum, spacing, fov, atol, monkeypatch
 ):
     # The fine planes hold the lit lattice, the pixels' lines of sight and the near spread
-    # around them (`workers.planes._plane_levels`): planes with four times the guard band
+    # around them (`workers.fast.planes._plane_levels`): planes with four times the guard band
     # move no pixel of any gate by more than the two levels' own error (flat sea: 1.1e-3 of
     # the gate's peak, the deepest gate; rough sea: 8.7e-3, where the slopes push a few
     # lines of sight near the fine grid's edge). Planes that do not hold the near spread

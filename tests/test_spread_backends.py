@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from workers.backend import get_backend
-from workers.geometry import PlaneGrid
-from workers.spread import Levels, Spread
-from workers.water import WaterOptics
+from workers.backends.backend import get_backend
+from workers.fast.spread import Levels, Spread
+from workers.optics.water import WaterOptics
+from workers.setup.geometry import PlaneGrid
 
 torch = pytest.importorskip("torch")
 

@@ -5,8 +5,8 @@ import pytest
 
 from service.stats import point_statistics
 from workers.render import render_arrays
-from workers.scene import Scene
-from workers.seeds import SampleSeed
+from workers.settings.scene import Scene
+from workers.settings.seeds import SampleSeed
 
 
 def stacked_samples(surface, realisations=3):

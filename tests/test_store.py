@@ -26,10 +26,10 @@ from service.store import integrity, layout, shards, template
 from service.store.location import Store
 from service.store.template import create_store
 from service.sweep import parse_sweep
-from workers.labels import rendered_arrays
+from workers.dataset.labels import rendered_arrays
+from workers.dataset.variables import count_dtype, rendered_order, variables
 from workers.render import render, render_arrays
-from workers.seeds import SampleSeed
-from workers.variables import count_dtype, rendered_order, variables
+from workers.settings.seeds import SampleSeed
 
 SWEEP = (
     TINY_SCENE.replace("receiver: {{pixels: 16, ", "receiver: {{pixels: 8, ")

@@ -1,4 +1,4 @@
-"""Tests of workers.surface: statistics, spectral slopes, dispersion, sampling."""
+"""Tests of workers.sea.surface: statistics, spectral slopes, dispersion, sampling."""
 
 import math
 from dataclasses import dataclass
@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from workers.cascades import Sea
-from workers.spectra import Elfouhaily, Phillips, Spectrum, dispersion
-from workers.surface import Cascade
-from workers.surface import synthesize as draw_sea
+from workers.sea.cascades import Sea
+from workers.sea.spectra import Elfouhaily, Phillips, Spectrum, dispersion
+from workers.sea.surface import Cascade
+from workers.sea.surface import synthesize as draw_sea
 
 
 def synthesize(spectrum, *, grid_size, spacing, **kwargs):

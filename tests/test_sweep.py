@@ -23,9 +23,9 @@ from service.store import template
 from service.store.location import Store
 from service.store.template import create_store
 from service.sweep import load_sweep, memory_estimate, parse_sweep
-from workers.caches import clear_all
+from workers.backends.caches import clear_all
 from workers.render import render
-from workers.scene import Scene
+from workers.settings.scene import Scene
 
 BASE = """\
 name: t

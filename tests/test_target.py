@@ -5,8 +5,8 @@ import pytest
 from conftest import plane_grid
 from numpy.testing import assert_allclose
 
-from workers.geometry import PinholeCamera
-from workers.target import Impostor, sphere_area_weights
+from workers.setup.geometry import PinholeCamera
+from workers.targets.impostor import Impostor, sphere_area_weights
 
 
 def cells(radius, h):
@@ -138,7 +138,7 @@ def test_disk_is_a_flat_lambertian_panel():
 def test_disc_cover_keeps_the_area_and_the_lambertian_return_wherever_the_disc_lies(cell, offset):
     # ∑ cover·|C| = π r² and ∑ cosine·|C| = (2/3) π r² (∫∫ √(1 - ρ²/r²) over the disc),
     # whether the disc spans many cells or lies inside one, at any offset.
-    from workers.target import disc_cover
+    from workers.targets.impostor import disc_cover
 
     r = 0.3
     count = int(np.ceil(2 * r / cell)) + 4

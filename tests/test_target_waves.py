@@ -13,12 +13,12 @@ Monte Carlo renderer's, within a tolerance from its standard error.
 import numpy as np
 import pytest
 
-from workers import montecarlo
-from workers.planes import frame_geometry
+from workers.fast.planes import frame_geometry
+from workers.montecarlo import renderer as montecarlo
 from workers.render import render_arrays, render_pair
-from workers.scene import Scene
-from workers.seeds import SampleSeed
-from workers.sensor import Setup, scene_setup, sensor_at, subgrid_sway, target_centre
+from workers.settings.scene import Scene
+from workers.settings.seeds import SampleSeed
+from workers.setup.sensor import Setup, scene_setup, sensor_at, subgrid_sway, target_centre
 
 SEED = SampleSeed(root=2)
 PHOTONS = 500_000

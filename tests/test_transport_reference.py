@@ -1,6 +1,6 @@
 """The fast renderer held to photon transport: the stored Monte Carlo reference images.
 
-`tests/data/transport_reference.npz` holds Monte Carlo images (`workers.montecarlo`) of
+`tests/data/transport_reference.npz` holds Monte Carlo images (`workers.montecarlo.renderer`) of
 the scenes of `benchmarks.transport_reference` (32 px, 34 m, ML(DC) gates, a 0.3 m sphere
 at 5 m in clear, coastal and turbid water; the paper's Example 4; coastal water under a
 5 m/s sea), each with its standard error and its no-target twin. Rewrite them with
@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from workers.render import render_arrays
-from workers.scene import Scene
+from workers.settings.scene import Scene
 
 REFERENCE = Path(__file__).parent / "data" / "transport_reference.npz"
 

@@ -1,4 +1,4 @@
-"""Tests for workers.water: Petzold IOPs, Wells' MTF, and the gated backscatter reflectance."""
+"""workers.optics.water: Petzold IOPs, Wells' MTF, and the gated backscatter reflectance."""
 
 import dataclasses
 import functools
@@ -8,8 +8,8 @@ import pytest
 from numpy.testing import assert_allclose
 from scipy import integrate, special
 
-from workers.phase import fit_fournier_forand, fournier_forand
-from workers.water import (
+from workers.optics.phase import fit_fournier_forand, fournier_forand
+from workers.optics.water import (
     BETA_PI_PER_BACKSCATTER,
     PRESETS,
     WaterOptics,

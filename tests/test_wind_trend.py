@@ -13,7 +13,7 @@ import pytest
 from conftest import ROOT
 
 from service.cli import main
-from workers.detection import MIN_FALSE_ALARMS, held_out
+from workers.detectors.detection import MIN_FALSE_ALARMS, held_out
 
 PATH = ROOT / "configs" / "wind-trend.yaml"
 

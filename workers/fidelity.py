@@ -1,7 +1,7 @@
 """How true the fast renderer is to photon transport, gate by gate: the comparison and its bars.
 
 One scene's first frame is rendered by both renderers on the same sea (the same sample
-seed): by photon transport (`workers.montecarlo.render_frame`, the reference, with its
+seed): by photon transport (`workers.montecarlo.renderer.render_frame`, the reference, with its
 standard error) and by the fast small-angle renderer (`workers.render.render_images`),
 each with its target-free twin (`Scene.without_target`). `compare` then measures, per gate,
 
@@ -37,11 +37,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from workers import montecarlo
+from workers.montecarlo import renderer as montecarlo
 from workers.render import render_images, render_pair
-from workers.scene import Scene
-from workers.seeds import SampleSeed
-from workers.sensor import scene_setup
+from workers.settings.scene import Scene
+from workers.settings.seeds import SampleSeed
+from workers.setup.sensor import scene_setup
 
 __all__ = [
     "BARS",
@@ -84,7 +84,7 @@ class Light:
     stderr, twin_stderr : ndarray or None
         Their Monte Carlo standard errors (None: the fast renderer, deterministic).
     mask : ndarray, shape (y, x), bool, or None
-        The target's mask (`workers.labels.target_mask`): the reference's only.
+        The target's mask (`workers.dataset.labels.target_mask`): the reference's only.
     sea_std : float or None
         Standard deviation of the sample's sea elevation [m] (0: flat): the reference's
         only.
@@ -165,7 +165,7 @@ def first_frame(scene: Scene) -> Scene:
 
 
 def transport_light(scene: Scene, *, seed: SampleSeed) -> Light:
-    """The first frame by photon transport (`workers.montecarlo.render_frame`), and its twin.
+    """The first frame by photon transport (`montecarlo.render_frame`), and its twin.
 
     The twin's photons are the same streams (`seed`) carried without the target, on the same
     sea, as `workers.render.render_arrays` renders it; here with its own standard error.

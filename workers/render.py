@@ -10,13 +10,13 @@ The image-formation model, per frame:
    weighted by the Fresnel transmittance. The laser is a Gaussian beam: rays sample it at
    the pixels' pitch over the image and `LATTICE_MARGIN` rays beyond, and its tail beyond
    that (out to `BEAM_EXTENT` times its 1/e radius) is refracted by the mean, flat sea onto
-   each plane (`workers.spread`).
-2. Each gate opens and closes on slant range (`workers.gates`). A gate's single-scattering
+   each plane (`workers.fast.spread`).
+2. Each gate opens and closes on slant range (`workers.setup.gates`). A gate's single-scattering
    water backscatter is an effective Lambertian reflectance on a reference plane at the
    central slab's centroid depth: laser rays are splatted where they cross that plane
    (each with the attenuation of its extra slant path), spread by the Wells point-spread
    function down and up in one product (reflectance × MTF², linear, without wrap-around:
-   `workers.spread.Spread`) and gathered where each pixel's ray crosses the plane, times
+   `workers.fast.spread.Spread`) and gathered where each pixel's ray crosses the plane, times
    the exit transmittance. The slant-range timing enters as one gain per laser ray and per
    pixel, from its air path (`gate_gain`): a ray longer in the air gates a shallower slab.
 3. The target is an impostor on the plane through its centre: downwelling irradiance
@@ -24,14 +24,14 @@ The image-formation model, per frame:
    target (not at the centre plane), restricted to each cell's share of the return inside
    the gate (on time and delayed by scattering), spread up and gathered. Over a rough sea
    it is read along the pixels' lines through the resolved sea, blurred by where the
-   sub-grid slopes move them (`workers.sensor.subgrid_sway`), as is the target's mask.
+   sub-grid slopes move them (`workers.setup.sensor.subgrid_sway`), as is the target's mask.
 4. Where a pixel's line of sight meets the target, the water behind the target is
    neither lit nor seen: the slab's backscatter loses the fraction lying behind the
    target's surface, half on the way down and half on the way up (square roots), each
-   blurred by small-angle scattering around the target (`workers.shadows`): exact
+   blurred by small-angle scattering around the target (`workers.fast.shadows`): exact
    without scattering, a full shadow when the target is above the gate.
 5. Images are scaled to photoelectrons (`radiometry.mode`): ``absolute`` by the lidar
-   equation's photon budget (`workers.radiometry.photoelectrons_per_signal`), so counts
+   equation's photon budget (`workers.receiver.radiometry.photoelectrons_per_signal`), so counts
    fall with altitude as 1/(nH + d)²; ``normalised`` so that a ρ = 1 Lambertian plane just
    under a flat sea at nadir gives `radiometry.white_plane_photons` counts. Then Poisson
    shot noise is drawn.
@@ -44,7 +44,7 @@ it; the target's own cells are gated on their lines of sight.
 
 A batch (`render_batch`) renders the realisations of one scene, each on its own streams:
 a sample's bytes do not depend on the batch it is rendered in. The per-frame stages
-(`workers.stages`) run on an array backend (`workers.backend`: numpy with the numba
+(`workers.fast.stages`) run on an array backend (`workers.backends.backend`: numpy with the numba
 kernels, or PyTorch on the CPU or a CUDA device); the labels are made on the host.
 """
 
@@ -55,15 +55,16 @@ from dataclasses import dataclass
 import numpy as np
 import xarray as xr
 
-from workers import montecarlo, stages
-from workers.backend import Backend, get_backend
-from workers.labels import labelled_dataset, rendered_arrays, target_mask
-from workers.noise import shot_noise
-from workers.planes import frame_geometry
-from workers.scene import Scene
-from workers.section import SceneError
-from workers.seeds import SampleSeed
-from workers.sensor import Setup, scene_setup
+from workers.backends.backend import Backend, get_backend
+from workers.dataset.labels import labelled_dataset, rendered_arrays, target_mask
+from workers.fast import stages
+from workers.fast.planes import frame_geometry
+from workers.montecarlo import renderer as montecarlo
+from workers.receiver.noise import shot_noise
+from workers.settings.scene import Scene
+from workers.settings.section import SceneError
+from workers.settings.seeds import SampleSeed
+from workers.setup.sensor import Setup, scene_setup
 
 __all__ = ["render", "render_arrays", "render_batch", "render_images", "render_pair"]
 
@@ -111,7 +112,7 @@ def render(
         depends on ``(root, realisation)`` only, the noise on ``(root, point,
         realisation)``.
     backend, device : str, optional
-        Where it is rendered (`workers.backend.get_backend`): ``numpy`` on the ``cpu``
+        Where it is rendered (`workers.backends.backend.get_backend`): ``numpy`` on the ``cpu``
         (the default), or ``torch`` on the ``cpu`` or ``cuda`` (``cuda:N``).
 
     Returns
@@ -158,7 +159,7 @@ def render_batch(
     dict
         ``name -> array``: `render_arrays`' values, a new leading axis the sample (host
         numpy, the store's types). A sample whose counts overflow the image type keeps
-        its image in float32 (`workers.labels.rendered_arrays`): stacked, the batch's
+        its image in float32 (`workers.dataset.labels.rendered_arrays`): stacked, the batch's
         images are then all float32, and a store refuses them.
 
     Raises
@@ -185,9 +186,10 @@ def render_arrays(
     `render`'s, without building a dataset (about 1 ms a sample); a batch of one
     (`render_batch`).
 
-    A scene with a target yields its target-free twin (`workers.scene.Scene.without_target`)
+    A scene with a target yields its target-free twin
+    (`workers.settings.scene.Scene.without_target`)
     on the same sea too, for the target's effect and its visibility labels
-    (`workers.labels.target_effect`): the fast renderer reads the same spread light a
+    (`workers.dataset.labels.target_effect`): the fast renderer reads the same spread light a
     second time without the target's light and shadow (in the same pass, bit for bit the
     twin rendered apart); by Monte Carlo it is a second transport of the same photons
     (twice the time: ``docs/model.md`` §8). Only its expected images are kept.
@@ -204,7 +206,7 @@ def render_arrays(
     Returns
     -------
     dict
-        `workers.labels.rendered_arrays`: ``image``, ``expected``, ``target_mask``,
+        `workers.dataset.labels.rendered_arrays`: ``image``, ``expected``, ``target_mask``,
         the signal means, the target's effect, ``target_visibility`` (and
         ``surface_elevation``).
     """

@@ -33,11 +33,11 @@ from service.store.layout import shard_size
 from service.store.location import Store
 from service.sweep import Plan
 from service.tasks import render_samples
-from workers.backend import Backend
-from workers.caches import clear_all
-from workers.cascades import describe
-from workers.seasetup import scene_sea
-from workers.section import SceneError
+from workers.backends.backend import Backend
+from workers.backends.caches import clear_all
+from workers.sea.cascades import describe
+from workers.settings.section import SceneError
+from workers.setup.seasetup import scene_sea
 
 __all__ = [
     "cmd_run",

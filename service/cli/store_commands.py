@@ -208,7 +208,7 @@ def cmd_detect(args) -> int:
 def _cnn_settings():
     """The trained network's default settings, or `BadOptionError` if torch is missing."""
     try:
-        from workers.cnn import CnnSettings
+        from workers.detectors.cnn import CnnSettings
     except ImportError:
         raise BadOptionError(
             "--cnn trains a network with PyTorch, which is not installed: "

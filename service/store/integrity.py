@@ -1,7 +1,7 @@
 """Samples read back against their checksums, labels against the plan, values checked.
 
 A task writes a sample only if every value is valid (`invalid_values`, by the rules of
-`workers.variables`), then its checksum and its completion flag
+`workers.dataset.variables`), then its checksum and its completion flag
 (`service.store.shards.write_shard`); `verify` reads completed samples back against both.
 The labels and coordinates, written once with the template, are compared with the plan's
 (`wrong_labels`) and written again where lost (`repair_labels`).
@@ -25,11 +25,11 @@ from service.store.template import (
     template,
 )
 from service.sweep import Plan, parse_sweep
-from workers.scene import Scene
-from workers.variables import Rule, rendered, rendered_order, variables
+from workers.dataset.variables import Rule, rendered, rendered_order, variables
+from workers.settings.scene import Scene
 
 IMAGE_AXES = ("y", "x")
-"""The pixels' coordinates (`workers.labels.image_axes`, issue #27): a store written
+"""The pixels' coordinates (`workers.dataset.labels.image_axes`, issue #27): a store written
 before them has none, and lacks nothing (it resumes without them)."""
 
 __all__ = [
@@ -55,7 +55,7 @@ def _stored_shards(store: Store, name: str) -> set[int]:
 
 
 def _stored(group) -> list[str]:
-    """The rendered variables a store holds, in `workers.variables.rendered_order`."""
+    """The rendered variables a store holds, in `workers.dataset.variables.rendered_order`."""
     return [name for name in rendered_order() if name in group]
 
 
@@ -270,7 +270,7 @@ def wrong_labels(store: Store, plan: Plan) -> dict[str, str]:
 def stale_layout(store: Store, plan: Plan) -> list[str]:
     """The rendered variables a store lacks, or holds in another shape than `plan`'s.
 
-    A store written before a variable was added to `workers.variables.variables`
+    A store written before a variable was added to `workers.dataset.variables.variables`
     (``target_effect``, ``target_effect_relative``, and ``target_visibility`` per frame,
     issue #24), by the same version number, cannot be resumed: its tasks would write
     samples the store has no room for.
@@ -278,7 +278,7 @@ def stale_layout(store: Store, plan: Plan) -> list[str]:
     Returns
     -------
     list of str
-        The variables, in `workers.variables.rendered_order`; empty when the layout is the
+        The variables, in `workers.dataset.variables.rendered_order`; empty when the layout is the
         plan's.
     """
     group = store.group()
@@ -365,7 +365,7 @@ def _compare(stored: np.ndarray, values: np.ndarray, fill) -> str | None:
 def invalid_values(sample: dict[str, np.ndarray], scene: Scene) -> str | None:
     """Why a rendered sample may not be stored, or None if every value is valid.
 
-    Each rendered variable keeps its `workers.variables.Rule`: images, their Monte Carlo
+    Each rendered variable keeps its `workers.dataset.variables.Rule`: images, their Monte Carlo
     standard errors and surfaces finite, counts, intensities and errors non-negative,
     counts within their ``valid_max`` (the largest count the store's unsigned type holds),
     and the target mask one of its flags (0 or 1). A sample that breaks any of these is
@@ -376,7 +376,7 @@ def invalid_values(sample: dict[str, np.ndarray], scene: Scene) -> str | None:
     sample : dict
         The sample's arrays by name (`workers.render.render_arrays`).
     scene : Scene
-        Its scene (its `workers.variables.variables` give the rules and ``valid_max``).
+        Its scene (its `workers.dataset.variables.variables` give the rules and ``valid_max``).
     """
     for name, variable in rendered(variables(scene)).items():
         if name not in sample:
@@ -387,7 +387,7 @@ def invalid_values(sample: dict[str, np.ndarray], scene: Scene) -> str | None:
             return (
                 f"{name} holds {int(np.count_nonzero(values > largest))} count(s) over "
                 f"{largest}, the most its {np.dtype(type(largest)).name} holds (a scene "
-                "brighter than workers.variables.COUNT_HEADROOM allows)"
+                "brighter than workers.dataset.variables.COUNT_HEADROOM allows)"
             )
         finite = rule in (Rule.FINITE, Rule.NON_NEGATIVE)
         if finite and values.dtype.kind == "f" and not np.isfinite(values).all():

@@ -19,7 +19,7 @@ from numcodecs import Blosc, Zstd
 
 from service.errors import DamagedStoreError
 from service.store.location import Store, chunk_file
-from workers.variables import rendered_order
+from workers.dataset.variables import rendered_order
 
 __all__ = [
     "BOUND",
@@ -164,7 +164,7 @@ def read_verified(group, samples: list[int]) -> dict[str, np.ndarray]:
     -------
     dict
         Name: array of the samples' values, for every rendered variable the store holds,
-        in `workers.variables.rendered_order`.
+        in `workers.dataset.variables.rendered_order`.
 
     Raises
     ------

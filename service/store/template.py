@@ -1,14 +1,14 @@
 """The store's template: its variables, metadata and coordinates, written before any sample.
 
 Dimensions ``sample, frame, gate, y, x`` (README, "The dataset"; ``y`` and ``x`` the
-pixels' places on the sea, `workers.labels.image_axes`, unless the sweep varies the
+pixels' places on the sea, `workers.dataset.labels.image_axes`, unless the sweep varies the
 footprint). The template (metadata and everything that does not depend on rendering:
 labels, platform track, coordinates, swept parameters under identifier names) is written
 once with ``compute=False``, laid out as `service.store.layout` says; tasks then write
 whole shards, and only after that set their samples' ``completed`` flags, so an
 interrupted run never marks a sample complete that is not written
 (`service.store.shards.write_shard`). The variables are the union of
-every point's table (`store_variables`, from `workers.variables`).
+every point's table (`store_variables`, from `workers.dataset.variables`).
 """
 
 from __future__ import annotations
@@ -34,10 +34,10 @@ from service.store.layout import (
 )
 from service.store.location import KIND, Store
 from service.sweep import Plan
-from workers.backend import Backend
-from workers.labels import sample_labels, surface_axis
-from workers.scene import Scene
-from workers.variables import Role, Variable, rendered_order, variables
+from workers.backends.backend import Backend
+from workers.dataset.labels import sample_labels, surface_axis
+from workers.dataset.variables import Role, Variable, rendered_order, variables
+from workers.settings.scene import Scene
 
 __all__ = [
     "LABELS_CHECKSUM",
@@ -154,12 +154,12 @@ def widest_image(plan: Plan, tables: list[dict[str, Variable]]) -> Variable:
     """The ``image`` variable whose type holds every point's counts.
 
     Counts take the narrowest unsigned type their scene needs
-    (`workers.variables.count_dtype`), which differs between points (a brighter target, a
+    (`workers.dataset.variables.count_dtype`), which differs between points (a brighter target, a
     lower platform); the store holds the widest, and the values of every point unchanged.
     Points whose images are floats (an ICCD gain, no noise) beside points of counts make
     the store's image a float type that holds every count exactly (float32 up to 16-bit
     counts, else float64); its ``long_name`` then names what each kind of point holds.
-    `tables`: every point's `workers.variables.variables`.
+    `tables`: every point's `workers.dataset.variables.variables`.
     """
     images: dict = {}
     for table in tables:
@@ -174,7 +174,7 @@ def widest_image(plan: Plan, tables: list[dict[str, Variable]]) -> Variable:
 
 
 def store_variables(plan: Plan) -> dict[str, Variable]:
-    """The store's variables: the union of every point's `workers.variables.variables`.
+    """The store's variables: the union of every point's `workers.dataset.variables.variables`.
 
     Each name's variable is that of the first point that has it; the image's type is the
     widest (`widest_image`). A variable only some points render is stored for every
@@ -253,7 +253,7 @@ def create_store(
 def rendered_shapes(plan: Plan, table: dict[str, Variable] | None = None) -> dict:
     """The rendered variables the store of `plan` holds, and a sample's shape of each.
 
-    In `workers.variables.rendered_order`; what `template` lays out and what
+    In `workers.dataset.variables.rendered_order`; what `template` lays out and what
     `service.store.integrity.stale_layout` compares a store with, without the labels.
     `table`: the plan's `store_variables`, if already worked out; else the names and dims
     of each kind's first scene (`service.sweep.Plan.representatives`), which are those of

@@ -1,0 +1,1 @@
+"""The dataset's contract: the table of stored variables and the labels a sample carries."""

@@ -1,0 +1,417 @@
+"""Compiled photon transport (numba): the Monte Carlo renderer's loops.
+
+One photon at a time, in sequence, from its entry through the sea surface: free paths
+drawn on the scattering coefficient with the absorption carried as a weight, scattering
+angles from a tabulated phase function (`workers.settings.transport.PhaseTable`), reflection off
+the target's 3-D Lambertian surface, reflection and escape at the surface from below, a
+cut on time of flight, Russian roulette. At every scattering event and every target
+reflection a local (next-event) estimate goes to the pixels that see the point through
+the rough surface (`_estimate`), in every gate whose window holds the path's total
+optical length. Each photon draws from its own counter-keyed stream
+(`workers.montecarlo.scattering.photon_state`), so its path depends on its index and the key alone,
+not on the order of the loop: the loops carry no state between photons but the tallies, as
+a GPU kernel with one photon a thread would. The model is in ``docs/model.md`` §9.
+
+Array conventions: world metres, z up (mean sea level z = 0, the water below); optical
+paths in metres (n times the water path); weights in the renderer's raw power units.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from workers.montecarlo.scattering import (
+    angle_between,
+    mixture_weight,
+    phase_value,
+    photon_state,
+    reflection_weight,
+    scattering_angle,
+    toward_receiver,
+    turn,
+    uniform,
+)
+from workers.montecarlo.sightlines import EPS, corner_at, target_blocks, target_distance
+
+__all__ = ["TALLIES", "transport"]
+
+TALLIES = ("transmitted", "absorbed", "escaped", "target", "cut")
+"""The energy tallies of `transport`, in order: transmitted = the sum of the others."""
+
+_ROULETTE_WEIGHT = 1e-6  # roulette below this share of the launch weight (time cuts most)
+_ROULETTE_SURVIVAL = 0.1  # probability of surviving the roulette
+_BISECTIONS = 30  # steps locating a photon's crossing of the surface from below
+
+
+@numba.njit(cache=True)
+def _elevation(x, y, surface, grid):
+    """Elevation η and slopes of the stored sea grid at (x, y) (flat outside it) [m], [1].
+
+    `grid` = (x0, y0, spacing, size): nodes at x0 + i·spacing, y0 + j·spacing;
+    `surface` (size, size), index order (y, x).
+    """
+    size = int(grid[3])
+    if size == 0:
+        return 0.0, 0.0, 0.0
+    fx = (x - grid[0]) / grid[2]
+    fy = (y - grid[1]) / grid[2]
+    if fx < 0.0 or fy < 0.0 or fx >= size - 1 or fy >= size - 1:
+        return 0.0, 0.0, 0.0
+    i, j = int(fx), int(fy)
+    tx, ty = fx - i, fy - j
+    e00, e01 = surface[j, i], surface[j, i + 1]
+    e10, e11 = surface[j + 1, i], surface[j + 1, i + 1]
+    eta = (e00 * (1 - tx) + e01 * tx) * (1 - ty) + (e10 * (1 - tx) + e11 * tx) * ty
+    sx = ((e01 - e00) * (1 - ty) + (e11 - e10) * ty) / grid[2]
+    sy = ((e10 - e00) * (1 - tx) + (e11 - e01) * tx) / grid[2]
+    return eta, sx, sy
+
+
+@numba.njit(cache=True)
+def _estimate(
+    x,
+    y,
+    z,
+    vx,
+    vy,
+    vz,
+    value,
+    lambertian,
+    path,
+    optics,
+    phase,
+    lines,
+    lookup,
+    target,
+    gates,
+    image,
+    state,
+):
+    r"""Add a point's local estimate to every pixel and gate that sees it (raw units).
+
+    A point scattering (`lambertian` False: `value` = the photon's weight, v its
+    direction) or reflecting (True: `value` = weight × ρ, v the surface's normal) sends
+    the pixel whose lines of sight hold it the power into the aperture's solid angle. The
+    lines (`lines`) run through the corners of S × S cells of each pixel (`lookup[0][3]`
+    = S), each cell split into two triangles; a triangle of solid angle Ω_p/(2S²) and
+    cross-section A⊥ at the point gives, by étendue, the solid angle
+    :math:`A_R\Omega_p/(2S^2 n^2 A_\perp)` of the aperture seen from the point through
+    the surface, so in raw units (`workers.receiver.radiometry`) the pixel gets `value` × phase
+    (or cos/π) × T e^(−c L_up) × π / (2 S² A⊥). A point inside several triangles (a fold
+    of the lines under a focusing wave) counts in each.
+
+    The lines follow the resolved sea; the slopes below its grid (`optics[4:8]`: their
+    covariance's square root F, and `optics[8]` = 1 − 1/n) tilt a line's way in the water
+    by about −(1 − 1/n)s, so the point is looked up displaced by (1 − 1/n) d F ζ, d its
+    depth and ζ two standard normals drawn here: the unresolved facets' refraction on the
+    way up, as a random blur.
+    """
+    n_w, c = optics[0], optics[1]
+    px, py = x, y  # the point itself, for the target's shadow on the way up
+    if optics[8] > 0.0:
+        radius = math.sqrt(-2.0 * math.log(uniform(state)))
+        angle = 2.0 * math.pi * uniform(state)
+        zx, zy = radius * math.cos(angle), radius * math.sin(angle)
+        reach = optics[8] * max(-z, 0.0)
+        x = x + reach * (optics[4] * zx + optics[5] * zy)
+        y = y + reach * (optics[6] * zx + optics[7] * zy)
+    slabs = lookup[0]
+    top, thick = slabs[0], slabs[1]
+    s = math.floor((top - z) / thick)
+    if s < 0 or s >= int(slabs[2]):
+        return
+    head = lookup[1]
+    x0, y0, size, nbx, nby, first = (
+        head[s, 0],
+        head[s, 1],
+        head[s, 2],
+        int(head[s, 3]),
+        int(head[s, 4]),
+        int(head[s, 5]),
+    )
+    bi = math.floor((x - x0) / size)
+    bj = math.floor((y - y0) / size)
+    if bi < 0 or bj < 0 or bi >= nbx or bj >= nby:
+        return
+    starts, items = lookup[2], lookup[3]
+    bucket = first + bj * nbx + bi
+    sub = int(slabs[3])
+    lattice = image.shape[1] * sub
+    side = lattice + 1
+    scale = math.pi / (2.0 * sub * sub)
+    for q in range(int(starts[bucket]), int(starts[bucket + 1])):
+        quad = int(items[q])
+        row, col = quad // lattice, quad % lattice
+        k00 = row * side + col
+        k01, k10 = k00 + 1, k00 + side
+        k11 = k10 + 1
+        x00, y00, t00 = corner_at(k00, z, lines)
+        x01, y01, t01 = corner_at(k01, z, lines)
+        x10, y10, t10 = corner_at(k10, z, lines)
+        x11, y11, t11 = corner_at(k11, z, lines)
+        for half in range(2):
+            ka, ax, ay, ta = k00, x00, y00, t00
+            if half == 0:
+                kb, bx, by, tb, kc, cx, cy, tc = k01, x01, y01, t01, k11, x11, y11, t11
+            else:
+                kb, bx, by, tb, kc, cx, cy, tc = k11, x11, y11, t11, k10, x10, y10, t10
+            area2 = (bx - ax) * (cy - ay) - (cx - ax) * (by - ay)
+            if area2 == 0.0:
+                continue
+            la = ((bx - x) * (cy - y) - (cx - x) * (by - y)) / area2
+            lb = ((cx - x) * (ay - y) - (ax - x) * (cy - y)) / area2
+            lc = 1.0 - la - lb
+            if la < 0.0 or lb < 0.0 or lc < 0.0:
+                continue
+            length = la * ta + lb * tb + lc * tc
+            if length < 0.0:
+                continue
+            air = la * lines[6, ka] + lb * lines[6, kb] + lc * lines[6, kc]
+            total = path + n_w * length + air
+            inside = False
+            for g in range(gates.shape[0]):
+                if gates[g, 0] <= total < gates[g, 1]:
+                    inside = True
+            if not inside:
+                continue
+            dx = la * lines[3, ka] + lb * lines[3, kb] + lc * lines[3, kc]
+            dy = la * lines[4, ka] + lb * lines[4, kb] + lc * lines[4, kc]
+            dz = la * lines[5, ka] + lb * lines[5, kb] + lc * lines[5, kc]
+            norm = math.sqrt(dx * dx + dy * dy + dz * dz)
+            ux, uy, uz = -dx / norm, -dy / norm, -dz / norm
+            if lambertian:
+                weight = value * (vx * ux + vy * uy + vz * uz) / math.pi
+                if weight <= 0.0:
+                    continue
+            else:
+                cos_t, sin_t = angle_between(vx, vy, vz, ux, uy, uz)
+                weight = value * phase_value(cos_t, sin_t, phase[0], phase[1], phase[2:])
+            if target_blocks(px, py, z, ux, uy, uz, length, target):
+                continue
+            exit_t = la * lines[7, ka] + lb * lines[7, kb] + lc * lines[7, kc]
+            across = 0.5 * abs(area2) * uz
+            contribution = weight * exit_t * math.exp(-c * length) * scale / across
+            for g in range(gates.shape[0]):
+                if gates[g, 0] <= total < gates[g, 1]:
+                    image[g, row // sub, col // sub] += contribution
+
+
+@numba.njit(cache=True, nogil=True)
+def transport(
+    launch,
+    key,
+    first_index,
+    optics,
+    phase,
+    quantiles,
+    limits,
+    camera,
+    surface,
+    grid,
+    lines,
+    lookup,
+    target,
+    gates,
+    image,
+    tallies,
+):
+    """Carry a batch of photons through the water, adding their estimates to `image`.
+
+    Parameters
+    ----------
+    launch : ndarray, shape (8, N)
+        Each photon after the surface: entry point x, y, z [m], unit direction in the
+        water, weight (raw power after the Fresnel transmittance), air path [m].
+    key : uint64
+        The frame's photon key; photon i draws from ``photon_state(key, first_index + i)``.
+    first_index : int
+        Index of the batch's first photon in the frame.
+    optics : ndarray
+        (n_w, c, a, b) [1, 1/m, 1/m, 1/m], then the sub-grid slopes' F (row-major) [1]
+        and 1 − 1/n (0: no sub-grid slopes).
+    phase : ndarray
+        (ln θ0, ln step, ln values...) of the `PhaseTable`.
+    quantiles : ndarray
+        The table's scattering angles at equal steps of probability [rad].
+    limits : ndarray
+        (longest gated path [m], least air path back [m], lowest and highest surface
+        [m], most scattering events, share of scatterings and of reflections off the
+        target drawn about the way to the receiver).
+    camera : ndarray
+        The receiver's pinhole (x, y, z) [m].
+    surface, grid : ndarray
+        The sea's elevation grid (`_elevation`) and (x0, y0, spacing, size).
+    lines : ndarray, shape (8, (P + 1)²)
+        The pixels' corner lines: surface point x, y, z, downward unit direction, air
+        path [m], Fresnel transmittance.
+    lookup : tuple
+        `workers.montecarlo.sightlines.build_lookup`'s slabs, heads, starts and items.
+    target : ndarray
+        (kind, cx, cy, cz, radius, reflectance); kind 0 none, 1 sphere, 2 disk.
+    gates : ndarray, shape (G, 2)
+        Round-trip optical path at which each gate opens and closes [m].
+    image : ndarray, shape (G, P, P)
+        Raw signal, float64, added to.
+    tallies : ndarray, shape (5,)
+        `TALLIES`, added to (raw power).
+    """
+    n_w, a, b = optics[0], optics[2], optics[3]
+    longest, air_back, lowest, highest = limits[0], limits[1], limits[2], limits[3]
+    most = int(limits[4])
+    bias, reflect = limits[5], limits[6]
+    state = np.empty(1, dtype=np.uint64)
+    for i in range(launch.shape[1]):
+        w = launch[6, i]
+        if w <= 0.0:
+            continue
+        tallies[0] += w
+        floor = w * _ROULETTE_WEIGHT
+        state[0] = photon_state(key, first_index + i)
+        x, y, z = launch[0, i], launch[1, i], launch[2, i]
+        dx, dy, dz = launch[3, i], launch[4, i], launch[5, i]
+        path = launch[7, i]
+        events = 0
+        while True:
+            step = -math.log(uniform(state)) / b if b > 0.0 else np.inf
+            hit = target_distance(x, y, z, dx, dy, dz, target)
+            reach = min(step, hit)
+            surfaced = False
+            if dz > 0.0:
+                if reach == np.inf:
+                    reach = (highest - z) / dz + EPS
+                ex, ey, ez = x + reach * dx, y + reach * dy, z + reach * dz
+                if ez >= _elevation(ex, ey, surface, grid)[0]:
+                    lo, hi = 0.0, reach
+                    for _ in range(_BISECTIONS):
+                        mid = 0.5 * (lo + hi)
+                        mx, my, mz = x + mid * dx, y + mid * dy, z + mid * dz
+                        if mz >= _elevation(mx, my, surface, grid)[0]:
+                            hi = mid
+                        else:
+                            lo = mid
+                    reach = lo
+                    surfaced = True
+            if reach == np.inf:
+                tallies[4] += w  # down for ever in clear water: nothing more to gate
+                break
+            kept = math.exp(-a * reach)
+            tallies[1] += w * (1.0 - kept)
+            w *= kept
+            x, y, z = x + reach * dx, y + reach * dy, z + reach * dz
+            path += n_w * reach
+            if path + n_w * max(lowest - z, 0.0) + air_back >= longest:
+                tallies[4] += w
+                break
+            if surfaced:
+                eta, sx, sy = _elevation(x, y, surface, grid)
+                norm = 1.0 / math.sqrt(1.0 + sx * sx + sy * sy)
+                nx, ny, nz = -sx * norm, -sy * norm, norm
+                cos_i = dx * nx + dy * ny + dz * nz
+                if cos_i <= 0.0:
+                    nx, ny, nz, cos_i = 0.0, 0.0, 1.0, dz
+                sin_t2 = n_w * n_w * (1.0 - cos_i * cos_i)
+                if sin_t2 >= 1.0:
+                    reflectance = 1.0
+                else:
+                    cos_o = math.sqrt(1.0 - sin_t2)
+                    rs = (n_w * cos_i - cos_o) / (n_w * cos_i + cos_o)
+                    rp = (cos_i - n_w * cos_o) / (cos_i + n_w * cos_o)
+                    reflectance = 0.5 * (rs * rs + rp * rp)
+                tallies[2] += w * (1.0 - reflectance)
+                w *= reflectance
+                dx, dy, dz = dx - 2 * cos_i * nx, dy - 2 * cos_i * ny, dz - 2 * cos_i * nz
+                z = min(z, eta) - EPS
+            elif hit <= step:
+                rho = target[5]
+                if target[0] == 1.0:
+                    nx, ny, nz = (
+                        (x - target[1]) / target[4],
+                        (y - target[2]) / target[4],
+                        (z - target[3]) / target[4],
+                    )
+                else:
+                    nx, ny, nz = 0.0, 0.0, (1.0 if dz < 0.0 else -1.0)
+                _estimate(
+                    x,
+                    y,
+                    z,
+                    nx,
+                    ny,
+                    nz,
+                    w * rho,
+                    True,
+                    path,
+                    optics,
+                    phase,
+                    lines,
+                    lookup,
+                    target,
+                    gates,
+                    image,
+                    state,
+                )
+                tallies[3] += w * (1.0 - rho)
+                w *= rho
+                # Lambertian, or (share reflect) about the way to the receiver, weighted
+                ax, ay, az = toward_receiver(x, y, z, camera, n_w)
+                if uniform(state) < reflect:
+                    theta = scattering_angle(uniform(state), quantiles)
+                    cos_t, sin_t = math.cos(theta), math.sin(theta)
+                    ux, uy, uz = ax, ay, az
+                else:
+                    cos_t = math.sqrt(uniform(state))
+                    sin_t = math.sqrt(max(1.0 - cos_t * cos_t, 0.0))
+                    ux, uy, uz = nx, ny, nz
+                dx, dy, dz = turn(ux, uy, uz, cos_t, sin_t, 2.0 * math.pi * uniform(state))
+                old = w
+                w *= reflection_weight(nx, ny, nz, ax, ay, az, dx, dy, dz, phase, reflect)
+                tallies[4] -= w - old
+                if w <= 0.0:
+                    break  # drawn into the target: its weight is in the cut tally
+            else:
+                _estimate(
+                    x,
+                    y,
+                    z,
+                    dx,
+                    dy,
+                    dz,
+                    w,
+                    False,
+                    path,
+                    optics,
+                    phase,
+                    lines,
+                    lookup,
+                    target,
+                    gates,
+                    image,
+                    state,
+                )
+                events += 1
+                if events >= most:
+                    tallies[4] += w
+                    break
+                ax, ay, az = toward_receiver(x, y, z, camera, n_w)
+                biased = uniform(state) < bias
+                theta = scattering_angle(uniform(state), quantiles)
+                phi = 2.0 * math.pi * uniform(state)
+                cos_t, sin_t = math.cos(theta), math.sin(theta)
+                if biased:
+                    nx, ny, nz = turn(ax, ay, az, cos_t, sin_t, phi)
+                else:
+                    nx, ny, nz = turn(dx, dy, dz, cos_t, sin_t, phi)
+                old = w
+                w *= mixture_weight(dx, dy, dz, ax, ay, az, nx, ny, nz, phase, bias)
+                tallies[4] -= w - old
+                dx, dy, dz = nx, ny, nz
+            if w < floor:
+                if uniform(state) < _ROULETTE_SURVIVAL:
+                    tallies[4] -= w * (1.0 / _ROULETTE_SURVIVAL - 1.0)
+                    w /= _ROULETTE_SURVIVAL
+                else:
+                    tallies[4] += w
+                    break

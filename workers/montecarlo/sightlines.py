@@ -1,0 +1,173 @@
+"""The lines of sight in the water, bucketed by depth and place (numba).
+
+The Monte Carlo renderer's local estimates (`workers.montecarlo.photons`) must find, for a point
+in the
+water, the pixels whose lines of sight through the rough surface hold it. The lines (through
+the corners of S × S cells of each pixel, `workers.montecarlo.renderer`) are straight below the
+surface; `build_lookup` lists, per horizontal slab and per square bucket of it, the cells
+whose four lines' box over the slab meets the bucket, so that a point is tested against a
+few cells only.
+
+Array conventions as `workers.montecarlo.photons`: lines as an (8, (PS + 1)²) array of surface
+point
+x, y, z [m], downward unit direction, air path [m], Fresnel transmittance.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+__all__ = ["EPS", "build_lookup", "corner_at", "target_blocks", "target_distance"]
+
+EPS = 1e-7
+"""Distance below which a surface met is the one just left [m]."""
+
+
+@numba.njit(cache=True)
+def corner_at(k, z, lines):
+    """Corner line k at height z: (x, y, water length from the surface) [m]."""
+    t = (z - lines[2, k]) / lines[5, k]
+    return lines[0, k] + t * lines[3, k], lines[1, k] + t * lines[4, k], t
+
+
+@numba.njit(cache=True)
+def _quad_box(lines, k00, side, za, zb):
+    """Bounding box (x0, x1, y0, y1) of a pixel's four corner lines between two heights."""
+    x0, x1, y0, y1 = np.inf, -np.inf, np.inf, -np.inf
+    for k in (k00, k00 + 1, k00 + side, k00 + side + 1):
+        for z in (za, zb):
+            x, y, _ = corner_at(k, z, lines)
+            x0, x1, y0, y1 = min(x0, x), max(x1, x), min(y0, y), max(y1, y)
+    return x0, x1, y0, y1
+
+
+@numba.njit(cache=True)
+def _fill(lines, pixels, top, thick, heads, counts, items, cursor, fill):
+    """Count (`fill` False) or list (True) each slab's pixels in the buckets their boxes meet."""
+    side = pixels + 1
+    for s in range(heads.shape[0]):
+        za, zb = top - s * thick, top - (s + 1) * thick
+        gx0, gy0, size = heads[s, 0], heads[s, 1], heads[s, 2]
+        nbx, first = int(heads[s, 3]), int(heads[s, 5])
+        for q in range(pixels * pixels):
+            k00 = (q // pixels) * side + q % pixels
+            x0, x1, y0, y1 = _quad_box(lines, k00, side, za, zb)
+            for bj in range(int((y0 - gy0) / size), int((y1 - gy0) / size) + 1):
+                for bi in range(int((x0 - gx0) / size), int((x1 - gx0) / size) + 1):
+                    bucket = first + bj * nbx + bi
+                    if fill:
+                        items[cursor[bucket]] = q
+                        cursor[bucket] += 1
+                    else:
+                        counts[bucket + 1] += 1
+
+
+@numba.njit(cache=True)
+def build_lookup(lines, pixels, top, thick, slabs):
+    """Buckets of pixels per horizontal slab: which pixels' lines may hold a point.
+
+    Parameters
+    ----------
+    lines : ndarray, shape (8, (pixels + 1)²)
+        As for `transport`.
+    pixels : int
+        Pixels per side P.
+    top : float
+        Height of the first slab's top [m].
+    thick : float
+        Slab thickness [m].
+    slabs : int
+        Number of slabs.
+
+    Returns
+    -------
+    heads : ndarray, shape (slabs, 6)
+        Per slab: bucket grid origin x, y [m], bucket size [m] (the median pixel's box),
+        buckets along x and y, and the index of its first bucket in `starts`.
+    starts : ndarray
+        Start of each bucket's pixels in `items` (one more entry at the end).
+    items : ndarray
+        Pixel indices (row · P + column), int32.
+    """
+    side = pixels + 1
+    heads = np.zeros((slabs, 6))
+    widths = np.empty(pixels * pixels)
+    total = 0
+    for s in range(slabs):
+        za, zb = top - s * thick, top - (s + 1) * thick
+        gx0, gx1, gy0, gy1 = np.inf, -np.inf, np.inf, -np.inf
+        for q in range(pixels * pixels):
+            k00 = (q // pixels) * side + q % pixels
+            x0, x1, y0, y1 = _quad_box(lines, k00, side, za, zb)
+            gx0, gx1 = min(gx0, x0), max(gx1, x1)
+            gy0, gy1 = min(gy0, y0), max(gy1, y1)
+            widths[q] = max(x1 - x0, y1 - y0)
+        # buckets a typical pixel's box wide, at most 4 a pixel along a side
+        size = max(np.median(widths), max(gx1 - gx0, gy1 - gy0) / (4 * pixels))
+        nbx = int((gx1 - gx0) / size) + 1
+        nby = int((gy1 - gy0) / size) + 1
+        heads[s, 0], heads[s, 1], heads[s, 2] = gx0, gy0, size
+        heads[s, 3], heads[s, 4], heads[s, 5] = nbx, nby, total
+        total += nbx * nby
+    counts = np.zeros(total + 1, dtype=np.int64)
+    items = np.empty(0, dtype=np.int32)
+    _fill(lines, pixels, top, thick, heads, counts, items, counts, False)
+    for i in range(total):
+        counts[i + 1] += counts[i]
+    items = np.empty(counts[total], dtype=np.int32)
+    cursor = counts[:-1].copy()
+    _fill(lines, pixels, top, thick, heads, counts, items, cursor, True)
+    return heads, counts, items
+
+
+@numba.njit(cache=True)
+def target_distance(px, py, pz, dx, dy, dz, target):
+    """Distance along (d) to the target's surface facing the photon, inf if none [m].
+
+    `target` = (kind, cx, cy, cz, radius, reflectance); kind 1 sphere, 2 horizontal disk.
+    """
+    kind = target[0]
+    if kind == 1.0:
+        ox, oy, oz = px - target[1], py - target[2], pz - target[3]
+        b = ox * dx + oy * dy + oz * dz
+        c = ox * ox + oy * oy + oz * oz - target[4] * target[4]
+        if c <= 0.0 or b >= 0.0:
+            return np.inf
+        disc = b * b - c
+        if disc <= 0.0:
+            return np.inf
+        t = -b - math.sqrt(disc)
+        return t if t > EPS else np.inf
+    if kind == 2.0 and dz != 0.0:
+        t = (target[3] - pz) / dz
+        if t > EPS:
+            hx, hy = px + t * dx - target[1], py + t * dy - target[2]
+            if hx * hx + hy * hy <= target[4] * target[4]:
+                return t
+    return np.inf
+
+
+@numba.njit(cache=True)
+def target_blocks(x, y, z, ux, uy, uz, length, target):
+    """Whether the target lies on the straight path from (x, y, z) along u for `length`."""
+    kind = target[0]
+    if kind == 1.0:
+        ox, oy, oz = x - target[1], y - target[2], z - target[3]
+        b = ox * ux + oy * uy + oz * uz
+        c = ox * ox + oy * oy + oz * oz - target[4] * target[4]
+        if c <= 0.0:
+            return b < 0.0
+        disc = b * b - c
+        if disc <= 0.0 or b >= 0.0:
+            return False
+        t = -b - math.sqrt(disc)
+        return EPS < t < length
+    if kind == 2.0 and uz > 0.0:
+        t = (target[3] - z) / uz
+        if EPS < t < length:
+            hx, hy = x + t * ux - target[1], y + t * uy - target[2]
+            return hx * hx + hy * hy <= target[4] * target[4]
+    return False

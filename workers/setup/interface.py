@@ -1,0 +1,206 @@
+"""The air–water interface of the rays: where each meets the sea, and how it goes on.
+
+Rays from the platform (laser rays, pixels' lines of sight) are intersected with the real
+surface, refracted by Snell's law at the local facet and weighted by the Fresnel
+transmittance (`through_surface`); in the water they are straight lines, kept as affine
+functions of the depth of the plane they cross (`Projected`). The rays' arrays are of any
+array API namespace (numpy, or torch on its device: `workers.backends.backend`); the arithmetic is
+the same, so numpy's bytes are those of plain numpy code.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from array_api_compat import array_namespace
+
+from workers.setup.geometry import PlaneGrid
+
+__all__ = [
+    "SURFACE_ITERATIONS",
+    "SURFACE_TOLERANCE",
+    "Projected",
+    "Transmitted",
+    "ray_components",
+    "through_surface",
+]
+
+SURFACE_ITERATIONS = 8
+"""Most fixed-point refinements of each ray's hit on the wavy surface (start at z = 0)."""
+
+SURFACE_TOLERANCE = 1e-3
+"""Height change [m] below which the surface hit has converged (1 mm)."""
+
+
+@dataclass(frozen=True)
+class Transmitted:
+    """Rays after the surface: entry point, in-water slopes, Fresnel transmittance."""
+
+    air: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    tan_x: np.ndarray
+    tan_y: np.ndarray
+    secant: np.ndarray
+    transmittance: np.ndarray
+
+    def on_axes(self, grid: PlaneGrid, diffuse_attenuation: float) -> Projected:
+        """The rays in the horizontal axes of `grid`, ready to be crossed with any depth.
+
+        Parameters
+        ----------
+        grid : PlaneGrid
+            Any plane of the frame: they all share the image's axes.
+        diffuse_attenuation : float
+            K [1/m].
+
+        Returns
+        -------
+        Projected
+        """
+        (u0, u1), (v0, v1) = grid.axis_u, grid.axis_v
+        slope_u = self.tan_x * u0 + self.tan_y * u1
+        slope_v = self.tan_x * v0 + self.tan_y * v1
+        base_u = self.x * u0 + self.y * u1 + self.z * slope_u
+        base_v = self.x * v0 + self.y * v1 + self.z * slope_v
+        k = -diffuse_attenuation
+        return Projected(
+            base_u=base_u,
+            slope_u=slope_u,
+            base_v=base_v,
+            slope_v=slope_v,
+            log_extra=(k * self.z) * self.secant,
+            log_extra_slope=k * (self.secant - 1.0),
+        )
+
+
+@dataclass(frozen=True)
+class Projected:
+    r"""Rays after the surface, as affine functions of the depth z of a plane [m].
+
+    On a plane at depth z a ray that entered at height η with in-water slopes
+    (tan_x, tan_y) is at ``base + z·slope`` along each of the image's horizontal axes u
+    and v [m] (its entry point moved down by z + η along the slopes). The MTF of a plane
+    at depth z already attenuates by exp(-Kz); the ray travels (z + η)/cos ϑ, so it is
+    further attenuated by :math:`e^{-K((z + \eta)/\cos\vartheta - z)}
+    = \exp(\mathrm{log\_extra} + z\,\mathrm{log\_extra\_slope})`.
+    """
+
+    base_u: np.ndarray
+    slope_u: np.ndarray
+    base_v: np.ndarray
+    slope_v: np.ndarray
+    log_extra: np.ndarray
+    log_extra_slope: np.ndarray
+
+    @property
+    def lines(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(base_u, slope_u, base_v, slope_v)``, for `workers.backends.kernels`."""
+        return self.base_u, self.slope_u, self.base_v, self.slope_v
+
+    def extra(self, depth: float):
+        """Attenuation of each ray's extra slant path to a plane at `depth` [1], float32."""
+        extra = self.log_extra_slope * float(np.float32(depth))
+        extra += self.log_extra
+        return array_namespace(extra).exp(extra)
+
+
+def ray_components(origins, directions):
+    """Rays as six contiguous float32 components (ox, oy, oz, dx, dy, dz).
+
+    An origin shared by every ray (a divergent beam, the pinhole) is kept as three
+    float32 scalars, which broadcast.
+    """
+    origins = np.asarray(origins, dtype=np.float32).reshape(-1, 3)
+    directions = np.asarray(directions, dtype=np.float32).reshape(-1, 3)
+    if origins.shape[0] == 1 or np.all(origins == origins[0]):
+        o = tuple(np.float32(v) for v in origins[0])
+    else:
+        o = tuple(np.ascontiguousarray(origins[:, i]) for i in range(3))
+    return (*o, *(np.ascontiguousarray(directions[:, i]) for i in range(3)))
+
+
+def through_surface(rays, surface, frame, refractive_index):
+    r"""Intersect rays with the surface, refract them and get their Fresnel transmittance.
+
+    Parameters
+    ----------
+    rays : tuple
+        ``(ox, oy, oz, dx, dy, dz)`` from `ray_components` [m], [1]: float32 arrays of
+        one backend (numpy, or torch tensors on one device), an origin shared by every
+        ray as scalars.
+    surface : Surface or None
+        The sea surface (None: flat), its fields on the rays' backend.
+    frame : int
+        Frame index into the surface.
+    refractive_index : float
+        Refractive index of the water [1].
+
+    Returns
+    -------
+    Transmitted
+
+    Notes
+    -----
+    The hit is found by fixed-point iteration from z = 0: the ray's point at the height η
+    of the surface under its previous point; it contracts by |slope · tan(view)| per step
+    and stops when the surface under the new point differs from η by less than
+    `SURFACE_TOLERANCE` (so the hit is within the tolerance, about, of the exact one).
+    Elevation and slopes are those sampled there (the slopes only once, at the end).
+
+    The interface is refracted and weighted inline with the formulas of
+    `workers.optics.fresnel.refract` and `workers.optics.fresnel.fresnel_reflectance`, specialised
+    to
+    air → water (n1 = 1 < n2, no total internal reflection): with the upward normal
+    :math:`n = (-s_x, -s_y, 1)/\sqrt{1 + s^2}`, cos i = -ξ·n and
+    k = 1 - (1 - cos² i)/n_w², the transmitted direction is
+    :math:`\xi/n_w + (\cos i/n_w - \sqrt{k})\,n`. Rays meeting a facet that faces
+    away from them (cos i <= 0), and rays the surface would send back up, transmit
+    nothing.
+    """
+    ox, oy, oz, dx, dy, dz = rays
+    xp = array_namespace(dx)
+    travel = -oz / dz
+    if surface is None:
+        eta = xp.zeros_like(travel)
+        sx = sy = eta
+    else:
+        eta = surface.elevation_at(ox + travel * dx, oy + travel * dy, frame)
+        for _ in range(SURFACE_ITERATIONS):
+            travel = (eta - oz) / dz
+            x, y = ox + travel * dx, oy + travel * dy
+            height = surface.elevation_at(x, y, frame)
+            converged = bool(xp.max(xp.abs(height - eta)) < SURFACE_TOLERANCE)
+            eta = height
+            if converged:
+                break
+        sx, sy = surface.slopes_at(x, y, frame)
+    ratio = 1.0 / refractive_index
+    inverse_norm = 1.0 / xp.sqrt(1.0 + sx * sx + sy * sy)
+    cos_incidence = (dx * sx + dy * sy - dz) * inverse_norm
+    cos_i = xp.clip(cos_incidence, 0.0, 1.0)
+    cos_t = xp.sqrt(1.0 - ratio * ratio * (1.0 - cos_i * cos_i))
+    coefficient = (ratio * cos_i - cos_t) * inverse_norm
+    down = -(ratio * dz + coefficient)
+    facing = (cos_incidence > 0) & (down > 0)
+    secant = xp.where(facing, 1.0 / xp.where(facing, down, 1.0), 1.0)
+    n_w = refractive_index
+    r_s = (cos_i - n_w * cos_t) / (cos_i + n_w * cos_t)
+    r_p = (n_w * cos_i - cos_t) / (n_w * cos_i + cos_t)
+    transmittance = 1.0 - 0.5 * (r_s * r_s + r_p * r_p)
+
+    def single(values):
+        return xp.astype(values, xp.float32, copy=False)
+
+    return Transmitted(
+        air=single(travel),
+        x=single(ox + travel * dx),
+        y=single(oy + travel * dy),
+        z=single(eta),
+        tan_x=single(xp.where(facing, (ratio * dx - coefficient * sx) * secant, 0.0)),
+        tan_y=single(xp.where(facing, (ratio * dy - coefficient * sy) * secant, 0.0)),
+        secant=single(secant),
+        transmittance=single(xp.where(facing, transmittance, 0.0)),
+    )

@@ -1,0 +1,1 @@
+"""Targets under the sea: what each renderer needs of a target's shape."""
