@@ -1,0 +1,211 @@
+"""Every byte of a sweep's output, before and after a change that must not alter it (issue #38).
+
+Runs one small sweep that reaches every variant the renderer has (both renderers, sphere,
+disk and no target, flat and rough sea, both phase functions, ``expected`` and the sea
+surface stored, two frames, 8 realisations so that ``detect`` accepts it) with ``oceanlidar
+run`` into a fresh temporary folder, then ``detect`` and ``info --verify`` on the store,
+through ``python -m service.cli`` (whatever the package's layout). It writes a manifest,
+JSON, of every file there: the stores, the detection dataset, the sweep file, and the text
+``detect`` and ``info --verify`` printed. ``--against OLD.json`` compares it with an earlier
+manifest, prints every file that differs, is missing or is new, and exits 1 if any does.
+
+Two runs of the same code (53c95fc, two and one workers) wrote byte-identical stores and
+detection datasets: no metadata key is volatile (no time, host or duration is stored; the
+package's version is, and a bump shows as a difference, rightly). The one volatile part is
+the temporary folder's path in the printed text, replaced by ``<WORK>`` before hashing;
+nothing else is normalised or skipped, and the manifest keeps every file's raw md5 beside.
+The ``run`` command's own output (progress and run times) is kept in the manifest, not
+compared. Usage (about 2 minutes on the loaded 2-core machine)::
+
+    python benchmarks/identical_bytes.py --manifest-out after.json \\
+        --against /work/notes/baseline/manifest.json
+"""
+
+import argparse
+import hashlib
+import itertools
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import yaml
+
+ROOT = Path(__file__).resolve().parent.parent
+
+# The points: each renderer with each phase function (the fast renderer reads
+# `water.phase_function`, the Monte Carlo one `transport.phase_function`), over a flat and a
+# rough sea, with a sphere, a disk and no target (the target-free points pair the others
+# for `detect`).
+METHODS = ("small_angle", "monte_carlo")
+PHASES = ("fournier_forand", "paper")
+SEAS = ("flat", "elfouhaily")
+SHAPES = ("sphere", "disk", "none")
+
+
+def sweep() -> dict:
+    """The sweep file, as a mapping: 24 points of 8 realisations at 32 x 32 pixels.
+
+    Returns
+    -------
+    dict
+        The sweep, ``output`` relative to the folder it is written in.
+    """
+    points = list(itertools.product(METHODS, PHASES, SEAS, SHAPES))
+    method, phase, sea, shape = (list(column) for column in zip(*points, strict=True))
+    return {
+        "name": "identical-bytes",
+        "seed": 38,
+        "realisations": 8,
+        "output": "store.zarr",
+        "scene": {
+            "surface": {"spectrum": "elfouhaily", "wind_speed": 8.0, "grid_size": 32},
+            "water": {"preset": "coastal"},
+            "target": {"shape": "sphere", "radius": 0.3, "depth": 4.0, "reflectance": 0.2},
+            "platform": {"altitude": 34.0, "nadir_deg": 0.0},
+            "receiver": {"pixels": 32, "field_of_view_deg": 6.7, "gates": "mldc"},
+            "radiometry": {"mode": "normalised", "white_plane_photons": 200.0},
+            "sequence": {"frames": 2, "interval": 0.1},
+            "transport": {"photons": 40000, "batches": 4},
+            "save_surface": True,
+        },
+        "store": {"expected": True},
+        "sweep": {
+            "method": "zip",
+            "parameters": {
+                "transport.method": {"values": method},
+                "water.phase_function": {"values": phase},
+                "transport.phase_function": {"values": phase},
+                "surface.spectrum": {"values": sea},
+                "target.shape": {"values": shape},
+            },
+        },
+    }
+
+
+def oceanlidar(arguments: list[str], *, cwd: Path, log: Path) -> str:
+    """Run ``python -m service.cli`` with `arguments` in `cwd`; its stdout, also written to `log`.
+
+    Parameters
+    ----------
+    arguments : list of str
+        The command line after ``oceanlidar``.
+    cwd : Path, keyword-only
+        The folder it runs in.
+    log : Path, keyword-only
+        Where its stdout and stderr go.
+
+    Returns
+    -------
+    str
+        Its stdout. A non-zero exit stops the harness (exit 2), its output printed.
+    """
+    done = subprocess.run(
+        [sys.executable, "-m", "service.cli", *arguments],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        check=False,
+    )
+    log.write_text(done.stdout + done.stderr)
+    if done.returncode != 0:
+        sys.exit(f"oceanlidar {' '.join(arguments)}: exit {done.returncode}\n{done.stderr}")
+    return done.stdout
+
+
+def manifest(work: Path) -> dict:
+    """The md5 of every file under `work`, the folder's path replaced in the printed text.
+
+    Parameters
+    ----------
+    work : Path
+        The harness's folder: the stores, the detection dataset and the printed text.
+
+    Returns
+    -------
+    dict
+        ``files`` {relative path: md5 compared}, ``raw_md5`` {relative path: md5 of the
+        bytes as written}.
+    """
+    files, raw = {}, {}
+    for file in sorted(p for p in work.rglob("*") if p.is_file()):
+        name = file.relative_to(work).as_posix()
+        data = file.read_bytes()
+        raw[name] = hashlib.md5(data).hexdigest()
+        if file.suffix == ".txt":
+            data = data.replace(str(work).encode(), b"<WORK>")
+        files[name] = hashlib.md5(data).hexdigest()
+    return {"files": files, "raw_md5": raw}
+
+
+def compare(new: dict, old: dict) -> int:
+    """Print every file that differs, is missing or is new; the count of them.
+
+    Parameters
+    ----------
+    new, old : dict
+        Manifests (`manifest`), this run's and the reference's.
+
+    Returns
+    -------
+    int
+        Files that differ, are missing from `new` or are new in it.
+    """
+    ours, theirs = new["files"], old["files"]
+    differing = sorted(n for n in ours.keys() & theirs.keys() if ours[n] != theirs[n])
+    missing = sorted(theirs.keys() - ours.keys())
+    added = sorted(ours.keys() - theirs.keys())
+    for label, names in (("differs", differing), ("missing", missing), ("new", added)):
+        for name in names:
+            print(f"{label}: {name}")
+    compared = len(ours.keys() & theirs.keys())
+    print(
+        f"compared {compared} files: {compared - len(differing)} identical, "
+        f"{len(differing)} differing, {len(missing)} missing, {len(added)} new"
+    )
+    return len(differing) + len(missing) + len(added)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--manifest-out", type=Path, required=True, help="manifest JSON to write")
+    parser.add_argument("--against", type=Path, help="an earlier manifest to compare with")
+    parser.add_argument("--workers", type=int, default=2, help="run's worker processes")
+    parser.add_argument("--keep", type=Path, help="copy the whole output here (a new folder)")
+    args = parser.parse_args()
+    if args.keep is not None and args.keep.exists():
+        sys.exit(f"--keep {args.keep}: exists; give a new folder")
+    with tempfile.TemporaryDirectory(prefix="identical-bytes-") as folder:
+        work = Path(folder) / "work"
+        work.mkdir()
+        logs = Path(folder) / "logs"
+        logs.mkdir()
+        (work / "sweep.yaml").write_text(yaml.safe_dump(sweep(), sort_keys=False))
+        run = ["run", "sweep.yaml", "--workers", str(args.workers)]
+        oceanlidar(run, cwd=work, log=logs / "run.txt")
+        detect = oceanlidar(["detect", "store.zarr", "-q"], cwd=work, log=logs / "detect.log")
+        (work / "detect.stdout.txt").write_text(detect)
+        store = str(work / "store.zarr")
+        info = oceanlidar(["info", "--verify", store], cwd=work, log=logs / "info.log")
+        (work / "info.stdout.txt").write_text(info)
+        result = manifest(work)
+        result["run_output"] = (logs / "run.txt").read_text()
+        texts = sum(result["files"][n] != result["raw_md5"][n] for n in result["files"])
+        print(
+            f"{len(result['files'])} files hashed, {texts} of them printed text with {work} "
+            "read as <WORK>; no metadata key dropped"
+        )
+        args.manifest_out.parent.mkdir(parents=True, exist_ok=True)
+        args.manifest_out.write_text(json.dumps(result, indent=1, sort_keys=True) + "\n")
+        if args.keep is not None:
+            shutil.copytree(folder, args.keep)
+    if args.against is not None and compare(result, json.loads(args.against.read_text())):
+        sys.exit(1)
+
+
+if __name__ == "__main__":
+    main()
