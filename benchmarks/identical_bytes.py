@@ -23,7 +23,10 @@ counts did not move), the other 411 identical.
 Usage (1 to 2.5 minutes on the loaded 2-core machine)::
 
     python benchmarks/identical_bytes.py --manifest-out after.json \\
-        --against /work/notes/baseline/manifest.json
+        --against /work/notes/baseline/manifest.json [--code CHECKOUT] [--keep FOLDER]
+
+``--code`` runs another checkout's ``service`` and ``workers`` (default: this script's);
+``--keep`` copies the whole output, to diff a file that differs.
 """
 
 import argparse
@@ -103,13 +106,15 @@ def sweep() -> dict:
     }
 
 
-def oceanlidar(arguments: list[str], *, cwd: Path, log: Path) -> str:
+def oceanlidar(arguments: list[str], *, code: Path, cwd: Path, log: Path) -> str:
     """Run ``python -m service.cli`` with `arguments` in `cwd`; its stdout, also written to `log`.
 
     Parameters
     ----------
     arguments : list of str
         The command line after ``oceanlidar``.
+    code : Path, keyword-only
+        The checkout whose ``service`` and ``workers`` run (its folder is the PYTHONPATH).
     cwd : Path, keyword-only
         The folder it runs in.
     log : Path, keyword-only
@@ -125,7 +130,7 @@ def oceanlidar(arguments: list[str], *, cwd: Path, log: Path) -> str:
         cwd=cwd,
         capture_output=True,
         text=True,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        env={**os.environ, "PYTHONPATH": str(code)},
         check=False,
     )
     log.write_text(done.stdout + done.stderr)
@@ -165,21 +170,21 @@ def compare(new: dict, old: dict) -> int:
     Parameters
     ----------
     new, old : dict
-        Manifests (`manifest`), this run's and the reference's.
+        {relative path: md5}, the ``files`` of two manifests (`manifest`): this run's and
+        the reference's.
 
     Returns
     -------
     int
         Files that differ, are missing from `new` or are new in it.
     """
-    ours, theirs = new["files"], old["files"]
-    differing = sorted(n for n in ours.keys() & theirs.keys() if ours[n] != theirs[n])
-    missing = sorted(theirs.keys() - ours.keys())
-    added = sorted(ours.keys() - theirs.keys())
+    differing = sorted(name for name in new.keys() & old.keys() if new[name] != old[name])
+    missing = sorted(old.keys() - new.keys())
+    added = sorted(new.keys() - old.keys())
     for label, names in (("differs", differing), ("missing", missing), ("new", added)):
         for name in names:
             print(f"{label}: {name}")
-    compared = len(ours.keys() & theirs.keys())
+    compared = len(new.keys() & old.keys())
     print(
         f"compared {compared} files: {compared - len(differing)} identical, "
         f"{len(differing)} differing, {len(missing)} missing, {len(added)} new"
@@ -192,10 +197,20 @@ def main() -> None:
     parser.add_argument("--manifest-out", type=Path, required=True, help="manifest JSON to write")
     parser.add_argument("--against", type=Path, help="an earlier manifest to compare with")
     parser.add_argument("--workers", type=int, default=2, help="run's worker processes")
+    parser.add_argument(
+        "--code", type=Path, default=ROOT, help="the checkout to run (default: this script's)"
+    )
     parser.add_argument("--keep", type=Path, help="copy the whole output here (a new folder)")
     args = parser.parse_args()
     if args.keep is not None and args.keep.exists():
-        sys.exit(f"--keep {args.keep}: exists; give a new folder")
+        parser.error(f"--keep {args.keep}: exists; give a new folder")
+    if not (args.code / "service" / "cli").is_dir():
+        parser.error(f"--code {args.code}: no service/cli there; give an oceanlidar checkout")
+    try:
+        reference = json.loads(args.against.read_text())["files"] if args.against else None
+    except (OSError, ValueError, KeyError) as error:
+        parser.error(f"--against {args.against}: not a manifest of this script ({error})")
+    code = args.code.resolve()
     with tempfile.TemporaryDirectory(prefix="identical-bytes-") as folder:
         work = Path(folder) / "work"
         work.mkdir()
@@ -203,13 +218,15 @@ def main() -> None:
         logs.mkdir()
         (work / "sweep.yaml").write_text(yaml.safe_dump(sweep(), sort_keys=False))
         run = ["run", "sweep.yaml", "--workers", str(args.workers)]
-        oceanlidar(run, cwd=work, log=logs / "run.txt")
-        detect = oceanlidar(["detect", "store.zarr", "-q"], cwd=work, log=logs / "detect.log")
-        (work / "detect.stdout.txt").write_text(detect)
-        store = str(work / "store.zarr")
-        info = oceanlidar(["info", "--verify", store], cwd=work, log=logs / "info.log")
-        (work / "info.stdout.txt").write_text(info)
+        oceanlidar(run, code=code, cwd=work, log=logs / "run.txt")
+        for name, arguments in (
+            ("detect", ["detect", "store.zarr", "-q"]),
+            ("info", ["info", "--verify", str(work / "store.zarr")]),
+        ):
+            printed = oceanlidar(arguments, code=code, cwd=work, log=logs / f"{name}.log")
+            (work / f"{name}.stdout.txt").write_text(printed)
         result = manifest(work)
+        result["code"] = str(code)
         result["run_output"] = (logs / "run.txt").read_text()
         texts = sum(result["files"][n] != result["raw_md5"][n] for n in result["files"])
         print(
@@ -220,7 +237,7 @@ def main() -> None:
         args.manifest_out.write_text(json.dumps(result, indent=1, sort_keys=True) + "\n")
         if args.keep is not None:
             shutil.copytree(folder, args.keep)
-    if args.against is not None and compare(result, json.loads(args.against.read_text())):
+    if reference is not None and compare(result["files"], reference):
         sys.exit(1)
 
 
