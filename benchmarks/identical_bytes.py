@@ -67,7 +67,7 @@ def sweep() -> dict:
 
     The Monte Carlo points launch 40 000 photons a frame: at 4 000 one detector's scores
     were NaN at every realisation of a pair and ``detect`` stopped on a traceback (an
-    ``IndexError`` in ``workers.detection.bootstrap_auc``, on 53c95fc).
+    ``IndexError`` in ``workers.detectors.detection.bootstrap_auc``, on 53c95fc).
 
     Returns
     -------
