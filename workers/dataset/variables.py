@@ -20,7 +20,8 @@ import numpy as np
 from workers.optics.fresnel import fresnel_reflectance
 from workers.receiver.radiometry import lidar_equation
 from workers.settings.scene import Scene
-from workers.setup.sensor import platform_position, receiver_terms, scene_setup
+from workers.setup.builder import receiver_terms, scene_setup
+from workers.setup.compiled import Setup
 
 __all__ = [
     "COUNT_HEADROOM",
@@ -116,7 +117,7 @@ class Variable:
     rule: Rule = Rule.ANY
 
 
-def white_plane_count(scene: Scene) -> float:
+def white_plane_count(scene: Scene, setup: Setup) -> float:
     """Mean photoelectrons per pixel from a white plane just under a flat sea, at nadir.
 
     ``normalised`` radiometry: `white_plane_photons` by definition. ``absolute``: the lidar
@@ -127,7 +128,7 @@ def white_plane_count(scene: Scene) -> float:
     if r.mode == "normalised":
         return float(r.white_plane_photons)
     times = np.arange(scene.sequence.frames) * scene.sequence.interval
-    lowest = min(float(platform_position(scene, t)[2]) for t in times)
+    lowest = min(float(setup.platform_position(t)[2]) for t in times)
     n_w = scene.water.refractive_index
     laser = np.radians(scene.laser.field_of_view_deg or scene.receiver.field_of_view_deg)
     return float(
@@ -179,7 +180,7 @@ def count_dtype(scene: Scene) -> np.dtype | None:
         top = max(target.depth - target.radius, 0.0)
         k = setup.water.diffuse_attenuation
         brightest = max(brightest, target.reflectance * np.exp(-2.0 * k * top))
-    white = white_plane_count(scene)
+    white = white_plane_count(scene, setup)
     mean = COUNT_HEADROOM * brightest * white
     largest = mean + 10.0 * np.sqrt(mean) + 10.0
     for dtype in (np.uint8, np.uint16, np.uint32):
