@@ -123,18 +123,30 @@ def white_plane_count(scene: Scene, setup: Setup) -> float:
     ``normalised`` radiometry: `white_plane_photons` by definition. ``absolute``: the lidar
     equation (`workers.receiver.radiometry.lidar_equation`, ρ = 1, d = 0) with the platform at its
     lowest during the sequence.
+
+    Parameters
+    ----------
+    scene : Scene
+        The sample's parameters (its radiometry).
+    setup : Setup
+        The scene's setup (`workers.setup.builder.scene_setup`): its platform's track, its
+        laser's field [rad] and its water's refractive index.
+
+    Returns
+    -------
+    float
+        The mean count [photoelectrons].
     """
     r = scene.radiometry
     if r.mode == "normalised":
         return float(r.white_plane_photons)
     times = np.arange(scene.sequence.frames) * scene.sequence.interval
     lowest = min(float(setup.platform_position(t)[2]) for t in times)
-    n_w = scene.water.refractive_index
-    laser = np.radians(scene.laser.field_of_view_deg or scene.receiver.field_of_view_deg)
+    n_w = setup.water.refractive_index
     return float(
         lidar_equation(
             **receiver_terms(scene),
-            beam_divergence=np.tan(0.5 * laser),
+            beam_divergence=np.tan(0.5 * setup.laser_field_of_view),
             altitude=max(lowest, 1e-3),
             depth=0.0,
             reflectance=1.0,
