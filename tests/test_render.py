@@ -10,7 +10,7 @@ from workers.optics.fresnel import fresnel_reflectance
 from workers.render import render, render_arrays, render_images, render_pair
 from workers.settings.scene import Scene
 from workers.settings.seeds import SampleSeed
-from workers.setup.sensor import scene_setup
+from workers.setup.builder import scene_setup
 
 N_WATER = 1.34
 T0 = 1.0 - fresnel_reflectance(1.0, n1=1.0, n2=N_WATER)
@@ -685,7 +685,7 @@ def test_a_crest_gates_less_water(height, monkeypatch):
         update={"surface": flat.surface.model_copy(update={"spectrum": "phillips"})}
     )
     base = centre(render(flat, seed=1).expected.values[0, 0])
-    monkeypatch.setattr("workers.setup.sensor.Setup.surface", surface)
+    monkeypatch.setattr("workers.setup.compiled.Setup.surface", surface)
     value = centre(render(raised, seed=1).expected.values[0, 0])
     K = 0.2 + 0.01
     assert_allclose(value / base, np.exp(-2 * K * height / N_WATER), rtol=0.003)
