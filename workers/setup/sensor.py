@@ -27,7 +27,8 @@ from workers.settings.seeds import SampleSeed
 from workers.setup.gates import central_paths, gate_gains, sight_lines, slab_bounds
 from workers.setup.geometry import LaserRays, PinholeCamera, PlaneGrid, flat_sea_point
 from workers.setup.seasetup import scene_sea, surface_kriging
-from workers.targets.impostor import Impostor, gated_share
+from workers.targets.base import shape_named
+from workers.targets.impostor import Impostor
 
 
 @dataclass(frozen=True)
@@ -377,18 +378,17 @@ def target_centre(setup: Setup, camera: PinholeCamera) -> tuple[float, float]:
 
 
 def gated_share_on(setup: Setup, grid: PlaneGrid, top, bottom, *, on, delays, shares):
-    """`workers.targets.impostor.gated_share` of the scene's sphere on `grid`, or None.
+    """The scene's target shape's `gated_share` on `grid`, or None.
 
-    None if the target is not a Lambertian sphere (a disk, or the paper's shading): a
-    cell is then in a gate or not, by its line of sight's depth.
+    None where the shape has none (`workers.targets.base.TargetShape.gated_share`: a
+    disk, or the paper's shading): a cell is then in a gate or not, by its line of sight's
+    depth.
     """
     t = setup.scene.target
-    if t.shape != "sphere" or t.shading != "lambert":
-        return None
-    return gated_share(
+    return shape_named(t.shape).gated_share(
         grid=grid,
+        target=t,
         centre=target_centre(setup, sensor_at(setup, 0).camera),
-        radius=t.radius,
         refracted_nadir=setup.refracted_nadir,
         top=top,
         bottom=bottom,
@@ -436,15 +436,12 @@ def subgrid_sway(setup: Setup, grid: PlaneGrid, *, distance: float) -> np.ndarra
 
 
 def impostor_on(setup: Setup, grid: PlaneGrid) -> Impostor:
-    """The scene's target rasterised on `grid` (`workers.targets.impostor.Impostor`)."""
+    """The scene's target rasterised on `grid` (`workers.targets.base.TargetShape.impostor`)."""
     t = setup.scene.target
     camera = sensor_at(setup, 0).camera
-    return Impostor.build(
+    return shape_named(t.shape).impostor(
         grid=grid,
-        shape=t.shape,
+        target=t,
         centre=target_centre(setup, camera),
-        radius=t.radius,
-        reflectance=t.reflectance,
-        shading=t.shading,
         refracted_nadir=setup.refracted_nadir,
     )
