@@ -203,15 +203,17 @@ class TargetShape:
         return np.isfinite(distance)
 
 
-SUBLINES = 8
-"""Lines per cell side that `SampledShape` traces through each cell (S² per cell)."""
+SUBLINES = (233, 144)
+"""The Fibonacci lattice of lines `SampledShape` traces through each cell: N = 233 points
+(i + ½)/N across, frac((i·144 + ½)/N) along, i < N: 233 distinct offsets on each axis, so a
+target edge along either axis is resolved to 1/233 of a cell (a square S × S sub-grid would
+resolve √N)."""
 
 
 class SampledShape(TargetShape):
     r"""A shape whose fast-renderer maps are traced from its Monte Carlo record.
 
-    Through each cell of the plane grid, S × S lines (`SUBLINES`, at the centres of a
-    regular sub-grid) along the flat-sea in-water direction
+    Through each cell of the plane grid, N lines (`SUBLINES`, a Fibonacci lattice) along the flat-sea in-water direction
     :math:`\hat s = (\sin\vartheta\,\hat a, -\cos\vartheta)` (â away from the platform)
     meet the target (`trace`): the cell's occupancy is the share that hits, its surface
     depth their mean first-hit depth, and its weight
@@ -219,14 +221,16 @@ class SampledShape(TargetShape):
     incidence (0 for a miss), as the sphere's Lambertian maps
     (`workers.targets.sphere`). The gate's share of a cell's return is the cos i-weighted
     share of its lines whose hit depth (plus each delay) the gate holds. Accurate to the
-    sub-grid's spacing: a target narrower than a cell / S may be missed.
+    lattice's spacing: a target narrower than a cell / √N may be missed.
     """
 
     def _lines(self, grid, target, centre, refracted_nadir, cells):
         """The sub-lines through `cells` (flat indices): origins, direction, hit or not."""
         du, along = (values.ravel()[cells] for values in offsets(grid, centre))
-        steps = (np.arange(SUBLINES) + 0.5) / SUBLINES - 0.5
-        su, sv = (s.ravel() for s in np.meshgrid(steps, steps))
+        count, step = SUBLINES
+        index = np.arange(count)
+        su = (index + 0.5) / count - 0.5
+        sv = np.mod((index * step + 0.5) / count, 1.0) - 0.5
         u = (du[:, None] + su * grid.spacing_u).ravel()
         a = (along[:, None] + sv * grid.spacing_v).ravel()
         away = -np.asarray(grid.axis_v[:2], dtype=np.float64)
@@ -248,7 +252,7 @@ class SampledShape(TargetShape):
         hit = np.isfinite(distance)
         depth = np.where(hit, -(origins[:, 2] + np.where(hit, distance, 0.0) * direction[2]), 0.0)
         cosine = np.where(hit, np.clip(-(normal @ direction), 0.0, 1.0), 0.0)
-        shape = (cells.size, SUBLINES * SUBLINES)
+        shape = (cells.size, count)
         return hit.reshape(shape), depth.reshape(shape), cosine.reshape(shape), cos_t
 
     def _near(self, grid, target, centre, refracted_nadir):
