@@ -5,8 +5,8 @@ import pytest
 from conftest import plane_grid
 from numpy.testing import assert_allclose
 
-from workers.setup.geometry import PinholeCamera
 from workers.settings.sea import Target
+from workers.setup.geometry import PinholeCamera
 from workers.targets.base import shape_named
 from workers.targets.impostor import sphere_area_weights
 

@@ -56,7 +56,7 @@ def test_the_settings_choices_are_the_registry():
         Scene.model_validate({"target": {"shape": "cube"}})
     message = str(error.value)
     assert "target.shape" in message and "cylinder, disk, none, sphere" in message
-    with pytest.raises(ValidationError, match="cylinder of radius 0.3 m .* breaks the surface"):
+    with pytest.raises(ValidationError, match=r"cylinder of radius 0.3 m .* breaks the surface"):
         Scene.model_validate({"target": {"shape": "cylinder", "radius": 0.3, "depth": 0.3}})
 
 
@@ -130,7 +130,7 @@ def rays(count, seed):
     aim = rng.uniform(-1.0, 1.0, size=(count, 3)) * [1.2, 1.2, 0.4]
     direction = aim - start
     direction /= np.linalg.norm(direction, axis=1, keepdims=True)
-    return start + [0.5, -0.2, -DEPTH], direction
+    return start + np.array([0.5, -0.2, -DEPTH]), direction
 
 
 def inside(points, target, centre):

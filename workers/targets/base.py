@@ -213,7 +213,8 @@ resolve √N)."""
 class SampledShape(TargetShape):
     r"""A shape whose fast-renderer maps are traced from its Monte Carlo record.
 
-    Through each cell of the plane grid, N lines (`SUBLINES`, a Fibonacci lattice) along the flat-sea in-water direction
+    Through each cell of the plane grid, N lines (`SUBLINES`, a Fibonacci lattice) along
+    the flat-sea in-water direction
     :math:`\hat s = (\sin\vartheta\,\hat a, -\cos\vartheta)` (â away from the platform)
     meet the target (`trace`): the cell's occupancy is the share that hits, its surface
     depth their mean first-hit depth, and its weight
