@@ -171,3 +171,21 @@ def test_a_line_from_inside_or_leaving_meets_nothing():
     directions = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]])
     distance, _ = trace(origins, directions, record)
     assert np.all(np.isinf(distance))
+
+
+def test_other_shapes_dump_as_before_the_cylinder_fields_existed():
+    # the sweep's digest (the store's sweep_sha256, resuming, detect) hashes the scene's
+    # dump: a scene without a cylinder, at the cylinder's defaults, dumps without its fields
+    before = {"shape", "radius", "depth", "x", "y", "reflectance", "shading"}
+    before |= {"visibility_threshold"}
+    for shape in ("sphere", "disk", "none"):
+        assert set(Scene.model_validate({"target": {"shape": shape}}).model_dump()["target"]) == (
+            before
+        )
+    kept = Scene.model_validate({"target": {"shape": "sphere", "length": 3.0}})
+    assert kept.model_dump()["target"]["length"] == 3.0  # a value given is hashed
+    cylinder_dump = Scene.model_validate({"target": {"shape": "cylinder"}}).model_dump()
+    assert {"length", "heading_deg"} <= set(cylinder_dump["target"])
+    assert Scene.model_validate(cylinder_dump) == Scene.model_validate(
+        {"target": {"shape": "cylinder"}}
+    )

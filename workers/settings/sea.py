@@ -14,7 +14,7 @@ from __future__ import annotations
 import math
 from typing import Annotated, Literal
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import Field, field_validator, model_serializer, model_validator
 
 from workers.optics.water import PRESETS
 from workers.sea.cascades import MAX_CASCADES, check_patches
@@ -376,6 +376,22 @@ class Target(Section):
                 f"unknown target shape {shape!r}; choose from {', '.join(sorted(SHAPES))}"
             )
         return shape
+
+    @model_serializer(mode="wrap")
+    def _dump(self, handler):
+        """The fields, less other shapes' own (`TargetShape.fields`) left at their defaults.
+
+        So a scene without a cylinder dumps as before the cylinder's fields existed, and
+        its sweep's digest (`service.sweep`) is unchanged.
+        """
+        data = handler(self)
+        if isinstance(data, dict):
+            own = set(SHAPES[self.shape].fields)
+            for shape in SHAPES.values():
+                for name in set(shape.fields) - own:
+                    if getattr(self, name) == type(self).model_fields[name].default:
+                        data.pop(name, None)
+        return data
 
     @model_validator(mode="after")
     def _submerged(self) -> Target:

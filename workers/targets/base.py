@@ -159,6 +159,9 @@ class TargetShape:
     """
 
     name: str = ""
+    fields: tuple[str, ...] = ()
+    """The `Target` fields only this shape reads (beyond shape, radius, depth, x, y,
+    reflectance): left out of the settings' dumps for other shapes while at their defaults."""
 
     def check(self, target) -> None:
         """Raise ValueError naming the field if `target`'s values cannot be this shape."""

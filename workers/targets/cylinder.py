@@ -108,6 +108,7 @@ class Cylinder(SampledShape):
     """A horizontal closed cylinder: `radius`, `length`, axis at `depth` along `heading_deg`."""
 
     name = "cylinder"
+    fields = ("length", "heading_deg")
 
     def check(self, target) -> None:
         """The cylinder must be submerged: depth (of its axis) > radius."""
