@@ -373,7 +373,7 @@ class Target(Section):
     def _registered(cls, shape: str) -> str:
         if shape not in SHAPES:
             raise ValueError(
-                f"unknown target shape {shape!r}; choose from {', '.join(sorted(SHAPES))}"
+                f"not a registered target shape; choose from {', '.join(sorted(SHAPES))}"
             )
         return shape
 
