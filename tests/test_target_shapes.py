@@ -189,3 +189,11 @@ def test_other_shapes_dump_as_before_the_cylinder_fields_existed():
     assert Scene.model_validate(cylinder_dump) == Scene.model_validate(
         {"target": {"shape": "cylinder"}}
     )
+
+
+@pytest.mark.parametrize("value", ["2.0", True])
+def test_the_cylinder_fields_take_numbers_only(value):
+    # a sphere's dump leaves `length` out at its default, so the sweep's check of the
+    # file's numbers against the dump (`service.inputs.strict_numbers`) would not see it
+    with pytest.raises(ValidationError, match=r"target\.length"):
+        Scene.model_validate({"target": {"shape": "sphere", "length": value}})

@@ -311,6 +311,7 @@ class Target(Section):
     )
     length: float = Field(
         2.0,
+        strict=True,  # a number, never a string: its dump may leave it out (`_dump`)
         gt=0.0,
         le=200.0,
         description="Cylinder length, end cap to end cap (other shapes ignore it).",
@@ -318,6 +319,7 @@ class Target(Section):
     )
     heading_deg: float = Field(
         0.0,
+        strict=True,  # a number, never a string: its dump may leave it out (`_dump`)
         ge=-360.0,
         le=360.0,
         description="Compass heading of the cylinder's axis, clockwise from north (+y): 0 "
