@@ -229,7 +229,11 @@ class SampledShape(TargetShape):
     """
 
     def _lines(self, grid, target, centre, refracted_nadir, cells):
-        """The sub-lines through `cells` (flat indices): origins, direction, hit or not."""
+        """Trace the lattice's lines through `cells` (flat indices).
+
+        Returns, per cell and line, whether it hits, its hit depth [m] and cos i [1] (0
+        for a miss), and cos ϑ.
+        """
         du, along = (values.ravel()[cells] for values in offsets(grid, centre))
         count, step = SUBLINES
         index = np.arange(count)
