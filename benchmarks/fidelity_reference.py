@@ -14,7 +14,9 @@ target's contrast (target − twin)/twin over its mask, a shadow's below it, and
 The scenes (issue #36, item 3) vary one thing at a time around the reference scene (32 px
 over 6.7° from 34 m at nadir, a 0.3 m sphere at 5 m in clear water, the six ML(DC)
 gates, a flat sea): nadir 10° and 20°; altitude 100 and 300 m; a 0.3 m sphere at 3 m,
-0.5 m at 9 m and 1 m at 12 m; a 0.3 m disk at 5 m; coastal water; 1, 5 and 10 m/s
+0.5 m at 9 m and 1 m at 12 m; a 0.3 m disk at 5 m; a horizontal cylinder (0.3 m radius,
+2 m long, axis at 5 m) east-west (heading 90°, along the image's rows), north-south
+(heading 0°), and east-west in coastal water; coastal water; 1, 5 and 10 m/s
 Elfouhaily seas with the default cascades (and coastal water under 5 m/s): one
 realisation each (`SEED`). Photons: 8·10⁶ over a flat sea (backgrounds ±0.1–0.2 %, the
 sphere's contrast in gate 1 ±2–3 % at 34 m, 13 % at 300 m), 2·10⁶ over waves
@@ -62,6 +64,17 @@ def _sea(wind: float) -> dict:
     return {"spectrum": "elfouhaily", "wind_speed": wind}
 
 
+def _cylinder(heading: float) -> dict:
+    """A 2 m long, 0.3 m radius horizontal cylinder at 5 m, its axis along `heading` [deg]."""
+    return {
+        "shape": "cylinder",
+        "radius": 0.3,
+        "length": 2.0,
+        "depth": 5.0,
+        "heading_deg": heading,
+    }
+
+
 SCENES = {
     "reference": ({}, 8_000_000),
     "nadir-10": ({"platform": {"altitude": 34.0, "nadir_deg": 10.0}}, 8_000_000),
@@ -72,6 +85,9 @@ SCENES = {
     "sphere-0.5-at-9": ({"target": {"shape": "sphere", "radius": 0.5, "depth": 9.0}}, 8_000_000),
     "sphere-1-at-12": ({"target": {"shape": "sphere", "radius": 1.0, "depth": 12.0}}, 8_000_000),
     "disk": ({"target": {"shape": "disk", "radius": 0.3, "depth": 5.0}}, 8_000_000),
+    "cylinder": ({"target": _cylinder(90.0)}, 8_000_000),
+    "cylinder-along": ({"target": _cylinder(0.0)}, 8_000_000),
+    "cylinder-coastal": ({"target": _cylinder(90.0), "water": {"preset": "coastal"}}, 8_000_000),
     "coastal": ({"water": {"preset": "coastal"}}, 8_000_000),
     "wind-1": ({"surface": _sea(1.0)}, 2_000_000),
     "wind-5": ({"surface": _sea(5.0)}, 2_000_000),

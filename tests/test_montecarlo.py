@@ -375,6 +375,7 @@ def test_a_photon_meets_the_surface_from_below_as_fresnel_says(angle):
     from workers.montecarlo.photons import transport
     from workers.montecarlo.sightlines import build_lookup
     from workers.optics.fresnel import fresnel_reflectance
+    from workers.targets.absent import AbsentRecord
 
     theta = np.radians(angle)
     launch = np.array(
@@ -398,7 +399,7 @@ def test_a_photon_meets_the_surface_from_below_as_fresnel_says(angle):
         np.zeros(4),
         lines,
         lookup,
-        np.zeros(6),
+        AbsentRecord(0.0),
         np.zeros((1, 2)),
         np.zeros((1, 1, 1)),
         tallies,

@@ -5,8 +5,10 @@ import pytest
 from conftest import plane_grid
 from numpy.testing import assert_allclose
 
+from workers.settings.sea import Target
 from workers.setup.geometry import PinholeCamera
-from workers.targets.impostor import Impostor, sphere_area_weights
+from workers.targets.base import shape_named
+from workers.targets.impostor import sphere_area_weights
 
 
 def cells(radius, h):
@@ -64,10 +66,15 @@ def nadir_grid(depth, pixels=64, fov_deg=6.7):
     return plane_grid(cam, depth=depth)
 
 
-def centred_impostor(grid, **properties):
-    """`Impostor.build` with the target at the centre of `grid`."""
+def centred_impostor(grid, *, shape, refracted_nadir, **properties):
+    """The shape's `impostor` with the target at the centre of `grid`, at its depth."""
     x, y = grid.cell_centres()
-    return Impostor.build(grid=grid, centre=(float(x.mean()), float(y.mean())), **properties)
+    return shape_named(shape).impostor(
+        grid=grid,
+        target=Target(shape=shape, depth=grid.depth, **properties),
+        centre=(float(x.mean()), float(y.mean())),
+        refracted_nadir=refracted_nadir,
+    )
 
 
 def test_lambert_sphere_at_nadir():

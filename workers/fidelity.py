@@ -42,6 +42,7 @@ from workers.render import render_images, render_pair
 from workers.settings.scene import Scene
 from workers.settings.seeds import SampleSeed
 from workers.setup.builder import scene_setup
+from workers.targets.base import shape_named
 
 __all__ = [
     "BARS",
@@ -254,7 +255,7 @@ def gate_kinds(scene: Scene, *, sea_std: float) -> tuple[str, ...]:
     target = scene.target
     if target.shape == "none":
         return ("none",) * len(gates)
-    half = target.radius if target.shape == "sphere" else 0.0
+    half = shape_named(target.shape).half_height(target)
     reach = SEA_REACH * sea_std
     top, bottom = target.depth - half - reach, target.depth + half + reach
     kinds = []

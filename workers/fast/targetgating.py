@@ -20,6 +20,7 @@ from workers.fast.spread import Levels
 from workers.setup.compiled import Setup
 from workers.setup.geometry import PlaneGrid
 from workers.setup.sensor import Sensor
+from workers.targets.base import shape_named
 from workers.targets.impostor import Impostor
 
 
@@ -109,10 +110,10 @@ class TargetGating:
         def lit(grid, impostor):
             rise = grid.depth - np.asarray(impostor.surface_depth, dtype=np.float64)
             lift = np.exp(water.diffuse_attenuation * setup.secant * rise)  # the way up
-            radius = setup.target.radius
-            if setup.target.shape == "sphere":
-                ratio = _beam_depth_ratio(setup, sensor, grid, rise=min(radius, grid.depth))
-                lift *= ratio ** np.clip(rise / radius, 0.0, 1.0)  # the way down
+            half = shape_named(setup.target.shape).half_height(setup.target)
+            if half > 0.0:  # a rounded top (sphere, cylinder): lit less deep
+                ratio = _beam_depth_ratio(setup, sensor, grid, rise=min(half, grid.depth))
+                lift *= ratio ** np.clip(rise / half, 0.0, 1.0)  # the way down
             return impostor.weight * lift
 
         fine_impostor = setup.impostor(levels.fine)

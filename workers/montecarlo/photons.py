@@ -34,7 +34,8 @@ from workers.montecarlo.scattering import (
     turn,
     uniform,
 )
-from workers.montecarlo.sightlines import EPS, corner_at, target_blocks, target_distance
+from workers.montecarlo.sightlines import corner_at
+from workers.targets.base import EPS, target_blocks, target_distance, target_normal
 
 __all__ = ["TALLIES", "transport"]
 
@@ -249,8 +250,9 @@ def transport(
         path [m], Fresnel transmittance.
     lookup : tuple
         `workers.montecarlo.sightlines.build_lookup`'s slabs, heads, starts and items.
-    target : ndarray
-        (kind, cx, cy, cz, radius, reflectance); kind 0 none, 1 sphere, 2 disk.
+    target : NamedTuple
+        The target's record (`workers.targets.base.TargetShape.record`): the kernel
+        specialises on its type, each shape's ray hit and normal compiled in.
     gates : ndarray, shape (G, 2)
         Round-trip optical path at which each gate opens and closes [m].
     image : ndarray, shape (G, P, P)
@@ -325,15 +327,8 @@ def transport(
                 dx, dy, dz = dx - 2 * cos_i * nx, dy - 2 * cos_i * ny, dz - 2 * cos_i * nz
                 z = min(z, eta) - EPS
             elif hit <= step:
-                rho = target[5]
-                if target[0] == 1.0:
-                    nx, ny, nz = (
-                        (x - target[1]) / target[4],
-                        (y - target[2]) / target[4],
-                        (z - target[3]) / target[4],
-                    )
-                else:
-                    nx, ny, nz = 0.0, 0.0, (1.0 if dz < 0.0 else -1.0)
+                rho = target.reflectance
+                nx, ny, nz = target_normal(x, y, z, dx, dy, dz, target)
                 _estimate(
                     x,
                     y,

@@ -39,6 +39,7 @@ from workers.settings.seeds import SampleSeed
 from workers.setup.compiled import Setup
 from workers.setup.interface import through_surface
 from workers.setup.sensor import Sensor, sensor_at
+from workers.targets.base import TargetShape, shape_named
 
 __all__ = [
     "ANGULAR_BIAS",
@@ -195,7 +196,8 @@ def render_frame(
     limits = np.array(
         [longest, air_back, lowest, highest, most, bias, reflection_bias], dtype=np.float64
     )
-    target = _target(setup)
+    shape = shape_named(setup.target.shape)
+    target = shape.record(setup.target, setup.target_centre)
     batches = settings.batches
     per_batch = -(-settings.photons // batches)
     rng = seed.photon_rng(frame)
@@ -229,11 +231,11 @@ def render_frame(
         )
     mean = images.mean(axis=0) * setup.scale
     error = images.std(axis=0, ddof=1) / math.sqrt(batches) * setup.scale
-    if target[0] == 0.0:
+    if shape.name == "none":
         mask = np.zeros((pixels, pixels), dtype=np.uint8)
     else:  # the mask's 16 lines a pixel only where there is a target to mask
         centres = _sight_lines(sensor, surface, frame, n_w, pixels, MASK_LINES, centres=True)
-        mask = _mask(centres, target, pixels)
+        mask = _mask(centres, setup, shape, pixels)
     totals = dict(zip(TALLIES, (tallies.sum(axis=0) / batches).tolist(), strict=True))
     return FrameTransport(mean.astype(np.float32), error.astype(np.float32), mask, totals)
 
@@ -361,47 +363,31 @@ def _launch(sensor: Sensor, beam, surface, frame, n_w, rng, count, weight) -> np
     return np.ascontiguousarray(launch)
 
 
-def _target(setup: Setup) -> np.ndarray:
-    """(kind, cx, cy, cz, radius, reflectance) of the scene's target for the kernels."""
-    t = setup.target
-    if t.shape == "none":
-        return np.zeros(6)
-    x, y = setup.target_centre
-    kind = 1.0 if t.shape == "sphere" else 2.0
-    return np.array([kind, x, y, -t.depth, t.radius, t.reflectance], dtype=np.float64)
-
-
-def _mask(centres: np.ndarray, target: np.ndarray, pixels: int) -> np.ndarray:
+def _mask(centres, setup: Setup, shape: TargetShape, pixels: int) -> np.ndarray:
     """The target's mask (`workers.dataset.labels.target_mask`) from lines through each pixel.
 
     The share of a pixel covered is that of its `MASK_LINES`² lines of sight meeting the
-    target (float64 geometry, through the sea with its sub-grid slopes). A target that none
-    meets but that the lines pass within one line spacing of marks the pixel of the nearest
-    line, so a target smaller than a pixel keeps its mask, as the fast renderer's does.
+    target (`workers.targets.base.TargetShape.meets`: float64 geometry, through the sea
+    with its sub-grid slopes). A target that none meets but that the lines pass within
+    one line spacing of its reach (`TargetShape.reach`) at its depth marks the pixel of
+    the nearest line, so a target smaller than a pixel keeps its mask, as the fast
+    renderer's does.
     """
+    target, centre = setup.target, setup.target_centre
     x, y, z, dx, dy, dz = centres[:6]
-    if target[0] == 1.0:
-        ox, oy, oz = x - target[1], y - target[2], z - target[3]
-        b = ox * dx + oy * dy + oz * dz
-        c = ox * ox + oy * oy + oz * oz - target[4] ** 2
-        meets = (b * b - c > 0.0) & (b < 0.0)
-    else:
-        t = (target[3] - z) / dz
-        meets = (t > 0) & (
-            (x + t * dx - target[1]) ** 2 + (y + t * dy - target[2]) ** 2 <= target[4] ** 2
-        )
+    meets = shape.meets(target, centre, centres)
     lines = pixels * MASK_LINES
     share = meets.reshape(pixels, MASK_LINES, pixels, MASK_LINES).mean(axis=(1, 3))
     if not meets.any():
-        t = (target[3] - z) / dz  # where each line crosses the target's depth
-        gap = np.hypot(x + t * dx - target[1], y + t * dy - target[2])
+        t = (-target.depth - z) / dz  # where each line crosses the target's depth
+        gap = np.hypot(x + t * dx - centre[0], y + t * dy - centre[1])
         nearest = int(np.argmin(gap))
         neighbour = nearest + 1 if nearest % lines < lines - 1 else nearest - 1
         spacing = np.hypot(
             x[nearest] + t[nearest] * dx[nearest] - x[neighbour] - t[neighbour] * dx[neighbour],
             y[nearest] + t[nearest] * dy[nearest] - y[neighbour] - t[neighbour] * dy[neighbour],
         )
-        if t[nearest] > 0 and gap[nearest] <= target[4] + spacing:
+        if t[nearest] > 0 and gap[nearest] <= shape.reach(target) + spacing:
             row, col = divmod(nearest, lines)
             share[row // MASK_LINES, col // MASK_LINES] = 1.0 / MASK_LINES**2
     return target_mask(share)

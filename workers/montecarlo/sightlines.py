@@ -15,15 +15,10 @@ x, y, z [m], downward unit direction, air path [m], Fresnel transmittance.
 
 from __future__ import annotations
 
-import math
-
 import numba
 import numpy as np
 
-__all__ = ["EPS", "build_lookup", "corner_at", "target_blocks", "target_distance"]
-
-EPS = 1e-7
-"""Distance below which a surface met is the one just left [m]."""
+__all__ = ["build_lookup", "corner_at"]
 
 
 @numba.njit(cache=True)
@@ -121,53 +116,3 @@ def build_lookup(lines, pixels, top, thick, slabs):
     cursor = counts[:-1].copy()
     _fill(lines, pixels, top, thick, heads, counts, items, cursor, True)
     return heads, counts, items
-
-
-@numba.njit(cache=True)
-def target_distance(px, py, pz, dx, dy, dz, target):
-    """Distance along (d) to the target's surface facing the photon, inf if none [m].
-
-    `target` = (kind, cx, cy, cz, radius, reflectance); kind 1 sphere, 2 horizontal disk.
-    """
-    kind = target[0]
-    if kind == 1.0:
-        ox, oy, oz = px - target[1], py - target[2], pz - target[3]
-        b = ox * dx + oy * dy + oz * dz
-        c = ox * ox + oy * oy + oz * oz - target[4] * target[4]
-        if c <= 0.0 or b >= 0.0:
-            return np.inf
-        disc = b * b - c
-        if disc <= 0.0:
-            return np.inf
-        t = -b - math.sqrt(disc)
-        return t if t > EPS else np.inf
-    if kind == 2.0 and dz != 0.0:
-        t = (target[3] - pz) / dz
-        if t > EPS:
-            hx, hy = px + t * dx - target[1], py + t * dy - target[2]
-            if hx * hx + hy * hy <= target[4] * target[4]:
-                return t
-    return np.inf
-
-
-@numba.njit(cache=True)
-def target_blocks(x, y, z, ux, uy, uz, length, target):
-    """Whether the target lies on the straight path from (x, y, z) along u for `length`."""
-    kind = target[0]
-    if kind == 1.0:
-        ox, oy, oz = x - target[1], y - target[2], z - target[3]
-        b = ox * ux + oy * uy + oz * uz
-        c = ox * ox + oy * oy + oz * oz - target[4] * target[4]
-        if c <= 0.0:
-            return b < 0.0
-        disc = b * b - c
-        if disc <= 0.0 or b >= 0.0:
-            return False
-        t = -b - math.sqrt(disc)
-        return EPS < t < length
-    if kind == 2.0 and uz > 0.0:
-        t = (target[3] - z) / uz
-        if EPS < t < length:
-            hx, hy = x + t * ux - target[1], y + t * uy - target[2]
-            return hx * hx + hy * hy <= target[4] * target[4]
-    return False

@@ -14,11 +14,12 @@ from __future__ import annotations
 import math
 from typing import Annotated, Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_serializer, model_validator
 
 from workers.optics.water import PRESETS
 from workers.sea.cascades import MAX_CASCADES, check_patches
 from workers.settings.section import Section, units
+from workers.targets.base import SHAPES
 
 __all__ = ["Conditioning", "SurfaceSpec", "Target", "Water"]
 
@@ -285,22 +286,45 @@ class Water(Section):
 
 
 class Target(Section):
-    """The object under the sea: a moored-mine sphere, a flat panel, or nothing."""
+    """The object under the sea: a moored-mine sphere, a flat panel, a cylinder, or nothing."""
 
-    shape: Literal["sphere", "disk", "none"] = Field(
+    shape: str = Field(
         "sphere",
-        description="`sphere`, `disk` (flat horizontal panel) or `none`.",
-        json_schema_extra=units("1"),
+        description="A registered shape (`workers.targets`): `sphere`, `disk` (flat "
+        "horizontal panel), `cylinder` (horizontal, closed: `radius`, `length`, "
+        "`heading_deg`) or `none`.",
+        json_schema_extra={**units("1"), "enum": sorted(SHAPES)},
     )
     radius: float = Field(
-        0.3, gt=0.0, le=100.0, description="Sphere or disk radius.", json_schema_extra=units("m")
+        0.3,
+        gt=0.0,
+        le=100.0,
+        description="Sphere, disk or cylinder radius.",
+        json_schema_extra=units("m"),
     )
     depth: float = Field(
         5.0,
         gt=0.0,
         le=200.0,
-        description="Depth of the sphere centre or of the disk.",
+        description="Depth of the sphere's centre, of the disk, or of the cylinder's axis.",
         json_schema_extra=units("m"),
+    )
+    length: float = Field(
+        2.0,
+        strict=True,  # a number, never a string: its dump may leave it out (`_dump`)
+        gt=0.0,
+        le=200.0,
+        description="Cylinder length, end cap to end cap (other shapes ignore it).",
+        json_schema_extra=units("m"),
+    )
+    heading_deg: float = Field(
+        0.0,
+        strict=True,  # a number, never a string: its dump may leave it out (`_dump`)
+        ge=-360.0,
+        le=360.0,
+        description="Compass heading of the cylinder's axis, clockwise from north (+y): 0 "
+        "lies north-south, 90 east-west (other shapes ignore it).",
+        json_schema_extra=units("degree"),
     )
     x: float | None = Field(
         None,
@@ -346,15 +370,36 @@ class Target(Section):
         json_schema_extra=units("1"),
     )
 
+    @field_validator("shape")
+    @classmethod
+    def _registered(cls, shape: str) -> str:
+        if shape not in SHAPES:
+            raise ValueError(
+                f"not a registered target shape; choose from {', '.join(sorted(SHAPES))}"
+            )
+        return shape
+
+    @model_serializer(mode="wrap")
+    def _dump(self, handler):
+        """The fields, less other shapes' own (`TargetShape.fields`) left at their defaults.
+
+        So a scene without a cylinder dumps as before the cylinder's fields existed, and
+        its sweep's digest (`service.sweep`) is unchanged.
+        """
+        data = handler(self)
+        if isinstance(data, dict):
+            own = set(SHAPES[self.shape].fields)
+            for shape in SHAPES.values():
+                for name in set(shape.fields) - own:
+                    if getattr(self, name) == type(self).model_fields[name].default:
+                        data.pop(name, None)
+        return data
+
     @model_validator(mode="after")
     def _submerged(self) -> Target:
         if (self.x is None) != (self.y is None):
             raise ValueError(
                 "set both x and y, or neither (the target then sits on the central ray)"
             )
-        if self.shape == "sphere" and self.depth <= self.radius:
-            raise ValueError(
-                f"a sphere of radius {self.radius} m at depth {self.depth} m breaks the surface; "
-                "depth must exceed radius"
-            )
+        SHAPES[self.shape].check(self)
         return self

@@ -21,7 +21,8 @@ from workers.settings.seeds import SampleSeed
 from workers.settings.transport import PhaseTable, phase_table
 from workers.setup.gates import gate_gains
 from workers.setup.geometry import PlaneGrid
-from workers.targets.impostor import Impostor, gated_share
+from workers.targets.base import shape_named
+from workers.targets.impostor import Impostor
 
 __all__ = ["Photons", "Setup"]
 
@@ -196,31 +197,24 @@ class Setup:
         return phase_table("fournier_forand", backscatter_fraction=round(fraction, 12))
 
     def impostor(self, grid: PlaneGrid) -> Impostor:
-        """The target rasterised on `grid` (`workers.targets.impostor.Impostor`)."""
+        """The target rasterised on `grid` (`workers.targets.base.TargetShape.impostor`)."""
         t = self.target
-        return Impostor.build(
-            grid=grid,
-            shape=t.shape,
-            centre=self.target_centre,
-            radius=t.radius,
-            reflectance=t.reflectance,
-            shading=t.shading,
-            refracted_nadir=self.refracted_nadir,
+        return shape_named(t.shape).impostor(
+            grid=grid, target=t, centre=self.target_centre, refracted_nadir=self.refracted_nadir
         )
 
     def gated_share(self, grid: PlaneGrid, top, bottom, *, on, delays, shares):
-        """`workers.targets.impostor.gated_share` of the target on `grid`, or None.
+        """The target shape's `gated_share` on `grid`, or None.
 
-        None if the target is not a Lambertian sphere (a disk, or the paper's shading): a
-        cell is then in a gate or not, by its line of sight's depth.
+        None where the shape has none (`workers.targets.base.TargetShape.gated_share`: a
+        disk, or the paper's shading): a cell is then in a gate or not, by its line of
+        sight's depth.
         """
         t = self.target
-        if t.shape != "sphere" or t.shading != "lambert":
-            return None
-        return gated_share(
+        return shape_named(t.shape).gated_share(
             grid=grid,
+            target=t,
             centre=self.target_centre,
-            radius=t.radius,
             refracted_nadir=self.refracted_nadir,
             top=top,
             bottom=bottom,

@@ -1,7 +1,8 @@
 """The target as a 2.5-D impostor on a horizontal plane (paper §4.5).
 
-A sphere (or a flat disk) is replaced by maps on the plane through its centre, indexed by
-where a line along the mean in-water ray direction crosses that plane:
+A target is replaced by maps on the plane through its centre, indexed by where a line along
+the mean in-water ray direction crosses that plane (each shape builds its own,
+`workers.targets.base.TargetShape.impostor`):
 
 - ``occupancy`` (0–1): the fraction of the cell whose line meets the target (its silhouette);
 - ``weight``: the effective Lambertian reflectance the cell carries;
@@ -14,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Impostor", "disc_cover", "sphere_area_weights"]
+__all__ = ["Impostor", "disc_cover", "gated_share", "offsets", "sphere_area_weights"]
 
 _GAUSS_NODES, _GAUSS_WEIGHTS = np.polynomial.legendre.leggauss(8)
 
@@ -147,84 +148,8 @@ class Impostor:
     top: float
     bottom: float
 
-    @classmethod
-    def build(cls, *, grid, shape, centre, radius, reflectance, shading, refracted_nadir):
-        r"""Rasterise a target on `grid` (a `workers.setup.geometry.PlaneGrid` at its depth).
 
-        Parameters
-        ----------
-        grid : PlaneGrid
-            Plane through the target centre (sphere) or the disk's plane.
-        shape : {'sphere', 'disk'}
-            Target kind.
-        centre : tuple of float
-            World (x, y) of the target centre [m].
-        radius : float
-            Radius [m].
-        reflectance : float
-            Lambertian reflectance ρ [1].
-        shading : {'lambert', 'paper'}
-            Sphere shading (ignored for a disk, which is a Lambertian plane).
-        refracted_nadir : float
-            Angle from the vertical of the central ray in the water under a flat sea
-            [rad]; lines through the cells run along it, away from the platform.
-
-        Notes
-        -----
-        For a sphere, a cell's line meets the sphere where the perpendicular distance
-        :math:`\rho_\perp` from the centre is below r. Light crossing the plane with
-        horizontal irradiance E over a cell arrives on the sphere at incidence
-        :math:`\cos i = \sqrt{1-\rho_\perp^2/r^2}`, so a Lambertian sphere sends back radiance
-        :math:`\rho E \cos i / (\pi \cos\vartheta_t)` (`lambert`). The paper instead weights
-        each cell by its hemisphere area (`ponder`) per unit plane area, which brightens the
-        limb (`paper`). Both treat the laser and the receiver as sharing the mean in-water
-        direction, which holds for a common boresight up to the wave slopes.
-        """
-        du, along = _offsets(grid, centre)
-        if shape == "disk":
-            occupancy, _ = disc_cover(
-                u=du, w=along, cell_u=grid.spacing_u, cell_w=grid.spacing_v, radius=radius
-            )
-            weight = reflectance * occupancy
-            depth = np.full_like(occupancy, grid.depth)
-            return cls(
-                occupancy=occupancy.astype(np.float32),
-                weight=weight.astype(np.float32),
-                surface_depth=depth.astype(np.float32),
-                top=grid.depth,
-                bottom=grid.depth,
-            )
-        cos_t, sin_t = np.cos(refracted_nadir), np.sin(refracted_nadir)
-        across = along * cos_t
-        rho = np.hypot(du, across)
-        occupancy, cosine = disc_cover(
-            u=du, w=across, cell_u=grid.spacing_u, cell_w=grid.spacing_v * cos_t, radius=radius
-        )
-        chord = np.sqrt(np.clip(radius**2 - rho**2, 0.0, None))
-        # entry point along the line x = c + δ + t ŝ, ŝ = (sinϑ away, -cosϑ down)
-        entry = -along * sin_t - chord
-        surface_depth = grid.depth + entry * cos_t
-        if shading == "lambert":
-            weight = reflectance * cosine / cos_t
-        else:
-            area = sphere_area_weights(
-                u=du,
-                w=across,
-                cell_u=grid.spacing_u,
-                cell_w=grid.spacing_v * cos_t,
-                radius=radius,
-            )
-            weight = reflectance * area / (grid.spacing_u * grid.spacing_v)
-        return cls(
-            occupancy=occupancy.astype(np.float32),
-            weight=weight.astype(np.float32),
-            surface_depth=np.where(occupancy > 0, surface_depth, grid.depth).astype(np.float32),
-            top=grid.depth - radius,
-            bottom=grid.depth + radius,
-        )
-
-
-def _offsets(grid, centre):
+def offsets(grid, centre):
     """Each cell's offset from the target's centre, across and along its lines [m].
 
     Along the lines of sight is positive away from the platform.
@@ -273,7 +198,7 @@ def gated_share(*, grid, centre, radius, refracted_nadir, top, bottom, on, delay
     exactly, not the cell centre's all or nothing: a gate edge through the sphere cuts
     its cells where the edge runs.
     """
-    du, along = (values[on] for values in _offsets(grid, centre))
+    du, along = (values[on] for values in offsets(grid, centre))
     cos_t, sin_t = np.cos(refracted_nadir), np.sin(refracted_nadir)
     base = grid.depth - along * sin_t * cos_t
     cells = {
