@@ -35,6 +35,7 @@ from workers.montecarlo.scattering import (
     uniform,
 )
 from workers.montecarlo.sightlines import EPS, corner_at, target_blocks, target_distance
+from workers.optics.fresnel import fresnel_unpolarised
 
 __all__ = ["TALLIES", "transport"]
 
@@ -268,14 +269,7 @@ def transport(launch, key, first_index, scenery, target, image, tallies):
                 cos_i = dx * nx + dy * ny + dz * nz
                 if cos_i <= 0.0:
                     nx, ny, nz, cos_i = 0.0, 0.0, 1.0, dz
-                sin_t2 = n_w * n_w * (1.0 - cos_i * cos_i)
-                if sin_t2 >= 1.0:
-                    reflectance = 1.0
-                else:
-                    cos_o = math.sqrt(1.0 - sin_t2)
-                    rs = (n_w * cos_i - cos_o) / (n_w * cos_i + cos_o)
-                    rp = (cos_i - n_w * cos_o) / (cos_i + n_w * cos_o)
-                    reflectance = 0.5 * (rs * rs + rp * rp)
+                reflectance = fresnel_unpolarised(cos_i, n_w, 1.0)
                 tallies[_ESCAPED] += w * (1.0 - reflectance)
                 w *= reflectance
                 dx, dy, dz = dx - 2 * cos_i * nx, dy - 2 * cos_i * ny, dz - 2 * cos_i * nz
