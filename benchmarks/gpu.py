@@ -51,6 +51,7 @@ from service.tasks import render_samples
 from workers.fast.planes import frame_geometry
 from workers.settings.scene import Scene
 from workers.settings.seeds import SampleSeed
+from workers.setup.builder import scene_setup
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -76,7 +77,7 @@ def synchronised(device):
 
 def plane_shapes(s):
     """The fine grids' shapes of the first frame's planes (gates', target's), cells."""
-    geometry = frame_geometry(s, 0)
+    geometry = frame_geometry(scene_setup(s), 0)
     planes = [*geometry.gate_planes, geometry.target_plane]
     return [plane.levels.fine.shape for plane in planes if plane is not None]
 

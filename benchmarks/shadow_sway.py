@@ -30,7 +30,8 @@ import argparse
 import numpy as np
 
 from workers.settings.scene import Scene
-from workers.setup.sensor import scene_setup, sensor_at, sight_grid, subgrid_sway
+from workers.setup.builder import scene_setup
+from workers.setup.sensor import sensor_at
 
 RADIUS, DEPTH = 0.3, 5.0
 
@@ -57,9 +58,8 @@ def shadows(wind: float, facets: int, rng: np.random.Generator) -> list[tuple[fl
     """Per gate 3–6, the shadow's contrast over the silhouette's pixels, by each blocking."""
     sc = scene(wind)
     setup = scene_setup(sc)
-    n_w = setup.water.refractive_index
-    grid = sight_grid(sensor_at(setup, 0), DEPTH, n_w, guard=2)
-    unit = subgrid_sway(setup, grid, distance=1.0)  # covariance of δ at 1 m [m²]
+    grid = sensor_at(setup, 0).sight_grid(DEPTH, guard=2)
+    unit = setup.subgrid_sway(grid, distance=1.0)  # covariance of δ at 1 m [m²]
     root = np.linalg.cholesky(unit)
     pitch = grid.spacing_u
     offsets = np.arange(-4, 5) * pitch  # pixels' lines about the sphere's axis (even grid)

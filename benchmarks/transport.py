@@ -59,7 +59,7 @@ import scipy.fft
 from workers.montecarlo import renderer as montecarlo
 from workers.settings.scene import Scene
 from workers.settings.seeds import SampleSeed
-from workers.setup.sensor import scene_setup
+from workers.setup.builder import scene_setup
 
 
 def scene(water: str, wind: float, photons: int) -> Scene:

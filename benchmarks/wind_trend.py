@@ -44,7 +44,7 @@ from workers.dataset.labels import image_axes
 from workers.render import render_arrays
 from workers.settings.scene import Scene
 from workers.settings.seeds import SampleSeed
-from workers.setup.sensor import scene_setup
+from workers.setup.builder import scene_setup
 
 TULLDAHL = ((1.0, 0.9, "above"), (6.0, 0.8, "below"))
 """Tulldahl & Steinvall's figures (wind m/s, Pd, side): above 90 % at 1 m/s, below 80 % at 6."""

@@ -35,7 +35,7 @@ from workers.dataset.variables import count_dtype
 from workers.fast.spread import MAX_COARSE
 from workers.montecarlo.renderer import LAUNCH_CHUNK, LOOKUP_ENTRIES
 from workers.sea.cascades import MAX_CASCADES
-from workers.settings.scene import Scene
+from workers.settings.scene import Scene, laser_rays
 from workers.settings.seeds import SampleSeed
 
 __all__ = ["Plan", "Sample", "load_sweep", "memory_estimate", "parse_sweep", "read_header"]
@@ -276,13 +276,14 @@ def memory_estimate(scene: dict) -> int:
         grid = int(raw_value(scene, "surface.grid_size"))
         pixels = int(raw_value(scene, "receiver.pixels"))
         rays = raw_value(scene, "laser.rays")
-        if rays is None:  # the pixels' pitch over the laser's field (`Scene.laser_rays`)
-            receiver = float(raw_value(scene, "receiver.field_of_view_deg"))
-            laser = raw_value(scene, "laser.field_of_view_deg")
-            ratio = math.tan(math.radians(float(receiver if laser is None else laser) / 2))
-            ratio /= math.tan(math.radians(receiver / 2))
-            rays = max(8, round(pixels * ratio))
-        side = max(pixels, int(rays))
+        laser = raw_value(scene, "laser.field_of_view_deg")
+        rays = laser_rays(
+            rays=None if rays is None else int(rays),
+            pixels=pixels,
+            field_of_view_deg=float(raw_value(scene, "receiver.field_of_view_deg")),
+            laser_field_of_view_deg=None if laser is None else float(laser),
+        )
+        side = max(pixels, rays)
         frames = int(raw_value(scene, "sequence.frames"))
         gates = raw_value(scene, "receiver.gates")
         gates = 6 if gates == "mldc" else len(gates)

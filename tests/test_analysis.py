@@ -7,13 +7,14 @@ import numpy as np
 import pytest
 import xarray as xr
 import zarr
+from numpy.testing import assert_allclose
 from test_store import fill, tiny_plan
 
 from service.dataset import open_dataset
 from service.store import integrity
 from service.store.location import Store
 from service.store.template import template
-from workers.dataset.labels import image_axes
+from workers.dataset.labels import image_axes, sample_labels
 from workers.settings.scene import Scene
 from workers.setup.geometry import PinholeCamera
 
@@ -90,6 +91,71 @@ def test_pixels_y_x_are_where_their_lines_of_sight_meet_the_sea():
     np.testing.assert_allclose(column, np.arange(8)[None, :] + 0 * row, atol=1e-9)
     # row 0 (the far edge, the top of preview's images) has the largest y
     assert y[0] > 0 > y[-1] and x[0] < 0 < x[-1]
+
+
+@pytest.mark.parametrize(
+    ("nadir", "azimuth", "pixels"),
+    [(20.0, 0.0, 8), (35.0, 30.0, 9)],
+    ids=["nadir20", "nadir35-azimuth30"],
+)
+def test_oblique_pixels_y_x_are_their_sea_points_seen_on_the_plane_across_the_boresight(
+    nadir, azimuth, pixels
+):
+    # Issue #38 item 5 (a): the stored axes against geometry written here from first
+    # principles. The optical axis b leaves the lens at `nadir` from the downward vertical,
+    # towards compass `azimuth` (clockwise from north, +y); the image's right is
+    # horizontal, its up completes the frame (docs/model.md §2, the paper's pan/tilt
+    # pinhole). A pixel centre's line of sight is b + u right + w up, u and w its
+    # offsets on the image plane at unit focal length. Each line meets the mean sea
+    # (z = 0); the stored (y, x) are that sea point seen from the lens on the plane across
+    # the boresight at its sea point (`image_axes`: exact on the sea at nadir, a
+    # trapezium's image off it).
+    altitude = 34.0
+    scene = Scene.model_validate(
+        {
+            "surface": {"spectrum": "flat"},
+            "platform": {"altitude": altitude, "nadir_deg": nadir, "azimuth_deg": azimuth},
+            "receiver": {"pixels": pixels},
+        }
+    )
+    theta, phi = np.radians(nadir), np.radians(azimuth)
+    axis = np.array([np.sin(theta) * np.sin(phi), np.sin(theta) * np.cos(phi), -np.cos(theta)])
+    right = np.array([np.cos(phi), -np.sin(phi), 0.0])
+    up = np.cross(right, axis)  # towards the far edge, and above the optical axis
+    assert up[2] > 0 and up[:2] @ axis[:2] > 0
+    half = np.tan(0.5 * np.radians(scene.receiver.field_of_view_deg))
+    offsets = (2 * np.arange(pixels) + 1 - pixels) / pixels * half  # pixel centres
+    u, w = offsets[None, :], -offsets[:, None]  # row 0 is the far edge
+    lines = axis + u[..., None] * right + w[..., None] * up  # (row, column, xyz)
+    lens = np.array([0.0, 0.0, altitude])
+    sea = lens + (altitude / -lines[..., 2])[..., None] * lines  # where each line meets z = 0
+    centre = lens + altitude / np.cos(theta) * axis  # the boresight's sea point
+    # each sea point seen from the lens, on the plane through `centre` across `axis`
+    seen = lens + (((centre - lens) @ axis) / ((sea - lens) @ axis))[..., None] * (sea - lens)
+    assert_allclose((seen - centre) @ axis, 0.0, atol=1e-12)
+    labels = sample_labels(scene)
+    y, x = labels["y"].values, labels["x"].values
+    grid = np.broadcast_to(x, (pixels, pixels)), np.broadcast_to(y[:, None], (pixels, pixels))
+    assert_allclose((seen - centre) @ right, grid[0], rtol=1e-12, atol=1e-12)
+    assert_allclose((seen - centre) @ up, grid[1], rtol=1e-12, atol=1e-12)
+    # these lines are the renderer's (its camera: the paper's rotation matrix)
+    camera = PinholeCamera(
+        position=tuple(lens),
+        nadir=theta,
+        azimuth=phi,
+        field_of_view=np.radians(scene.receiver.field_of_view_deg),
+        pixels=pixels,
+    )
+    unit = lines / np.linalg.norm(lines, axis=-1, keepdims=True)
+    assert_allclose(camera.pixel_directions(), unit, atol=1e-12)
+    # on the sea itself: the middle row (odd N) lies along x, the middle column at
+    # g cos θ / (1 + g sin θ cos θ / H) of its ground distance g from the centre
+    if pixels % 2:
+        middle = pixels // 2
+        assert_allclose(sea[middle] - centre, x[:, None] * right, atol=1e-12)
+        g = (sea[:, middle] - centre) @ np.array([np.sin(phi), np.cos(phi), 0.0])
+        stretch = 1 + g * np.sin(theta) * np.cos(theta) / altitude
+        assert_allclose(y, g * np.cos(theta) / stretch, rtol=1e-12, atol=1e-12)
 
 
 def test_stores_and_samples_have_y_x_in_metres(store):

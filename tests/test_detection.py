@@ -31,6 +31,7 @@ from workers.detectors.detection import (
     ideal_observer,
     pd_at_pfa,
     roc_curve,
+    score_metrics,
 )
 from workers.detectors.marginal import sea_marginal_observer
 
@@ -607,3 +608,19 @@ def test_the_detection_plot_names_each_combination_and_no_category_alone(
     # each AUC line: one detector's points of one water, in its marker
     markers = {line.get_marker() for line in auc[0].lines if len(line.get_xdata()) == 2}
     assert markers == set(service.charts.MARKERS[:2])
+
+
+def test_a_detector_with_no_pair_evaluated_has_nan_metrics():
+    # The sea-marginal observer's scores are NaN at every held-out realisation when each of
+    # its seas gives an image zero likelihood (a Monte Carlo store at few photons: sparse
+    # expected images); `detect` stopped on an IndexError in the bootstrap. Now the detector
+    # is not evaluated: 0 pairs, every metric NaN.
+    nan = np.full(12, np.nan)
+    metrics = score_metrics(positives=np.arange(12.0), negatives=nan, pfa=(0.01, 0.1))
+    assert metrics["evaluated"] == 0
+    assert np.isnan([metrics["auc"], metrics["auc_low"], metrics["auc_high"]]).all()
+    assert metrics["pd"].shape == (2,) and np.isnan(metrics["pd"]).all()
+    # one pair left: evaluated on it
+    one = nan.copy()
+    one[3] = 1.0
+    assert score_metrics(positives=np.arange(12.0), negatives=one, pfa=(0.1,))["evaluated"] == 1

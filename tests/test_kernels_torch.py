@@ -250,8 +250,8 @@ def lift():
 
 
 @pytest.mark.parametrize("tail", [True, False], ids=["tail", "no-tail"])
-@pytest.mark.parametrize("occluded", [True, False], ids=["occlusion", "no-occlusion"])
-def test_gather_levels_agrees_with_numba(tail, occluded, device):
+@pytest.mark.parametrize("shadowed", [True, False], ids=["shadowed", "all-lit"])
+def test_gather_levels_agrees_with_numba(tail, shadowed, device):
     rng = np.random.default_rng(5)
     lines, _ = splat_case(13, n=500)
     window = kernels.span(lines, PLANE, FINE)
@@ -260,12 +260,12 @@ def test_gather_levels_agrees_with_numba(tail, occluded, device):
     none = np.zeros((0, 0), np.float32)
     tails = tuple(rng.normal(size=s).astype(np.float32) for s in (FINE, COARSE))
     tails = tails if tail else (none, none)
-    occlusion = rng.uniform(size=FINE).astype(np.float32) if occluded else none
+    lit = rng.uniform(size=FINE).astype(np.float32) if shadowed else none
     weight = rng.uniform(0.5, 2, lines[0].size).astype(np.float32)
     out = rng.normal(size=lines[0].size).astype(np.float32)
     initial, out_t = out.copy(), torch.from_numpy(out.copy()).to(device)
     parts = (near, window, far, tails)
-    kernels.gather_levels(lines, PLANE, FINE, parts, lift(), occlusion, weight, out)
+    kernels.gather_levels(lines, PLANE, FINE, parts, lift(), lit, weight, out)
     parts_t = (*tensors((near,), device), window, *tensors((far,), device), tensors(tails, device))
     lift_t = tuple(tensors(axis, device) for axis in lift())
     args = (
@@ -274,7 +274,7 @@ def test_gather_levels_agrees_with_numba(tail, occluded, device):
         FINE,
         parts_t,
         lift_t,
-        *tensors((occlusion, weight), device),
+        *tensors((lit, weight), device),
         out_t,
     )
     kernels_torch.gather_levels(*args)
@@ -287,7 +287,7 @@ def test_gather_levels_agrees_with_numba(tail, occluded, device):
     assert out_t.cpu().numpy()[off].tobytes() == initial[off].tobytes()
     assert out[off].tobytes() == initial[off].tobytes()
     # those off the fine grid only (its last row and column, above it, coarse only) read
-    # the far spread and the tail's far part at their coarse place, no occlusion
+    # the far spread and the tail's far part at their coarse place, all their light kept
     coarse = edge + np.array([0, 1, 4, 8, 9])
     read = far + tails[1] if tail else far
     expected = initial[coarse] + weight[coarse] * far_at(read, lines, coarse)

@@ -23,8 +23,9 @@ from workers.settings.transport import (
     fournier_forand_cumulative,
     phase_table,
 )
+from workers.setup.builder import scene_setup
 from workers.setup.interface import through_surface
-from workers.setup.sensor import scene_setup, sensor_at
+from workers.setup.sensor import sensor_at
 
 ALTITUDE, N_WATER, FOV_DEG, PIXELS = 34.0, 1.34, 6.7, 16
 BLOCK = slice(6, 10)  # the central 4 x 4 pixels
@@ -135,7 +136,7 @@ def test_single_scattering_gated_return_matches_its_integral(kind):
         transport={"photons": 1_000_000, "max_scattering": 1, "phase_function": kind},
     )
     out = render_arrays(s, seed=3)
-    beta_pi = b * montecarlo.scene_phase_table(s).backscatter_pi
+    beta_pi = b * scene_setup(s).phase_table().backscatter_pi
     if kind == "fournier_forand":
         np.testing.assert_allclose(beta_pi, BETA_PI_PER_BACKSCATTER * bb, rtol=1e-6)
     for g, (top, bottom) in enumerate(gates):

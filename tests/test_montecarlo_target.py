@@ -24,7 +24,8 @@ from workers.montecarlo import renderer as montecarlo
 from workers.optics.fresnel import fresnel_reflectance
 from workers.optics.water import BETA_PI_PER_BACKSCATTER
 from workers.render import render_arrays
-from workers.setup.sensor import scene_setup, sensor_at, target_centre
+from workers.setup.builder import scene_setup
+from workers.setup.sensor import sensor_at
 
 SPHERE = {"shape": "sphere", "radius": 0.3, "depth": 5.0, "reflectance": 0.2}
 CUT = [[3.0, 4.76], [4.76, 9.0]]  # the second opens across the visible cap: (q/r)³ = 1/2 of it
@@ -118,7 +119,7 @@ def sphere_quadrature(s, *, sub=24):
     lines = FlatSeaLines(s, sub)
     setup, t = lines.setup, s.target
     c = setup.water.attenuation
-    cx, cy = target_centre(setup, sensor_at(setup, 0).camera)
+    cx, cy = setup.target_centre
     o = lines.surface - np.array([cx, cy, -t.depth])
     b = (o * lines.water).sum(axis=-1)
     disc = b * b - ((o * o).sum(axis=-1) - t.radius**2)
@@ -314,7 +315,7 @@ def test_the_reflections_biased_draw_is_weighted_back_to_lambert():
     # the biasing is for), and f = 1 (all the reflected light), against quadrature.
     from workers.montecarlo.scattering import reflection_weight, turn
 
-    table = montecarlo.scene_phase_table(scene(water={"preset": "coastal"}))
+    table = scene_setup(scene(water={"preset": "coastal"})).phase_table()
     phase = montecarlo.phase_record(table)
     share, count = montecarlo.TARGET_BIAS, 400_000
     normal = np.array([0.6, 0.0, 0.8])

@@ -15,7 +15,7 @@ POINTS = 30
 
 @pytest.fixture
 def setups(monkeypatch):
-    """The scenes set up (`workers.setup.sensor.scene_setup` by `count_dtype`), in this process."""
+    """The scenes set up (`workers.setup.builder.scene_setup`, by `count_dtype`) here."""
     seen = []
     setup = workers.dataset.variables.scene_setup
 

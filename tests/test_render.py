@@ -10,7 +10,7 @@ from workers.optics.fresnel import fresnel_reflectance
 from workers.render import render, render_arrays, render_images, render_pair
 from workers.settings.scene import Scene
 from workers.settings.seeds import SampleSeed
-from workers.setup.sensor import scene_setup
+from workers.setup.builder import scene_setup
 
 N_WATER = 1.34
 T0 = 1.0 - fresnel_reflectance(1.0, n1=1.0, n2=N_WATER)
@@ -223,6 +223,60 @@ def test_target_effect_of_a_wide_disk_is_the_closed_form(depth, gate, reflectanc
     assert ds.target_mask.values.all()
     assert_allclose(ds.target_effect_relative.values[0, 0], effect / water(top, bottom), rtol=0.01)
     assert_allclose(ds.target_effect.values[0, 0], effect, rtol=0.03)
+
+
+@pytest.mark.parametrize("nadir", [0.0, 20.0], ids=["nadir", "nadir20"])
+def test_a_black_disk_hides_each_gate_its_own_slab_behind_it(nadir):
+    # Issue #38 item 5 (c): the shadow's timing, gate by gate. A black disk (ρ = 0) at
+    # 6 m under a flat sea, wider than the field, in water that does not forward-scatter:
+    # each pixel keeps 1 - h of its gate's water, h the share of the gate's single-
+    # scattering integral ∫ e^(-2K sec ϑc z) dz lying below the disk along the pixel's
+    # line (docs/model.md §5, §6). The gate opens and closes at the optical paths
+    # P = H / cos θ + n d / cos ϑc of the central ray's bounds d; a pixel whose line leaves
+    # at γ from the vertical (ϑ in the water) gates the depths (P - H / cos γ) cos ϑ / n.
+    # Five gates: above the disk (h = 0), through it three ways, below it (h = 1): a
+    # gate's shadow timed by a neighbouring gate misses by 0.2 or more.
+    from workers.optics.water import WaterOptics
+
+    gates = [(1.0, 4.0), (4.0, 8.0), (5.5, 7.0), (7.0, 10.0), (5.0, 12.0)]
+    H, depth, pixels = 34.0, 6.0, 16
+    s = scene(
+        surface={"spectrum": "flat"},
+        water=clear_water(**SLIGHTLY_TURBID),
+        laser={"beam": "parallel", "field_of_view_deg": 40.0},
+        platform={"altitude": H, "nadir_deg": nadir},
+        receiver={"gates": [list(g) for g in gates], "pixels": pixels},
+        target={"shape": "disk", "radius": 5.0, "depth": depth, "reflectance": 0.0},
+    )
+    kept = (
+        render(s, seed=1).expected.values[0]
+        / render(s.without_target(), seed=1).expected.values[0]
+    )
+    n, theta = s.water.refractive_index, np.radians(nadir)
+    # each pixel's line: the optical axis plus its offsets on the image plane (unit focal
+    # length) across and up the image (row 0 the far edge), the pinhole of §2
+    half = np.tan(0.5 * np.radians(s.receiver.field_of_view_deg))
+    offsets = (2 * np.arange(pixels) + 1 - pixels) / pixels * half
+    u, w = offsets[None, :], -offsets[:, None]
+    cos_air = (np.cos(theta) - w * np.sin(theta)) / np.sqrt(1 + u**2 + w**2)
+    cos_water = np.sqrt(1 - (1 - cos_air**2) / n**2)
+    cos_central = np.sqrt(1 - (np.sin(theta) / n) ** 2)
+    K = WaterOptics(**SLIGHTLY_TURBID).diffuse_attenuation / cos_central
+    for gate, (top, bottom) in enumerate(gates):
+        t, b = (
+            np.maximum(H / np.cos(theta) + n * d / cos_central - H / cos_air, 0) * cos_water / n
+            for d in (top, bottom)
+        )
+        behind = np.clip(depth, t, b)
+        h = (np.exp(-2 * K * behind) - np.exp(-2 * K * b)) / (
+            np.exp(-2 * K * t) - np.exp(-2 * K * b)
+        )
+        # the deficit maps are sampled on the planes' grids and read bilinearly: 3.3e-4 at
+        # most over the image's middle half, 3.2e-3 where the gate's top crosses the disk
+        # at the near corner (h's kink) at 20°
+        middle = slice(pixels // 4, 3 * pixels // 4)
+        assert_allclose(kept[gate][middle, middle], 1 - h[middle, middle], atol=5e-4)
+        assert_allclose(kept[gate], 1 - h, atol=5e-3)
 
 
 def test_the_images_alone_are_those_of_the_sample():
@@ -631,7 +685,7 @@ def test_a_crest_gates_less_water(height, monkeypatch):
         update={"surface": flat.surface.model_copy(update={"spectrum": "phillips"})}
     )
     base = centre(render(flat, seed=1).expected.values[0, 0])
-    monkeypatch.setattr("workers.setup.sensor.Setup.surface", surface)
+    monkeypatch.setattr("workers.setup.compiled.Setup.surface", surface)
     value = centre(render(raised, seed=1).expected.values[0, 0])
     K = 0.2 + 0.01
     assert_allclose(value / base, np.exp(-2 * K * height / N_WATER), rtol=0.003)

@@ -14,9 +14,10 @@ from scipy.ndimage import convolve
 from workers.render import render_arrays
 from workers.settings.scene import Scene
 from workers.settings.seeds import SampleSeed
+from workers.setup.builder import scene_setup
 from workers.setup.geometry import LaserRays
 from workers.setup.interface import ray_components, through_surface
-from workers.setup.sensor import lattice_offset, scene_setup, sensor_at
+from workers.setup.sensor import lattice_offset, sensor_at
 
 
 def inner_mean(images):

@@ -62,7 +62,7 @@ def sloped_sea(monkeypatch, *, slope_x=0.0, slope_y=0.0):
         )
         return Surface(cascades=(plane,))
 
-    monkeypatch.setattr("workers.setup.sensor.Setup.surface", surface)
+    monkeypatch.setattr("workers.setup.compiled.Setup.surface", surface)
 
 
 def disk_scene(*, x=0.0, y=0.0, radius=0.5, depth=5.0, absorption=0.1, nadir=0.0, laser=None):

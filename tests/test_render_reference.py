@@ -16,7 +16,7 @@ from numpy.testing import assert_allclose, assert_array_equal
 
 from workers.render import render
 from workers.settings.scene import Scene
-from workers.setup.sensor import Setup
+from workers.setup.compiled import Setup
 
 REFERENCE = Path(__file__).parent / "data" / "render_reference.npz"
 

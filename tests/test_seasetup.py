@@ -9,8 +9,8 @@ from workers.sea.described import wave_spectrum
 from workers.settings.scene import Scene
 from workers.settings.sea import SurfaceSpec
 from workers.settings.section import SceneError
+from workers.setup.builder import scene_setup
 from workers.setup.seasetup import scene_sea, surface_kriging, surface_sea
-from workers.setup.sensor import scene_setup
 
 WIND = {"wind_speed": 7.0, "wind_direction": np.radians(30.0)}
 

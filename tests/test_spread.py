@@ -17,6 +17,7 @@ from workers.fast.spread import Levels, Spread, encircled_radius
 from workers.optics.water import PRESETS, WaterOptics
 from workers.render import render
 from workers.settings.scene import Scene
+from workers.setup.builder import scene_setup
 from workers.setup.geometry import PlaneGrid
 
 ALTITUDE, HALF_FOV = 34.0, np.radians(6.7 / 2)
@@ -112,7 +113,8 @@ def test_deep_gate_backscatter_matches_a_brute_force_linear_convolution(
     brute_force(monkeypatch)
     try:
         reference = render(scene, seed=3).expected.values[0, 0]
-        assert planes_module.frame_geometry(scene, 0).gate_planes[0].levels.factor == 1
+        geometry = planes_module.frame_geometry(scene_setup(scene), 0)
+        assert geometry.gate_planes[0].levels.factor == 1
     finally:
         planes_module.frame_geometry.cache_clear()
     assert_allclose(fast.mean(), reference.mean(), rtol=rtol)

@@ -1,9 +1,14 @@
-"""The statistics of a parameter point (`service.stats.point_statistics`) on rendered samples."""
+"""The statistics of a parameter point (`service.stats.point_statistics`).
+
+On rendered samples, and the CNR on images made here (issue #38 item 5)."""
 
 import numpy as np
 import pytest
+from conftest import ring_around
+from numpy.testing import assert_allclose
 
 from service.stats import point_statistics
+from workers.dataset.labels import RING_FRACTION
 from workers.render import render_arrays
 from workers.settings.scene import Scene
 from workers.settings.seeds import SampleSeed
@@ -57,3 +62,76 @@ def test_target_contrast_is_zero_where_the_target_changes_nothing(surface):
     assert np.abs(stats["target_contrast"][:2]).max() < 1e-6
     assert stats["target_contrast"][2] > 5  # the sphere in the gate 6-10 m
     assert stats["visible_fraction"].tolist() == [0.0, 0.0, 1.0]
+
+
+def cnr_of(image, mask):
+    """`point_statistics`' ``cnr`` of images (samples, frames, gates, y, x) over their masks.
+
+    The rest of a point's samples (signals, effect, labels) is zeros: the CNR reads only
+    the noisy images and the masks.
+    """
+    per_gate = np.zeros(image.shape[:3])
+    return point_statistics(
+        image=image,
+        target=per_gate,
+        background=per_gate,
+        mask=mask,
+        relative=per_gate,
+        visibility=per_gate.astype(np.uint8),
+    )["cnr"]
+
+
+def test_cnr_is_the_contrast_over_the_standard_deviation_of_the_ring():
+    # Issue #38 item 5 (b), closed form: a 2 x 2 mask in 16 x 16 images (a ring 2 pixels
+    # wide: 32 pixels) reading T, its ring a checkerboard of B - s and B + s (16 each:
+    # mean B, standard deviation s), everything beyond the ring far brighter (never read).
+    # Each image's CNR is (T - B) / s; the statistic their mean over samples and frames.
+    # s is 0.5, 2 and 4 in the three gates, so that the variance s^2 is never s.
+    rng = np.random.default_rng(38)
+    samples, frames, gates, n = 2, 3, 3, 16
+    mask = np.zeros((samples, frames, n, n), bool)
+    mask[..., 7:9, 7:9] = True
+    y, x = np.mgrid[:n, :n]
+    ring = (abs(y - 7.5) < 3) & (abs(x - 7.5) < 3) & ~mask[0, 0]
+    assert ring.sum() == 32 and (ring_around(mask[0, 0], 2) == ring).all()
+    sign = np.where((y + x) % 2, 1.0, -1.0)[ring]
+    assert sign.sum() == 0
+    T = rng.uniform(20.0, 40.0, (samples, frames, gates))
+    B = rng.uniform(5.0, 15.0, (samples, frames, gates))
+    s = np.array([0.5, 2.0, 4.0])
+    image = rng.uniform(1e3, 2e3, (samples, frames, gates, n, n))
+    image[..., 7:9, 7:9] = T[..., None, None]
+    image[..., ring] = B[..., None] + s[:, None] * sign
+    assert_allclose(image[..., ring].std(axis=-1), np.broadcast_to(s, B.shape), rtol=1e-12)
+    expected = ((T - B) / s).mean(axis=(0, 1))
+    assert_allclose(cnr_of(image.astype(np.float32), mask), expected, rtol=1e-6)
+
+
+def test_cnr_of_noisy_images_is_the_brute_force_mean_over_samples_and_frames():
+    # Issue #38 item 5 (b), brute force: Poisson images (mean 9, so a ring's variance is
+    # about 9 times its standard deviation) under masks of several shapes and places; per
+    # image, (mean over the mask - mean over its ring) / the ring's standard deviation
+    # (population, numpy's default), the ring every pixel within RING_FRACTION of the
+    # image's width of the mask (Chebyshev) outside it, brute force.
+    rng = np.random.default_rng(5)
+    samples, frames, gates, n = 3, 2, 2, 20
+    image = rng.poisson(9.0, (samples, frames, gates, n, n)).astype(np.uint16)
+    image[..., 2:12, 4:9] += np.uint16(6)  # a brighter patch the masks overlap
+    mask = np.zeros((samples, frames, n, n), bool)
+    for k, (top, left, height, width) in enumerate(
+        [(3, 5, 4, 3), (0, 0, 2, 5), (8, 14, 6, 6), (10, 2, 1, 1), (5, 5, 3, 8), (15, 9, 3, 2)]
+    ):
+        mask[np.unravel_index(k, (samples, frames))][top : top + height, left : left + width] = 1
+    width = max(2, round(RING_FRACTION * n))
+    expected = np.zeros((samples, frames, gates))
+    for i in range(samples):
+        for j in range(frames):
+            ring = ring_around(mask[i, j], width)
+            for g in range(gates):
+                values = image[i, j, g].astype(np.float64)
+                background = values[ring]
+                expected[i, j, g] = (values[mask[i, j]].mean() - background.mean()) / (
+                    background.std()
+                )
+    assert 1.0 < np.abs(expected).max() < 10.0  # the variance would read 3 to 4 times less
+    assert_allclose(cnr_of(image, mask), expected.mean(axis=(0, 1)), rtol=1e-6)

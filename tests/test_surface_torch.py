@@ -10,7 +10,7 @@ from workers.backends.backend import get_backend  # noqa: E402
 from workers.sea.surface import Cascade  # noqa: E402
 from workers.settings.scene import Scene  # noqa: E402
 from workers.settings.seeds import SampleSeed  # noqa: E402
-from workers.setup.sensor import scene_setup  # noqa: E402
+from workers.setup.builder import scene_setup  # noqa: E402
 
 SCENES = {
     "three cascades": {},

@@ -18,7 +18,8 @@ from workers.montecarlo import renderer as montecarlo
 from workers.render import render_arrays, render_pair
 from workers.settings.scene import Scene
 from workers.settings.seeds import SampleSeed
-from workers.setup.sensor import Setup, scene_setup, sensor_at, subgrid_sway, target_centre
+from workers.setup.builder import scene_setup
+from workers.setup.compiled import Setup
 
 SEED = SampleSeed(root=2)
 PHOTONS = 500_000
@@ -161,16 +162,16 @@ def test_the_shadows_through_the_facets_below_the_grid_hold_to_straight_lines(mo
     monkeypatch.setattr(Setup, "surface", lambda *_, **__: Raised(0.0))
     expected, _, twin, _ = render_pair(scene, seed=SEED, twin_seed=SEED)
     setup = scene_setup(scene)
-    geometry = frame_geometry(scene, 0)
+    geometry = frame_geometry(setup, 0)
     pixels, n = scene.receiver.pixels, scene.water.refractive_index
     guard = (geometry.sight.shape[0] - pixels) // 2
     x, y = (
         c[guard : guard + pixels, guard : guard + pixels] for c in geometry.sight.cell_centres()
     )
-    centre = target_centre(setup, sensor_at(setup, 0).camera)
+    centre = setup.target_centre
     x, y = x - centre[0], y - centre[1]
     inside = np.hypot(x, y) < scene.target.radius
-    unit = subgrid_sway(setup, geometry.sight, distance=1.0)  # per metre of depth [m²]
+    unit = setup.subgrid_sway(geometry.sight, distance=1.0)  # per metre of depth [m²]
     rng = np.random.default_rng(5)
     view, laser = rng.standard_normal((2, 4000, 2)) @ np.linalg.cholesky(unit).T
     axes = np.array([geometry.sight.axis_u, geometry.sight.axis_v])

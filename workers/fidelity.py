@@ -41,7 +41,7 @@ from workers.montecarlo import renderer as montecarlo
 from workers.render import render_images, render_pair
 from workers.settings.scene import Scene
 from workers.settings.seeds import SampleSeed
-from workers.setup.sensor import scene_setup
+from workers.setup.builder import scene_setup
 
 __all__ = [
     "BARS",

@@ -24,7 +24,8 @@ The image-formation model, per frame:
    target (not at the centre plane), restricted to each cell's share of the return inside
    the gate (on time and delayed by scattering), spread up and gathered. Over a rough sea
    it is read along the pixels' lines through the resolved sea, blurred by where the
-   sub-grid slopes move them (`workers.setup.sensor.subgrid_sway`), as is the target's mask.
+   sub-grid slopes move them (`workers.setup.compiled.Setup.subgrid_sway`), as is the
+   target's mask.
 4. Where a pixel's line of sight meets the target, the water behind the target is
    neither lit nor seen: the slab's backscatter loses the fraction lying behind the
    target's surface, half on the way down and half on the way up (square roots), each
@@ -64,7 +65,7 @@ from workers.receiver.noise import shot_noise
 from workers.settings.scene import Scene
 from workers.settings.section import SceneError
 from workers.settings.seeds import SampleSeed
-from workers.setup.sensor import Setup, scene_setup
+from workers.setup.builder import scene_setup
 
 __all__ = ["render", "render_arrays", "render_batch", "render_images", "render_pair"]
 
@@ -306,8 +307,7 @@ def _sample_arrays(scene: Scene, seed: SampleSeed, backend: Backend) -> dict[str
     if scene.target.shape == "none":
         free = light.expected
     elif free is None:  # Monte Carlo: the twin's own photons, the same streams
-        twin = scene_setup(scene.without_target())
-        free = _render_frames(twin, light.surface, seed, backend).expected
+        free = _render_frames(scene.without_target(), light.surface, seed, backend).expected
     host = backend.to_numpy
     return rendered_arrays(
         scene,
@@ -325,7 +325,7 @@ def _render_sample(scene: Scene, seed: SampleSeed, backend: Backend) -> SampleLi
     setup = scene_setup(scene)
     times = np.arange(scene.sequence.frames) * scene.sequence.interval
     surface = setup.surface(seed, times, backend=backend)
-    light = _render_frames(setup, surface, seed, backend)
+    light = _render_frames(scene, surface, seed, backend)
     image = _noisy(scene, light.expected, seed, backend)
     return SampleLight(surface, light.expected, light.masks, light.stderr, light.free, image)
 
@@ -342,7 +342,7 @@ def _noisy(scene: Scene, expected, seed: SampleSeed, backend: Backend):
     return shot_noise(expected, rng=rng, gain=noise.gain, excess_noise=noise.excess_noise)
 
 
-def _render_frames(setup: Setup, surface, seed: SampleSeed, backend: Backend) -> SampleLight:
+def _render_frames(scene: Scene, surface, seed: SampleSeed, backend: Backend) -> SampleLight:
     """Every frame's expected image (frame, gate, y, x), mask, Monte Carlo error and twin.
 
     The error is None for the fast renderer (deterministic). The twin, the expected image
@@ -351,7 +351,7 @@ def _render_frames(setup: Setup, surface, seed: SampleSeed, backend: Backend) ->
     result has no image (None): the noise is drawn after.
     """
     xp = backend.xp
-    scene = setup.scene
+    setup = scene_setup(scene)
     expected, masks, errors, twins = [], [], [], []
     for frame in range(scene.sequence.frames):
         if scene.transport.method == "monte_carlo":
@@ -360,7 +360,7 @@ def _render_frames(setup: Setup, surface, seed: SampleSeed, backend: Backend) ->
             masks.append(transported.mask)
             errors.append(transported.stderr)
             continue
-        geometry = frame_geometry(scene, frame).on(backend)
+        geometry = frame_geometry(setup, frame).on(backend)
         light = stages.frame_light(setup, geometry, surface, frame, backend)
         expected.append(light.images)
         pixels = scene.receiver.pixels

@@ -265,7 +265,7 @@ def _interpolate(field, r, c, down, right):
 
 
 @numba.njit(cache=True, nogil=True)
-def gather_levels(lines, cells, shape, parts, lift, occlusion, weight, out):
+def gather_levels(lines, cells, shape, parts, lift, lit, weight, out):
     """Add the spread field, bilinearly interpolated at each line's crossing, to `out`.
 
     Parameters
@@ -285,8 +285,9 @@ def gather_levels(lines, cells, shape, parts, lift, occlusion, weight, out):
     lift : tuple
         ``((lower row, weight), (lower col, weight))`` of each fine cell on the coarse grid
         (`workers.fast.spread.Levels.lift`).
-    occlusion : ndarray
-        Factor on each fine cell, float32 (size 0: none).
+    lit : ndarray
+        Share of each fine cell's light kept (the gate's water the target leaves lit),
+        float32 (size 0: all).
     weight : ndarray
         Factor on each pixel, float32.
     out : ndarray
@@ -294,13 +295,13 @@ def gather_levels(lines, cells, shape, parts, lift, occlusion, weight, out):
 
     Notes
     -----
-    The field is first assembled on the window, ``near + upsampled far`` (times the
-    occlusion), in float32 as `workers.fast.spread.Spread` does on the whole grid; the far
-    part is interpolated along the columns once per fine row.
+    The field is first assembled on the window, ``near + upsampled far`` (times `lit`),
+    in float32 as `workers.fast.spread.Spread` does on the whole grid; the far part is
+    interpolated along the columns once per fine row.
 
     A line that misses the fine grid (a steep sea bends it past the guard band) reads
     the coarse level alone: the far spread plus the tail's far part, bilinearly at its
-    coarse crossing (located as `splat_levels` locates a ray there), with no occlusion
+    coarse crossing (located as `splat_levels` locates a ray there), all its light kept
     (the target's shadow lies inside the fine grid). The near part is left out there:
     the near kernel decays within the guard band (`workers.fast.spread.NEAR_SUPPORT`), so
     beyond the fine grid the light of the fine level is all in the far part. What it
@@ -328,8 +329,8 @@ def gather_levels(lines, cells, shape, parts, lift, occlusion, weight, out):
                 if tail_near.size:
                     value += tail_near[r, c]
                 value += along[b] * (_ONE - cw[c]) + along[b + 1] * cw[c]
-                if occlusion.size:
-                    value *= occlusion[r, c]
+                if lit.size:
+                    value *= lit[r, c]
                 field[r - top, c - left] = value
     rows, cols = shape
     base_u, slope_u, base_v, slope_v = lines

@@ -277,7 +277,7 @@ def outside_rows(lines, cells, shape, coarse_shape):
     return top, bottom
 
 
-def gather_levels(lines, cells, shape, parts, lift, occlusion, weight, out):
+def gather_levels(lines, cells, shape, parts, lift, lit, weight, out):
     """Add the spread field at each line's crossing to `out` (`kernels.gather_levels`).
 
     Parameters
@@ -296,8 +296,9 @@ def gather_levels(lines, cells, shape, parts, lift, occlusion, weight, out):
     lift : tuple
         ``((lower row, weight), (lower col, weight))`` of each fine cell on the coarse
         grid, int64 and float32 tensors.
-    occlusion : torch.Tensor
-        Factor on each fine cell, float32 (size 0: none).
+    lit : torch.Tensor
+        Share of each fine cell's light kept (the gate's water the target leaves lit),
+        float32 (size 0: all).
     weight : torch.Tensor
         Factor on each pixel, float32.
     out : torch.Tensor
@@ -305,11 +306,11 @@ def gather_levels(lines, cells, shape, parts, lift, occlusion, weight, out):
 
     Notes
     -----
-    The window's field is ``near (+ tail near) + (far (+ tail far) upsampled)`` times the
-    occlusion, in numba's float32 order (the far part along the columns first); a line
-    off the fine grid reads the far spread (+ the tail's far part) at its coarse
-    crossing, without occlusion, as numba does. No sum over lines, so the values agree
-    with numba's to float32 rounding.
+    The window's field is ``near (+ tail near) + (far (+ tail far) upsampled)`` times
+    `lit`, in numba's float32 order (the far part along the columns first); a line off
+    the fine grid reads the far spread (+ the tail's far part) at its coarse crossing,
+    all its light kept, as numba does. No sum over lines, so the values agree with
+    numba's to float32 rounding.
     """
     near, window, far, (tail_near, tail_far) = parts
     top, bottom, left, right = window
@@ -333,8 +334,8 @@ def gather_levels(lines, cells, shape, parts, lift, occlusion, weight, out):
         if tail_near.numel():
             field = field + tail_near[top:bottom, left:right]
         field = field + (along(b) * (1.0 - across) + along(b + 1) * across)
-        if occlusion.numel():
-            field = field * occlusion[top:bottom, left:right]
+        if lit.numel():
+            field = field * lit[top:bottom, left:right]
         r = torch.where(hit, r - top, 0)
         c = torch.where(hit, c - left, 0)
         total = _bilinear(field, r, c, _corner_weights(down, right_share))

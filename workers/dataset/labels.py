@@ -17,7 +17,7 @@ from scipy.ndimage import maximum_filter
 from workers.dataset.variables import Role, Visibility, variables
 from workers.sea.surface import centred_axis
 from workers.settings.scene import Scene
-from workers.setup.sensor import platform_position, scene_setup
+from workers.setup.builder import scene_setup
 
 __all__ = [
     "RING_FRACTION",
@@ -201,7 +201,7 @@ def _label_variables(scene: Scene) -> tuple[dict, dict]:
     setup = scene_setup(scene)
     gates = np.asarray(setup.gates)
     times = np.arange(scene.sequence.frames) * scene.sequence.interval
-    position = np.stack([platform_position(scene, t) for t in times])
+    position = np.stack([setup.platform_position(t) for t in times])
     values = {
         "target_present": scene.target.shape != "none",
         "gate": np.arange(1, len(gates) + 1),

@@ -20,7 +20,8 @@ import numpy as np
 from workers.optics.fresnel import fresnel_reflectance
 from workers.receiver.radiometry import lidar_equation
 from workers.settings.scene import Scene
-from workers.setup.sensor import platform_position, receiver_terms, scene_setup
+from workers.setup.builder import receiver_terms, scene_setup
+from workers.setup.compiled import Setup
 
 __all__ = [
     "COUNT_HEADROOM",
@@ -116,24 +117,36 @@ class Variable:
     rule: Rule = Rule.ANY
 
 
-def white_plane_count(scene: Scene) -> float:
+def white_plane_count(scene: Scene, setup: Setup) -> float:
     """Mean photoelectrons per pixel from a white plane just under a flat sea, at nadir.
 
     ``normalised`` radiometry: `white_plane_photons` by definition. ``absolute``: the lidar
     equation (`workers.receiver.radiometry.lidar_equation`, ρ = 1, d = 0) with the platform at its
     lowest during the sequence.
+
+    Parameters
+    ----------
+    scene : Scene
+        The sample's parameters (its radiometry).
+    setup : Setup
+        The scene's setup (`workers.setup.builder.scene_setup`): its platform's track, its
+        laser's field [rad] and its water's refractive index.
+
+    Returns
+    -------
+    float
+        The mean count [photoelectrons].
     """
     r = scene.radiometry
     if r.mode == "normalised":
         return float(r.white_plane_photons)
     times = np.arange(scene.sequence.frames) * scene.sequence.interval
-    lowest = min(float(platform_position(scene, t)[2]) for t in times)
-    n_w = scene.water.refractive_index
-    laser = np.radians(scene.laser.field_of_view_deg or scene.receiver.field_of_view_deg)
+    lowest = min(float(setup.platform_position(t)[2]) for t in times)
+    n_w = setup.water.refractive_index
     return float(
         lidar_equation(
             **receiver_terms(scene),
-            beam_divergence=np.tan(0.5 * laser),
+            beam_divergence=np.tan(0.5 * setup.laser_field_of_view),
             altitude=max(lowest, 1e-3),
             depth=0.0,
             reflectance=1.0,
@@ -179,7 +192,7 @@ def count_dtype(scene: Scene) -> np.dtype | None:
         top = max(target.depth - target.radius, 0.0)
         k = setup.water.diffuse_attenuation
         brightest = max(brightest, target.reflectance * np.exp(-2.0 * k * top))
-    white = white_plane_count(scene)
+    white = white_plane_count(scene, setup)
     mean = COUNT_HEADROOM * brightest * white
     largest = mean + 10.0 * np.sqrt(mean) + 10.0
     for dtype in (np.uint8, np.uint16, np.uint32):

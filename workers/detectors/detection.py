@@ -457,7 +457,8 @@ def score_metrics(*, positives, negatives, pfa) -> dict:
     ----------
     positives, negatives : array_like, shape (realisations,)
         Scores of the samples with and without the target, row i of both realisation i's;
-        a realisation where either is NaN is left out.
+        a realisation where either is NaN is left out (all of them: the detector is not
+        evaluated, every metric NaN).
     pfa : sequence of float, keyword-only
         False-alarm probabilities at which to report the probability of detection.
 
@@ -469,6 +470,15 @@ def score_metrics(*, positives, negatives, pfa) -> dict:
     """
     s1, s0 = np.asarray(positives, np.float64), np.asarray(negatives, np.float64)
     rows = ~(np.isnan(s1) | np.isnan(s0))
+    if not rows.any():  # not evaluated (e.g. the sea-marginal observer's inf - inf everywhere)
+        nan = float("nan")
+        return {
+            "evaluated": 0,
+            "auc": nan,
+            "auc_low": nan,
+            "auc_high": nan,
+            "pd": np.full(len(pfa), nan),
+        }
     s1, s0 = s1[rows], s0[rows]
     low, high = bootstrap_auc(positives=s1, negatives=s0)
     return {

@@ -24,19 +24,10 @@ from workers.fast.spread import (
 )
 from workers.fast.targetgating import TargetGating, TargetLight
 from workers.optics.fresnel import fresnel_reflectance
-from workers.settings.scene import Scene
+from workers.setup.compiled import Setup
 from workers.setup.geometry import LaserRays, Located, PlaneGrid, flat_sea_point
 from workers.setup.interface import ray_components
-from workers.setup.sensor import (
-    Sensor,
-    Setup,
-    fine_grid,
-    impostor_on,
-    scene_setup,
-    sensor_at,
-    sight_grid,
-    subgrid_sway,
-)
+from workers.setup.sensor import Sensor, sensor_at
 from workers.targets.impostor import Impostor
 
 GUARD = 0.125
@@ -64,17 +55,17 @@ class Plane:
     sample) already spread: ``(near, far, outside)`` as from `Spread.filtered`, with
     `outside` only on the target's plane. For a gate, `spread` is the round trip (the
     slab's reflectance times MTF²); where the target hides part of the gate's water
-    (`workers.fast.shadows.gate_shadow`), `occlusion` is the share of the laser's light the
-    gate's water keeps, per cell of this fine grid, and `seen` the share of a pixel's view
-    the target stops, per cell of the target plane's fine grid: a pixel keeps
-    (1 − seen)·occlusion, each read where its line of sight crosses the plane.
+    (`workers.fast.shadows.gate_shadow`), `lit` is the share of the laser's light the
+    gate's water keeps, per cell of this fine grid, and `unseen` the share of a pixel's
+    view the target stops, per cell of the target plane's fine grid: a pixel keeps
+    (1 − unseen)·lit, each read where its line of sight crosses the plane.
     """
 
     levels: Levels
     spread: Spread
     tail: tuple[np.ndarray, np.ndarray, np.ndarray | None] | None
-    occlusion: np.ndarray | None = None
-    seen: np.ndarray | None = None
+    lit: np.ndarray | None = None
+    unseen: np.ndarray | None = None
 
     @property
     def grid(self) -> PlaneGrid:
@@ -90,8 +81,8 @@ class Plane:
             levels=self.levels.on(backend),
             spread=self.spread.on(backend),
             tail=moved(self.tail, backend),
-            occlusion=moved(self.occlusion, backend),
-            seen=moved(self.seen, backend),
+            lit=moved(self.lit, backend),
+            unseen=moved(self.unseen, backend),
         )
 
 
@@ -161,23 +152,26 @@ def _interpolation(source: PlaneGrid, target: PlaneGrid) -> tuple[np.ndarray, np
 class FrameGeometry:
     """Geometry of one frame: sensor rays, planes, filters and the target impostor.
 
-    With a target, `sight` is the pixels' own grid at its depth (`workers.setup.sensor.sight_grid`)
-    and `sight_occupancy` the target's silhouette on it: each pixel's share, for its mask;
-    `sight_support` the first row, last row + 1, first column and last column + 1 of its
-    non-zero cells. `target_light` is the target's maps under the flat sea,
-    `target_gating` what makes them at any height of the sea over the target.
+    With a target, `sight` is the pixels' own grid at its depth
+    (`workers.setup.sensor.Sensor.sight_grid`) and `sight_occupancy` the target's
+    silhouette on it: each pixel's share, for its mask; `sight_support` the first row,
+    last row + 1, first column and last column + 1 of its non-zero cells. `target_light`
+    is the target's maps under the flat sea, `target_gating` what makes them at any
+    height of the sea over the target.
 
     `target_plane` is lit by the laser's lattice; the target's maps, and its light's way
     up (`target_rise`: its spread with the sub-grid slopes' sway of the lines of sight,
-    `workers.setup.sensor.subgrid_sway`), are on the plane's grid at the pixels' pitch, the
-    default lattice's, whatever `laser.rays`: `resample` carries the light from the one
-    to the other (None where they are the same grid).
+    `workers.setup.compiled.Setup.subgrid_sway`), are on the plane's grid at the pixels'
+    pitch, the default lattice's, whatever `laser.rays`: `resample` carries the light
+    from the one to the other (None where they are the same grid). `lattice` holds the
+    laser lattice's rays (`workers.setup.interface.ray_components`), `pixel_rays` the
+    pixels' lines of sight.
     """
 
     position: np.ndarray
     central_air: float
     pixel_rays: tuple
-    laser_rays: tuple
+    lattice: tuple
     laser_power: np.ndarray
     gate_planes: tuple[Plane, ...]
     target_plane: Plane | None
@@ -199,7 +193,7 @@ class FrameGeometry:
     def on(self, backend: Backend) -> FrameGeometry:
         """The geometry with what a sample reads on `backend` (cached; itself on numpy).
 
-        The rays, the laser's power, the planes (their spreads, tail, occlusion) and the
+        The rays, the laser's power, the planes (their spreads, tail, shadows) and the
         target's maps are moved once; the host's geometry keeps the moved copy while it
         is cached (`frame_geometry`).
         """
@@ -212,7 +206,7 @@ class FrameGeometry:
             self._on[backend] = replace(
                 self,
                 pixel_rays=moved(self.pixel_rays, backend),
-                laser_rays=moved(self.laser_rays, backend),
+                lattice=moved(self.lattice, backend),
                 laser_power=backend.asarray(self.laser_power),
                 gate_planes=tuple(plane.on(backend) for plane in self.gate_planes),
                 target_plane=None if self.target_plane is None else self.target_plane.on(backend),
@@ -224,13 +218,13 @@ class FrameGeometry:
         return self._on[backend]
 
 
-def read_blur(scene: Scene, sensor: Sensor, grid: PlaneGrid, *, uses: int) -> tuple[float, float]:
+def read_blur(setup: Setup, sensor: Sensor, grid: PlaneGrid, *, uses: int) -> tuple[float, float]:
     r"""The Gaussian a plane's spread adds so that light is read at one scale [m] (u, v).
 
     Parameters
     ----------
-    scene : Scene
-        The scene (its receiver's aperture, water index, altitude).
+    setup : Setup
+        The scene's setup (its receiver's aperture, its water's index).
     sensor : Sensor
         The frame's sensor (pixel and ray pitches).
     grid : PlaneGrid
@@ -260,8 +254,8 @@ def read_blur(scene: Scene, sensor: Sensor, grid: PlaneGrid, *, uses: int) -> tu
     ratio = (np.tan(0.5 * sensor.camera.field_of_view) / sensor.camera.pixels) / (
         np.tan(0.5 * sensor.laser_fov) / sensor.laser_rays
     )
-    depth = grid.depth / scene.water.refractive_index
-    aperture = scene.radiometry.receiver_aperture * depth / (sensor.position[2] + depth)
+    depth = grid.depth / setup.water.refractive_index
+    aperture = setup.receiver_aperture * depth / (sensor.position[2] + depth)
     blur = []
     for h in (grid.spacing_u, grid.spacing_v):
         scale = max((ratio * h) ** 2 / 3.0, aperture**2 / 16.0)
@@ -278,8 +272,7 @@ def _plane_levels(
     radius for a round trip (two independent spreads); the guard band is at least `reach`
     [m] wide.
     """
-    n_w = setup.water.refractive_index
-    bare = fine_grid(sensor, depth, n_w, guard=0, multiple=1)
+    bare = sensor.fine_grid(depth, guard=0, multiple=1)
     spacing = min(bare.spacing_u, bare.spacing_v)
     margin = passes * encircled_radius(setup.water, distance=depth, fraction=SPREAD_FRACTION)
     span = max(bare.shape) * spacing
@@ -289,7 +282,7 @@ def _plane_levels(
         NEAR_SUPPORT * factor,
         int(np.ceil(reach / spacing)),
     )
-    fine = fine_grid(sensor, depth, n_w, guard=guard, multiple=factor)
+    fine = sensor.fine_grid(depth, guard=guard, multiple=factor)
     return Levels.around(fine, factor=factor, margin=margin), guard
 
 
@@ -337,13 +330,12 @@ slower), and a sweep over many scenes does not hold a gigabyte per scene it has 
 
 
 @lru_bytes(GEOMETRY_BYTES)
-def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
-    """Sensor rays, planes, filters and target maps of `frame` (cached by scene and frame)."""
-    setup = scene_setup(scene)
+def frame_geometry(setup: Setup, frame: int) -> FrameGeometry:
+    """Sensor rays, planes, filters and target maps of `frame` (cached by setup and frame)."""
     water = setup.water
     sensor = sensor_at(setup, frame)
     camera = sensor.camera
-    t = scene.target
+    t = setup.target
     depths = ([t.depth] if t.shape != "none" else []) + list(setup.reference_depths)
     passes = ([1] if t.shape != "none" else []) + [2] * len(setup.gates)
     built = [
@@ -354,8 +346,8 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
     # pitch), lit from the laser's lattice on a grid reaching beyond it
     sight_sensor, rise_levels = sensor, None
     if t.shape != "none":
-        if sensor.laser_rays != scene.pixel_pitch_rays:
-            sight_sensor = sensor_at(setup, frame, rays=scene.pixel_pitch_rays)
+        if sensor.laser_rays != setup.pixel_pitch_rays:
+            sight_sensor = sensor_at(setup, frame, rays=setup.pixel_pitch_rays)
         rise_levels, guard = _plane_levels(setup, sight_sensor, t.depth, 1)
         if sight_sensor is sensor:
             rise_levels = built[0][0]
@@ -371,7 +363,7 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
     laser = LaserRays.from_platform(
         position=sensor.position,
         rotation=camera.rotation,
-        beam=scene.laser.beam,
+        beam=setup.beam,
         field_of_view=sensor.laser_fov,
         rays=rays,
         reference_range=sensor.reference_range,
@@ -382,7 +374,7 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
     tail = LaserRays.beam_tail(
         position=sensor.position,
         rotation=camera.rotation,
-        beam=scene.laser.beam,
+        beam=setup.beam,
         field_of_view=sensor.laser_fov,
         reference_range=sensor.reference_range,
         inner=(0.5 * rays + margin) * step,
@@ -400,15 +392,15 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
         # a gate's round trip is one filter; the target's plane spreads down and up, read
         # at the pixels' pitch
         blur = (
-            read_blur(scene, sensor, levels.fine, uses=1)
+            read_blur(setup, sensor, levels.fine, uses=1)
             if gate is not None
-            else read_blur(scene, sight_sensor, rise_levels.fine, uses=2)
+            else read_blur(setup, sight_sensor, rise_levels.fine, uses=2)
         )
         spread = Spread.build(
             water=water,
             levels=levels,
             distance=depth,
-            truncation=scene.water.psf_truncation,
+            truncation=setup.psf_truncation,
             passes=count,
             gain=gain,
             blur=blur,
@@ -425,26 +417,26 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
     if t.shape != "none":
         target_plane, planes = planes[0], planes[1:]
         rise = target_plane.spread  # the target's light's way up
-        sway = subgrid_sway(setup, rise_levels.fine, distance=t.depth)
+        sway = setup.subgrid_sway(rise_levels.fine, distance=t.depth)
         if sway is not None or rise_levels is not target_plane.levels:
             rise = Spread.build(
                 water=water,
                 levels=rise_levels,
                 distance=t.depth,
-                truncation=scene.water.psf_truncation,
-                blur=read_blur(scene, sight_sensor, rise_levels.fine, uses=2),
+                truncation=setup.psf_truncation,
+                blur=read_blur(setup, sight_sensor, rise_levels.fine, uses=2),
                 sway=sway,
             )
         target_rise = Plane(levels=rise_levels, spread=rise, tail=None)
         if rise_levels is not target_plane.levels:
             resample = Resample.between(target_plane.levels, rise_levels)
-        impostor = impostor_on(setup, rise_levels.fine)
+        impostor = setup.impostor(rise_levels.fine)
         gating = TargetGating.build(setup, sight_sensor, rise_levels)
         target_light = gating.light()
         guard = max(int(np.ceil(GUARD * camera.pixels)), 1)
-        sight = sight_grid(sensor, t.depth, water.refractive_index, guard=guard)
-        sway = subgrid_sway(setup, sight, distance=t.depth)
-        sight_occupancy = impostor_on(setup, sight).occupancy
+        sight = sensor.sight_grid(t.depth, guard=guard)
+        sway = setup.subgrid_sway(sight, distance=t.depth)
+        sight_occupancy = setup.impostor(sight).occupancy
         if sway is not None:  # each pixel's share, as the sub-grid slopes sway its view
             swayed = sight.convolved(sight_occupancy, np.ones_like, sway=sway)
             sight_occupancy = np.where(swayed > SWAY_FLOOR, np.minimum(swayed, 1.0), 0.0)
@@ -453,7 +445,7 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
     gate_planes = []
     for g, plane in enumerate(planes):
         if impostor is not None:
-            seen, lit = gate_shadow(
+            unseen, unlit = gate_shadow(
                 setup,
                 sensor,
                 gate_grid=plane.grid,
@@ -461,14 +453,14 @@ def frame_geometry(scene: Scene, frame: int) -> FrameGeometry:
                 sight=sight,
                 paths=sensor.paths[g],
             )
-            plane = replace(plane, occlusion=None if lit is None else 1.0 - lit, seen=seen)
+            plane = replace(plane, lit=None if unlit is None else 1.0 - unlit, unseen=unseen)
         gate_planes.append(plane)
     pixel_directions = camera.pixel_directions().reshape(-1, 3)
     return FrameGeometry(
         position=sensor.position,
         central_air=sensor.central_air,
         pixel_rays=ray_components(sensor.position, pixel_directions),
-        laser_rays=ray_components(laser.origins, laser.directions),
+        lattice=ray_components(laser.origins, laser.directions),
         laser_power=laser.power.astype(np.float32),
         gate_planes=tuple(gate_planes),
         target_plane=target_plane,

@@ -2,8 +2,8 @@
 
 `gate_shadow` builds, once per scene, frame and gate (with `workers.fast.planes.frame_geometry`),
 two deficit maps: what the pixels' lines of sight lose where they cross the target's depth
-(`seen`, on the target's plane, sampled at each pixel's line through the actual sea) and
-what the laser's light loses on the gate's plane (`lit`, sampled where the pixel's line
+(`unseen`, on the target's plane, sampled at each pixel's line through the actual sea) and
+what the laser's light loses on the gate's plane (`unlit`, sampled where the pixel's line
 crosses it). The model is in ``docs/model.md`` §6; it is held to photon transport by
 ``tests/test_transport_reference.py``.
 """
@@ -16,13 +16,6 @@ import numpy as np
 
 from workers.setup.gates import hidden_fraction
 from workers.setup.geometry import PlaneGrid
-from workers.setup.sensor import (
-    central_point,
-    gate_bounds,
-    impostor_on,
-    lines_of_sight,
-    subgrid_sway,
-)
 
 __all__ = ["gate_shadow"]
 
@@ -31,31 +24,31 @@ _LOG_STEP = 1e-3
 
 
 def gate_shadow(setup, sensor, *, gate_grid, target_grid, sight, paths):
-    r"""The deficits of a gate's water behind the target: seen, and lit (None if none).
+    r"""The deficits of a gate's water behind the target: unseen, and unlit (None if none).
 
     Parameters
     ----------
-    setup : workers.setup.sensor.Setup
+    setup : workers.setup.compiled.Setup
         The scene's setup.
     sensor : workers.setup.sensor.Sensor
         The frame's sensor.
     gate_grid, target_grid : PlaneGrid
         The fine grids of the gate's plane and of the plane through the target's centre.
     sight : PlaneGrid
-        The pixels' own grid at the target's depth (`workers.setup.sensor.sight_grid`).
+        The pixels' own grid at the target's depth (`workers.setup.sensor.Sensor.sight_grid`).
     paths : tuple of float
         The gate's opening and closing path lengths (`workers.setup.sensor.Sensor.paths`) [m].
 
     Returns
     -------
-    seen : ndarray or None
+    unseen : ndarray or None
         On `sight`, the share of a pixel's view of the gate's water that the target
         stops, at the place where the pixel's line of sight crosses the target's depth [1]
         (over a rough sea, with the laser's light it stops: `_through_facets`).
-    lit : ndarray or None
+    unlit : ndarray or None
         On `gate_grid`, the share of the laser's light that the target keeps from the
         gate's water along the line of sight through each cell [1] (None over a rough
-        sea: in `seen`).
+        sea: in `unseen`).
 
     Notes
     -----
@@ -82,27 +75,27 @@ def gate_shadow(setup, sensor, *, gate_grid, target_grid, sight, paths):
       references 0.1 shallower than transport; read at the line, they agree within
       0.06: ``docs/model.md`` §10.)
 
-    The pixel keeps (1 − seen)(1 − lit) of the gate's light. Over a rough sea the slopes
-    below the finest grid (`workers.setup.sensor.subgrid_sway`) sway the lines: the laser's
+    The pixel keeps (1 − unseen)(1 − unlit) of the gate's light. Over a rough sea the slopes
+    below the finest grid (`workers.setup.compiled.Setup.subgrid_sway`) sway the lines: the laser's
     light, refracted by facets of its own, reaches the water behind the target from
-    directions that sway its shadow over Δz, so `lit` is blurred by that; and the view
+    directions that sway its shadow over Δz, so `unlit` is blurred by that; and the view
     of that water and the water itself move with the same facet of the pixel's view, at
     z_t and at z_g, so the kept share is the expectation of the product over that facet
-    (`_through_facets`), returned as `seen` and read along the pixels' lines through the
+    (`_through_facets`), returned as `unseen` and read along the pixels' lines through the
     resolved sea. The water's absorption and
     backscatter (K) act alike with and without the target, so only the shapes enter.
     Convolutions are linear (zero-padded FFTs) on each plane's fine grid.
     """
     water = setup.water
-    seen = _deficit(setup, sensor, sight, paths, impostor_on(setup, sight))
-    lit = _deficit(
+    unseen = _deficit(setup, sensor, sight, paths, setup.impostor(sight))
+    unlit = _deficit(
         setup,
         sensor,
         gate_grid,
         paths,
-        impostor_on(setup, _seen_through(sensor, gate_grid, target_grid, water.refractive_index)),
+        setup.impostor(_seen_through(sensor, gate_grid, target_grid)),
     )
-    if not (seen.any() or lit.any()):
+    if not (unseen.any() or unlit.any()):
         return None, None
     z_t, drop = target_grid.depth, max(gate_grid.depth - target_grid.depth, 0.0)
     b_f = water.forward_scattering
@@ -116,14 +109,12 @@ def gate_shadow(setup, sensor, *, gate_grid, target_grid, sight, paths):
         sigma = water.mtf_exponent(psi) + (next(steps) - next(steps)) / (2 * _LOG_STEP)
         return b_f * z_t * (sigma - 1.0) + one_way(f, drop)
 
-    seen = _blurred(sight, seen, lambda f: one_way(f, z_t))
-    lit = _blurred(gate_grid, lit, behind, sway=subgrid_sway(setup, gate_grid, distance=drop))
-    unit = subgrid_sway(setup, sight, distance=1.0)
+    unseen = _blurred(sight, unseen, lambda f: one_way(f, z_t))
+    unlit = _blurred(gate_grid, unlit, behind, sway=setup.subgrid_sway(gate_grid, distance=drop))
+    unit = setup.subgrid_sway(sight, distance=1.0)
     if unit is None:
-        return seen, lit
-    through = _through_facets(
-        sensor, water.refractive_index, sight, seen, gate_grid, lit, target_grid, sway=unit
-    )
+        return unseen, unlit
+    through = _through_facets(sensor, sight, unseen, gate_grid, unlit, target_grid, sway=unit)
     return through, None
 
 
@@ -137,7 +128,7 @@ SHADOW_FLOOR = 1e-3
 """Deficit below which a cell's light is taken as whole (the blurs' FFT ring)."""
 
 
-def _through_facets(sensor, n_w, sight, seen, gate_grid, lit, target_grid, *, sway) -> np.ndarray:
+def _through_facets(sensor, sight, unseen, gate_grid, unlit, target_grid, *, sway) -> np.ndarray:
     r"""The share of a pixel's view of the gate's water the target stops, through facets.
 
     A pixel looks through many facets below the sea's grid; a facet of slope s moves its
@@ -145,10 +136,10 @@ def _through_facets(sensor, n_w, sight, seen, gate_grid, lit, target_grid, *, sw
     at depth d (covariance d² `sway`). The gate's water at depth z_g seen through it lies
     at δ(z_g) from the pixel's line; the view to it is stopped where the same line
     crosses the target's depth, at δ(z_t), and the laser's light to it where that
-    light's own line crosses it (`lit`, read at the point). The pixel keeps
+    light's own line crosses it (`unlit`, read at the point). The pixel keeps
     :math:`E_s[(1 - B(\mathbf x + \boldsymbol\delta(z_t)))\,
     (1 - L(\mathbf x_g + \boldsymbol\delta(z_g)))]`, B the view's deficit on `sight`
-    (`seen`), L the light's on `gate_grid` (`lit`), x and x_g the line's crossings of
+    (`unseen`), L the light's on `gate_grid` (`unlit`), x and x_g the line's crossings of
     the two planes along the flat sea; the two deficits come through the same facet, so
     the expectation is taken of their product (a product of the two expectations reads
     the shadows 1.1–1.4 times too deep, `benchmarks.shadow_sway`). Returned on `sight`
@@ -164,13 +155,13 @@ def _through_facets(sensor, n_w, sight, seen, gate_grid, lit, target_grid, *, sw
     axes = np.array([sight.axis_u, sight.axis_v])  # rows: u and v in world (x, y)
     x, y = sight.cell_centres()
     points = np.stack([x, y], axis=-1)
-    window = _window(sight, seen, gate_grid, lit, points, np.abs(steps).max(axis=0))
+    window = _window(sight, unseen, gate_grid, unlit, points, np.abs(steps).max(axis=0))
     points = points[window]
     if not points.size:  # no deficit above the floor reaches the sight grid
         return np.zeros(sight.shape, dtype=np.float32)
     # the flat-sea lines through the sight grid's cells, where they cross the gate's plane
     # (as `_seen_through`: about the central ray, scaled by the planes' pitches)
-    centre_t, centre_g = (central_point(sensor, g.depth, n_w) for g in (target_grid, gate_grid))
+    centre_t, centre_g = (sensor.central_point(g.depth) for g in (target_grid, gate_grid))
     scale = np.array(
         [
             gate_grid.spacing_u / target_grid.spacing_u,
@@ -183,15 +174,15 @@ def _through_facets(sensor, n_w, sight, seen, gate_grid, lit, target_grid, *, sw
     on_gate = gate_grid.cell_coordinates(crossing[..., 0], crossing[..., 1])
     kept = np.zeros(points.shape[:2])
     for step, share in zip(steps, shares, strict=True):
-        seen_at = _read(seen, on_sight, target_grid.depth * step, sight)
-        lit_at = _read(lit, on_gate, gate_grid.depth * step, gate_grid)
-        kept += share * (1.0 - seen_at) * (1.0 - lit_at)
+        unseen_at = _read(unseen, on_sight, target_grid.depth * step, sight)
+        unlit_at = _read(unlit, on_gate, gate_grid.depth * step, gate_grid)
+        kept += share * (1.0 - unseen_at) * (1.0 - unlit_at)
     deficit = np.zeros(sight.shape, dtype=np.float32)
     deficit[window] = np.clip(1.0 - kept, 0.0, 1.0)
     return deficit
 
 
-def _window(sight, seen, gate_grid, lit, points, reach) -> tuple[slice, slice]:
+def _window(sight, unseen, gate_grid, unlit, points, reach) -> tuple[slice, slice]:
     """The cells of `sight` whose lines a facet can take to either deficit (the others: 0).
 
     `reach` is the largest displacement per metre of depth along u and v [m]; the light's
@@ -200,7 +191,7 @@ def _window(sight, seen, gate_grid, lit, points, reach) -> tuple[slice, slice]:
     """
     margin = gate_grid.depth * reach / np.array([sight.spacing_u, sight.spacing_v]) + 2
     rows, cols = [], []
-    for grid, field in ((sight, seen), (gate_grid, lit)):
+    for grid, field in ((sight, unseen), (gate_grid, unlit)):
         held = np.argwhere(field > SHADOW_FLOOR)
         if held.size:
             x, y = grid.cell_centres()
@@ -215,13 +206,13 @@ def _window(sight, seen, gate_grid, lit, points, reach) -> tuple[slice, slice]:
     return slice(first[0], last[0]), slice(first[1], last[1])
 
 
-def _seen_through(sensor, grid: PlaneGrid, target_grid: PlaneGrid, n_w: float) -> PlaneGrid:
+def _seen_through(sensor, grid: PlaneGrid, target_grid: PlaneGrid) -> PlaneGrid:
     """`grid`'s cells where their flat-sea lines of sight cross the target's plane.
 
     Both grids hold one laser ray a cell about the central ray, so a cell's lines cross
     the target's plane in the cell at the same place of the lattice.
     """
-    centre, centre_t = (central_point(sensor, g.depth, n_w) for g in (grid, target_grid))
+    centre, centre_t = (sensor.central_point(g.depth) for g in (grid, target_grid))
     offset = np.subtract(grid.origin, centre)
     origin = centre_t
     for axis, ratio in (
@@ -240,9 +231,8 @@ def _seen_through(sensor, grid: PlaneGrid, target_grid: PlaneGrid, n_w: float) -
 
 def _deficit(setup, sensor, grid: PlaneGrid, paths, impostor) -> np.ndarray:
     """δ = 1 − √(1 − h) per cell of `grid` (lines of sight through its cells)."""
-    n_w = setup.water.refractive_index
     cells = np.flatnonzero(impostor.occupancy > 0)
-    top, bottom = gate_bounds(lines_of_sight(sensor, grid, n_w, cells), paths, n_w)
+    top, bottom = sensor.gate_bounds(sensor.lines_of_sight(grid, cells), paths)
     hidden = hidden_fraction(
         impostor.surface_depth.ravel()[cells],
         impostor.occupancy.ravel()[cells],

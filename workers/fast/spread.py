@@ -505,8 +505,8 @@ class Spread:
             The coarse level, far wider, is left as it is.
         sway : ndarray, optional
             The covariance along (u, v) of a further Gaussian on the fine level [m²]
-            (`workers.setup.sensor.subgrid_sway`: where the sub-grid slopes move the lines of
-            sight); None: none.
+            (`workers.setup.compiled.Setup.subgrid_sway`: where the sub-grid slopes move
+            the lines of sight); None: none.
 
         Returns
         -------

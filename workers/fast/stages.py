@@ -21,8 +21,8 @@ from workers.backends.backend import Backend
 from workers.backends.kernels import Cells
 from workers.fast.planes import FrameGeometry, Plane
 from workers.fast.targetgating import gate_shift
+from workers.setup.compiled import Setup
 from workers.setup.interface import Projected, through_surface
-from workers.setup.sensor import Setup
 
 __all__ = ["FrameLight", "PlaneLight", "SeaRays", "Splat", "frame_light"]
 
@@ -40,7 +40,8 @@ class SeaRays:
     sight : Projected
         The pixels' lines of sight through the resolved sea alone (without the sub-grid
         slopes; `up` itself without them or without a target): what reads the target's
-        light and the view it stops, which `workers.setup.sensor.subgrid_sway` blurs instead.
+        light and the view it stops, which `workers.setup.compiled.Setup.subgrid_sway`
+        blurs instead.
     power : array
         Each laser ray's power through the surface (beam share × Fresnel transmittance)
         [1], float32.
@@ -141,7 +142,7 @@ def frame_light(
     """
     xp = backend.xp
     rays = _sea_rays(setup, geometry, surface, frame)
-    pixels = setup.scene.receiver.pixels
+    pixels = setup.pixels
     shape = (len(setup.gates), pixels * pixels)
     images = xp.zeros(shape, dtype=xp.float32, device=backend.device)
     free = silhouette = None
@@ -154,12 +155,12 @@ def frame_light(
         ray_power = rays.power * down_gains[g]
         weight = rays.up_transmittance * up_gains[g]
         outputs = [(weight, free[g], None)] if free is not None else []
-        if plane.seen is not None:
+        if plane.unseen is not None:
             # the pixels whose lines of sight the target stops, where they cross it
-            whole = (0, *plane.seen.shape[:1], 0, plane.seen.shape[1])
-            hidden = _sample(rays.sight, geometry.sight_cells, (plane.seen,), whole, backend)[0]
+            whole = (0, *plane.unseen.shape[:1], 0, plane.unseen.shape[1])
+            hidden = _sample(rays.sight, geometry.sight_cells, (plane.unseen,), whole, backend)[0]
             weight = weight * (1.0 - hidden)
-        outputs.append((weight, images[g], plane.occlusion))
+        outputs.append((weight, images[g], plane.lit))
         splat = _splat(plane, rays.down, ray_power, backend)
         light = _spread(plane, rays.up, splat, backend, tail=plane.tail)
         _gather(plane, rays.up, light, outputs, backend)
@@ -181,7 +182,7 @@ def _sea_rays(setup: Setup, geometry: FrameGeometry, surface, frame: int) -> Sea
     K = setup.water.diffuse_attenuation
     axes_grid = (geometry.target_plane or geometry.gate_planes[0]).grid
     central = float(np.float32(geometry.central_air))
-    down = through_surface(geometry.laser_rays, surface, frame, n_w)
+    down = through_surface(geometry.lattice, surface, frame, n_w)
     # the pixels' lines of sight are never laser rays (`workers.setup.sensor.lattice_offset`)
     up = through_surface(geometry.pixel_rays, surface, frame, n_w)
     lines = up.on_axes(axes_grid, K)
@@ -204,7 +205,7 @@ def _sea_rays(setup: Setup, geometry: FrameGeometry, surface, frame: int) -> Sea
 
 
 def _gate_gains(setup: Setup, excess, backend: Backend) -> list:
-    """`workers.setup.sensor.Setup.gate_gains` of the rays' air paths, on the backend.
+    """`workers.setup.compiled.Setup.gate_gains` of the rays' air paths, on the backend.
 
     They are computed on the host: a ray's gain is a float64 slab integral where the
     gated slab is cut by the surface.
@@ -343,15 +344,15 @@ def _reach(plane: Plane, sight: Projected, backend: Backend) -> tuple:
 def _gather(plane: Plane, sight: Projected, light: PlaneLight, outputs, backend: Backend):
     """Add a plane's `light` at the pixels' sights to each of `outputs`.
 
-    `outputs` holds ``(weight, out, occlusion)`` triples: the light, times the cells'
-    `occlusion` (None: 1) and each pixel's `weight`, is added to `out`.
+    `outputs` holds ``(weight, out, lit)`` triples: the light, times the share of each
+    cell's light kept, `lit` (None: 1), and each pixel's `weight`, is added to `out`.
     """
     levels = plane.levels
     cells, shape = Cells.of(levels), plane.grid.shape
-    for weight, out, occlusion in outputs:
-        occlusion = _none(backend) if occlusion is None else occlusion
+    for weight, out, lit in outputs:
+        lit = _none(backend) if lit is None else lit
         backend.kernels.gather_levels(
-            sight.lines, cells, shape, light.parts, levels.lift, occlusion, weight, out
+            sight.lines, cells, shape, light.parts, levels.lift, lit, weight, out
         )
 
 

@@ -17,16 +17,9 @@ import numpy as np
 from workers.backends.backend import Backend, moved
 from workers.fast.delays import return_delays
 from workers.fast.spread import Levels
+from workers.setup.compiled import Setup
 from workers.setup.geometry import PlaneGrid
-from workers.setup.sensor import (
-    Sensor,
-    Setup,
-    central_point,
-    gate_bounds,
-    gated_share_on,
-    impostor_on,
-    lines_of_sight,
-)
+from workers.setup.sensor import Sensor
 from workers.targets.impostor import Impostor
 
 
@@ -53,7 +46,7 @@ class TargetLight:
 def _gated(setup, grid, impostor, top, bottom, *, delays, shares) -> np.ndarray:
     """Share of each cell's return a gate [top, bottom] holds, on time and late."""
     on = impostor.occupancy > 0
-    held = gated_share_on(setup, grid, top, bottom, on=on, delays=delays, shares=shares)
+    held = setup.gated_share(grid, top, bottom, on=on, delays=delays, shares=shares)
     if held is None:
         depth = np.asarray(impostor.surface_depth, dtype=np.float64)
         held = sum(
@@ -116,30 +109,29 @@ class TargetGating:
         def lit(grid, impostor):
             rise = grid.depth - np.asarray(impostor.surface_depth, dtype=np.float64)
             lift = np.exp(water.diffuse_attenuation * setup.secant * rise)  # the way up
-            radius = setup.scene.target.radius
-            if setup.scene.target.shape == "sphere":
+            radius = setup.target.radius
+            if setup.target.shape == "sphere":
                 ratio = _beam_depth_ratio(setup, sensor, grid, rise=min(radius, grid.depth))
                 lift *= ratio ** np.clip(rise / radius, 0.0, 1.0)  # the way down
             return impostor.weight * lift
 
-        fine_impostor = impostor_on(setup, levels.fine)
-        coarse_impostor = impostor_on(setup, levels.coarse)
+        fine_impostor = setup.impostor(levels.fine)
+        coarse_impostor = setup.impostor(levels.coarse)
         outside = coarse_impostor.occupancy.copy()
         outside[levels.block] = 0.0
         chosen = [(levels.fine, fine_impostor)]
         if outside.any():
             chosen.append((levels.coarse, coarse_impostor))
-        n_w = water.refractive_index
         cells, bounds = [], []
         for grid, impostor in chosen:
             on = impostor.occupancy > 0
             if grid is levels.coarse:
                 on[levels.block] = False
             flat = np.flatnonzero(on)
-            sight = lines_of_sight(sensor, grid, n_w, flat)
+            sight = sensor.lines_of_sight(grid, flat)
             cells.append(flat)
             bounds.append(
-                np.array([gate_bounds(sight, paths, n_w) for paths in sensor.paths]).reshape(
+                np.array([sensor.gate_bounds(sight, paths) for paths in sensor.paths]).reshape(
                     len(sensor.paths), 2, flat.size
                 )
             )
@@ -147,7 +139,7 @@ class TargetGating:
             water,
             path=levels.fine.depth * setup.secant,
             beam_radius=sensor.reference_range * np.tan(0.5 * sensor.laser_fov),
-            target_radius=setup.scene.target.radius,
+            target_radius=setup.target.radius,
         )
         return cls(
             setup=setup,
@@ -169,7 +161,7 @@ class TargetGating:
         """
         if step not in self._steps:
             shift = step * SHIFT_STEP
-            margin = self.setup.scene.target.radius  # the cells' centre depths, oblique
+            margin = self.setup.target.radius  # the cells' centre depths, oblique
             late = max(self.delays)
             held = []
             for level, (impostor, cells, bounds) in enumerate(
@@ -254,10 +246,9 @@ class TargetGating:
 
 def gate_shift(setup: Setup, height: float) -> float:
     """How much shallower a sea raised by `height` [m] gates every depth [m] (float)."""
-    scene = setup.scene
-    cos_air = np.cos(np.radians(scene.platform.nadir_deg))
+    cos_air = np.cos(setup.nadir)
     cos_water = np.cos(setup.refracted_nadir)
-    return float(height * (1.0 - cos_water / (scene.water.refractive_index * cos_air)))
+    return float(height * (1.0 - cos_water / (setup.water.refractive_index * cos_air)))
 
 
 def _beam_depth_ratio(setup, sensor, grid: PlaneGrid, *, rise: float) -> np.ndarray:
@@ -273,8 +264,7 @@ def _beam_depth_ratio(setup, sensor, grid: PlaneGrid, *, rise: float) -> np.ndar
     """
     water = setup.water
     n_w = water.refractive_index
-    scene = setup.scene
-    centre = central_point(sensor, grid.depth, n_w)
+    centre = sensor.central_point(grid.depth)
     x, y = grid.cell_centres()
     squared = (x - centre[0]) ** 2 + (y - centre[1]) ** 2
     radius = sensor.reference_range * np.tan(0.5 * sensor.laser_fov)
@@ -282,7 +272,7 @@ def _beam_depth_ratio(setup, sensor, grid: PlaneGrid, *, rise: float) -> np.ndar
     for depth in (grid.depth - rise, grid.depth):
         path = depth * setup.secant
         growth = 1.0 + path / (n_w * sensor.reference_range)
-        width = radius * (growth if scene.laser.beam == "divergent" else 1.0)
+        width = radius * (growth if setup.beam == "divergent" else 1.0)
         profile = np.exp(-squared / width**2) * (radius / width) ** 2
         light.append(
             grid.convolved(

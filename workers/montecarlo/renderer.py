@@ -17,7 +17,7 @@ and
    each gate whose window holds the path's total optical length.
 4. The photons are split into `Transport.batches` independent batches: the image is their
    mean, its standard error their spread over √batches; both are scaled to photoelectrons as
-   the fast renderer's are (`workers.setup.sensor.Setup.scale`).
+   the fast renderer's are (`workers.setup.compiled.Setup.scale`).
 
 The model and its approximations are in ``docs/model.md`` §9.
 """
@@ -47,11 +47,11 @@ from workers.montecarlo.records import (
 )
 from workers.montecarlo.sightlines import build_lookup
 from workers.sea.surface import Surface
-from workers.settings.scene import Scene
 from workers.settings.seeds import SampleSeed
-from workers.settings.transport import PhaseTable, phase_table
+from workers.settings.transport import PhaseTable
+from workers.setup.compiled import Setup
 from workers.setup.interface import through_surface
-from workers.setup.sensor import Sensor, Setup, sensor_at, target_centre
+from workers.setup.sensor import Sensor, sensor_at
 
 __all__ = [
     "ANGULAR_BIAS",
@@ -66,7 +66,6 @@ __all__ = [
     "biasing_share",
     "phase_record",
     "render_frame",
-    "scene_phase_table",
     "sight_subdivision",
 ]
 
@@ -111,18 +110,6 @@ MASK_LINES = 4
 
 MAX_SUBDIVISION = 16
 """Most lines of sight per pixel side (`sight_subdivision`)."""
-
-
-def scene_phase_table(scene: Scene) -> PhaseTable:
-    """The phase function a scene's photons scatter with (`transport.phase_table`)."""
-    kind = scene.transport.phase_function
-    if kind == "paper":
-        return phase_table("paper", theta0=scene.water.theta0)
-    coefficients = scene.water.coefficients
-    fraction = coefficients["backscatter"] / max(coefficients["scattering"], 1e-300)
-    if coefficients["scattering"] == 0.0:
-        fraction = 0.0183  # no scattering: the shape is never used
-    return phase_table("fournier_forand", backscatter_fraction=round(fraction, 12))
 
 
 def phase_record(table: PhaseTable) -> Phase:
@@ -171,7 +158,7 @@ def render_frame(
     Parameters
     ----------
     setup : Setup
-        The scene's setup (`workers.setup.sensor.scene_setup`).
+        The scene's setup (`workers.setup.builder.scene_setup`).
     surface : Surface or None
         The sample's sea (None: flat).
     frame : int
@@ -190,12 +177,11 @@ def render_frame(
     -------
     FrameTransport
     """
-    scene = setup.scene
-    settings = scene.transport
+    settings = setup.photons
     sensor = sensor_at(setup, frame)
     n_w = setup.water.refractive_index
-    pixels = scene.receiver.pixels
-    sub = sight_subdivision(scene)
+    pixels = setup.pixels
+    sub = sight_subdivision(setup)
     # the corners follow the resolved sea; its sub-grid slopes blur the way up
     subgrid = getattr(surface, "subgrid", None)
     resolved = surface if subgrid is None else dataclasses.replace(surface, subgrid=None)
@@ -214,7 +200,7 @@ def render_frame(
     buckets = build_lookup(corners, pixels * sub, top, thick, slabs)
     lookup = Lookup(top, thick, slabs, sub, *buckets)
     water = setup.water
-    table = scene_phase_table(scene)
+    table = setup.phase_table()
     blur = (0.0,) * 5
     if subgrid is not None:
         factor = np.asarray(subgrid.factor, dtype=np.float64).ravel()
@@ -238,7 +224,7 @@ def render_frame(
     camera = Point(*(float(v) for v in np.asarray(sensor.position, dtype=np.float64)))
     phase = phase_record(table)
     scenery = Scenery(medium, phase, limits, camera, sea, corners, lookup, gates)
-    target = _target(setup, sensor)
+    target = _target(setup)
     batches = settings.batches
     per_batch = -(-settings.photons // batches)
     rng = seed.photon_rng(frame)
@@ -249,7 +235,7 @@ def render_frame(
     for batch, first in itertools.product(range(batches), range(0, per_batch, LAUNCH_CHUNK)):
         count = min(LAUNCH_CHUNK, per_batch - first)
         launch = _launch(
-            sensor, scene.laser.beam, surface, frame, n_w, rng, count, beam_power / per_batch
+            sensor, setup.beam, surface, frame, n_w, rng, count, beam_power / per_batch
         )
         index = batch * per_batch + first
         transport(launch, key, index, scenery, target, images[batch], tallies[batch])
@@ -297,43 +283,42 @@ def _directions(sensor: Sensor, offsets: np.ndarray) -> np.ndarray:
     return (camera @ sensor.camera.rotation).reshape(-1, 3)
 
 
-def sight_subdivision(scene: Scene) -> int:
+def sight_subdivision(setup: Setup) -> int:
     """Lines of sight per pixel side S: cells at most the sea's finest spacing wide.
 
     A pixel's cells must resolve the sea: where the waves focus within a pixel's footprint,
     the light a pixel sees through each part of it is correlated with the laser's light
     through the same part (double passage), and one cell a pixel would average the two
     apart. The cells' width on the mean surface is at most the finest cascade's spacing
-    (`Scene.surface_spacing`), on which the resolved slopes vary; 1 over a flat sea.
+    (`Setup.surface_spacing`), on which the resolved slopes vary; 1 over a flat sea.
     Measured over a 5 m/s sea at 64 px (docs/model.md §9): S = 1, 2, 4 give the six gates'
     means within 1.5 % of each other in clear water, S = 2 and 4 within their 2-4 % errors
     in coastal water.
 
     Parameters
     ----------
-    scene : Scene
-        The sample's parameters.
+    setup : Setup
+        The scene's setup.
 
     Returns
     -------
     int
         S, at least 1, at most `MAX_SUBDIVISION`.
     """
-    if scene.surface.spectrum == "flat":
+    if setup.surface_spacing is None:
         return 1
-    p = scene.platform
-    slant = p.altitude / math.cos(math.radians(p.nadir_deg)) ** 2
-    field = 2.0 * math.tan(0.5 * math.radians(scene.receiver.field_of_view_deg))
-    footprint = slant * field / scene.receiver.pixels
-    return min(MAX_SUBDIVISION, max(1, math.ceil(footprint / scene.surface_spacing())))
+    slant = setup.altitude / math.cos(setup.nadir) ** 2
+    field = 2.0 * math.tan(0.5 * setup.field_of_view)
+    footprint = slant * field / setup.pixels
+    return min(MAX_SUBDIVISION, max(1, math.ceil(footprint / setup.surface_spacing)))
 
 
 def _sight_lines(sensor: Sensor, surface, frame, n_w, pixels, sub, *, centres=False):
-    """The pixels' lines of sight in the water, (8, lines), float64.
+    """The pixels' lines of sight in the water, a `Rays` (float64).
 
-    Rows: surface point x, y, z [m], downward unit direction, air path [m], Fresnel
-    transmittance. With `centres`, through the P² pixel centres; else through the corners
-    of S × S cells a pixel, (PS + 1)², row-major (the images' order).
+    Surface point x, y, z [m], downward unit direction, air path [m], Fresnel
+    transmittance (`weight`). With `centres`, through the P² pixel centres; else through
+    the corners of S × S cells a pixel, (PS + 1)², row-major (the images' order).
     """
     pitch = 2.0 * math.tan(0.5 * sensor.camera.field_of_view) / (pixels * sub)
     count = pixels * sub
@@ -400,12 +385,12 @@ def _launch(sensor: Sensor, beam, surface, frame, n_w, rng, count, weight) -> Ra
     return lines._replace(weight=weight * lines.weight)
 
 
-def _target(setup: Setup, sensor: Sensor) -> np.ndarray:
+def _target(setup: Setup) -> np.ndarray:
     """(kind, cx, cy, cz, radius, reflectance) of the scene's target for the kernels."""
-    t = setup.scene.target
+    t = setup.target
     if t.shape == "none":
         return np.zeros(6)
-    x, y = target_centre(setup, sensor.camera)
+    x, y = setup.target_centre
     kind = 1.0 if t.shape == "sphere" else 2.0
     return np.array([kind, x, y, -t.depth, t.radius, t.reflectance], dtype=np.float64)
 

@@ -24,13 +24,43 @@ from workers.settings.sea import SurfaceSpec, Target, Water
 from workers.settings.section import Section, units
 from workers.settings.transport import Transport
 
-__all__ = ["Scene", "footprint_span"]
+__all__ = ["Scene", "footprint_span", "laser_rays"]
 
 MAX_RAYS = 4096
 """Most laser rays per side (16.8 million rays)."""
 
 MAX_PLANE_CELLS = 8192
 """Most cells per side of an in-water plane (a 0.5 GiB float64 splat)."""
+
+
+def laser_rays(*, rays, pixels, field_of_view_deg, laser_field_of_view_deg) -> int:
+    """Rays per side of the laser lattice: `rays`, or by default the pixels' pitch.
+
+    The one home of `laser.rays`' default, which the scene (`Scene.laser_rays`) and the
+    service's memory estimate (`service.sweep.memory_estimate`, from raw values) read.
+
+    Parameters
+    ----------
+    rays : int or None
+        `laser.rays` [1]; None: the default.
+    pixels : int
+        Pixels per side of the image [1].
+    field_of_view_deg : float
+        The receiver's full field [deg].
+    laser_field_of_view_deg : float or None
+        The laser's full field [deg]; None: the receiver's.
+
+    Returns
+    -------
+    int
+        `rays`, or the rays per side of a lattice at the pixels' angular pitch over the
+        laser's field, at least 8.
+    """
+    if rays is not None:
+        return rays
+    receiver = math.tan(0.5 * math.radians(field_of_view_deg))
+    laser = math.tan(0.5 * math.radians(laser_field_of_view_deg or field_of_view_deg))
+    return max(8, round(pixels * laser / receiver))
 
 
 def footprint_span(*, altitude, nadir, azimuth, field_of_view):
@@ -117,15 +147,16 @@ class Scene(Section):
     @property
     def laser_rays(self) -> int:
         """Rays per side of the laser lattice: `laser.rays`, or `pixel_pitch_rays`."""
-        if self.laser.rays is not None:
-            return self.laser.rays
-        return self.pixel_pitch_rays
+        return self.laser.rays if self.laser.rays is not None else self.pixel_pitch_rays
 
     @property
     def pixel_pitch_rays(self) -> int:
         """Rays per side of a lattice at the pixels' angular pitch (`laser.rays`' default)."""
-        return max(
-            8, round(self.receiver.pixels * self._laser_half_width / self._receiver_half_width)
+        return laser_rays(
+            rays=None,
+            pixels=self.receiver.pixels,
+            field_of_view_deg=self.receiver.field_of_view_deg,
+            laser_field_of_view_deg=self.laser.field_of_view_deg,
         )
 
     @property

@@ -5,7 +5,7 @@ Validated settings only, building nothing: the physics they describe is in
 and
 `workers.targets.impostor`, and the objects are built from them by `workers.setup.seasetup` (the
 spectrum,
-the cascades, the kriging system) and `workers.setup.sensor.scene_setup`. Every field
+the cascades, the kriging system) and `workers.setup.builder.scene_setup`. Every field
 declares its unit as data (`workers.settings.section.units`).
 """
 

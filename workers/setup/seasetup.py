@@ -3,7 +3,7 @@
 The configuration classes (`workers.settings.sea.SurfaceSpec`, `workers.settings.scene.Scene`)
 hold validated settings and build nothing; the sea's cascades and the kriging system of the
 measured elevations are built here, from them, by the scene's setup
-(`workers.setup.sensor.scene_setup`, cached by the scene). The scene's validation checks the
+(`workers.setup.builder.scene_setup`, cached by the scene). The scene's validation checks the
 cascades' patches against the footprint with the plain values of `workers.sea.described`,
 building nothing.
 """
