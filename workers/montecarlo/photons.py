@@ -23,6 +23,7 @@ import math
 import numba
 import numpy as np
 
+from workers.montecarlo.records import LEAF
 from workers.montecarlo.scattering import (
     angle_between,
     mixture_weight,
@@ -48,7 +49,7 @@ _BISECTIONS = 30  # steps locating a photon's crossing of the surface from below
 _TRANSMITTED, _ABSORBED, _ESCAPED, _TARGET, _CUT = (TALLIES.index(t) for t in TALLIES)
 
 
-@numba.njit(cache=True)
+@numba.njit(**LEAF)
 def _elevation(x, y, sea):
     """Elevation η and slopes of the stored sea grid at (x, y) (flat outside it) [m], [1].
 
@@ -72,7 +73,7 @@ def _elevation(x, y, sea):
     return eta, sx, sy
 
 
-@numba.njit(cache=True)
+@numba.njit(**LEAF)
 def _estimate(
     x,
     y,

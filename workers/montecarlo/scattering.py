@@ -16,6 +16,8 @@ import math
 import numba
 import numpy as np
 
+from workers.montecarlo.records import LEAF
+
 __all__ = [
     "angle_between",
     "mixture_weight",
@@ -75,7 +77,7 @@ def turn(ux, uy, uz, cos_t, sin_t, phi):
     return nx * norm, ny * norm, nz * norm
 
 
-@numba.njit(cache=True)
+@numba.njit(**LEAF)
 def phase_value(cos_t, sin_t, phase):
     """The tabulated phase function at the angle (cos θ, sin θ) [1/sr], log-linear.
 
@@ -111,7 +113,7 @@ def angle_between(ax, ay, az, bx, by, bz):
     return ax * bx + ay * by + az * bz, math.sqrt(cx * cx + cy * cy + cz * cz)
 
 
-@numba.njit(cache=True)
+@numba.njit(**LEAF)
 def mixture_weight(dx, dy, dz, ax, ay, az, nx, ny, nz, phase, bias):
     """Weight factor of a direction n drawn from the biased mixture about d and a.
 
@@ -125,7 +127,7 @@ def mixture_weight(dx, dy, dz, ax, ay, az, nx, ny, nz, phase, bias):
     return own / ((1.0 - bias) * own + bias * toward)
 
 
-@numba.njit(cache=True)
+@numba.njit(**LEAF)
 def reflection_weight(nx, ny, nz, ax, ay, az, ux, uy, uz, phase, bias):
     """Weight factor of a direction u reflected off a Lambertian surface of normal n.
 
@@ -145,7 +147,7 @@ def reflection_weight(nx, ny, nz, ax, ay, az, ux, uy, uz, phase, bias):
     return own / ((1.0 - bias) * own + bias * toward)
 
 
-@numba.njit(cache=True)
+@numba.njit(**LEAF)
 def toward_receiver(x, y, z, camera, n_w):
     """Unit direction from a point in the water to the receiver through a flat sea.
 

@@ -20,7 +20,7 @@ import math
 import numba
 import numpy as np
 
-from workers.montecarlo.records import Buckets
+from workers.montecarlo.records import LEAF, Buckets
 
 __all__ = ["EPS", "build_lookup", "corner_at", "target_blocks", "target_distance"]
 
@@ -28,7 +28,7 @@ EPS = 1e-7
 """Distance below which a surface met is the one just left [m]."""
 
 
-@numba.njit(cache=True)
+@numba.njit(**LEAF)
 def corner_at(k, z, lines):
     """Corner line k at height z: (x, y, water length from the surface) [m]."""
     t = (z - lines.z[k]) / lines.dz[k]
