@@ -287,13 +287,14 @@ def test_the_target_light_a_gate_cuts_converges(cut_sphere_seeds):
 def test_the_way_to_the_receiver_refracts_into_it():
     # the biasing's aim (scatterings and the target's reflection): from a point in the
     # water, the direction whose refraction at a flat sea passes through the pinhole
+    from workers.montecarlo.records import Point
     from workers.montecarlo.scattering import toward_receiver
 
     n, camera = 1.34, np.array([3.0, -2.0, 34.0])
     rng = np.random.default_rng(2)
     points = rng.uniform([-15, -15, 0.5], [15, 15, 20], size=(20, 3))
     for x, y, depth in points:
-        ux, uy, uz = toward_receiver(x, y, -depth, camera, n)
+        ux, uy, uz = toward_receiver(x, y, -depth, Point(*camera), n)
         assert uz > 0
         along = depth / uz
         surface = np.array([x + along * ux, y + along * uy])
@@ -315,7 +316,7 @@ def test_the_reflections_biased_draw_is_weighted_back_to_lambert():
     from workers.montecarlo.scattering import reflection_weight, turn
 
     table = scene_setup(scene(water={"preset": "coastal"})).phase_table()
-    phase = np.concatenate([[table.log_theta0, table.log_step], np.log(table.values)])
+    phase = montecarlo.phase_record(table)
     share, count = montecarlo.TARGET_BIAS, 400_000
     normal = np.array([0.6, 0.0, 0.8])
     aim = np.array([0.0, 0.0, 1.0])

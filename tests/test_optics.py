@@ -4,7 +4,14 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from workers.optics.fresnel import fresnel_reflectance, reflect, refract
+from workers.optics.fresnel import (
+    fresnel_reflectance,
+    fresnel_unpolarised,
+    reflect,
+    refract,
+    snell_cos_t,
+    transmitted_cosine,
+)
 
 N_WATER = 1.34  # paper §4.3
 AIR_TO_WATER = {"n1": 1.0, "n2": N_WATER}
@@ -279,3 +286,87 @@ def test_reflect_mirrors_about_the_normal(rng):
         atol=1e-14,
     )
     assert_allclose(reflect(direction, -normal), reflected, atol=1e-15)
+
+
+# ------------------------------------------------ the compiled scalars and their twins
+
+GRID = np.cos(np.radians(np.linspace(0.0, 90.0, 901)))  # 0.1° steps, through 48.27°
+
+
+def scalars(function, cosines, *, n1, n2):
+    """A compiled scalar function of (cos, n1, n2) over an array of cosines."""
+    return np.array([function(c, n1, n2) for c in cosines])
+
+
+@DIRECTIONS
+def test_the_numpy_twins_equal_the_compiled_scalars(indices):
+    # Fresnel and Snell are written once each as a numba scalar (the Monte Carlo kernels)
+    # and once as an array twin (the fast renderer, the interface): equal on a 0.1° grid,
+    # total internal reflection included (water to air, 48.3° to 90°: 418 angles)
+    r = scalars(fresnel_unpolarised, GRID, **indices)
+    cos_t = scalars(snell_cos_t, GRID, **indices)
+    assert_allclose(fresnel_reflectance(GRID, **indices), r, rtol=0, atol=1e-12)
+    assert_allclose(transmitted_cosine(GRID, **indices), cos_t, rtol=0, atol=1e-12)
+    beyond = np.arccos(GRID) > np.arcsin(min(indices["n2"] / indices["n1"], 1.0))
+    assert beyond.sum() == (418 if indices["n1"] > indices["n2"] else 0)
+    assert np.all(r[beyond] == 1.0) and np.all(cos_t[beyond] == 0.0)
+
+
+@DIRECTIONS
+def test_the_torch_twins_equal_the_compiled_scalars(indices):
+    # the interface's torch path (workers.setup.interface over the array API) runs the
+    # same array twins: float64 tensors against the scalars, to 1e-12
+    torch = pytest.importorskip("torch")
+    cosines = torch.asarray(GRID, dtype=torch.float64)
+    r = fresnel_reflectance(cosines, **indices)
+    cos_t = transmitted_cosine(cosines, **indices)
+    assert isinstance(r, torch.Tensor) and r.dtype == torch.float64
+    assert_allclose(r.numpy(), scalars(fresnel_unpolarised, GRID, **indices), atol=1e-12)
+    assert_allclose(cos_t.numpy(), scalars(snell_cos_t, GRID, **indices), atol=1e-12)
+
+
+def test_the_scalar_fresnel_at_normal_incidence():
+    # r(0) = ((n - 1)/(n + 1))² (Mobley 1994 §4.2): 0.02037 for n = 1.333 air to water,
+    # 0.02006 for n = 1.33; the same from below (water to air)
+    for n, published in ((1.333, 0.020373), (1.33, 0.020059)):
+        closed = ((n - 1) / (n + 1)) ** 2
+        assert abs(closed - published) < 1e-6
+        assert_allclose(fresnel_unpolarised(1.0, 1.0, n), closed, rtol=1e-14)
+        assert_allclose(fresnel_unpolarised(1.0, n, 1.0), closed, rtol=1e-14)
+
+
+@DIRECTIONS
+def test_the_scalar_fresnel_at_brewsters_angle(indices):
+    # at tan θ = n2/n1, r_p = 0 and r_s = (n1² - n2²)/(n1² + n2²) (Born & Wolf §1.5.3)
+    n1, n2 = indices["n1"], indices["n2"]
+    cos_b = n1 / np.hypot(n1, n2)
+    r_s = (n1**2 - n2**2) / (n1**2 + n2**2)
+    assert_allclose(fresnel_unpolarised(cos_b, n1, n2), 0.5 * r_s**2, rtol=1e-12)
+    assert_allclose(snell_cos_t(cos_b, n1, n2), n2 / np.hypot(n1, n2), rtol=1e-14)
+
+
+def test_the_scalar_snell_law_and_total_internal_reflection():
+    # n1 sin θi = n2 sin θt below the critical angle asin(n2/n1); beyond it (from below)
+    # no ray leaves: cos θt = 0 and r = 1 exactly
+    n1, n2 = 1.333, 1.0
+    critical = np.arcsin(n2 / n1)
+    for theta in np.linspace(0.0, critical - 1e-6, 50):
+        cos_t = snell_cos_t(np.cos(theta), n1, n2)
+        assert_allclose(n1 * np.sin(theta), n2 * np.sqrt(1 - cos_t**2), atol=1e-12)
+        assert fresnel_unpolarised(np.cos(theta), n1, n2) < 1.0
+    for theta in np.linspace(critical + 1e-9, np.pi / 2, 50):
+        assert snell_cos_t(np.cos(theta), n1, n2) == 0.0
+        assert fresnel_unpolarised(np.cos(theta), n1, n2) == 1.0
+
+
+def test_refract_reflects_at_exactly_the_critical_angle():
+    # n1 = 1.25, n2 = 1, sin θ = 0.8: (n1/n2)² sin²θ = 1 exactly in float64, the ray would
+    # graze the surface and Fresnel gives r = 1: refract flags it and reflects it, as the
+    # scalars say (before, it returned the grazing ray as transmitted)
+    direction, normal = np.array([0.8, 0.0, 0.6]), np.array([0.0, 0.0, 1.0])
+    assert snell_cos_t(0.6, 1.25, 1.0) == 0.0
+    assert fresnel_unpolarised(0.6, 1.25, 1.0) == 1.0
+    assert fresnel_reflectance(0.6, n1=1.25, n2=1.0) == 1.0
+    transmitted, total = refract(direction, normal, n1=1.25, n2=1.0)
+    assert total
+    assert_array_equal(transmitted, [0.8, 0.0, -0.6])

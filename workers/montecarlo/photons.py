@@ -23,6 +23,7 @@ import math
 import numba
 import numpy as np
 
+from workers.montecarlo.records import LEAF
 from workers.montecarlo.scattering import (
     angle_between,
     mixture_weight,
@@ -35,6 +36,7 @@ from workers.montecarlo.scattering import (
     uniform,
 )
 from workers.montecarlo.sightlines import corner_at
+from workers.optics.fresnel import fresnel_unpolarised
 from workers.targets.base import EPS, target_blocks, target_distance, target_normal
 
 __all__ = ["TALLIES", "transport"]
@@ -45,33 +47,34 @@ TALLIES = ("transmitted", "absorbed", "escaped", "target", "cut")
 _ROULETTE_WEIGHT = 1e-6  # roulette below this share of the launch weight (time cuts most)
 _ROULETTE_SURVIVAL = 0.1  # probability of surviving the roulette
 _BISECTIONS = 30  # steps locating a photon's crossing of the surface from below
+_TRANSMITTED, _ABSORBED, _ESCAPED, _TARGET, _CUT = (TALLIES.index(t) for t in TALLIES)
 
 
-@numba.njit(cache=True)
-def _elevation(x, y, surface, grid):
+@numba.njit(**LEAF)
+def _elevation(x, y, sea):
     """Elevation η and slopes of the stored sea grid at (x, y) (flat outside it) [m], [1].
 
-    `grid` = (x0, y0, spacing, size): nodes at x0 + i·spacing, y0 + j·spacing;
-    `surface` (size, size), index order (y, x).
+    `sea` is a `workers.montecarlo.records.Sea`.
     """
-    size = int(grid[3])
+    size = sea.size
     if size == 0:
         return 0.0, 0.0, 0.0
-    fx = (x - grid[0]) / grid[2]
-    fy = (y - grid[1]) / grid[2]
+    fx = (x - sea.x0) / sea.spacing
+    fy = (y - sea.y0) / sea.spacing
     if fx < 0.0 or fy < 0.0 or fx >= size - 1 or fy >= size - 1:
         return 0.0, 0.0, 0.0
     i, j = int(fx), int(fy)
     tx, ty = fx - i, fy - j
+    surface = sea.elevation
     e00, e01 = surface[j, i], surface[j, i + 1]
     e10, e11 = surface[j + 1, i], surface[j + 1, i + 1]
     eta = (e00 * (1 - tx) + e01 * tx) * (1 - ty) + (e10 * (1 - tx) + e11 * tx) * ty
-    sx = ((e01 - e00) * (1 - ty) + (e11 - e10) * ty) / grid[2]
-    sy = ((e10 - e00) * (1 - tx) + (e11 - e01) * tx) / grid[2]
+    sx = ((e01 - e00) * (1 - ty) + (e11 - e10) * ty) / sea.spacing
+    sy = ((e10 - e00) * (1 - tx) + (e11 - e01) * tx) / sea.spacing
     return eta, sx, sy
 
 
-@numba.njit(cache=True)
+@numba.njit(**LEAF)
 def _estimate(
     x,
     y,
@@ -82,12 +85,8 @@ def _estimate(
     value,
     lambertian,
     path,
-    optics,
-    phase,
-    lines,
-    lookup,
+    scenery,
     target,
-    gates,
     image,
     state,
 ):
@@ -96,50 +95,42 @@ def _estimate(
     A point scattering (`lambertian` False: `value` = the photon's weight, v its
     direction) or reflecting (True: `value` = weight × ρ, v the surface's normal) sends
     the pixel whose lines of sight hold it the power into the aperture's solid angle. The
-    lines (`lines`) run through the corners of S × S cells of each pixel (`lookup[0][3]`
-    = S), each cell split into two triangles; a triangle of solid angle Ω_p/(2S²) and
-    cross-section A⊥ at the point gives, by étendue, the solid angle
+    lines (`scenery.lines`) run through the corners of S × S cells of each pixel
+    (`scenery.lookup.subdivision` = S), each cell split into two triangles; a triangle of
+    solid angle Ω_p/(2S²) and cross-section A⊥ at the point gives, by étendue, the solid angle
     :math:`A_R\Omega_p/(2S^2 n^2 A_\perp)` of the aperture seen from the point through
     the surface, so in raw units (`workers.receiver.radiometry`) the pixel gets `value` × phase
     (or cos/π) × T e^(−c L_up) × π / (2 S² A⊥). A point inside several triangles (a fold
     of the lines under a focusing wave) counts in each.
 
-    The lines follow the resolved sea; the slopes below its grid (`optics[4:8]`: their
-    covariance's square root F, and `optics[8]` = 1 − 1/n) tilt a line's way in the water
-    by about −(1 − 1/n)s, so the point is looked up displaced by (1 − 1/n) d F ζ, d its
-    depth and ζ two standard normals drawn here: the unresolved facets' refraction on the
-    way up, as a random blur.
+    The lines follow the resolved sea; the slopes below its grid (`Medium.blur_xx`...:
+    their covariance's square root F, and `Medium.blur_reach` = 1 − 1/n) tilt a line's
+    way in the water by about −(1 − 1/n)s, so the point is looked up displaced by
+    (1 − 1/n) d F ζ, d its depth and ζ two standard normals drawn here: the unresolved
+    facets' refraction on the way up, as a random blur.
     """
-    n_w, c = optics[0], optics[1]
+    medium, lines, lookup, gates = scenery.medium, scenery.lines, scenery.lookup, scenery.gates
+    n_w, c = medium.refractive_index, medium.attenuation
     px, py = x, y  # the point itself, for the target's shadow on the way up
-    if optics[8] > 0.0:
+    if medium.blur_reach > 0.0:
         radius = math.sqrt(-2.0 * math.log(uniform(state)))
         angle = 2.0 * math.pi * uniform(state)
         zx, zy = radius * math.cos(angle), radius * math.sin(angle)
-        reach = optics[8] * max(-z, 0.0)
-        x = x + reach * (optics[4] * zx + optics[5] * zy)
-        y = y + reach * (optics[6] * zx + optics[7] * zy)
-    slabs = lookup[0]
-    top, thick = slabs[0], slabs[1]
-    s = math.floor((top - z) / thick)
-    if s < 0 or s >= int(slabs[2]):
+        reach = medium.blur_reach * max(-z, 0.0)
+        x = x + reach * (medium.blur_xx * zx + medium.blur_xy * zy)
+        y = y + reach * (medium.blur_yx * zx + medium.blur_yy * zy)
+    s = math.floor((lookup.top - z) / lookup.thick)
+    if s < 0 or s >= lookup.slabs:
         return
-    head = lookup[1]
-    x0, y0, size, nbx, nby, first = (
-        head[s, 0],
-        head[s, 1],
-        head[s, 2],
-        int(head[s, 3]),
-        int(head[s, 4]),
-        int(head[s, 5]),
-    )
-    bi = math.floor((x - x0) / size)
-    bj = math.floor((y - y0) / size)
+    buckets = lookup.buckets
+    size, nbx, nby = buckets.size[s], buckets.across_x[s], buckets.across_y[s]
+    bi = math.floor((x - buckets.x0[s]) / size)
+    bj = math.floor((y - buckets.y0[s]) / size)
     if bi < 0 or bj < 0 or bi >= nbx or bj >= nby:
         return
-    starts, items = lookup[2], lookup[3]
-    bucket = first + bj * nbx + bi
-    sub = int(slabs[3])
+    starts, items = lookup.starts, lookup.items
+    bucket = buckets.first[s] + bj * nbx + bi
+    sub = lookup.subdivision
     lattice = image.shape[1] * sub
     side = lattice + 1
     scale = math.pi / (2.0 * sub * sub)
@@ -170,17 +161,17 @@ def _estimate(
             length = la * ta + lb * tb + lc * tc
             if length < 0.0:
                 continue
-            air = la * lines[6, ka] + lb * lines[6, kb] + lc * lines[6, kc]
+            air = la * lines.air[ka] + lb * lines.air[kb] + lc * lines.air[kc]
             total = path + n_w * length + air
             inside = False
-            for g in range(gates.shape[0]):
-                if gates[g, 0] <= total < gates[g, 1]:
+            for g in range(gates.opens.size):
+                if gates.opens[g] <= total < gates.closes[g]:
                     inside = True
             if not inside:
                 continue
-            dx = la * lines[3, ka] + lb * lines[3, kb] + lc * lines[3, kc]
-            dy = la * lines[4, ka] + lb * lines[4, kb] + lc * lines[4, kc]
-            dz = la * lines[5, ka] + lb * lines[5, kb] + lc * lines[5, kc]
+            dx = la * lines.dx[ka] + lb * lines.dx[kb] + lc * lines.dx[kc]
+            dy = la * lines.dy[ka] + lb * lines.dy[kb] + lc * lines.dy[kc]
+            dz = la * lines.dz[ka] + lb * lines.dz[kb] + lc * lines.dz[kc]
             norm = math.sqrt(dx * dx + dy * dy + dz * dz)
             ux, uy, uz = -dx / norm, -dy / norm, -dz / norm
             if lambertian:
@@ -189,92 +180,59 @@ def _estimate(
                     continue
             else:
                 cos_t, sin_t = angle_between(vx, vy, vz, ux, uy, uz)
-                weight = value * phase_value(cos_t, sin_t, phase[0], phase[1], phase[2:])
+                weight = value * phase_value(cos_t, sin_t, scenery.phase)
             if target_blocks(px, py, z, ux, uy, uz, length, target):
                 continue
-            exit_t = la * lines[7, ka] + lb * lines[7, kb] + lc * lines[7, kc]
+            exit_t = la * lines.weight[ka] + lb * lines.weight[kb] + lc * lines.weight[kc]
             across = 0.5 * abs(area2) * uz
             contribution = weight * exit_t * math.exp(-c * length) * scale / across
-            for g in range(gates.shape[0]):
-                if gates[g, 0] <= total < gates[g, 1]:
+            for g in range(gates.opens.size):
+                if gates.opens[g] <= total < gates.closes[g]:
                     image[g, row // sub, col // sub] += contribution
 
 
 @numba.njit(cache=True, nogil=True)
-def transport(
-    launch,
-    key,
-    first_index,
-    optics,
-    phase,
-    quantiles,
-    limits,
-    camera,
-    surface,
-    grid,
-    lines,
-    lookup,
-    target,
-    gates,
-    image,
-    tallies,
-):
+def transport(launch, key, first_index, scenery, target, image, tallies):
     """Carry a batch of photons through the water, adding their estimates to `image`.
 
     Parameters
     ----------
-    launch : ndarray, shape (8, N)
-        Each photon after the surface: entry point x, y, z [m], unit direction in the
-        water, weight (raw power after the Fresnel transmittance), air path [m].
+    launch : Rays
+        Each photon after the surface (`workers.montecarlo.records.Rays`): entry point
+        [m], unit direction in the water, air path [m], weight (raw power after the
+        Fresnel transmittance).
     key : uint64
         The frame's photon key; photon i draws from ``photon_state(key, first_index + i)``.
     first_index : int
         Index of the batch's first photon in the frame.
-    optics : ndarray
-        (n_w, c, a, b) [1, 1/m, 1/m, 1/m], then the sub-grid slopes' F (row-major) [1]
-        and 1 − 1/n (0: no sub-grid slopes).
-    phase : ndarray
-        (ln θ0, ln step, ln values...) of the `PhaseTable`.
-    quantiles : ndarray
-        The table's scattering angles at equal steps of probability [rad].
-    limits : ndarray
-        (longest gated path [m], least air path back [m], lowest and highest surface
-        [m], most scattering events, share of scatterings and of reflections off the
-        target drawn about the way to the receiver).
-    camera : ndarray
-        The receiver's pinhole (x, y, z) [m].
-    surface, grid : ndarray
-        The sea's elevation grid (`_elevation`) and (x0, y0, spacing, size).
-    lines : ndarray, shape (8, (P + 1)²)
-        The pixels' corner lines: surface point x, y, z, downward unit direction, air
-        path [m], Fresnel transmittance.
-    lookup : tuple
-        `workers.montecarlo.sightlines.build_lookup`'s slabs, heads, starts and items.
+    scenery : Scenery
+        The frame's water, phase function, limits, pinhole, sea, lines of sight, their
+        lookup and gates (`workers.montecarlo.records.Scenery`).
     target : NamedTuple
         The target's record (`workers.targets.base.TargetShape.record`): the kernel
         specialises on its type, each shape's ray hit and normal compiled in.
-    gates : ndarray, shape (G, 2)
-        Round-trip optical path at which each gate opens and closes [m].
     image : ndarray, shape (G, P, P)
         Raw signal, float64, added to.
     tallies : ndarray, shape (5,)
         `TALLIES`, added to (raw power).
     """
-    n_w, a, b = optics[0], optics[2], optics[3]
-    longest, air_back, lowest, highest = limits[0], limits[1], limits[2], limits[3]
-    most = int(limits[4])
-    bias, reflect = limits[5], limits[6]
+    medium, phase, limits, sea = scenery.medium, scenery.phase, scenery.limits, scenery.sea
+    n_w, a, b = medium.refractive_index, medium.absorption, medium.scattering
+    longest, air_back = limits.longest, limits.air_back
+    lowest, highest = limits.lowest, limits.highest
+    most = limits.most
+    bias, reflect = limits.bias, limits.reflection_bias
     state = np.empty(1, dtype=np.uint64)
-    for i in range(launch.shape[1]):
-        w = launch[6, i]
+    for i in range(launch.x.size):
+        w = launch.weight[i]
         if w <= 0.0:
             continue
-        tallies[0] += w
+        tallies[_TRANSMITTED] += w
         floor = w * _ROULETTE_WEIGHT
         state[0] = photon_state(key, first_index + i)
-        x, y, z = launch[0, i], launch[1, i], launch[2, i]
-        dx, dy, dz = launch[3, i], launch[4, i], launch[5, i]
-        path = launch[7, i]
+        x, y, z = launch.x[i], launch.y[i], launch.z[i]
+        dx, dy, dz = launch.dx[i], launch.dy[i], launch.dz[i]
+        path = launch.air[i]
         events = 0
         while True:
             step = -math.log(uniform(state)) / b if b > 0.0 else np.inf
@@ -285,44 +243,37 @@ def transport(
                 if reach == np.inf:
                     reach = (highest - z) / dz + EPS
                 ex, ey, ez = x + reach * dx, y + reach * dy, z + reach * dz
-                if ez >= _elevation(ex, ey, surface, grid)[0]:
+                if ez >= _elevation(ex, ey, sea)[0]:
                     lo, hi = 0.0, reach
                     for _ in range(_BISECTIONS):
                         mid = 0.5 * (lo + hi)
                         mx, my, mz = x + mid * dx, y + mid * dy, z + mid * dz
-                        if mz >= _elevation(mx, my, surface, grid)[0]:
+                        if mz >= _elevation(mx, my, sea)[0]:
                             hi = mid
                         else:
                             lo = mid
                     reach = lo
                     surfaced = True
             if reach == np.inf:
-                tallies[4] += w  # down for ever in clear water: nothing more to gate
+                tallies[_CUT] += w  # down for ever in clear water: nothing more to gate
                 break
             kept = math.exp(-a * reach)
-            tallies[1] += w * (1.0 - kept)
+            tallies[_ABSORBED] += w * (1.0 - kept)
             w *= kept
             x, y, z = x + reach * dx, y + reach * dy, z + reach * dz
             path += n_w * reach
             if path + n_w * max(lowest - z, 0.0) + air_back >= longest:
-                tallies[4] += w
+                tallies[_CUT] += w
                 break
             if surfaced:
-                eta, sx, sy = _elevation(x, y, surface, grid)
+                eta, sx, sy = _elevation(x, y, sea)
                 norm = 1.0 / math.sqrt(1.0 + sx * sx + sy * sy)
                 nx, ny, nz = -sx * norm, -sy * norm, norm
                 cos_i = dx * nx + dy * ny + dz * nz
                 if cos_i <= 0.0:
                     nx, ny, nz, cos_i = 0.0, 0.0, 1.0, dz
-                sin_t2 = n_w * n_w * (1.0 - cos_i * cos_i)
-                if sin_t2 >= 1.0:
-                    reflectance = 1.0
-                else:
-                    cos_o = math.sqrt(1.0 - sin_t2)
-                    rs = (n_w * cos_i - cos_o) / (n_w * cos_i + cos_o)
-                    rp = (cos_i - n_w * cos_o) / (cos_i + n_w * cos_o)
-                    reflectance = 0.5 * (rs * rs + rp * rp)
-                tallies[2] += w * (1.0 - reflectance)
+                reflectance = fresnel_unpolarised(cos_i, n_w, 1.0)
+                tallies[_ESCAPED] += w * (1.0 - reflectance)
                 w *= reflectance
                 dx, dy, dz = dx - 2 * cos_i * nx, dy - 2 * cos_i * ny, dz - 2 * cos_i * nz
                 z = min(z, eta) - EPS
@@ -339,21 +290,17 @@ def transport(
                     w * rho,
                     True,
                     path,
-                    optics,
-                    phase,
-                    lines,
-                    lookup,
+                    scenery,
                     target,
-                    gates,
                     image,
                     state,
                 )
-                tallies[3] += w * (1.0 - rho)
+                tallies[_TARGET] += w * (1.0 - rho)
                 w *= rho
                 # Lambertian, or (share reflect) about the way to the receiver, weighted
-                ax, ay, az = toward_receiver(x, y, z, camera, n_w)
+                ax, ay, az = toward_receiver(x, y, z, scenery.camera, n_w)
                 if uniform(state) < reflect:
-                    theta = scattering_angle(uniform(state), quantiles)
+                    theta = scattering_angle(uniform(state), phase.quantiles)
                     cos_t, sin_t = math.cos(theta), math.sin(theta)
                     ux, uy, uz = ax, ay, az
                 else:
@@ -363,7 +310,7 @@ def transport(
                 dx, dy, dz = turn(ux, uy, uz, cos_t, sin_t, 2.0 * math.pi * uniform(state))
                 old = w
                 w *= reflection_weight(nx, ny, nz, ax, ay, az, dx, dy, dz, phase, reflect)
-                tallies[4] -= w - old
+                tallies[_CUT] -= w - old
                 if w <= 0.0:
                     break  # drawn into the target: its weight is in the cut tally
             else:
@@ -377,22 +324,18 @@ def transport(
                     w,
                     False,
                     path,
-                    optics,
-                    phase,
-                    lines,
-                    lookup,
+                    scenery,
                     target,
-                    gates,
                     image,
                     state,
                 )
                 events += 1
                 if events >= most:
-                    tallies[4] += w
+                    tallies[_CUT] += w
                     break
-                ax, ay, az = toward_receiver(x, y, z, camera, n_w)
+                ax, ay, az = toward_receiver(x, y, z, scenery.camera, n_w)
                 biased = uniform(state) < bias
-                theta = scattering_angle(uniform(state), quantiles)
+                theta = scattering_angle(uniform(state), phase.quantiles)
                 phi = 2.0 * math.pi * uniform(state)
                 cos_t, sin_t = math.cos(theta), math.sin(theta)
                 if biased:
@@ -401,12 +344,12 @@ def transport(
                     nx, ny, nz = turn(dx, dy, dz, cos_t, sin_t, phi)
                 old = w
                 w *= mixture_weight(dx, dy, dz, ax, ay, az, nx, ny, nz, phase, bias)
-                tallies[4] -= w - old
+                tallies[_CUT] -= w - old
                 dx, dy, dz = nx, ny, nz
             if w < floor:
                 if uniform(state) < _ROULETTE_SURVIVAL:
-                    tallies[4] -= w * (1.0 / _ROULETTE_SURVIVAL - 1.0)
+                    tallies[_CUT] -= w * (1.0 / _ROULETTE_SURVIVAL - 1.0)
                     w /= _ROULETTE_SURVIVAL
                 else:
-                    tallies[4] += w
+                    tallies[_CUT] += w
                     break

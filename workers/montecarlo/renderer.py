@@ -33,9 +33,22 @@ import numpy as np
 
 from workers.dataset.labels import target_mask
 from workers.montecarlo.photons import TALLIES, transport
+from workers.montecarlo.records import (
+    Gates,
+    Limits,
+    Lookup,
+    Medium,
+    Phase,
+    Point,
+    Rays,
+    Scenery,
+    Sea,
+    as_rays,
+)
 from workers.montecarlo.sightlines import build_lookup
 from workers.sea.surface import Surface
 from workers.settings.seeds import SampleSeed
+from workers.settings.transport import PhaseTable
 from workers.setup.compiled import Setup
 from workers.setup.interface import through_surface
 from workers.setup.sensor import Sensor, sensor_at
@@ -52,6 +65,7 @@ __all__ = [
     "TARGET_BIAS",
     "FrameTransport",
     "biasing_share",
+    "phase_record",
     "render_frame",
     "sight_subdivision",
 ]
@@ -97,6 +111,16 @@ MASK_LINES = 4
 
 MAX_SUBDIVISION = 16
 """Most lines of sight per pixel side (`sight_subdivision`)."""
+
+
+def phase_record(table: PhaseTable) -> Phase:
+    """The kernels' `workers.montecarlo.records.Phase` of a `PhaseTable` (logs, float64)."""
+    return Phase(
+        log_theta0=float(table.log_theta0),
+        log_step=float(table.log_step),
+        log_values=np.ascontiguousarray(np.log(table.values), dtype=np.float64),
+        quantiles=np.ascontiguousarray(table.quantiles, dtype=np.float64),
+    )
 
 
 @dataclass(frozen=True)
@@ -163,39 +187,44 @@ def render_frame(
     subgrid = getattr(surface, "subgrid", None)
     resolved = surface if subgrid is None else dataclasses.replace(surface, subgrid=None)
     corners = _sight_lines(sensor, resolved, frame, n_w, pixels, sub)
-    if surface is None:
-        sea, grid, lowest, highest = np.zeros((1, 1)), np.zeros(4), 0.0, 0.0
-    else:
-        axis = surface.axis
-        sea = np.asarray(surface.centred_elevation[frame], dtype=np.float64)
-        grid = np.array([axis[0], axis[0], axis[1] - axis[0], axis.size], dtype=np.float64)
-        lowest, highest = float(sea.min()), float(sea.max())
-    gates = 2.0 * np.asarray(sensor.paths, dtype=np.float64)
+    sea = _sea(surface, frame)
+    lowest, highest = _sea_bounds(sea)
+    paths = 2.0 * np.asarray(sensor.paths, dtype=np.float64)
+    gates = Gates(np.ascontiguousarray(paths[:, 0]), np.ascontiguousarray(paths[:, 1]))
     air_back = float(sensor.position[2]) - highest
-    longest = float(gates[:, 1].max())
+    longest = float(gates.closes.max())
     deepest = max((longest - 2.0 * air_back) / (2.0 * n_w) - lowest, 0.0) + 0.5
-    top = max(highest, float(corners[2].max())) + 0.01
+    top = max(highest, float(corners.z.max())) + 0.01
     cells = (pixels * sub) ** 2
     thick = max(SLAB_THICKNESS, (top + deepest) * cells / LOOKUP_ENTRIES)
     slabs = max(1, math.ceil((top + deepest) / thick))
-    lookup = (
-        np.array([top, thick, slabs, sub], dtype=np.float64),
-        *build_lookup(corners, pixels * sub, top, thick, slabs),
-    )
+    buckets = build_lookup(corners, pixels * sub, top, thick, slabs)
+    lookup = Lookup(top, thick, slabs, sub, *buckets)
     water = setup.water
     table = setup.phase_table()
-    optics = np.zeros(9)
-    optics[:4] = n_w, water.attenuation, water.absorption, water.scattering
+    blur = (0.0,) * 5
     if subgrid is not None:
-        optics[4:8] = np.asarray(subgrid.factor, dtype=np.float64).ravel()
-        optics[8] = 1.0 - 1.0 / n_w
-    phase = np.concatenate([[table.log_theta0, table.log_step], np.log(table.values)])
+        factor = np.asarray(subgrid.factor, dtype=np.float64).ravel()
+        blur = (*(float(f) for f in factor), 1.0 - 1.0 / n_w)
+    medium = Medium(
+        *(float(v) for v in (n_w, water.attenuation, water.absorption, water.scattering)),
+        *blur,
+    )
     most = settings.max_scattering or np.iinfo(np.int32).max
     if bias is None:
         bias = biasing_share(scattering=water.scattering, depth=deepest)
-    limits = np.array(
-        [longest, air_back, lowest, highest, most, bias, reflection_bias], dtype=np.float64
+    limits = Limits(
+        longest=longest,
+        air_back=air_back,
+        lowest=lowest,
+        highest=highest,
+        most=int(most),
+        bias=float(bias),
+        reflection_bias=float(reflection_bias),
     )
+    camera = Point(*(float(v) for v in np.asarray(sensor.position, dtype=np.float64)))
+    phase = phase_record(table)
+    scenery = Scenery(medium, phase, limits, camera, sea, corners, lookup, gates)
     shape = shape_named(setup.target.shape)
     target = shape.record(setup.target, setup.target_centre)
     batches = settings.batches
@@ -205,30 +234,13 @@ def render_frame(
     images = np.zeros((batches, len(setup.gates), pixels, pixels))
     tallies = np.zeros((batches, len(TALLIES)))
     beam_power = math.pi * (sensor.reference_range * math.tan(0.5 * sensor.laser_fov)) ** 2
-    camera = np.asarray(sensor.position, dtype=np.float64)
     for batch, first in itertools.product(range(batches), range(0, per_batch, LAUNCH_CHUNK)):
         count = min(LAUNCH_CHUNK, per_batch - first)
         launch = _launch(
             sensor, setup.beam, surface, frame, n_w, rng, count, beam_power / per_batch
         )
-        transport(
-            launch,
-            key,
-            batch * per_batch + first,
-            optics,
-            phase,
-            table.quantiles,
-            limits,
-            camera,
-            sea,
-            grid,
-            corners,
-            lookup,
-            target,
-            gates,
-            images[batch],
-            tallies[batch],
-        )
+        index = batch * per_batch + first
+        transport(launch, key, index, scenery, target, images[batch], tallies[batch])
     mean = images.mean(axis=0) * setup.scale
     error = images.std(axis=0, ddof=1) / math.sqrt(batches) * setup.scale
     if shape.name == "none":
@@ -304,11 +316,11 @@ def sight_subdivision(setup: Setup) -> int:
 
 
 def _sight_lines(sensor: Sensor, surface, frame, n_w, pixels, sub, *, centres=False):
-    """The pixels' lines of sight in the water, (8, lines), float64.
+    """The pixels' lines of sight in the water, a `Rays` (float64).
 
-    Rows: surface point x, y, z [m], downward unit direction, air path [m], Fresnel
-    transmittance. With `centres`, through the P² pixel centres; else through the corners
-    of S × S cells a pixel, (PS + 1)², row-major (the images' order).
+    Surface point x, y, z [m], downward unit direction, air path [m], Fresnel
+    transmittance (`weight`). With `centres`, through the P² pixel centres; else through
+    the corners of S × S cells a pixel, (PS + 1)², row-major (the images' order).
     """
     pitch = 2.0 * math.tan(0.5 * sensor.camera.field_of_view) / (pixels * sub)
     count = pixels * sub
@@ -319,25 +331,40 @@ def _sight_lines(sensor: Sensor, surface, frame, n_w, pixels, sub, *, centres=Fa
     return _lines(through_surface(rays, surface, frame, n_w))
 
 
-def _lines(passed) -> np.ndarray:
-    """`workers.setup.interface.Transmitted` as the kernels' (8, n) line array, float64."""
+def _lines(passed) -> Rays:
+    """`workers.setup.interface.Transmitted` as the kernels' lines (`Rays`), float64."""
     secant = passed.secant.astype(np.float64)
-    return np.stack(
-        [
-            passed.x,
-            passed.y,
-            passed.z,
-            passed.tan_x / secant,
-            passed.tan_y / secant,
-            -1.0 / secant,
-            passed.air,
-            passed.transmittance,
-        ]
-    ).astype(np.float64)
+    return as_rays(
+        x=passed.x,
+        y=passed.y,
+        z=passed.z,
+        dx=passed.tan_x / secant,
+        dy=passed.tan_y / secant,
+        dz=-1.0 / secant,
+        air=passed.air,
+        weight=passed.transmittance,
+    )
 
 
-def _launch(sensor: Sensor, beam, surface, frame, n_w, rng, count, weight) -> np.ndarray:
-    """`count` photons of the Gaussian beam after the surface, as `transport`'s (8, N).
+def _sea(surface, frame) -> Sea:
+    """The kernels' `Sea`: the frame's centred elevation grid (size 0: flat)."""
+    if surface is None:
+        return Sea(np.zeros((1, 1)), 0.0, 0.0, 0.0, 0)
+    axis = surface.axis
+    elevation = np.asarray(surface.centred_elevation[frame], dtype=np.float64)
+    x0, spacing = float(axis[0]), float(axis[1] - axis[0])
+    return Sea(np.ascontiguousarray(elevation), x0, x0, spacing, int(axis.size))
+
+
+def _sea_bounds(sea: Sea) -> tuple[float, float]:
+    """Lowest and highest elevation of the sea's grid [m] (0, 0 over a flat sea)."""
+    if sea.size == 0:
+        return 0.0, 0.0
+    return float(sea.elevation.min()), float(sea.elevation.max())
+
+
+def _launch(sensor: Sensor, beam, surface, frame, n_w, rng, count, weight) -> Rays:
+    """`count` photons of the Gaussian beam after the surface, as `transport`'s `Rays`.
 
     Tangent offsets (u, v) of the boresight are normal with variance tan²(φ/2)/2 each (the
     beam I0 = J e^(-r²/a²), a = R0 tan(φ/2)); every photon carries `weight` (raw power),
@@ -356,11 +383,8 @@ def _launch(sensor: Sensor, beam, surface, frame, n_w, rng, count, weight) -> np
         directions = (tangents / np.linalg.norm(tangents, axis=-1, keepdims=True)) @ rotation
         rays = tuple(position)
     rays = (*rays, *(np.ascontiguousarray(directions[:, i]) for i in range(3)))
-    passed = through_surface(rays, surface, frame, n_w)
-    launch = _lines(passed)
-    launch[6] = weight * launch[7]
-    launch[7] = passed.air
-    return np.ascontiguousarray(launch)
+    lines = _lines(through_surface(rays, surface, frame, n_w))
+    return lines._replace(weight=weight * lines.weight)
 
 
 def _mask(centres, setup: Setup, shape: TargetShape, pixels: int) -> np.ndarray:

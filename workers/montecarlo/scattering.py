@@ -16,6 +16,8 @@ import math
 import numba
 import numpy as np
 
+from workers.montecarlo.records import LEAF
+
 __all__ = [
     "angle_between",
     "mixture_weight",
@@ -75,13 +77,17 @@ def turn(ux, uy, uz, cos_t, sin_t, phi):
     return nx * norm, ny * norm, nz * norm
 
 
-@numba.njit(cache=True)
-def phase_value(cos_t, sin_t, log_theta0, log_step, log_values):
-    """The tabulated phase function at the angle (cos θ, sin θ) [1/sr], log-linear."""
+@numba.njit(**LEAF)
+def phase_value(cos_t, sin_t, phase):
+    """The tabulated phase function at the angle (cos θ, sin θ) [1/sr], log-linear.
+
+    `phase` is a `workers.montecarlo.records.Phase`.
+    """
+    log_values = phase.log_values
     theta = math.atan2(sin_t, cos_t)
     if theta <= 0.0:
         return math.exp(log_values[0])
-    f = (math.log(theta) - log_theta0) / log_step
+    f = (math.log(theta) - phase.log_theta0) / phase.log_step
     if f <= 0.0:
         return math.exp(log_values[0])
     i = int(f)
@@ -107,7 +113,7 @@ def angle_between(ax, ay, az, bx, by, bz):
     return ax * bx + ay * by + az * bz, math.sqrt(cx * cx + cy * cy + cz * cz)
 
 
-@numba.njit(cache=True)
+@numba.njit(**LEAF)
 def mixture_weight(dx, dy, dz, ax, ay, az, nx, ny, nz, phase, bias):
     """Weight factor of a direction n drawn from the biased mixture about d and a.
 
@@ -116,12 +122,12 @@ def mixture_weight(dx, dy, dz, ax, ay, az, nx, ny, nz, phase, bias):
     """
     c1, s1 = angle_between(dx, dy, dz, nx, ny, nz)
     c2, s2 = angle_between(ax, ay, az, nx, ny, nz)
-    own = phase_value(c1, s1, phase[0], phase[1], phase[2:])
-    toward = phase_value(c2, s2, phase[0], phase[1], phase[2:])
+    own = phase_value(c1, s1, phase)
+    toward = phase_value(c2, s2, phase)
     return own / ((1.0 - bias) * own + bias * toward)
 
 
-@numba.njit(cache=True)
+@numba.njit(**LEAF)
 def reflection_weight(nx, ny, nz, ax, ay, az, ux, uy, uz, phase, bias):
     """Weight factor of a direction u reflected off a Lambertian surface of normal n.
 
@@ -137,24 +143,24 @@ def reflection_weight(nx, ny, nz, ax, ay, az, ux, uy, uz, phase, bias):
     if bias == 0.0:
         return 1.0
     c, s = angle_between(ax, ay, az, ux, uy, uz)
-    toward = phase_value(c, s, phase[0], phase[1], phase[2:])
+    toward = phase_value(c, s, phase)
     return own / ((1.0 - bias) * own + bias * toward)
 
 
-@numba.njit(cache=True)
+@numba.njit(**LEAF)
 def toward_receiver(x, y, z, camera, n_w):
     """Unit direction from a point in the water to the receiver through a flat sea.
 
     The point (x, y, z) [m] below the mean sea level (a point above it is taken just
-    below), the pinhole `camera` (x, y, z) [m] above it: the crossing at horizontal
-    distance r from the point toward the camera obeys Snell's law,
+    below), the pinhole `camera` (a `workers.montecarlo.records.Point`) [m] above it: the
+    crossing at horizontal distance r from the point toward the camera obeys Snell's law,
     n r / √(r² + d²) = (D − r) / √((D − r)² + H²), solved by Newton's method from the
     paraxial r = D d / (d + n H) (the receiver's image n H high), to 1e-12 of D.
     """
-    ex, ey = camera[0] - x, camera[1] - y
+    ex, ey = camera.x - x, camera.y - y
     reach = math.sqrt(ex * ex + ey * ey)
     d = max(-z, 1e-9)
-    height = camera[2]
+    height = camera.z
     if reach < 1e-12:
         return 0.0, 0.0, 1.0
     r = reach * d / (d + n_w * height)

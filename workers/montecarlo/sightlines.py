@@ -8,9 +8,9 @@ surface; `build_lookup` lists, per horizontal slab and per square bucket of it, 
 whose four lines' box over the slab meets the bucket, so that a point is tested against a
 few cells only.
 
-Array conventions as `workers.montecarlo.photons`: lines as an (8, (PS + 1)²) array of surface
-point
-x, y, z [m], downward unit direction, air path [m], Fresnel transmittance.
+Conventions as `workers.montecarlo.photons`: the lines as a `workers.montecarlo.records.Rays`
+of (PS + 1)² surface points x, y, z [m], downward unit directions, air paths [m] and
+Fresnel transmittances.
 """
 
 from __future__ import annotations
@@ -18,14 +18,16 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from workers.montecarlo.records import LEAF, Buckets
+
 __all__ = ["build_lookup", "corner_at"]
 
 
-@numba.njit(cache=True)
+@numba.njit(**LEAF)
 def corner_at(k, z, lines):
     """Corner line k at height z: (x, y, water length from the surface) [m]."""
-    t = (z - lines[2, k]) / lines[5, k]
-    return lines[0, k] + t * lines[3, k], lines[1, k] + t * lines[4, k], t
+    t = (z - lines.z[k]) / lines.dz[k]
+    return lines.x[k] + t * lines.dx[k], lines.y[k] + t * lines.dy[k], t
 
 
 @numba.njit(cache=True)
@@ -40,13 +42,13 @@ def _quad_box(lines, k00, side, za, zb):
 
 
 @numba.njit(cache=True)
-def _fill(lines, pixels, top, thick, heads, counts, items, cursor, fill):
+def _fill(lines, pixels, top, thick, buckets, counts, items, cursor, fill):
     """Count (`fill` False) or list (True) each slab's pixels in the buckets their boxes meet."""
     side = pixels + 1
-    for s in range(heads.shape[0]):
+    for s in range(buckets.x0.size):
         za, zb = top - s * thick, top - (s + 1) * thick
-        gx0, gy0, size = heads[s, 0], heads[s, 1], heads[s, 2]
-        nbx, first = int(heads[s, 3]), int(heads[s, 5])
+        gx0, gy0, size = buckets.x0[s], buckets.y0[s], buckets.size[s]
+        nbx, first = buckets.across_x[s], buckets.first[s]
         for q in range(pixels * pixels):
             k00 = (q // pixels) * side + q % pixels
             x0, x1, y0, y1 = _quad_box(lines, k00, side, za, zb)
@@ -66,8 +68,8 @@ def build_lookup(lines, pixels, top, thick, slabs):
 
     Parameters
     ----------
-    lines : ndarray, shape (8, (pixels + 1)²)
-        As for `transport`.
+    lines : Rays
+        The corner lines of sight, (pixels + 1)² (`workers.montecarlo.records.Rays`).
     pixels : int
         Pixels per side P.
     top : float
@@ -79,16 +81,24 @@ def build_lookup(lines, pixels, top, thick, slabs):
 
     Returns
     -------
-    heads : ndarray, shape (slabs, 6)
+    buckets : Buckets
         Per slab: bucket grid origin x, y [m], bucket size [m] (the median pixel's box),
-        buckets along x and y, and the index of its first bucket in `starts`.
+        buckets along x and y, and the index of its first bucket in `starts`
+        (`workers.montecarlo.records.Buckets`).
     starts : ndarray
         Start of each bucket's pixels in `items` (one more entry at the end).
     items : ndarray
         Pixel indices (row · P + column), int32.
     """
     side = pixels + 1
-    heads = np.zeros((slabs, 6))
+    buckets = Buckets(
+        np.zeros(slabs),
+        np.zeros(slabs),
+        np.zeros(slabs),
+        np.zeros(slabs, dtype=np.int64),
+        np.zeros(slabs, dtype=np.int64),
+        np.zeros(slabs, dtype=np.int64),
+    )
     widths = np.empty(pixels * pixels)
     total = 0
     for s in range(slabs):
@@ -104,15 +114,15 @@ def build_lookup(lines, pixels, top, thick, slabs):
         size = max(np.median(widths), max(gx1 - gx0, gy1 - gy0) / (4 * pixels))
         nbx = int((gx1 - gx0) / size) + 1
         nby = int((gy1 - gy0) / size) + 1
-        heads[s, 0], heads[s, 1], heads[s, 2] = gx0, gy0, size
-        heads[s, 3], heads[s, 4], heads[s, 5] = nbx, nby, total
+        buckets.x0[s], buckets.y0[s], buckets.size[s] = gx0, gy0, size
+        buckets.across_x[s], buckets.across_y[s], buckets.first[s] = nbx, nby, total
         total += nbx * nby
     counts = np.zeros(total + 1, dtype=np.int64)
     items = np.empty(0, dtype=np.int32)
-    _fill(lines, pixels, top, thick, heads, counts, items, counts, False)
+    _fill(lines, pixels, top, thick, buckets, counts, items, counts, False)
     for i in range(total):
         counts[i + 1] += counts[i]
     items = np.empty(counts[total], dtype=np.int32)
     cursor = counts[:-1].copy()
-    _fill(lines, pixels, top, thick, heads, counts, items, cursor, True)
-    return heads, counts, items
+    _fill(lines, pixels, top, thick, buckets, counts, items, cursor, True)
+    return buckets, counts, items

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from array_api_compat import array_namespace
 
+from workers.optics.fresnel import fresnel_reflectance, transmitted_cosine
 from workers.setup.geometry import PlaneGrid
 
 __all__ = [
@@ -150,13 +151,12 @@ def through_surface(rays, surface, frame, refractive_index):
     `SURFACE_TOLERANCE` (so the hit is within the tolerance, about, of the exact one).
     Elevation and slopes are those sampled there (the slopes only once, at the end).
 
-    The interface is refracted and weighted inline with the formulas of
-    `workers.optics.fresnel.refract` and `workers.optics.fresnel.fresnel_reflectance`, specialised
-    to
-    air → water (n1 = 1 < n2, no total internal reflection): with the upward normal
-    :math:`n = (-s_x, -s_y, 1)/\sqrt{1 + s^2}`, cos i = -ξ·n and
-    k = 1 - (1 - cos² i)/n_w², the transmitted direction is
-    :math:`\xi/n_w + (\cos i/n_w - \sqrt{k})\,n`. Rays meeting a facet that faces
+    The interface is refracted as `workers.optics.fresnel.refract` does, specialised to
+    air → water (n1 = 1 < n2, no total internal reflection), and weighted by
+    `workers.optics.fresnel.fresnel_reflectance`: with the upward normal
+    :math:`n = (-s_x, -s_y, 1)/\sqrt{1 + s^2}`, cos i = -ξ·n and cos t its refracted
+    cosine (`workers.optics.fresnel.transmitted_cosine`), the transmitted direction is
+    :math:`\xi/n_w + (\cos i/n_w - \cos t)\,n`. Rays meeting a facet that faces
     away from them (cos i <= 0), and rays the surface would send back up, transmit
     nothing.
     """
@@ -181,15 +181,12 @@ def through_surface(rays, surface, frame, refractive_index):
     inverse_norm = 1.0 / xp.sqrt(1.0 + sx * sx + sy * sy)
     cos_incidence = (dx * sx + dy * sy - dz) * inverse_norm
     cos_i = xp.clip(cos_incidence, 0.0, 1.0)
-    cos_t = xp.sqrt(1.0 - ratio * ratio * (1.0 - cos_i * cos_i))
+    cos_t = transmitted_cosine(cos_i, n1=1.0, n2=refractive_index)
     coefficient = (ratio * cos_i - cos_t) * inverse_norm
     down = -(ratio * dz + coefficient)
     facing = (cos_incidence > 0) & (down > 0)
     secant = xp.where(facing, 1.0 / xp.where(facing, down, 1.0), 1.0)
-    n_w = refractive_index
-    r_s = (cos_i - n_w * cos_t) / (cos_i + n_w * cos_t)
-    r_p = (n_w * cos_i - cos_t) / (n_w * cos_i + cos_t)
-    transmittance = 1.0 - 0.5 * (r_s * r_s + r_p * r_p)
+    transmittance = 1.0 - fresnel_reflectance(cos_i, n1=1.0, n2=refractive_index)
 
     def single(values):
         return xp.astype(values, xp.float32, copy=False)
