@@ -197,3 +197,13 @@ def test_the_cylinder_fields_take_numbers_only(value):
     # file's numbers against the dump (`service.inputs.strict_numbers`) would not see it
     with pytest.raises(ValidationError, match=r"target\.length"):
         Scene.model_validate({"target": {"shape": "sphere", "length": value}})
+
+
+@pytest.mark.parametrize("shape", ["disk", "cylinder"])
+def test_the_papers_shading_is_refused_for_shapes_it_does_not_define(shape):
+    # found by the new-user trial: a cylinder (or a disk) with `shading: paper` rendered as
+    # `lambert` while the store recorded `paper`
+    with pytest.raises(ValidationError, match=r"shading: paper is not defined for a " + shape):
+        Target(shape=shape, shading="paper")
+    assert Target(shape="sphere", shading="paper").shading == "paper"
+    assert Target(shape="none", shading="paper").shading == "paper"  # a sweep's twin point

@@ -350,12 +350,12 @@ class Target(Section):
     )
     shading: Literal["lambert", "paper"] = Field(
         "lambert",
-        description="Sphere shading: `lambert` (cosine of sphere normal and ray; physical), "
+        description="Shading: `lambert` (cosine of the surface normal and ray; physical), "
         "or `paper`, the paper's area weights (`ponder`), kept only to reproduce its "
         "figures: it does not conserve energy (a white sphere returns 2x a white disk of "
         "its radius where a Lambertian one returns 2/3, and its limb pixels exceed the "
         "brightest physical value several times over, more at finer pixels); do not use "
-        "it for training data.",
+        "it for training data; a sphere's only (a disk or a cylinder with it is refused).",
         json_schema_extra=units("1"),
     )
     visibility_threshold: float = Field(
@@ -401,5 +401,11 @@ class Target(Section):
             raise ValueError(
                 "set both x and y, or neither (the target then sits on the central ray)"
             )
-        SHAPES[self.shape].check(self)
+        shape = SHAPES[self.shape]
+        if self.shading not in shape.shadings:
+            raise ValueError(
+                f"shading: {self.shading} is not defined for a {self.shape} (the paper's "
+                f"area weights are a sphere's); choose from {', '.join(shape.shadings)}"
+            )
+        shape.check(self)
         return self

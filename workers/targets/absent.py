@@ -44,6 +44,7 @@ class Absent(TargetShape):
     """The scene's target-free twin (`workers.settings.scene.Scene.without_target`)."""
 
     name = "none"
+    shadings = ("lambert", "paper")
 
     def half_height(self, target) -> float:
         """No extent."""

@@ -163,6 +163,9 @@ class TargetShape:
     """The `Target` fields only this shape reads (beyond shape, radius, depth, x, y,
     reflectance): left out of the settings' dumps for other shapes while at their defaults."""
 
+    shadings: tuple[str, ...] = ("lambert",)
+    """The `Target.shading` values this shape renders (the paper's `ponder` is a sphere's)."""
+
     def check(self, target) -> None:
         """Raise ValueError naming the field if `target`'s values cannot be this shape."""
 

@@ -78,6 +78,7 @@ class Sphere(TargetShape):
     """A sphere of `radius` centred at `depth` (Lambertian, or the paper's `ponder` shading)."""
 
     name = "sphere"
+    shadings = ("lambert", "paper")
 
     def check(self, target) -> None:
         """The sphere must be submerged: depth > radius."""
