@@ -13,6 +13,8 @@ from workers.optics.phases.henyey_greenstein import (
     HenyeyGreenstein,
     henyey_greenstein_backscatter,
 )
+from workers.optics.phases.petzold import _TABLE as PETZOLD_TABLE
+from workers.optics.phases.petzold import Petzold
 from workers.optics.water import WaterOptics
 from workers.render import render_arrays
 from workers.settings.scene import Scene
@@ -127,14 +129,14 @@ def test_a_water_henyey_greenstein_cannot_meet_is_refused_naming_the_field():
 # --- both renderers --------------------------------------------------------------------
 
 
-def small_scene(method, name):
-    """A 16 px flat-sea coastal scene rendered with phase function `name`."""
+def small_scene(method, name, preset="coastal"):
+    """A 16 px flat-sea scene rendered with phase function `name`."""
     return Scene.model_validate(
         {
             "surface": {"spectrum": "flat"},
             "receiver": {"pixels": 16},
             "radiometry": {"mode": "normalised", "white_plane_photons": 0.0},
-            "water": {"preset": "coastal", "phase_function": name},
+            "water": {"preset": preset, "phase_function": name},
             "transport": {"method": method, "phase_function": name, "photons": 20_000},
         }
     )
@@ -146,3 +148,47 @@ def test_a_scene_renders_with_henyey_greenstein_in_both_renderers(method):
     assert np.all(np.isfinite(image)) and np.all(image >= 0) and image.sum() > 0
     if method == "small_angle":
         assert np.all(image > 0)
+
+
+# --- Petzold's San Diego harbour table --------------------------------------------------
+
+
+def test_petzold_is_normalised_and_holds_its_table():
+    petzold = Petzold()
+    np.testing.assert_allclose(over_sphere(petzold), 1.0, rtol=1e-4)  # log-log cells, 400 001
+    # its cumulative at the table's angles is Petzold's F(θ) (Mobley et al. 1993), to the
+    # interpolation of β̃ within cells: 1.5e-3 absolute
+    theta = np.radians(PETZOLD_TABLE[:, 0])
+    forward = np.array([over_sphere(petzold) - over_sphere(petzold, low=t) for t in theta[:-1]])
+    np.testing.assert_allclose(forward, PETZOLD_TABLE[:-1, 1], atol=1.5e-3)
+    # b_b/b = 1 - F(90°) = 0.01809; β̃(π) near Mobley's (1994, Table 3.10) 3.18e-3 sr⁻¹
+    np.testing.assert_allclose(petzold.backscatter_fraction(), 0.018092, rtol=2e-3)
+    np.testing.assert_allclose(petzold.backscatter_pi(), 3.18e-3, rtol=0.05)
+
+
+def test_petzold_table_draws_follow_its_cumulative():
+    # 20 000 draws (seed 7): the Dvoretzky-Kiefer-Wolfowitz bound at p = 1e-3,
+    # sqrt(ln(2/1e-3) / (2N)) = 0.0138, plus the table's own 1.5e-3
+    table = Petzold().table()
+    draws = np.interp(
+        np.random.default_rng(7).uniform(size=20_000),
+        np.linspace(0, 1, table.quantiles.size),
+        table.quantiles,
+    )
+    theta = np.radians(PETZOLD_TABLE[:, 0])
+    empirical = np.searchsorted(np.sort(draws), theta) / draws.size
+    assert np.max(np.abs(empirical - PETZOLD_TABLE[:, 1])) < 0.0138 + 1.5e-3
+
+
+def test_a_water_far_from_petzolds_backscatter_is_refused_naming_the_field():
+    # coastal b_b/b = 0.013 is 28 % below the table's 0.0181; turbid harbour's 0.019 goes
+    match = r"water\.backscatter: b_b/b = 0\.013.* water\.phase_function petzold"
+    with pytest.raises(ValidationError, match=match):
+        Scene.model_validate({"water": {"preset": "coastal", "phase_function": "petzold"}})
+    Scene.model_validate({"water": {"preset": "turbid_harbour", "phase_function": "petzold"}})
+
+
+@pytest.mark.parametrize("method", ["small_angle", "monte_carlo"])
+def test_a_scene_renders_with_petzold_in_both_renderers(method):
+    image = render_arrays(small_scene(method, "petzold", "turbid_harbour"), seed=1)["expected"]
+    assert np.all(np.isfinite(image)) and np.all(image >= 0) and image.sum() > 0
