@@ -155,7 +155,11 @@ class PhaseFunction:
     def backscatter_fraction(self) -> float:
         """b_b/b = 2π ∫ β̃ sin θ dθ over [π/2, π] [1] (adaptive quadrature)."""
         back, _ = integrate.quad(
-            lambda t: 2 * np.pi * self.value(t) * np.sin(t), 0.5 * np.pi, np.pi, epsabs=0
+            lambda t: 2 * np.pi * self.value(t) * np.sin(t),
+            0.5 * np.pi,
+            np.pi,
+            epsabs=0,
+            limit=200,
         )
         return back
 
