@@ -140,7 +140,21 @@ def hankel_mtf_exponent(phase_function, psi, *, theta_max, theta_min=_THETA_MIN,
 
 
 def exponent_table(phase_function, theta_max):
-    """(ln ψ, D(ψ)) of a small-angle phase function on a log grid; read-only arrays."""
+    """D(ψ) of a small-angle phase function tabulated on a log grid of ψ.
+
+    Parameters
+    ----------
+    phase_function : callable
+        s(θ) [1/sr], as for `hankel_mtf_exponent`.
+    theta_max : float
+        Upper end of its support [rad] (``numpy.inf`` allowed).
+
+    Returns
+    -------
+    log_psi, exponent : ndarray
+        ln ψ [ln cycles/rad] on 481 points over ψ ∈ [1e-4, 1e6] and D there [1];
+        read-only.
+    """
     low, high = _TABLE_PSI
     count = round(np.log10(high / low) * _TABLE_PER_DECADE) + 1
     psi = np.geomspace(low, high, count)
@@ -152,7 +166,22 @@ def exponent_table(phase_function, theta_max):
 
 
 def tabled_exponent(table, psi, *, tail):
-    """D(ψ) interpolated in ln ψ from `table`, 1 below it, ψ^-`tail` beyond it."""
+    """D(ψ) interpolated in ln ψ from a table of `exponent_table`.
+
+    Parameters
+    ----------
+    table : tuple of ndarray
+        (ln ψ, D) from `exponent_table`.
+    psi : float or array_like
+        Angular frequency ψ [cycles/rad]; the sign is ignored.
+    tail : float
+        Exponent a of the law D ∝ ψ^-a continued beyond the table [1].
+
+    Returns
+    -------
+    float or ndarray
+        D(ψ) [1], shape of `psi`: 1 below the table, interpolated linearly in ln ψ on it.
+    """
     log_table, d_table = table
     psi = np.abs(np.asarray(psi, dtype=np.float64))
     tiny = np.finfo(np.float64).tiny
