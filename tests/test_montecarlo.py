@@ -13,16 +13,16 @@ from test_render_reference import Swell
 
 from workers.montecarlo import renderer as montecarlo
 from workers.montecarlo.photons import TALLIES
-from workers.optics.water import BETA_PI_PER_BACKSCATTER
-from workers.render import render_arrays
-from workers.settings.scene import Scene
-from workers.settings.seeds import SampleSeed
-from workers.settings.transport import (
+from workers.optics.phases.base import BETA_PI_PER_BACKSCATTER
+from workers.optics.phases.fournier_forand import (
+    FournierForand,
     fit_fournier_forand,
     fournier_forand,
     fournier_forand_cumulative,
-    phase_table,
 )
+from workers.render import render_arrays
+from workers.settings.scene import Scene
+from workers.settings.seeds import SampleSeed
 from workers.setup.builder import scene_setup
 from workers.setup.interface import through_surface
 from workers.setup.sensor import sensor_at
@@ -94,13 +94,13 @@ def test_fournier_forand_fit_has_the_waters_backscatter(fraction):
     theta = np.geomspace(1e-9, np.pi, 400_001)
     integrand = 2 * np.pi * fournier_forand(theta, n=n, mu=mu) * np.sin(theta)
     np.testing.assert_allclose(np.trapezoid(integrand, theta), 1.0, atol=2e-5)
-    table = phase_table("fournier_forand", backscatter_fraction=fraction)
+    table = FournierForand(fraction=fraction).table()
     np.testing.assert_allclose(table.backscatter_fraction, fraction, rtol=1e-3)
 
 
 def test_phase_table_samples_its_own_distribution():
     # angles drawn through the quantile table follow the cumulative: a Kolmogorov bound
-    table = phase_table("fournier_forand", backscatter_fraction=0.013)
+    table = FournierForand(fraction=0.013).table()
     n, mu = fit_fournier_forand(0.013)
     u = (np.arange(20_000) + 0.5) / 20_000
     theta = np.interp(u, np.linspace(0, 1, table.quantiles.size), table.quantiles)

@@ -22,7 +22,7 @@ from test_montecarlo import scene
 
 from workers.montecarlo import renderer as montecarlo
 from workers.optics.fresnel import fresnel_reflectance
-from workers.optics.water import BETA_PI_PER_BACKSCATTER
+from workers.optics.phases.base import BETA_PI_PER_BACKSCATTER
 from workers.render import render_arrays
 from workers.setup.builder import scene_setup
 from workers.setup.sensor import sensor_at

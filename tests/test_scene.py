@@ -290,7 +290,8 @@ def test_a_render_never_round_trips_its_scene_through_json(monkeypatch):
 def test_a_backscatter_fraction_the_fit_cannot_meet_is_refused_whatever_it_is(fraction):
     # issue #37 item 15: b_b = b (no forward scattering) was accepted and rendered while
     # b_b/b = 0.5 was refused; the Fournier-Forand fit needs 0.002 <= b_b/b <= 0.095
-    # (`workers.optics.phase.FF_FRACTIONS`) whatever b_f, so both are refused, naming the field
+    # (`workers.optics.phases.fournier_forand.FF_FRACTIONS`) whatever b_f, so both are
+    # refused, naming the field
     water = {"preset": None, "absorption": 0.1, "scattering": 0.4, "backscatter": 0.4 * fraction}
     with pytest.raises(ValidationError, match=r"water\.backscatter: b_b/b = .* water\.phase"):
         Scene.model_validate({"water": water})

@@ -8,19 +8,20 @@ import pytest
 from numpy.testing import assert_allclose
 from scipy import integrate, special
 
-from workers.optics.phase import fit_fournier_forand, fournier_forand
+from workers.optics.hankel import hankel_mtf_exponent
+from workers.optics.phases.base import BETA_PI_PER_BACKSCATTER
+from workers.optics.phases.fournier_forand import (
+    FournierForand,
+    fit_fournier_forand,
+    fournier_forand,
+)
+from workers.optics.phases.paper import Paper, paper_phase_function
+from workers.optics.phases.wells import wells_mtf_exponent, wells_phase_function
 from workers.optics.water import (
-    BETA_PI_PER_BACKSCATTER,
     PRESETS,
     WaterOptics,
-    fournier_forand_mtf_exponent,
-    hankel_mtf_exponent,
-    paper_mtf_exponent,
-    paper_phase_function,
     slab_backscatter_centroid,
     slab_backscatter_reflectance,
-    wells_mtf_exponent,
-    wells_phase_function,
 )
 
 THETA0 = 0.12  # paper §4.4
@@ -129,7 +130,7 @@ def test_mtf_depends_on_frequency_times_distance():
     frequency = frequency_grid()
     expected = np.exp(
         -water.attenuation * 4.0
-        + water.forward_scattering * 4.0 * paper_mtf_exponent(frequency * 4.0, theta0=THETA0)
+        + water.forward_scattering * 4.0 * Paper(theta0=THETA0).mtf_exponent(frequency * 4.0)
     )
     assert_allclose(water.mtf(frequency, distance=4.0), expected, rtol=1e-6)
 
@@ -171,7 +172,7 @@ def test_phase_functions_are_normalised(theta0):
 
 def test_paper_exponent_shape():
     psi = np.concatenate([[0.0], np.geomspace(1e-6, 1e8, 3000)])
-    exponent = paper_mtf_exponent(psi, theta0=THETA0)
+    exponent = Paper(theta0=THETA0).mtf_exponent(psi)
     assert exponent[0] == 1.0  # D(0) = Σ(0) = 1, paper §4.4
     assert np.all((exponent > 0) & (exponent <= 1))
     assert np.all(np.diff(exponent) <= 0)
@@ -183,7 +184,7 @@ def test_paper_table_matches_direct_transform():
     direct = hankel_mtf_exponent(
         functools.partial(paper_phase_function, theta0=THETA0), psi, theta_max=np.pi
     )
-    assert_allclose(paper_mtf_exponent(psi, theta0=THETA0), direct, atol=5e-5)
+    assert_allclose(Paper(theta0=THETA0).mtf_exponent(psi), direct, atol=5e-5)
 
 
 @pytest.mark.parametrize("psi", [0.1, 1.0, 10.0], ids=["psi0.1", "psi1", "psi10"])
@@ -201,7 +202,7 @@ def test_paper_exponent_against_adaptive_quadrature(psi):
     oracle = integrate.quad(
         integrand, 0, np.sqrt(np.pi), points=[knee, 2 * knee], limit=500, epsabs=1e-12
     )[0]
-    assert_allclose(paper_mtf_exponent(psi, theta0=THETA0), oracle, rtol=5e-5)
+    assert_allclose(Paper(theta0=THETA0).mtf_exponent(psi), oracle, rtol=5e-5)
     direct = hankel_mtf_exponent(
         functools.partial(paper_phase_function, theta0=THETA0), psi, theta_max=np.pi
     )
@@ -215,7 +216,7 @@ def test_paper_exponent_large_psi_asymptote():
     mellin = np.sqrt(2) * special.gamma(0.25) / special.gamma(0.75)
     psi = np.array([1e4, 1e5, 1e6, 1e8])
     asymptote = 2 * np.pi * s0 / THETA0 * (2 * np.pi * psi) ** -0.5 * mellin
-    ratio = paper_mtf_exponent(psi, theta0=THETA0) / asymptote
+    ratio = Paper(theta0=THETA0).mtf_exponent(psi) / asymptote
     assert_allclose(ratio, 1.0, rtol=1e-2)
     assert np.all(np.diff(np.abs(ratio[:3] - 1)) < 0)  # converging as ψ^(-1/2)
 
@@ -328,15 +329,15 @@ def test_fournier_forand_exponent_is_the_transform_of_its_forward_half(fraction)
 
     psi = np.geomspace(3.3e-3, 7.7e5, 61)
     direct = hankel_mtf_exponent(forward, psi, theta_max=np.pi / 2)
-    table = fournier_forand_mtf_exponent(psi, backscatter_fraction=fraction)
+    table = FournierForand(fraction=fraction).mtf_exponent(psi)
     assert_allclose(table, direct, atol=5e-5)
     grid = np.concatenate([[0.0], np.geomspace(1e-6, 1e8, 2000)])
-    exponent = fournier_forand_mtf_exponent(grid, backscatter_fraction=fraction)
+    exponent = FournierForand(fraction=fraction).mtf_exponent(grid)
     assert exponent[0] == 1.0 and np.all(np.diff(exponent) <= 0) and np.all(exponent > 0)
     # beyond the table, D ∝ ψ^-(μ-3) (the θ^-(5-μ) core), continuous at the table's end
     assert_allclose(
-        fournier_forand_mtf_exponent(1e7, backscatter_fraction=fraction)
-        / fournier_forand_mtf_exponent(1e6, backscatter_fraction=fraction),
+        FournierForand(fraction=fraction).mtf_exponent(1e7)
+        / FournierForand(fraction=fraction).mtf_exponent(1e6),
         10.0 ** -(mu - 3.0),
         rtol=1e-12,
     )
@@ -350,8 +351,8 @@ def test_default_water_spreads_as_the_monte_carlo_phase_function():
     fraction = water.backscatter / water.scattering
     assert_allclose(
         water.mtf_exponent(psi),
-        fournier_forand_mtf_exponent(psi, backscatter_fraction=fraction),
+        FournierForand(fraction=fraction).mtf_exponent(psi),
         rtol=1e-12,
     )
     # narrower: coastal water's forward peak holds its light nearer the beam
-    assert np.all(water.mtf_exponent(psi) > paper_mtf_exponent(psi, theta0=0.12) + 0.05)
+    assert np.all(water.mtf_exponent(psi) > Paper(theta0=0.12).mtf_exponent(psi) + 0.05)

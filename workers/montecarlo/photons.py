@@ -2,7 +2,7 @@
 
 One photon at a time, in sequence, from its entry through the sea surface: free paths
 drawn on the scattering coefficient with the absorption carried as a weight, scattering
-angles from a tabulated phase function (`workers.settings.transport.PhaseTable`), reflection off
+angles from a tabulated phase function (`workers.optics.phases.base.PhaseTable`), reflection off
 the target's 3-D Lambertian surface, reflection and escape at the surface from below, a
 cut on time of flight, Russian roulette. At every scattering event and every target
 reflection a local (next-event) estimate goes to the pixels that see the point through

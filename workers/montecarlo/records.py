@@ -95,7 +95,7 @@ class Medium(NamedTuple):
 
 
 class Phase(NamedTuple):
-    """The tabulated phase function (`workers.settings.transport.PhaseTable`), in logs."""
+    """The tabulated phase function (`workers.optics.phases.base.PhaseTable`), in logs."""
 
     log_theta0: float
     """ln of the table's first angle [ln rad]."""

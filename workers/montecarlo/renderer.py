@@ -46,9 +46,9 @@ from workers.montecarlo.records import (
     as_rays,
 )
 from workers.montecarlo.sightlines import build_lookup
+from workers.optics.phases.base import PhaseTable
 from workers.sea.surface import Surface
 from workers.settings.seeds import SampleSeed
-from workers.settings.transport import PhaseTable
 from workers.setup.compiled import Setup
 from workers.setup.interface import through_surface
 from workers.setup.sensor import Sensor, sensor_at

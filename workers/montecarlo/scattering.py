@@ -2,7 +2,7 @@
 
 Counter-keyed streams (a photon's state from its index and the frame's key: SplitMix64,
 then xorshift64*), directions turned by a polar and an azimuthal angle, the tabulated phase
-function (`workers.settings.transport.PhaseTable`) evaluated and sampled, the way from a point in
+function (`workers.optics.phases.base.PhaseTable`) evaluated and sampled, the way from a point in
 the water to the receiver through a flat sea, and the weights of directions drawn from the
 angular-biasing mixtures (`workers.montecarlo.renderer.ANGULAR_BIAS`,
 `workers.montecarlo.renderer.TARGET_BIAS`).

@@ -16,7 +16,7 @@ import math
 import numpy as np
 from pydantic import Field, model_validator
 
-from workers.optics.phase import FF_FRACTIONS
+from workers.optics.phases.base import phase_named
 from workers.sea.conditioning import check_points
 from workers.sea.described import surface_patches
 from workers.settings.instrument import Laser, Noise, Platform, Radiometry, Receiver, Sequence
@@ -248,22 +248,23 @@ class Scene(Section):
     @model_validator(mode="after")
     def _phase_function_for_the_water(self) -> Scene:
         t, water = self.transport, self.water.coefficients
-        users = []  # b_b = b too: no Fournier-Forand function scatters only backwards
-        if self.water.phase_function == "fournier_forand" and t.method == "small_angle":
-            users.append(("water.phase_function", "water.phase_function: paper"))
-        if t.phase_function == "fournier_forand" and t.method == "monte_carlo":
-            users.append(("transport.phase_function", "transport.phase_function: paper"))
-        if not users or water["scattering"] == 0:
+        users = []  # each renderer's phase function, where it is built for the water's b_b/b
+        if t.method == "small_angle":
+            users.append(("water.phase_function", self.water.phase_function))
+        else:
+            users.append(("transport.phase_function", t.phase_function))
+        if water["scattering"] == 0:
             return self
-        low, high = FF_FRACTIONS
         fraction = water["backscatter"] / water["scattering"]
-        if not low <= fraction <= high:
-            field, remedy = users[0]
-            raise ValueError(
-                f"water.backscatter: b_b/b = {fraction:.4g} is outside [{low}, {high}], "
-                f"where {field} fournier_forand is fitted to the water's backscatter; "
-                f"change water.backscatter or use {remedy}"
-            )
+        for field, name in users:
+            fractions = phase_named(name).fractions
+            if fractions is not None and not fractions[0] <= fraction <= fractions[1]:
+                low, high = fractions
+                raise ValueError(
+                    f"water.backscatter: b_b/b = {fraction:.4g} is outside [{low}, {high}], "
+                    f"where {field} {name} is fitted to the water's backscatter; "
+                    f"change water.backscatter or use {field}: paper"
+                )
         return self
 
     @model_validator(mode="after")

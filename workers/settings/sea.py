@@ -16,6 +16,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, field_validator, model_serializer, model_validator
 
+from workers.optics.phases.base import PHASE_FUNCTIONS
 from workers.optics.water import PRESETS
 from workers.sea.cascades import MAX_CASCADES, check_patches
 from workers.settings.section import Section, units
@@ -223,13 +224,15 @@ class Water(Section):
         description="Backscattering coefficient b_b.",
         json_schema_extra=units("1/m"),
     )
-    phase_function: Literal["fournier_forand", "paper", "wells"] = Field(
+    phase_function: str = Field(
         "fournier_forand",
-        description="The fast renderer's small-angle phase function: `fournier_forand` (the "
-        "forward half of the Fournier-Forand function fitted to b_b/b, the one the Monte "
-        "Carlo renderer samples by default; needs 0.002 <= b_b/b <= 0.095), `paper` "
-        "(s ∝ θ^-3/2 (θ0²+θ²)^-1/2, θ0 = theta0) or `wells` (closed-form MTF exponent).",
-        json_schema_extra=units("1"),
+        description="The fast renderer's phase function, a registered one "
+        "(`workers.optics.phases`, docs/model.md): `fournier_forand` (the forward half of "
+        "the Fournier-Forand function fitted to b_b/b, the one the Monte Carlo renderer "
+        "samples by default; needs 0.002 <= b_b/b <= 0.095), `paper` "
+        "(s ∝ θ^-3/2 (θ0²+θ²)^-1/2, θ0 = theta0), `wells` (closed-form MTF exponent) "
+        "or any other registered one.",
+        json_schema_extra={**units("1"), "enum": sorted(PHASE_FUNCTIONS)},
     )
     theta0: float = Field(
         0.12,
@@ -256,6 +259,14 @@ class Water(Section):
         "the whole function.",
         json_schema_extra=units("1"),
     )
+
+    @field_validator("phase_function")
+    @classmethod
+    def _registered(cls, name: str) -> str:
+        if name not in PHASE_FUNCTIONS:
+            choices = ", ".join(sorted(PHASE_FUNCTIONS))
+            raise ValueError(f"not a registered phase function; choose from {choices}")
+        return name
 
     @model_validator(mode="after")
     def _complete(self) -> Water:

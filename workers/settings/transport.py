@@ -4,36 +4,25 @@ Two renderers read a scene. ``small_angle`` (the default, `workers.render`) spre
 with Wells' small-angle transfer function and puts every return at the depth it came from.
 ``monte_carlo`` (`workers.montecarlo.renderer`) follows photons: multiple scattering with a full
 3-D phase function, absorption, the target's 3-D Lambertian surface, and range gating by
-each path's own time of flight. The phase functions it samples live here, as tables built
-once per water (`phase_table`).
+each path's own time of flight. The phase function it samples is a registered one
+(`workers.optics.phases`) defined over the whole sphere.
 
-Units: coefficients in 1/m, phase functions in 1/sr (normalised over the sphere, 4π sr),
-angles in rad.
+Units: coefficients in 1/m.
 """
 
 from __future__ import annotations
 
-import functools
-from dataclasses import dataclass
 from typing import Literal
 
-import numpy as np
-from pydantic import Field
+from pydantic import Field, field_validator
 
-from workers.optics.phase import fit_fournier_forand, fournier_forand, fournier_forand_cumulative
-from workers.optics.water import paper_phase_function
+from workers.optics.phases.base import PHASE_FUNCTIONS
 from workers.settings.section import Section, units
 
-__all__ = [
-    "PhaseTable",
-    "Transport",
-    "paper_phase_function_3d",
-    "phase_table",
-]
+__all__ = ["SPHERICAL", "Transport"]
 
-_TABLE_ANGLES = 4096  # angles of the tabulated phase function, log-spaced in θ
-_TABLE_QUANTILES = 8192  # equal-probability cells of the sampling table
-_THETA_MIN = 1e-6  # smallest tabulated angle [rad]; the cone below holds < 1e-6 of b
+SPHERICAL = sorted(name for name, f in PHASE_FUNCTIONS.items() if f.spherical)
+"""Names of the registered phase functions the Monte Carlo renderer can sample."""
 
 
 class Transport(Section):
@@ -62,12 +51,14 @@ class Transport(Section):
         "images gives the stored standard error.",
         json_schema_extra=units("1"),
     )
-    phase_function: Literal["fournier_forand", "paper"] = Field(
+    phase_function: str = Field(
         "fournier_forand",
-        description="Monte Carlo only: `fournier_forand` with its two parameters fitted to "
-        "the water's backscatter fraction b_b/b and β(π) = 0.174 b_b (the fast renderer's); "
-        "or `paper`, the paper's s(θ) with the water's theta0, normalised over the sphere.",
-        json_schema_extra=units("1"),
+        description="Monte Carlo only: a registered phase function defined over the sphere "
+        "(`workers.optics.phases`, docs/model.md): `fournier_forand` with its two "
+        "parameters fitted to the water's backscatter fraction b_b/b and β(π) = 0.174 b_b "
+        "(the fast renderer's); `paper`, the paper's s(θ) with the water's theta0, "
+        "normalised over the sphere; or any other registered one.",
+        json_schema_extra={**units("1"), "enum": SPHERICAL},
     )
     max_scattering: int | None = Field(
         None,
@@ -78,110 +69,13 @@ class Transport(Section):
         json_schema_extra=units("1"),
     )
 
-
-def paper_phase_function_3d(theta, *, theta0):
-    r"""The paper's small-angle s(θ), normalised as a phase function over the sphere [1/sr].
-
-    Parameters
-    ----------
-    theta : float or array_like
-        Scattering angle θ in (0, π] [rad].
-    theta0 : float
-        Angular scale θ0 [rad] (paper: 0.12).
-
-    Returns
-    -------
-    float or ndarray
-        :math:`s(\theta)/(2\pi\int_0^\pi s\sin\theta\,d\theta)`: the shape of
-        `workers.optics.water.paper_phase_function` with the 3-D measure sin θ dθ in place of
-        the small-angle θ dθ. Its backscatter is its own, not the water's b_b.
-    """
-    return np.asarray(paper_phase_function(theta, theta0=theta0)) / _paper_norm(theta0)
-
-
-@functools.lru_cache(maxsize=16)
-def _paper_norm(theta0: float) -> float:
-    theta = np.geomspace(_THETA_MIN * 1e-3, np.pi, 200_001)
-    s = paper_phase_function(theta, theta0=theta0) * np.sin(theta)
-    return float(2 * np.pi * np.trapezoid(s, theta) + 2 * np.pi * s[0] * theta[0] / 1.5)
-
-
-@dataclass(frozen=True)
-class PhaseTable:
-    r"""A phase function tabulated for the photon kernels.
-
-    Attributes
-    ----------
-    log_theta0 : float
-        ln of the first tabulated angle [ln rad].
-    log_step : float
-        Step of the angle table in ln θ [1].
-    values : ndarray
-        :math:`\tilde\beta` at θ = exp(log_theta0 + i·log_step) [1/sr], float64.
-    quantiles : ndarray
-        Scattering angles [rad] at cumulative probabilities i/(len − 1) (sampling by
-        linear interpolation of the inverse cumulative), float64.
-    backscatter_pi : float
-        :math:`\tilde\beta(\pi)` [1/sr].
-    backscatter_fraction : float
-        The table's share of scattering beyond 90° [1].
-    """
-
-    log_theta0: float
-    log_step: float
-    values: np.ndarray
-    quantiles: np.ndarray
-    backscatter_pi: float
-    backscatter_fraction: float
-
-
-@functools.lru_cache(maxsize=64)
-def phase_table(
-    kind: str, *, backscatter_fraction: float | None = None, theta0: float | None = None
-) -> PhaseTable:
-    """The tabulated phase function a scene's photons sample (cached).
-
-    Parameters
-    ----------
-    kind : {"fournier_forand", "paper"}
-        `Transport.phase_function`.
-    backscatter_fraction : float, optional
-        b_b/b of the water [1] (``fournier_forand``: `fit_fournier_forand`).
-    theta0 : float, optional
-        The paper's angular scale [rad] (``paper``).
-
-    Returns
-    -------
-    PhaseTable
-        Values on 4096 angles log-spaced from 1e-6 rad to π; the inverse cumulative on
-        8193 probabilities. The cumulative is exact for Fournier–Forand
-        (`fournier_forand_cumulative`) and a trapezoid sum in ln θ for the paper's.
-    """
-    theta = np.geomspace(_THETA_MIN, np.pi, _TABLE_ANGLES)
-    if kind == "fournier_forand":
-        n, mu = fit_fournier_forand(float(backscatter_fraction))
-        values = fournier_forand(theta, n=n, mu=mu)
-        cumulative = fournier_forand_cumulative(theta, n=n, mu=mu)
-        cumulative = np.concatenate([[0.0], cumulative])
-    elif kind == "paper":
-        values = paper_phase_function_3d(theta, theta0=theta0)
-        weights = 2 * np.pi * values * np.sin(theta) * theta  # per unit ln θ
-        steps = 0.5 * (weights[1:] + weights[:-1]) * np.diff(np.log(theta))
-        first = 2 * np.pi * values[0] * theta[0] ** 2 / 1.5  # ∫ θ^(1/2) below θ_min
-        cumulative = np.concatenate([[0.0], first + np.concatenate([[0.0], np.cumsum(steps)])])
-        cumulative /= cumulative[-1]
-    else:
-        raise ValueError(f"unknown phase function {kind!r}")
-    angles = np.concatenate([[0.0], theta])
-    cumulative = np.maximum.accumulate(cumulative)
-    probabilities = np.linspace(0.0, 1.0, _TABLE_QUANTILES + 1)
-    quantiles = np.interp(probabilities, cumulative, angles)
-    back = 1.0 - float(np.interp(0.5 * np.pi, angles, cumulative))
-    return PhaseTable(
-        log_theta0=float(np.log(theta[0])),
-        log_step=float(np.log(theta[1] / theta[0])),
-        values=values.astype(np.float64),
-        quantiles=quantiles,
-        backscatter_pi=float(values[-1]),
-        backscatter_fraction=back,
-    )
+    @field_validator("phase_function")
+    @classmethod
+    def _sampled(cls, name: str) -> str:
+        if name not in SPHERICAL:
+            why = "defined at small angles only" if name in PHASE_FUNCTIONS else "not registered"
+            raise ValueError(
+                f"{name!r} is {why}: the Monte Carlo renderer samples a phase function over "
+                f"the sphere; choose from {', '.join(SPHERICAL)}"
+            )
+        return name

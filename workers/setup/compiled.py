@@ -13,12 +13,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from workers.backends.backend import Backend
+from workers.optics.phases.base import PhaseTable, phase_named
 from workers.optics.water import WaterOptics
 from workers.sea.cascades import Sea, subgrid_slope_covariance
 from workers.sea.conditioning import Kriging
 from workers.sea.surface import NUMPY, Surface, draw
 from workers.settings.seeds import SampleSeed
-from workers.settings.transport import PhaseTable, phase_table
 from workers.setup.gates import gate_gains
 from workers.setup.geometry import PlaneGrid
 from workers.targets.base import shape_named
@@ -34,8 +34,8 @@ class Photons:
     Attributes
     ----------
     phase_function : str
-        The phase function they scatter with (``fournier_forand`` or ``paper``; the
-        phase-function plug-in at merge).
+        The registered phase function they scatter with (`workers.optics.phases`; one
+        defined over the sphere).
     photons : int
         Photons a frame [1].
     batches : int
@@ -188,13 +188,18 @@ class Setup:
         return start + time * np.asarray(self.velocity, dtype=float)
 
     def phase_table(self) -> PhaseTable:
-        """The phase function the photons scatter with (`transport.phase_table`, cached)."""
-        if self.photons.phase_function == "paper":
-            return phase_table("paper", theta0=self.water.theta0)
+        """The table of the phase function the photons scatter with (cached).
+
+        Built for the water's b_b/b (rounded to 12 digits) and θ0
+        (`workers.optics.phases.base.PhaseFunction.table`).
+        """
         fraction = self.water.backscatter / max(self.water.scattering, 1e-300)
         if self.water.scattering == 0.0:
             fraction = 0.0183  # no scattering: the shape is never used
-        return phase_table("fournier_forand", backscatter_fraction=round(fraction, 12))
+        phase = phase_named(self.photons.phase_function).for_water(
+            backscatter_fraction=round(fraction, 12), theta0=self.water.theta0
+        )
+        return phase.table()
 
     def impostor(self, grid: PlaneGrid) -> Impostor:
         """The target rasterised on `grid` (`workers.targets.base.TargetShape.impostor`)."""

@@ -1,9 +1,9 @@
-"""Phase functions of sea water shared by both renderers: Fournier–Forand fitted to b_b/b.
+"""The Fournier–Forand phase function, fitted to the water's b_b/b and β(π) = 0.174 b_b.
 
-The fast renderer (`workers.optics.water.WaterOptics`, its small-angle MTF) and the Monte Carlo
-renderer (`workers.settings.transport.phase_table`) scatter light with the same function, fitted so
-that its backscatter fraction is the water's b_b/b and β(π) = 0.174 b_b (Petzold's average
-particle phase function): where they differ, it is by their transport, not their water.
+The default of both renderers: the fast renderer's small-angle MTF takes its forward half
+and the Monte Carlo renderer samples it (exact cumulative), so that where they differ it is
+by their transport, not their water. β(π)/b_b is Petzold's average particle ratio
+(`workers.optics.phases.base.BETA_PI_PER_BACKSCATTER`).
 
 Units: phase functions in 1/sr (normalised over the sphere, 4π sr), angles in rad.
 """
@@ -11,25 +11,20 @@ Units: phase functions in 1/sr (normalised over the sphere, 4π sr), angles in r
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import optimize
 
+from workers.optics.phases.base import BETA_PI_PER_BACKSCATTER, PhaseFunction, register
+
 __all__ = [
-    "BETA_PI_PER_BACKSCATTER",
     "FF_FRACTIONS",
+    "FournierForand",
     "fit_fournier_forand",
     "fournier_forand",
     "fournier_forand_cumulative",
 ]
-
-BETA_PI_PER_BACKSCATTER = 0.174
-"""Ratio β(π)/b_b [1/sr] of Petzold's average particle phase function.
-
-Mobley (1994), Table 3.10, tabulates that phase function with β̃(180°) = 3.18e-3 sr⁻¹
-and backscatter fraction b̃_b = 0.0183, so β(π) = 0.174 b_b. This is 1.09 times the value
-1/(2π) = 0.159 sr⁻¹ that a phase function flat over the backward hemisphere would give.
-"""
 
 FF_FRACTIONS = (0.002, 0.095)
 """Backscatter fractions b_b/b for which `fit_fournier_forand` has a solution (about 0.098
@@ -167,3 +162,48 @@ def fit_fournier_forand(backscatter_fraction: float) -> tuple[float, float]:
             f"β(π)/b_b = {BETA_PI_PER_BACKSCATTER}"
         )
     return n, mu
+
+
+@register
+@dataclass(frozen=True, kw_only=True)
+class FournierForand(PhaseFunction):
+    """Fournier–Forand fitted to a water's b_b/b (`fit_fournier_forand`).
+
+    Parameters
+    ----------
+    fraction : float
+        The water's b_b/b, in `FF_FRACTIONS` [1].
+    """
+
+    name = "fournier_forand"
+    fractions = FF_FRACTIONS
+    fraction: float
+
+    @classmethod
+    def for_water(cls, *, backscatter_fraction, theta0):
+        """Fitted to the water's b_b/b [1]; θ0 [rad] is not used."""
+        return cls(fraction=float(backscatter_fraction))
+
+    @property
+    def mtf_tail(self):
+        """μ − 3: D ∝ ψ^-(μ-3) from the β̃ ∝ θ^-(5-μ) core, μ the Junge slope [1]."""
+        return fit_fournier_forand(self.fraction)[1] - 3.0
+
+    def value(self, theta):
+        """`fournier_forand` with the fitted (n, μ) [1/sr]."""
+        n, mu = fit_fournier_forand(self.fraction)
+        return fournier_forand(theta, n=n, mu=mu)
+
+    def backscatter_fraction(self):
+        """1 − F(π/2), closed form (`fournier_forand_cumulative`) [1]."""
+        n, mu = fit_fournier_forand(self.fraction)
+        return 1.0 - float(fournier_forand_cumulative(0.5 * np.pi, n=n, mu=mu))
+
+    def backscatter_pi_per_backscatter(self):
+        """`BETA_PI_PER_BACKSCATTER`, which the fit meets to 1e-8 [1/sr]."""
+        return BETA_PI_PER_BACKSCATTER
+
+    def cumulative(self, theta, values):
+        """The exact cumulative (`fournier_forand_cumulative`), 0 prepended [1]."""
+        n, mu = fit_fournier_forand(self.fraction)
+        return np.concatenate([[0.0], fournier_forand_cumulative(theta, n=n, mu=mu)])
