@@ -5,7 +5,7 @@ import pytest
 from conftest import plane_grid
 from numpy.testing import assert_allclose
 
-from workers.settings.sea import Target
+from workers.settings.target import Target
 from workers.setup.geometry import PinholeCamera
 from workers.targets.base import shape_named
 from workers.targets.impostor import sphere_area_weights
@@ -130,8 +130,7 @@ def test_disk_is_a_flat_lambertian_panel():
         grid,
         shape="disk",
         radius=1.0,
-        reflectance=0.3,
-        shading="paper",
+        reflectance=0.3,  # `shading: paper` is refused for a disk (test_target_shapes)
         refracted_nadir=0.0,
     )
     area = grid.spacing_u * grid.spacing_v

@@ -14,7 +14,7 @@ import pytest
 from pydantic import ValidationError
 
 from workers.settings.scene import Scene
-from workers.settings.sea import Target
+from workers.settings.target import Target
 from workers.setup.geometry import PlaneGrid
 from workers.targets.base import SHAPES, SUBLINES, shape_named, trace
 

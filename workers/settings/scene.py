@@ -20,8 +20,9 @@ from workers.optics.phases.base import phase_named
 from workers.sea.conditioning import check_points
 from workers.sea.described import surface_patches
 from workers.settings.instrument import Laser, Noise, Platform, Radiometry, Receiver, Sequence
-from workers.settings.sea import SurfaceSpec, Target, Water
+from workers.settings.sea import SurfaceSpec, Water
 from workers.settings.section import Section, units
+from workers.settings.target import Target
 from workers.settings.transport import Transport
 
 __all__ = ["Scene", "footprint_span", "laser_rays"]

@@ -154,7 +154,7 @@ def trace(origins, directions, record):
 class TargetShape:
     """A target shape: what each renderer needs of it (subclass, set ``name``, `register`).
 
-    Methods take the scene's `workers.settings.sea.Target` section (`target`) and the
+    Methods take the scene's `workers.settings.target.Target` section (`target`) and the
     world (x, y) of its centre [m] (`centre`), placed by the setup.
     """
 
