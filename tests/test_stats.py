@@ -135,3 +135,25 @@ def test_cnr_of_noisy_images_is_the_brute_force_mean_over_samples_and_frames():
                 )
     assert 1.0 < np.abs(expected).max() < 10.0  # the variance would read 3 to 4 times less
     assert_allclose(cnr_of(image, mask), expected.mean(axis=(0, 1)), rtol=1e-6)
+
+
+def test_image_std_is_the_sample_standard_deviation_over_samples_and_frames():
+    # A planted bug survived the suite (issue #38's fifteen): `image_std` with ddof=0. Three
+    # images reading 1, 2 and 3 at a pixel (two samples' frames and one more) have the
+    # sample standard deviation exactly 1 (the population one, 0.816).
+    image = np.zeros((3, 1, 2, 4, 4), np.float32)
+    image[:, 0, 0, 1, 2] = [1.0, 2.0, 3.0]
+    image[:, 0, 1] = np.arange(3.0)[:, None, None] * 2.0  # every pixel: 0, 2, 4 (std 2)
+    per_gate = np.zeros(image.shape[:3])
+    stats = point_statistics(
+        image=image,
+        target=per_gate,
+        background=per_gate,
+        mask=np.zeros((3, 1, 4, 4), bool),
+        relative=per_gate,
+        visibility=per_gate.astype(np.uint8),
+    )
+    assert stats["image_std"][0, 1, 2] == 1.0
+    assert (stats["image_std"][0][np.arange(16).reshape(4, 4) != 6] == 0.0).all()
+    assert_allclose(stats["image_std"][1], 2.0, rtol=1e-12)
+    assert_allclose(stats["image_mean"][0, 1, 2], 2.0, rtol=1e-12)

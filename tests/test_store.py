@@ -244,6 +244,12 @@ def test_one_task_per_shard_and_a_failed_shard_rerun_one_sample_at_a_time(
     keep = np.flatnonzero(done)
     for name in ("image", "target_mask", "target_signal", "checksum"):
         assert ours[name].values[keep].tobytes() == theirs[name].values[keep].tobytes(), name
+    # the failed sample stays at each array's fill value (NaN for the floats), not zeros
+    # (a planted bug that wrote zeros survived the suite: issue #38's fifteen)
+    group = zarr.open_group(url, mode="r")
+    for name in ("target_signal", "background_signal", "target_effect_relative"):
+        assert np.isnan(group[name].fill_value), name
+        assert np.isnan(group[name][4]).all(), name
 
 
 def test_a_shard_whose_task_is_given_up_goes_to_no_other_task(tmp_path, monkeypatch, threads):
