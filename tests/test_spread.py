@@ -278,3 +278,23 @@ def test_a_plane_holds_the_light_a_wider_one_changes_no_pixel(
     peak = np.abs(wide).max(axis=(1, 2), keepdims=True)
     assert np.abs(plane - wide).max() > 0  # the wider planes are other planes
     assert (np.abs(plane - wide) / peak).max() <= atol
+
+
+@pytest.mark.parametrize("passes", [1, 2])
+def test_the_whole_filter_is_the_mtf_to_the_power_of_the_passes(passes):
+    # Wells: light scattered or not, p passes of one path transfer MTF(f)^p; the coarse
+    # level's whole filter (the light read beyond the fine grid) is e^(-pcz) + the scattered
+    # part. A planted bug attenuating the unscattered light over one pass only survived the
+    # suite (issue #38's fifteen).
+    water = WaterOptics.from_preset("coastal")
+    grid = north_up_grid(depth=6.0, spacing_u=0.05, spacing_v=0.05, shape=(32, 32))
+    levels = Levels.around(grid, factor=4, margin=10.0)
+    spread = Spread.build(
+        water=water, levels=levels, distance=6.0, truncation=None, passes=passes, gain=0.3
+    )
+    rows, cols = levels.coarse.shape
+    fv = np.fft.fftfreq(rows, d=levels.coarse.spacing_v)[:, None]
+    fu = np.fft.rfftfreq(cols, d=levels.coarse.spacing_u)[None, :]
+    expected = 0.3 * water.mtf(np.hypot(fv, fu), distance=6.0).astype(np.float64) ** passes
+    assert water.attenuation * 6.0 > 1.0  # the unscattered share e^(-pcz) matters
+    assert_allclose(spread.whole, expected, rtol=2e-6, atol=1e-9)
