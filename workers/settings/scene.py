@@ -262,8 +262,8 @@ class Scene(Section):
             if fractions is not None and not fractions[0] <= fraction <= fractions[1]:
                 low, high = fractions
                 raise ValueError(
-                    f"water.backscatter: b_b/b = {fraction:.4g} is outside [{low}, {high}], "
-                    f"where {field} {name} is fitted to the water's backscatter; "
+                    f"water.backscatter: b_b/b = {fraction:.4g} is outside "
+                    f"[{low:.4g}, {high:.4g}], the range {field} {name} can match; "
                     f"change water.backscatter or use {field}: paper"
                 )
         return self
