@@ -19,10 +19,12 @@ paths in metres (n times the water path); weights in the renderer's raw power un
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numba
 import numpy as np
 
+from workers.backends.compiled import refresh_stale
 from workers.montecarlo.records import LEAF
 from workers.montecarlo.scattering import (
     angle_between,
@@ -353,3 +355,14 @@ def transport(launch, key, first_index, scenery, target, image, tallies):
                 else:
                     tallies[_CUT] += w
                     break
+
+
+_HERE = Path(__file__).resolve().parent
+INLINED = (
+    *_HERE.glob("*.py"),
+    *(_HERE.parent / "targets").glob("*.py"),
+    _HERE.parent / "optics" / "fresnel.py",
+)
+"""Every source the kernels below compile in: this package, the target shapes, Fresnel."""
+
+refresh_stale((_elevation, _estimate, transport), sources=INLINED)
