@@ -63,11 +63,11 @@ def refresh_stale(dispatchers, *, sources) -> list[str]:
                 continue
         except OSError:
             pass
-        cache.flush()
-        flushed.append(name)
         try:
+            cache.flush()
             stamp.parent.mkdir(parents=True, exist_ok=True)
             stamp.write_text(digest)
-        except OSError:
-            pass
+        except OSError:  # a cache numba cannot write either: its own behaviour stands
+            continue
+        flushed.append(name)
     return flushed
