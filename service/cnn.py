@@ -214,11 +214,19 @@ class _Items(Dataset):
         return items
 
 
-def _render_fresh(plan, points, *, first, samples, backend, stream) -> tuple[dict, dict]:
+def _render_fresh(plan, points, *, first, samples, backend, workers, stream):
     """`samples` fresh realisations (from `first` on) of each of `points`, rendered here.
 
-    Returns the images and labels stacked (``image``, ``target_present``), and each point's
-    item indices in them.
+    In this process, or in `workers` processes (a ``DataLoader``'s, started by a fork
+    server: this process's threads are not forked) when it is 2 or more: the same samples
+    in the same order either way (`service.stream.SweepStream`).
+
+    Returns
+    -------
+    fresh : dict
+        The images and labels stacked (``image``, ``target_present``).
+    where : dict
+        Each point's indices in them.
     """
     sweep = SweepStream(
         plan,
@@ -237,11 +245,19 @@ def _render_fresh(plan, points, *, first, samples, backend, stream) -> tuple[dic
         total, unit="fresh samples", stream=stream, first="rendering the first fresh sample"
     )
     try:
-        for index, item in enumerate(sweep):
+        processes = workers if workers > 1 else 0
+        loader = DataLoader(
+            sweep,
+            batch_size=None,
+            num_workers=processes,
+            multiprocessing_context="forkserver" if processes else None,
+        )
+        for index, item in enumerate(loader):
             for name in ("image", "target_present"):
+                value = np.asarray(item[name])
                 if name not in fresh:
-                    fresh[name] = np.empty((total, *item[name].shape), item[name].dtype)
-                fresh[name][index] = item[name]
+                    fresh[name] = np.empty((total, *value.shape), value.dtype)
+                fresh[name][index] = value
             where[int(item["point"])].append(index)
             progress.update(1)
     finally:
@@ -296,6 +312,7 @@ def add_cnn(
     plan=None,
     backend=None,
     samples: int = 0,
+    workers: int = 0,
     device=None,
     stream=None,
 ) -> tuple[dict[str, str], dict]:
@@ -328,6 +345,8 @@ def add_cnn(
         Where the fresh samples render: the store's (`service.devices.written_by`).
     samples : int, keyword-only
         Fresh realisations rendered a training point, besides the store's.
+    workers : int, keyword-only
+        Processes that render them (2 or more; else this process renders them).
     device : torch.device or str, keyword-only
         Where to train and score (default: a GPU when there is one, else the CPU).
     stream : file, keyword-only
@@ -354,7 +373,13 @@ def add_cnn(
     fresh, where = {}, {}
     if samples:
         fresh, where = _render_fresh(
-            plan, points, first=realisations, samples=samples, backend=backend, stream=stream
+            plan,
+            points,
+            first=realisations,
+            samples=samples,
+            backend=backend,
+            workers=workers,
+            stream=stream,
         )
     rows, items_pairs = [], []
     train = np.flatnonzero(~test)

@@ -383,6 +383,7 @@ def write_detection(
     stream=None,
     cnn: CnnSettings | None = None,
     samples: int = 0,
+    render_workers: int = 0,
     device: str | None = None,
     train_on=(),
 ) -> tuple[Store, list[int]]:
@@ -411,6 +412,8 @@ def write_detection(
         With `cnn`: fresh realisations rendered a training point from the store's sweep
         (`service.stream.SweepStream`, from the sweep's realisations on), trained on
         besides the store's training realisations.
+    render_workers : int, optional
+        With `samples`: processes that render them (2 or more; else this process).
     device : str, optional
         With `cnn`: where to train and score (``cpu``, ``cuda``, ``cuda:N``; default a GPU
         when there is one).
@@ -442,7 +445,12 @@ def write_detection(
             f"--output {target.url}: that is the sweep's own store or its statistics"
         )
     with store.lock():  # no run writes the samples meanwhile, no other detect the dataset
-        training = {"samples": samples, "device": device, "train_on": tuple(train_on)}
+        training = {
+            "samples": samples,
+            "render_workers": render_workers,
+            "device": device,
+            "train_on": tuple(train_on),
+        }
         return _write_detection(store, target, stream=stream, cnn=cnn, training=training)
 
 
@@ -499,6 +507,7 @@ def _write_detection(
             plan=fresh_plan,
             backend=fresh_backend,
             samples=training["samples"],
+            workers=training["render_workers"],
             device=training["device"],
             stream=stream,
         )

@@ -110,6 +110,11 @@ def test_fresh_samples_repeat_bytes_for_bytes(store, fresh, tmp_path):
     assert again["auc"].values.tobytes() == fresh["auc"].values.tobytes()
 
 
+def test_fresh_samples_rendered_in_processes_are_the_same_bytes(store, fresh, tmp_path):
+    spread = detect(store, tmp_path, "spread", samples=FRESH, render_workers=2)
+    assert cnn_scores(spread).tobytes() == cnn_scores(fresh).tobytes()
+
+
 def test_train_on_trains_on_the_matching_pairs_only(store, baseline, tmp_path, rendered):
     rendered.clear()
     original = SweepStream.item

@@ -393,8 +393,9 @@ def parser() -> argparse.ArgumentParser:
         "--workers",
         type=int,
         default=None,
-        help="score the points on an embedded cluster of this many processes (default: "
-        "threads of this process, which share one core while they render)",
+        help="score the points on an embedded cluster of this many processes, and render "
+        "--samples in as many (default: threads of this process, which share one core while "
+        "they render)",
     )
     detect.add_argument(
         "--cnn",

@@ -204,6 +204,7 @@ def cmd_detect(args) -> int:
             stream=stream,
             cnn=cnn,
             samples=args.samples or 0,
+            render_workers=args.workers or 0,
             device=device,
             train_on=args.train_on or (),
         )
