@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 from torch.utils.data import DataLoader
 
-from service.cnn import _Items, point_conditions
+from service.cnn import PairSamples, point_conditions
 from service.dataset import SampleDataset
 from service.detect import pair_points
 from service.store.location import Store
@@ -64,7 +64,7 @@ def epoch_seconds(store: Store, *, in_memory: bool, samples: int = 1000) -> floa
             of_pair.append(np.full(rows[-1].size, index))
     pick = np.random.default_rng(0).permutation(np.concatenate(rows).size)[:samples]
     dataset = SampleDataset(store.url, arrays=("image",), labels=("target_present",))
-    items = _Items(
+    items = PairSamples(
         dataset, {}, conditions.values, np.concatenate(rows)[pick], np.concatenate(of_pair)[pick]
     )
     batches = DataLoader(items, batch_size=64)

@@ -17,6 +17,7 @@ asked.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import time
 from dataclasses import dataclass
@@ -40,7 +41,7 @@ from workers.detectors.cnn import (
 )
 from workers.detectors.detection import DETECTORS, score_metrics
 
-__all__ = ["CNN", "Conditions", "add_cnn", "point_conditions"]
+__all__ = ["CNN", "Conditions", "PairSamples", "add_cnn", "point_conditions"]
 
 CNN = "cnn"
 """The trained network's name in the detection dataset's ``detector``."""
@@ -179,11 +180,22 @@ def point_conditions(ds, pairs: list[tuple[int, int]], *, train_on=()) -> Condit
     )
 
 
-class _Items(Dataset):
+class PairSamples(Dataset):
     """Samples of the store (`rows` >= 0) or fresh ones (-1 - index), each with its conditions.
 
     Item i is sample `rows[i]` with the conditions of pair `pairs[i]`: ``image``,
-    ``target_present`` and ``conditions``.
+    ``target_present`` and ``conditions``, a map-style dataset for a ``DataLoader``.
+
+    Parameters
+    ----------
+    store : SampleDataset
+        The store's samples (its written ones).
+    fresh : dict
+        Fresh samples' ``image`` and ``target_present``, stacked.
+    conditions : ndarray, shape (pairs, k)
+        Each pair's conditions (`Conditions.values`).
+    rows, pairs : array_like of int
+        Each item's sample (a store's index, or -1 - a fresh one's) and pair.
     """
 
     def __init__(self, store: SampleDataset, fresh: dict, conditions: np.ndarray, rows, pairs):
@@ -266,16 +278,18 @@ def _render_fresh(plan, points, *, first, samples, backend, workers, stream):
 
 
 def _say(stream, text: str) -> None:
+    """One line on `stream` (None: nowhere)."""
     if stream is not None:
         stream.write(text + "\n")
         stream.flush()
 
 
 def _minutes(seconds: float) -> str:
+    """A duration [s] as a person reads it: seconds under a minute, else minutes."""
     return f"{seconds / 60:.1f} min" if seconds >= 60 else f"{seconds:.1f} s"
 
 
-def _estimate(items: _Items, *, settings, shape, conditions: int, device) -> float:
+def _estimate(items: PairSamples, *, settings, shape, conditions: int, device) -> float:
     """Seconds an epoch over `items` will take: a few batches read and trained, timed.
 
     The batches are read unshuffled (the training loader's shuffle stream is left as it
@@ -291,7 +305,7 @@ def _estimate(items: _Items, *, settings, shape, conditions: int, device) -> flo
         channels=shape[0],
         size=shape[1],
         conditions=conditions,
-        settings=CnnSettings(**{**settings.__dict__, "epochs": 2}),
+        settings=dataclasses.replace(settings, epochs=2),
         device=device,
         on_epoch=lambda epoch, loss: ends.append(time.perf_counter()),
     )
@@ -392,7 +406,7 @@ def add_cnn(
             extra = -1 - np.asarray(where.get(point, []), dtype=np.int64)
             rows.append(np.concatenate([stored, extra]))
             items_pairs.append(np.full(rows[-1].size, index))
-    training = _Items(
+    training = PairSamples(
         dataset, fresh, conditions.values, np.concatenate(rows), np.concatenate(items_pairs)
     )
     first = dataset[0]["image"]
@@ -435,7 +449,7 @@ def add_cnn(
         both = held[done[positive * realisations + held] & done[negative * realisations + held]]
         scored += [positive * realisations + both, negative * realisations + both]
         scored_pairs += [np.full(2 * both.size, index)]
-    items = _Items(
+    items = PairSamples(
         dataset, {}, conditions.values, np.concatenate(scored), np.concatenate(scored_pairs)
     )
     with phase(f"scoring the CNN on {len(items)} held-out samples", stream=stream):
