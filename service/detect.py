@@ -467,7 +467,8 @@ def _write_detection(
 
         conditions = point_conditions(ds, pairs, train_on=training["train_on"])
         fresh = training["samples"] > 0
-        fresh_plan = sweep_plan(ds, url) if fresh else None
+        why = f"--samples {training['samples']} asks for fresh samples"
+        fresh_plan = sweep_plan(ds, url, why=why) if fresh else None
         fresh_backend = written_by(ds.attrs, url) if fresh else None
     # an earlier detection dataset is replaced, anything else refused, before any work
     old = target.removable(DATASET_KIND)

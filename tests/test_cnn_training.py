@@ -1,8 +1,11 @@
 """`detect --cnn`'s training: its options, fresh samples, the pairs it trains on, its progress."""
 
+import shutil
+
 import numpy as np
 import pytest
 import xarray as xr
+import zarr
 from conftest import on_cluster
 
 from service.cli import main
@@ -253,3 +256,15 @@ def test_detect_says_how_long_training_takes_then_shows_it(store, tmp_path, caps
     # -q: none of it
     assert main([*argv, "--output", str(tmp_path / "quiet.detect.zarr"), "-q"]) == 0
     assert capsys.readouterr().err == ""
+
+
+def test_fresh_samples_of_a_sweep_that_reads_otherwise_are_refused(store, tmp_path, capsys):
+    copy = tmp_path / "copy.zarr"
+    shutil.copytree(store.url, copy)
+    zarr.open_group(str(copy), mode="r+").attrs["sweep_sha256"] = "0" * 64
+    output = tmp_path / "copy.detect.zarr"
+    argv = ["detect", str(copy), "--cnn", "--samples", "2", "--output", str(output)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "--samples 2 asks for fresh samples, and its sweep reads differently now" in err
+    assert "Traceback" not in err and not output.exists()
