@@ -21,7 +21,11 @@ a detection dataset beside the store (`detection_store`). Variables, per positiv
   sea-marginal observer's Monte Carlo error (`workers.detectors.detection.sea_auc_error`);
 - ``negative_point`` (point): the store's target-free point paired with it, and
   ``held_out`` (realisation): the realisations the trained detector and the sea-marginal
-  observer are evaluated on (the others train the one and are the other's seas).
+  observer are evaluated on (the others train the one and are the other's seas);
+- with the trained network (``--cnn``), ``cnn_trained`` (point): whether it trained on the
+  pair (``--train-on``), and attributes ``cnn_conditions`` (the columns it was told of each
+  pair), ``cnn_trained_on``, ``cnn_fresh_samples``, ``cnn_training_samples``, ``cnn_epochs``,
+  ``cnn_batch_size``, ``cnn_seed``, ``cnn_device`` (`service.cnn`).
 """
 
 from __future__ import annotations

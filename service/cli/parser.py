@@ -401,7 +401,8 @@ def parser() -> argparse.ArgumentParser:
         "--cnn",
         action="store_true",
         help="also train a small convolutional network on the even realisations of every "
-        "point and score it on the odd ones (a GPU if there is one; needs "
+        "point (or those --train-on picks) and score it on the odd ones (a GPU if there is "
+        "one; needs "
         "pip install 'oceanlidar[train]')",
     )
     _training(detect)
