@@ -88,7 +88,7 @@ def _selection(text: str) -> str:
 def _training(detect) -> None:
     """``detect``'s options of the trained network (each needs ``--cnn``)."""
     detect.add_argument(
-        "--epochs", type=_count(1), default=None, help="passes over the training samples (20)"
+        "--epochs", type=_count(1), default=None, help="passes over the training samples (5)"
     )
     detect.add_argument(
         "--samples",
