@@ -1,20 +1,22 @@
 """How fast `detect --cnn` is fed and trains: fresh samples from `SweepStream`, epochs per 1000.
 
-Prints (1) the rate at which `service.stream.SweepStream` renders fresh samples of
+Prints (1) the rate at which `service.stream.SweepStream` renders fresh samples (after the first
+`WARM_UP`) of
 ``configs/detection-study.yaml`` (32 x 32 pixels, three gates; realisations from the
 sweep's count on, as ``detect --samples`` renders them) in this process and through a
 ``DataLoader`` with ``--workers`` worker processes, and (2) the wall seconds of a training
 epoch over 1000 samples of a study store on one CPU thread (the network
 `workers.detectors.cnn.DetectorNet` with the study's conditions, ``batch_size`` 64):
 read from the store each epoch, as `service.cnn.add_cnn` reads them, and held in memory
-(the fresh samples' case). Usage: ``python benchmarks/cnn_training.py STORE [--renders 60]
+(the fresh samples' case). Usage: ``python benchmarks/cnn_training.py STORE [--renders 480]
 [--workers 2]``, STORE a run of the study.
 
-Figures, 2026-11-28, the 2-core machine shared by 8 sessions (load 2 to 3), the network
-of net's 15a3bf2 (the study's store 1000 realisations): SweepStream 54.9 fresh samples/s in
-this process, 109.2 with 2 workers (51.7 and 119.0 in an earlier run); an epoch of 1000
-samples 1.00 s read from the store, 0.83 s held in memory (0.91 and 0.85 with net's first
-network).
+Figures, 2026-11-28, the 2-core machine shared by 8 sessions (load 2 to 2.5), the study's
+store (1000 realisations), the network with the 1 x 1 reduction and per-pixel readout:
+SweepStream 228.8 fresh samples/s in this process, 124.4 with 2 workers (480 renders after
+96; over 1920: 200.8 and 167.3; timed after 1 render only, the first ~70 of a process
+compiling, it showed 52-55); an epoch of 1000 samples 1.00-1.04 s read from the store,
+0.83-0.95 s held in memory.
 """
 
 import argparse
@@ -34,20 +36,23 @@ from service.sweep import load_sweep
 from workers.detectors.cnn import CnnSettings, train_detector
 
 STUDY = Path(__file__).resolve().parent.parent / "configs" / "detection-study.yaml"
+WARM_UP = 96
+"""Samples rendered before the timing starts: the first ~70 of a process render 5x slower."""
 
 
 def render_rate(plan, renders: int, workers: int) -> float:
-    """Fresh samples rendered a second, after the first (`workers` 0: in this process)."""
+    """Fresh samples rendered a second, after `WARM_UP` (`workers` 0: in this process)."""
     stream = SweepStream(
         plan,
-        realisations=renders // len(plan.points) + 2,
+        realisations=(renders + WARM_UP) // len(plan.points) + 2,
         first=plan.realisations,
         arrays=("image",),
         labels=("target_present",),
         shuffle=False,
     )
     items = iter(DataLoader(stream, batch_size=None, num_workers=workers))
-    next(items)
+    for _ in itertools.islice(items, WARM_UP):  # the kernels' compilation, the caches
+        pass
     start = time.perf_counter()
     for _ in itertools.islice(items, renders):
         pass
@@ -90,7 +95,7 @@ def epoch_seconds(store: Store, *, in_memory: bool, samples: int = 1000) -> floa
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("store", help="a store of configs/detection-study.yaml")
-    parser.add_argument("--renders", type=int, default=60)
+    parser.add_argument("--renders", type=int, default=480)
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
     plan = load_sweep(STUDY)

@@ -148,9 +148,8 @@ class DetectorNet(nn.Module):
         if self.conditions:
             self.film = _mlp(self.conditions, 2 * sum(self.maps))
             self.mix = _mlp(self.conditions, READOUTS + 1)
-        self.mix_constant = nn.Parameter(torch.full((READOUTS + 1,), 1.0 / READOUTS))
-        with torch.no_grad():
-            self.mix_constant[-1] = 0.0
+        mean = torch.full((READOUTS,), 1.0 / READOUTS)
+        self.mix_constant = nn.Parameter(torch.cat([mean, torch.zeros(1)]))  # the readouts' mean
 
     def forward(self, image: torch.Tensor, conditions: torch.Tensor | None = None) -> torch.Tensor:
         """Scores (batch,) of images (batch, frames, gates, y, x) [photoelectrons].
@@ -241,7 +240,8 @@ def train_detector(
     channels : int, keyword-only
         Frames × gates of a sample.
     size : (int, int), keyword-only
-        Pixels (y, x) of a picture (default: the first batch's).
+        Pixels (y, x) of a picture (default: the first batch's, `batches` iterated once
+        more for it: a shuffling loader's epochs then shuffle otherwise).
     conditions : int, keyword-only
         Numbers k describing a sample's point (0: none).
     settings : CnnSettings, keyword-only
