@@ -21,7 +21,11 @@ a detection dataset beside the store (`detection_store`). Variables, per positiv
   sea-marginal observer's Monte Carlo error (`workers.detectors.detection.sea_auc_error`);
 - ``negative_point`` (point): the store's target-free point paired with it, and
   ``held_out`` (realisation): the realisations the trained detector and the sea-marginal
-  observer are evaluated on (the others train the one and are the other's seas).
+  observer are evaluated on (the others train the one and are the other's seas);
+- with the trained network (``--cnn``), ``cnn_trained`` (point): whether it trained on the
+  pair (``--train-on``), and attributes ``cnn_conditions`` (the columns it was told of each
+  pair), ``cnn_trained_on``, ``cnn_fresh_samples``, ``cnn_training_samples``, ``cnn_epochs``,
+  ``cnn_batch_size``, ``cnn_seed``, ``cnn_device`` (`service.cnn`).
 """
 
 from __future__ import annotations
@@ -357,8 +361,35 @@ def _dataset(ds, pairs, results, realisations, test, detectors) -> xr.Dataset:
     return detection
 
 
+def _record_training(detection: xr.Dataset, settings, conditions, training: dict) -> None:
+    """What the network was told, trained on and how: the detection dataset's record."""
+    detection["cnn_trained"] = (
+        "point",
+        conditions.training.astype(np.uint8),
+        {"long_name": "the network trained on this pair's training realisations", "units": "1"},
+    )
+    detection.attrs.update(
+        cnn_conditions=list(conditions.names),
+        cnn_trained_on=list(conditions.trained_on) or "every pair",
+        cnn_fresh_samples=int(training["samples"]),
+        cnn_training_samples=int(training["training_samples"]),
+        cnn_device=training["device"],
+        cnn_epochs=int(settings.epochs),
+        cnn_batch_size=int(settings.batch_size),
+        cnn_seed=int(settings.seed),
+    )
+
+
 def write_detection(
-    store: Store, *, output: Store | None = None, stream=None, cnn: CnnSettings | None = None
+    store: Store,
+    *,
+    output: Store | None = None,
+    stream=None,
+    cnn: CnnSettings | None = None,
+    samples: int = 0,
+    render_workers: int = 0,
+    device: str | None = None,
+    train_on=(),
 ) -> tuple[Store, list[int]]:
     """Run the detection study of `store` and write its dataset.
 
@@ -381,6 +412,18 @@ def write_detection(
     cnn : workers.detectors.cnn.CnnSettings, optional
         Train the convolutional detector too with these settings (`service.cnn.add_cnn`;
         needs torch).
+    samples : int, optional
+        With `cnn`: fresh realisations rendered a training point from the store's sweep
+        (`service.stream.SweepStream`, from the sweep's realisations on), trained on
+        besides the store's training realisations.
+    render_workers : int, optional
+        With `samples`: processes that render them (2 or more; else this process).
+    device : str, optional
+        With `cnn`: where to train and score (``cpu``, ``cuda``, ``cuda:N``; default a GPU
+        when there is one).
+    train_on : sequence of str, optional
+        With `cnn`: ``PATH=VALUE`` selections of the pairs trained on
+        (`service.cnn.point_conditions`); every pair is scored.
 
     Returns
     -------
@@ -406,15 +449,31 @@ def write_detection(
             f"--output {target.url}: that is the sweep's own store or its statistics"
         )
     with store.lock():  # no run writes the samples meanwhile, no other detect the dataset
-        return _write_detection(store, target, stream=stream, cnn=cnn)
+        training = {
+            "samples": samples,
+            "render_workers": render_workers,
+            "device": device,
+            "train_on": tuple(train_on),
+        }
+        return _write_detection(store, target, stream=stream, cnn=cnn, training=training)
 
 
-def _write_detection(store: Store, target: Store, *, stream, cnn) -> tuple[Store, list[int]]:
+def _write_detection(
+    store: Store, target: Store, *, stream, cnn, training
+) -> tuple[Store, list[int]]:
     """`write_detection` of `store` to `target`, holding the store's writer lock."""
     url = store.url
     ds = store.dataset()
     check_store(ds, url)
     pairs, unpaired = pair_points(ds)
+    if cnn is not None:  # the options checked before any work: imports torch
+        from service.cnn import add_cnn, point_conditions
+
+        conditions = point_conditions(ds, pairs, train_on=training["train_on"])
+        fresh = training["samples"] > 0
+        why = f"--samples {training['samples']} asks for fresh samples"
+        fresh_plan = sweep_plan(ds, url, why=why) if fresh else None
+        fresh_backend = written_by(ds.attrs, url) if fresh else None
     # an earlier detection dataset is replaced, anything else refused, before any work
     old = target.removable(DATASET_KIND)
     realisations = int(ds.attrs["realisations"])
@@ -440,10 +499,8 @@ def _write_detection(store: Store, target: Store, *, stream, cnn) -> tuple[Store
     finally:
         progress.close()
     detectors = dict(DETECTORS)
-    if cnn is not None:  # one network across the points: imports torch
-        from service.cnn import add_cnn
-
-        detectors |= add_cnn(
+    if cnn is not None:  # one network across the points
+        network, trained = add_cnn(
             results,
             store=store,
             pairs=pairs,
@@ -451,10 +508,20 @@ def _write_detection(store: Store, target: Store, *, stream, cnn) -> tuple[Store
             test=test,
             pfa=PFA,
             settings=cnn,
+            conditions=conditions,
+            plan=fresh_plan,
+            backend=fresh_backend,
+            samples=training["samples"],
+            workers=training["render_workers"],
+            device=training["device"],
             stream=stream,
         )
+        detectors |= network
+        training |= trained
     with phase("writing the detection dataset", stream=stream):
         detection = _dataset(ds, pairs, results, realisations, test, detectors)
+        if cnn is not None:
+            _record_training(detection, cnn, conditions, training)
         detection.attrs["expected_images"] = (
             "read from the store" if plan is None else "rendered again"
         )

@@ -56,18 +56,20 @@ def check_store(ds: xr.Dataset, url: str) -> None:
         )
 
 
-def sweep_plan(ds: xr.Dataset, url: str):
-    """The store's sweep, read again from its text, to render samples again."""
+def sweep_plan(ds: xr.Dataset, url: str, *, why: str = "the store has no 'expected' images"):
+    """The store's sweep, read again from its text, to render samples again.
+
+    `why` says in an error what the renders are for.
+    """
     try:
         plan = parse_sweep(ds.attrs["sweep"])
     except InputError as error:
         raise type(error)(
-            f"{url}: the store has no 'expected' images, and its sweep cannot be read again "
-            f"to render them: {error}"
+            f"{url}: {why}, and its sweep cannot be read again to render them: {error}"
         ) from None
     if plan.digest != ds.attrs.get("sweep_sha256"):
         raise BadSweepError(
-            f"{url}: the store has no 'expected' images, and its sweep reads differently now "
-            "(another oceanlidar version?): they cannot be rendered again"
+            f"{url}: {why}, and its sweep reads differently now (another oceanlidar "
+            "version?): they cannot be rendered"
         )
     return plan

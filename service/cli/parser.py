@@ -62,6 +62,63 @@ def _backend(command, renders: str) -> None:
     )
 
 
+def _count(least: int):
+    """An argparse type: a whole number, at least `least`."""
+
+    def parse(text: str) -> int:
+        try:
+            number = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
+        if number < least:
+            raise argparse.ArgumentTypeError(f"must be at least {least}, got {number}")
+        return number
+
+    return parse
+
+
+def _selection(text: str) -> str:
+    """``PATH=VALUE`` (argparse's type for ``--train-on``; the store checks both)."""
+    path, equals, value = text.partition("=")
+    if not equals or not path.strip() or not value.strip():
+        raise argparse.ArgumentTypeError(f"give PATH=VALUE (surface.wind_speed=3), got {text!r}")
+    return f"{path.strip()}={value.strip()}"
+
+
+def _training(detect) -> None:
+    """``detect``'s options of the trained network (each needs ``--cnn``)."""
+    detect.add_argument(
+        "--epochs", type=_count(1), default=None, help="passes over the training samples (5)"
+    )
+    detect.add_argument(
+        "--samples",
+        type=_count(0),
+        default=None,
+        help="fresh realisations rendered a training point from the store's sweep, trained "
+        "on besides the store's (default 0)",
+    )
+    detect.add_argument(
+        "--batch-size", type=_count(1), default=None, help="samples a batch holds (64)"
+    )
+    detect.add_argument(
+        "--device",
+        default=None,
+        help="where the network trains: cpu, cuda or cuda:N (default: a GPU if there is one)",
+    )
+    detect.add_argument(
+        "--seed", type=_count(0), default=None, help="seed of the weights and the shuffling (0)"
+    )
+    detect.add_argument(
+        "--train-on",
+        type=_selection,
+        action="append",
+        default=None,
+        metavar="PATH=VALUE",
+        help="train only on the pairs whose swept parameter PATH has VALUE (repeatable); "
+        "every pair is scored",
+    )
+
+
 def _limits(command) -> None:
     command.add_argument(
         "--no-limits", action="store_true", help="lift the size and memory limits"
@@ -336,16 +393,19 @@ def parser() -> argparse.ArgumentParser:
         "--workers",
         type=int,
         default=None,
-        help="score the points on an embedded cluster of this many processes (default: "
-        "threads of this process, which share one core while they render)",
+        help="score the points on an embedded cluster of this many processes, and render "
+        "--samples in as many (default: threads of this process, which share one core while "
+        "they render)",
     )
     detect.add_argument(
         "--cnn",
         action="store_true",
         help="also train a small convolutional network on the even realisations of every "
-        "point and score it on the odd ones (a GPU if there is one; needs "
+        "point (or those --train-on picks) and score it on the odd ones (a GPU if there is "
+        "one; needs "
         "pip install 'oceanlidar[train]')",
     )
+    _training(detect)
     _storage_options(detect)
     _preview(commands)
 

@@ -18,7 +18,7 @@ import sys
 
 import numpy as np
 
-from service.devices import BACKEND_ATTR, DEVICE_ATTR, stored
+from service.devices import BACKEND_ATTR, DEVICE_ATTR, choose, stored
 from service.errors import BadOptionError, DamagedStoreError, InputError, UnusableOutputError
 from service.inputs import shown
 from service.store import integrity
@@ -184,7 +184,7 @@ def cmd_detect(args) -> int:
 
     if args.workers is not None and args.workers < 1:
         raise BadOptionError("--workers must be at least 1")
-    cnn = _cnn_settings() if args.cnn else None
+    cnn, device = _cnn_settings(args)
     store = _store(args, args.store)
     _open(store)
     output = store.other(args.output) if args.output else None
@@ -198,15 +198,38 @@ def cmd_detect(args) -> int:
                 cluster.enter_context(
                     dask_client(workers=args.workers, scheduler=None, verbose=args.verbose > 0)
                 )
-        target, unpaired = write_detection(store, output=output, stream=stream, cnn=cnn)
+        target, unpaired = write_detection(
+            store,
+            output=output,
+            stream=stream,
+            cnn=cnn,
+            samples=args.samples or 0,
+            render_workers=args.workers or 0,
+            device=device,
+            train_on=args.train_on or (),
+        )
     if unpaired:
         log.warning("points with no target-free twin, left out: %s", unpaired)
     print(target.url)
     return EXIT_OK
 
 
-def _cnn_settings():
-    """The trained network's default settings, or `BadOptionError` if torch is missing."""
+TRAINING_OPTIONS = ("epochs", "samples", "batch_size", "device", "seed", "train_on")
+"""``detect``'s options of the trained network, refused without ``--cnn``."""
+
+
+def _cnn_settings(args):
+    """The trained network's settings and device from ``--cnn`` and its options.
+
+    Returns (None, None) without ``--cnn``. Raises `BadOptionError` naming the option: one
+    given without ``--cnn``, torch missing, a ``--device`` that is not here.
+    """
+    given = [name for name in TRAINING_OPTIONS if getattr(args, name) is not None]
+    if not args.cnn:
+        if given:
+            flag = "--" + given[0].replace("_", "-")
+            raise BadOptionError(f"{flag} sets the trained network's training: it needs --cnn")
+        return None, None
     try:
         from workers.detectors.cnn import CnnSettings
     except ImportError:
@@ -214,7 +237,14 @@ def _cnn_settings():
             "--cnn trains a network with PyTorch, which is not installed: "
             "pip install 'oceanlidar[train]'"
         ) from None
-    return CnnSettings()
+    if args.device is not None:
+        choose("torch", args.device)  # a device that is not here: BadOptionError
+    chosen = {
+        name: getattr(args, name)
+        for name in ("epochs", "batch_size", "seed")
+        if getattr(args, name) is not None
+    }
+    return CnnSettings(**chosen), args.device
 
 
 def _stored_sample(store: Store, sample: int):
