@@ -55,6 +55,13 @@ def trained_on(detection: xr.Dataset) -> str:
     return selection if isinstance(selection, str) else " ".join(selection)
 
 
+def short(selection: str) -> str:
+    """A training selection for a tick label: its values alone (``every pair`` stays)."""
+    if "=" not in selection:
+        return selection
+    return " ".join(part.split("=", 1)[1] for part in selection.split())
+
+
 def interval(row: xr.Dataset) -> str:
     """``AUC [low, high]`` of one detector at one pair."""
     return f"{float(row['auc']):.3f} [{float(row['auc_low']):.3f}, {float(row['auc_high']):.3f}]"
@@ -103,7 +110,8 @@ def plot(pairs: list[dict], names: list[str], path: str) -> None:
             auc = float(network["auc"])
             low, high = auc - float(network["auc_low"]), float(network["auc_high"]) - auc
             axis.errorbar(i, auc, yerr=[[low], [high]], fmt="o", capsize=3)
-        axis.set_xticks(range(len(names)), [f"trained on\n{n}" for n in names], fontsize=7)
+        axis.set_xticks(range(len(names)), [n.replace(" ", "\n") for n in names], fontsize=7)
+        axis.set_xlabel("the network trained on", fontsize=8)
         axis.set_title(pair["label"].replace(", ", "\n"), fontsize=8)
     axes[0][0].set_ylabel("AUC (95 % interval)")
     axes[0][0].legend(fontsize=7, loc="lower left")
@@ -129,7 +137,7 @@ def main() -> None:
             f"{detection.attrs['cnn_fresh_samples']} fresh samples a point"
         )
     if args.png:
-        plot(pairs, [trained_on(d) for d in detections], args.png)
+        plot(pairs, [short(trained_on(d)) for d in detections], args.png)
         print(f"plot: {args.png}")
 
 

@@ -10,7 +10,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from service.inputs import DEFAULT_MAX_MEMORY, json_object
+from service.cli import arguments
+from service.inputs import json_object
 from service.records import JobState
 
 __all__ = ["DEFAULT_SERVER", "parser"]
@@ -18,119 +19,14 @@ __all__ = ["DEFAULT_SERVER", "parser"]
 DEFAULT_SERVER = "http://127.0.0.1:8000"
 """The job service the clients talk to without ``--server`` or ``OCEANLIDAR_SERVER``."""
 
-MAX_MEMORY_HELP = f"most memory one sample may need, GiB (default {DEFAULT_MAX_MEMORY / 2**30:g})"
-
-
-def _port(text: str) -> int:
-    """A TCP port, 1 to 65535 (argparse's type for ``--port``)."""
-    try:
-        port = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a port number: {text!r}") from None
-    if not 1 <= port <= 65535:
-        raise argparse.ArgumentTypeError(f"{port} is not a port (1 to 65535)")
-    return port
-
-
-def _output(text: str) -> str:
-    """A path or URL to write (argparse's type for ``--output``): not empty, printable."""
-    if not text.strip():
-        raise argparse.ArgumentTypeError("must name a path or URL, got an empty one")
-    if any(ord(character) < 32 or ord(character) == 127 for character in text):
-        raise argparse.ArgumentTypeError(f"control characters are not allowed, got {text!r}")
-    return text
-
-
-def _storage_options(command) -> None:
-    command.add_argument(
-        "--storage-options", type=json_object, default=None, help="fsspec options as JSON"
-    )
-
-
-def _backend(command, renders: str) -> None:
-    """``--backend`` and ``--device``: where `renders` (the samples, the timed renders)."""
-    command.add_argument(
-        "--backend",
-        choices=("numpy", "torch"),
-        default=None,
-        help=f"array backend {renders} render on (default: numpy, torch on a CUDA device)",
-    )
-    command.add_argument(
-        "--device",
-        default=None,
-        help=f"device {renders} render on: cpu (default), cuda or cuda:N (implies torch)",
-    )
-
-
-def _count(least: int):
-    """An argparse type: a whole number, at least `least`."""
-
-    def parse(text: str) -> int:
-        try:
-            number = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"not a whole number: {text!r}") from None
-        if number < least:
-            raise argparse.ArgumentTypeError(f"must be at least {least}, got {number}")
-        return number
-
-    return parse
-
-
-def _selection(text: str) -> str:
-    """``PATH=VALUE`` (argparse's type for ``--train-on``; the store checks both)."""
-    path, equals, value = text.partition("=")
-    if not equals or not path.strip() or not value.strip():
-        raise argparse.ArgumentTypeError(f"give PATH=VALUE (surface.wind_speed=3), got {text!r}")
-    return f"{path.strip()}={value.strip()}"
-
-
-def _training(detect) -> None:
-    """``detect``'s options of the trained network (each needs ``--cnn``)."""
-    detect.add_argument(
-        "--epochs", type=_count(1), default=None, help="passes over the training samples (5)"
-    )
-    detect.add_argument(
-        "--samples",
-        type=_count(0),
-        default=None,
-        help="fresh realisations rendered a training point from the store's sweep, trained "
-        "on besides the store's (default 0)",
-    )
-    detect.add_argument(
-        "--batch-size", type=_count(1), default=None, help="samples a batch holds (64)"
-    )
-    detect.add_argument(
-        "--device",
-        default=None,
-        help="where the network trains: cpu, cuda or cuda:N (default: a GPU if there is one)",
-    )
-    detect.add_argument(
-        "--seed", type=_count(0), default=None, help="seed of the weights and the shuffling (0)"
-    )
-    detect.add_argument(
-        "--train-on",
-        type=_selection,
-        action="append",
-        default=None,
-        metavar="PATH=VALUE",
-        help="train only on the pairs whose swept parameter PATH has VALUE (repeatable); "
-        "every pair is scored",
-    )
-
-
-def _limits(command) -> None:
-    command.add_argument(
-        "--no-limits", action="store_true", help="lift the size and memory limits"
-    )
-    command.add_argument("--max-memory", type=float, default=None, help=MAX_MEMORY_HELP)
-
 
 def _run(commands) -> None:
     run = commands.add_parser("run", help="run a sweep into a zarr store")
     run.add_argument("sweep", help="sweep YAML file")
     run.add_argument(
-        "--output", type=_output, help="store path or fsspec URL (default: the file's output)"
+        "--output",
+        type=arguments.output,
+        help="store path or fsspec URL (default: the file's output)",
     )
     where = run.add_mutually_exclusive_group()
     where.add_argument(
@@ -170,9 +66,9 @@ def _run(commands) -> None:
         default=600.0,
         help="seconds after its submission that a task is given up as stuck (default 600)",
     )
-    _backend(run, "the samples")
-    _limits(run)
-    _storage_options(run)
+    arguments.backend(run, "the samples")
+    arguments.limits(run)
+    arguments.storage_options(run)
 
 
 def _preview(commands) -> None:
@@ -205,7 +101,10 @@ def _preview(commands) -> None:
         "that a few hot caustic pixels saturate instead of darkening the rest)",
     )
     preview.add_argument(
-        "--output", type=_output, required=True, help="FILE.png, or FILE.gif for a sequence"
+        "--output",
+        type=arguments.output,
+        required=True,
+        help="FILE.png, or FILE.gif for a sequence",
     )
     preview.add_argument(
         "--dpi",
@@ -214,8 +113,8 @@ def _preview(commands) -> None:
         help="dots per inch (default: 100, or more where a gate's image would have fewer "
         "than 2 screen pixels across each of its pixels)",
     )
-    _limits(preview)
-    _storage_options(preview)
+    arguments.limits(preview)
+    arguments.storage_options(preview)
 
 
 def _check(commands) -> None:
@@ -243,7 +142,7 @@ def _check(commands) -> None:
         "more narrow the errors, in proportion to the time",
     )
     check.add_argument("--plot", help="FILE.png: the images side by side and ratios by gate")
-    _limits(check)
+    arguments.limits(check)
 
 
 def _job_commands(commands) -> None:
@@ -252,7 +151,9 @@ def _job_commands(commands) -> None:
     serve.add_argument(
         "--host", default="127.0.0.1", help="address to listen on (default: %(default)s)"
     )
-    serve.add_argument("--port", type=_port, default=8000, help="port (default: %(default)s)")
+    serve.add_argument(
+        "--port", type=arguments.port, default=8000, help="port (default: %(default)s)"
+    )
     serve.add_argument("--db", default="oceanlidar-jobs.sqlite", help="job table, SQLite file")
     serve.add_argument(
         "--data-root",
@@ -276,7 +177,7 @@ def _job_commands(commands) -> None:
     where = serve.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, default=None, help="embedded cluster's workers")
     where.add_argument("--scheduler", help="address of an existing dask scheduler")
-    _backend(serve, "every job's samples")
+    arguments.backend(serve, "every job's samples")
     tls = serve.add_argument_group("TLS (for tls:// schedulers; else dask's configuration)")
     tls.add_argument("--tls-ca-file", help="CA certificate(s), PEM")
     tls.add_argument("--tls-cert", help="client certificate, PEM")
@@ -361,8 +262,8 @@ def parser() -> argparse.ArgumentParser:
         action="store_true",
         help="skip the timed renders of sample 0's first frame (and the run-time estimate)",
     )
-    _backend(validate, "the timed renders")
-    _limits(validate)
+    arguments.backend(validate, "the timed renders")
+    arguments.limits(validate)
 
     commands.add_parser("schema", help="print the JSON Schema of sweep files (for editors)")
 
@@ -371,7 +272,7 @@ def parser() -> argparse.ArgumentParser:
     info.add_argument(
         "--verify", action="store_true", help="read back every completed sample (slow)"
     )
-    _storage_options(info)
+    arguments.storage_options(info)
 
     stats = commands.add_parser("stats", help="(re)compute a store's statistics dataset")
     stats.add_argument("store", help="store path or URL")
@@ -381,13 +282,15 @@ def parser() -> argparse.ArgumentParser:
         help="compute the statistics of an incomplete store's written samples (refused "
         "without it)",
     )
-    _storage_options(stats)
+    arguments.storage_options(stats)
     detect = commands.add_parser(
         "detect", help="detection study of a store: ROC, AUC and Pd per parameter point"
     )
     detect.add_argument("store", help="store path or URL")
     detect.add_argument(
-        "--output", type=_output, help="DET.zarr (default: beside the store, .detect.zarr)"
+        "--output",
+        type=arguments.output,
+        help="DET.zarr (default: beside the store, .detect.zarr)",
     )
     detect.add_argument(
         "--workers",
@@ -405,19 +308,19 @@ def parser() -> argparse.ArgumentParser:
         "one; needs "
         "pip install 'oceanlidar[train]')",
     )
-    _training(detect)
-    _storage_options(detect)
+    arguments.training(detect)
+    arguments.storage_options(detect)
     _preview(commands)
 
     plot = commands.add_parser("plot", help="plot a store's statistics or a detection dataset")
     plot.add_argument("store", help="store path or URL")
     plot.add_argument(
         "--output",
-        type=_output,
+        type=arguments.output,
         required=True,
         help="FILE.png (or .pdf, .svg: what matplotlib writes)",
     )
-    _storage_options(plot)
+    arguments.storage_options(plot)
     _check(commands)
     _job_commands(commands)
     for command in commands.choices.values():  # after the command too: run x.yaml -q
