@@ -1,8 +1,8 @@
 """The trained image detector of `detect --cnn`: one network per sweep, told each pair's point.
 
-`point_conditions` describes each pair (`service.detect.pair_points`) by its positive point's
-swept values outside ``target.shape`` (the numbers the network is conditioned on) and picks
-the pairs it trains on (``--train-on``). `add_cnn` trains a
+`point_conditions` describes each pair (`service.detect_checks.pair_points`) by its
+positive point's swept values outside ``target.shape`` (the numbers the network is
+conditioned on) and picks the pairs it trains on (``--train-on``). `add_cnn` trains a
 `workers.detectors.cnn.DetectorNet` on the training realisations
 (`workers.detectors.detection.held_out` False) of the training pairs' points, read from the
 store (`service.dataset.SampleDataset`), and on ``samples`` fresh realisations a point
@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+import xarray as xr
 from torch.utils.data import DataLoader, Dataset
 
 from service.dataset import SampleDataset
@@ -41,7 +42,7 @@ from workers.detectors.cnn import (
 )
 from workers.detectors.detection import DETECTORS, score_metrics
 
-__all__ = ["CNN", "Conditions", "PairSamples", "add_cnn", "point_conditions"]
+__all__ = ["CNN", "Conditions", "PairSamples", "add_cnn", "point_conditions", "record_training"]
 
 CNN = "cnn"
 """The trained network's name in the detection dataset's ``detector``."""
@@ -122,7 +123,7 @@ def point_conditions(ds, pairs: list[tuple[int, int]], *, train_on=()) -> Condit
     ds : xarray.Dataset
         The samples store.
     pairs : list of (int, int)
-        (positive point, negative point), as `service.detect.pair_points` gives them.
+        (positive point, negative point), as `service.detect_checks.pair_points` gives them.
     train_on : sequence of str, keyword-only
         ``PATH=VALUE``: train only on the pairs whose swept parameter PATH has VALUE (a
         number for a numeric parameter, else its text); several values of one path: any of
@@ -341,7 +342,7 @@ def add_cnn(
     store : Store, keyword-only
         The sweep's store.
     pairs : list of (int, int), keyword-only
-        (positive point, negative point), as `service.detect.pair_points` gives them.
+        (positive point, negative point), as `service.detect_checks.pair_points` gives them.
     realisations : int, keyword-only
         Realisations per point.
     test : ndarray of bool, shape (realisations,), keyword-only
@@ -473,3 +474,22 @@ def add_cnn(
             f"worst {gaps[worst]:.3f} (point {pairs[worst][0]}; per point in the dataset)",
         )
     return {CNN: CNN_DESCRIPTION}, {"training_samples": len(training), "device": str(device)}
+
+
+def record_training(detection: xr.Dataset, settings, conditions, training: dict) -> None:
+    """What the network was told, trained on and how: the detection dataset's record."""
+    detection["cnn_trained"] = (
+        "point",
+        conditions.training.astype(np.uint8),
+        {"long_name": "the network trained on this pair's training realisations", "units": "1"},
+    )
+    detection.attrs.update(
+        cnn_conditions=list(conditions.names),
+        cnn_trained_on=list(conditions.trained_on) or "every pair",
+        cnn_fresh_samples=int(training["samples"]),
+        cnn_training_samples=int(training["training_samples"]),
+        cnn_device=training["device"],
+        cnn_epochs=int(settings.epochs),
+        cnn_batch_size=int(settings.batch_size),
+        cnn_seed=int(settings.seed),
+    )

@@ -40,11 +40,10 @@ import numpy as np
 import xarray as xr
 
 from service import package_version
-from service.detect_checks import check_store, sweep_plan, written_pairs
+from service.detect_checks import check_store, pair_points, sweep_plan, written_pairs
 from service.devices import written_by
 from service.errors import BadOptionError, BadSweepError, UnusableOutputError
 from service.progress import Progress, compute, phase
-from service.stats import twin_points
 from service.store.integrity import check_labels
 from service.store.layout import CONVENTIONS
 from service.store.location import Store
@@ -77,44 +76,6 @@ DATASET_KIND = "detection"
 def detection_store(store: Store) -> Store:
     """Where the detection dataset of `store` lives by default (beside it)."""
     return store.sibling("detect")
-
-
-def pair_points(ds: xr.Dataset) -> tuple[list[tuple[int, int]], list[int]]:
-    """Pair each point with a target with the target-free point of the same scene.
-
-    The twins are `service.stats.twin_points`'s (also those the statistics read).
-
-    Returns
-    -------
-    pairs : list of (int, int)
-        (positive point, negative point) indices in the store.
-    unpaired : list of int
-        Points with a target and no target-free twin.
-
-    Raises
-    ------
-    BadSweepError
-        When no point has a target, or none is target-free (nothing to evaluate).
-    """
-    realisations = int(ds.attrs["realisations"])
-    present = ds["target_present"].values[::realisations].astype(bool)
-    if not present.any():
-        raise BadSweepError("no parameter point has a target: there is nothing to detect")
-    if present.all():
-        raise BadSweepError(
-            "no parameter point is target-free, so there are no negatives to evaluate "
-            "detectors against; sweep target.shape: [sphere, none] (or disk) to pair them"
-        )
-    twins = twin_points(ds)
-    positives = np.flatnonzero(present).tolist()
-    pairs = [(point, int(twins[point])) for point in positives if twins[point] >= 0]
-    unpaired = [point for point in positives if twins[point] < 0]
-    if not pairs:
-        raise BadSweepError(
-            "no point with a target has a target-free twin (equal in every swept parameter "
-            "outside target.): sweep target.shape: [sphere, none] on a grid to pair them"
-        )
-    return pairs, unpaired
 
 
 def _rendered_expected(plan, rows, both, images, backend: Backend):
@@ -361,25 +322,6 @@ def _dataset(ds, pairs, results, realisations, test, detectors) -> xr.Dataset:
     return detection
 
 
-def _record_training(detection: xr.Dataset, settings, conditions, training: dict) -> None:
-    """What the network was told, trained on and how: the detection dataset's record."""
-    detection["cnn_trained"] = (
-        "point",
-        conditions.training.astype(np.uint8),
-        {"long_name": "the network trained on this pair's training realisations", "units": "1"},
-    )
-    detection.attrs.update(
-        cnn_conditions=list(conditions.names),
-        cnn_trained_on=list(conditions.trained_on) or "every pair",
-        cnn_fresh_samples=int(training["samples"]),
-        cnn_training_samples=int(training["training_samples"]),
-        cnn_device=training["device"],
-        cnn_epochs=int(settings.epochs),
-        cnn_batch_size=int(settings.batch_size),
-        cnn_seed=int(settings.seed),
-    )
-
-
 def write_detection(
     store: Store,
     *,
@@ -467,7 +409,7 @@ def _write_detection(
     check_store(ds, url)
     pairs, unpaired = pair_points(ds)
     if cnn is not None:  # the options checked before any work: imports torch
-        from service.cnn import add_cnn, point_conditions
+        from service.cnn import add_cnn, point_conditions, record_training
 
         conditions = point_conditions(ds, pairs, train_on=training["train_on"])
         fresh = training["samples"] > 0
@@ -521,7 +463,7 @@ def _write_detection(
     with phase("writing the detection dataset", stream=stream):
         detection = _dataset(ds, pairs, results, realisations, test, detectors)
         if cnn is not None:
-            _record_training(detection, cnn, conditions, training)
+            record_training(detection, cnn, conditions, training)
         detection.attrs["expected_images"] = (
             "read from the store" if plan is None else "rendered again"
         )
