@@ -1,5 +1,6 @@
 """`detect --cnn`'s training: its options, fresh samples, the pairs it trains on, its progress."""
 
+import contextlib
 import shutil
 
 import numpy as np
@@ -7,6 +8,7 @@ import pytest
 import xarray as xr
 import zarr
 from conftest import on_cluster
+from test_cnn import SWEEP as CNN_SWEEP
 
 from service.cli import main
 from service.cnn import point_conditions
@@ -16,23 +18,8 @@ from service.store.location import Store
 from service.stream import SweepStream
 from workers.detectors.cnn import CnnSettings
 
-SWEEP = """\
-name: cnn-training
-seed: 11
-realisations: 24
-output: {output}
-scene:
-  surface: {{grid_size: 32, spacing: 0.1, allow_repeat: true}}  # tiny: the sea repeats
-  receiver: {{pixels: 16, gates: [[1.0, 6.0]]}}
-  radiometry: {{mode: normalised, white_plane_photons: 10}}
-  target: {{reflectance: 0.8}}
-store: {{expected: true}}
-sweep:
-  parameters:
-    target.depth: {{values: [1.5, 5.0]}}
-    water.preset: {{values: [clear_ocean, coastal]}}
-    target.shape: {{values: [sphere, none]}}
-"""
+SWEEP = CNN_SWEEP.replace("name: cnn", "name: cnn-training").replace("seed: 7", "seed: 11")
+SWEEP = SWEEP.replace("realisations: 120", "realisations: 24")
 """Tiny samples of a bright sphere at two depths in two waters, each with its twin: 4 pairs,
 12 training and 12 held-out realisations a point."""
 
@@ -70,8 +57,9 @@ def rendered():
     return []
 
 
-@pytest.fixture(scope="module")
-def fresh(store, tmp_path_factory, rendered):
+@contextlib.contextmanager
+def spying(rendered):
+    """`SweepStream.item` recording each (point, realisation) it renders into `rendered`."""
     original = SweepStream.item
 
     def spied(self, *, point, realisation):
@@ -80,6 +68,12 @@ def fresh(store, tmp_path_factory, rendered):
 
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(SweepStream, "item", spied)
+        yield
+
+
+@pytest.fixture(scope="module")
+def fresh(store, tmp_path_factory, rendered):
+    with spying(rendered):
         return detect(store, tmp_path_factory.mktemp("fresh"), "fresh", samples=FRESH)
 
 
@@ -120,14 +114,7 @@ def test_fresh_samples_rendered_in_processes_are_the_same_bytes(store, fresh, tm
 
 def test_train_on_trains_on_the_matching_pairs_only(store, baseline, tmp_path, rendered):
     rendered.clear()
-    original = SweepStream.item
-
-    def spied(self, *, point, realisation):
-        rendered.append((point, realisation))
-        return original(self, point=point, realisation=realisation)
-
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(SweepStream, "item", spied)
+    with spying(rendered):
         clear = detect(store, tmp_path, "clear", samples=1, train_on=["water.preset=clear_ocean"])
     water = [str(value) for value in clear["water_preset"].values.tolist()]
     assert clear["cnn_trained"].values.tolist() == [int(w == "clear_ocean") for w in water]
