@@ -147,6 +147,11 @@ def point_conditions(ds, pairs: list[tuple[int, int]], *, train_on=()) -> Condit
         path, equals, text = selection.partition("=")
         if not equals or not path or not text:
             raise BadOptionError(f"--train-on {selection}: give PATH=VALUE")
+        if path == "target.shape":
+            raise BadOptionError(
+                f"--train-on {selection}: target.shape is the label (with and without the "
+                "target), which every pair trains on both of; pick by another parameter"
+            )
         if path not in columns:
             raise BadOptionError(
                 f"--train-on {selection}: {path} is not a swept parameter of the store "

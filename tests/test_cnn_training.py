@@ -157,7 +157,7 @@ def test_a_network_trained_in_one_water_is_not_told_of_another(store):
     ("selection", "reason"),
     [
         ("surface.wind_speed=3", "not a swept parameter"),
-        ("target.shape=sphere", "not a swept parameter"),
+        ("target.shape=sphere", "target.shape is the label"),
         ("target.depth=9", "no paired point has that value"),
         ("target.depth=deep", "takes numbers"),
         ("water.preset=muddy", "no paired point has that value"),
