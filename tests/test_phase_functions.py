@@ -7,12 +7,20 @@ import pytest
 from pydantic import ValidationError
 from scipy import integrate, stats
 
-from workers.optics.phases.base import PHASE_FUNCTIONS, PhaseFunction, phase_named
+from workers.montecarlo.renderer import phase_record
+from workers.montecarlo.scattering import phase_value, scattering_angle
+from workers.optics.phases.base import (
+    BETA_PI_PER_BACKSCATTER,
+    PHASE_FUNCTIONS,
+    PhaseFunction,
+    phase_named,
+)
 from workers.optics.phases.fournier_forand import FournierForand
 from workers.optics.phases.henyey_greenstein import (
     HenyeyGreenstein,
     henyey_greenstein_backscatter,
 )
+from workers.optics.phases.paper import paper_phase_function
 from workers.optics.phases.petzold import _TABLE as PETZOLD_TABLE
 from workers.optics.phases.petzold import Petzold
 from workers.optics.water import WaterOptics
@@ -192,3 +200,56 @@ def test_a_water_far_from_petzolds_backscatter_is_refused_naming_the_field():
 def test_a_scene_renders_with_petzold_in_both_renderers(method):
     image = render_arrays(small_scene(method, "petzold", "turbid_harbour"), seed=1)["expected"]
     assert np.all(np.isfinite(image)) and np.all(image >= 0) and image.sum() > 0
+
+
+# --- the paper's water (issue #40, item 1) ----------------------------------------------
+
+PAPER_THETA0 = 0.12  # the paper's §4.4
+PAPER_FRACTIONS = pytest.mark.parametrize(
+    "fraction", [0.0, 0.0183, 0.0385], ids=lambda b: f"B{b}"
+)  # b_b = 0 (Examples 1–2), Petzold's average, Examples 3–4 (0.0154 / 0.4)
+
+
+def paper(fraction):
+    return phase_named("paper").for_water(backscatter_fraction=fraction, theta0=PAPER_THETA0)
+
+
+@PAPER_FRACTIONS
+def test_paper_is_the_papers_forward_shape_with_the_waters_backscatter(fraction):
+    # One water in both renderers: over the sphere 1, backward b_b/b, β̃(π) = 0.174 b_b/b
+    # (the fast renderer's β(π) = 0.174 b_b, Mobley 1994 Table 3.10), forward ∝ s(θ).
+    p = paper(fraction)
+    assert over_sphere(p) == pytest.approx(1.0, rel=1e-7)
+    assert over_sphere(p, low=0.5 * np.pi) == pytest.approx(fraction, rel=1e-9, abs=1e-12)
+    assert p.value(np.pi) == pytest.approx(BETA_PI_PER_BACKSCATTER * fraction, rel=1e-12)
+    assert p.backscatter_pi_per_backscatter() == BETA_PI_PER_BACKSCATTER
+    theta = np.geomspace(1e-5, 0.5 * np.pi, 400)
+    ratio = p.value(theta) / paper_phase_function(theta, theta0=PAPER_THETA0)
+    np.testing.assert_allclose(ratio, ratio[0], rtol=1e-12)
+
+
+@PAPER_FRACTIONS
+def test_paper_table_draws_follow_the_function_and_its_backward_share(fraction):
+    # The Monte Carlo's draws (its kernel `scattering_angle` on the table's quantiles, fixed
+    # seed) against quadratures of `value`: each angle bin within 4σ of its binomial count
+    # plus the table's interpolation (1e-4); the backward share 4σ of b_b/b, none if b_b = 0.
+    p, n = paper(fraction), 400_000
+    table = p.table()
+    u = np.random.default_rng(40).uniform(size=n)
+    theta = np.array([scattering_angle(x, table.quantiles) for x in u])
+    edges = [0.0, 1e-3, 1e-2, 0.05, 0.12, 0.3, 0.7, 0.5 * np.pi, 2.0, 2.6, np.pi]
+    counts = np.histogram(theta, edges)[0] / n
+    expected = np.array(
+        [over_sphere(p, low=a) - over_sphere(p, low=b) for a, b in itertools.pairwise(edges)]
+    )
+    sigma = np.sqrt(expected * (1 - expected) / n)
+    np.testing.assert_array_less(np.abs(counts - expected), 4 * sigma + 1e-4)
+    back = np.mean(theta > 0.5 * np.pi)
+    assert abs(back - fraction) <= 4 * np.sqrt(fraction * (1 - fraction) / n)
+    assert table.backscatter_pi == pytest.approx(BETA_PI_PER_BACKSCATTER * fraction, rel=1e-12)
+    # the kernel's value: finite everywhere, β̃(π) at π, ~0 backward when b_b = 0
+    record = phase_record(table)
+    angles = np.linspace(1e-4, np.pi, 2001)
+    values = [phase_value(np.cos(t), np.sin(t), record) for t in angles]
+    assert np.all(np.isfinite(values))
+    assert values[-1] == pytest.approx(BETA_PI_PER_BACKSCATTER * fraction, rel=1e-6, abs=1e-300)

@@ -130,7 +130,9 @@ def test_mtf_depends_on_frequency_times_distance():
     frequency = frequency_grid()
     expected = np.exp(
         -water.attenuation * 4.0
-        + water.forward_scattering * 4.0 * Paper(theta0=THETA0).mtf_exponent(frequency * 4.0)
+        + water.forward_scattering
+        * 4.0
+        * Paper(theta0=THETA0, fraction=0.0183).mtf_exponent(frequency * 4.0)
     )
     assert_allclose(water.mtf(frequency, distance=4.0), expected, rtol=1e-6)
 
@@ -172,7 +174,7 @@ def test_phase_functions_are_normalised(theta0):
 
 def test_paper_exponent_shape():
     psi = np.concatenate([[0.0], np.geomspace(1e-6, 1e8, 3000)])
-    exponent = Paper(theta0=THETA0).mtf_exponent(psi)
+    exponent = Paper(theta0=THETA0, fraction=0.0183).mtf_exponent(psi)
     assert exponent[0] == 1.0  # D(0) = Σ(0) = 1, paper §4.4
     assert np.all((exponent > 0) & (exponent <= 1))
     assert np.all(np.diff(exponent) <= 0)
@@ -184,7 +186,7 @@ def test_paper_table_matches_direct_transform():
     direct = hankel_mtf_exponent(
         functools.partial(paper_phase_function, theta0=THETA0), psi, theta_max=np.pi
     )
-    assert_allclose(Paper(theta0=THETA0).mtf_exponent(psi), direct, atol=5e-5)
+    assert_allclose(Paper(theta0=THETA0, fraction=0.0183).mtf_exponent(psi), direct, atol=5e-5)
 
 
 @pytest.mark.parametrize("psi", [0.1, 1.0, 10.0], ids=["psi0.1", "psi1", "psi10"])
@@ -202,7 +204,7 @@ def test_paper_exponent_against_adaptive_quadrature(psi):
     oracle = integrate.quad(
         integrand, 0, np.sqrt(np.pi), points=[knee, 2 * knee], limit=500, epsabs=1e-12
     )[0]
-    assert_allclose(Paper(theta0=THETA0).mtf_exponent(psi), oracle, rtol=5e-5)
+    assert_allclose(Paper(theta0=THETA0, fraction=0.0183).mtf_exponent(psi), oracle, rtol=5e-5)
     direct = hankel_mtf_exponent(
         functools.partial(paper_phase_function, theta0=THETA0), psi, theta_max=np.pi
     )
@@ -216,7 +218,7 @@ def test_paper_exponent_large_psi_asymptote():
     mellin = np.sqrt(2) * special.gamma(0.25) / special.gamma(0.75)
     psi = np.array([1e4, 1e5, 1e6, 1e8])
     asymptote = 2 * np.pi * s0 / THETA0 * (2 * np.pi * psi) ** -0.5 * mellin
-    ratio = Paper(theta0=THETA0).mtf_exponent(psi) / asymptote
+    ratio = Paper(theta0=THETA0, fraction=0.0183).mtf_exponent(psi) / asymptote
     assert_allclose(ratio, 1.0, rtol=1e-2)
     assert np.all(np.diff(np.abs(ratio[:3] - 1)) < 0)  # converging as ψ^(-1/2)
 
@@ -355,4 +357,6 @@ def test_default_water_spreads_as_the_monte_carlo_phase_function():
         rtol=1e-12,
     )
     # narrower: coastal water's forward peak holds its light nearer the beam
-    assert np.all(water.mtf_exponent(psi) > Paper(theta0=0.12).mtf_exponent(psi) + 0.05)
+    assert np.all(
+        water.mtf_exponent(psi) > Paper(theta0=0.12, fraction=0.0183).mtf_exponent(psi) + 0.05
+    )

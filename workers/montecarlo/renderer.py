@@ -114,11 +114,16 @@ MAX_SUBDIVISION = 16
 
 
 def phase_record(table: PhaseTable) -> Phase:
-    """The kernels' `workers.montecarlo.records.Phase` of a `PhaseTable` (logs, float64)."""
+    """The kernels' `workers.montecarlo.records.Phase` of a `PhaseTable` (logs, float64).
+
+    A value of 0 (`workers.optics.phases.paper.Paper` backward with b_b = 0) is logged as the
+    smallest normal float64's, ln 2.2e-308 = −708, so that interpolation stays finite.
+    """
+    tiny = np.finfo(np.float64).tiny
     return Phase(
         log_theta0=float(table.log_theta0),
         log_step=float(table.log_step),
-        log_values=np.ascontiguousarray(np.log(table.values), dtype=np.float64),
+        log_values=np.ascontiguousarray(np.log(np.maximum(table.values, tiny)), dtype=np.float64),
         quantiles=np.ascontiguousarray(table.quantiles, dtype=np.float64),
     )
 

@@ -56,8 +56,8 @@ class Transport(Section):
         description="Monte Carlo only: a registered phase function defined over the sphere "
         "(`workers.optics.phases`, docs/model.md): `fournier_forand` with its two "
         "parameters fitted to the water's backscatter fraction b_b/b and β(π) = 0.174 b_b "
-        "(the fast renderer's); `paper`, the paper's s(θ) with the water's theta0, "
-        "normalised over the sphere; or any other registered one.",
+        "(the fast renderer's); `paper`, the paper's s(θ) with the water's theta0 forward, "
+        "the water's b_b/b and β(π) = 0.174 b_b backward; or any other registered one.",
         json_schema_extra={**units("1"), "enum": SPHERICAL},
     )
     max_scattering: int | None = Field(

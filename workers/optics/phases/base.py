@@ -105,13 +105,15 @@ class PhaseFunction:
     over the whole sphere, so that the Monte Carlo renderer can sample it), ``fractions``
     (the closed range of the water's b_b/b it can be built for, None: any) and
     ``mtf_tail`` (the exponent a of D(ψ) ∝ ψ^-a beyond the table of `mtf_exponent`; 1 for
-    a function finite at θ = 0).
+    a function finite at θ = 0) and ``kinks`` (angles [rad] where the function jumps, added
+    to the nodes of the sampling table's cumulative so that no draw crosses them).
     """
 
     name: ClassVar[str]
     spherical: ClassVar[bool] = True
     fractions: ClassVar[tuple[float, float] | None] = None
     mtf_tail: ClassVar[float] = 1.0
+    kinks: ClassVar[tuple[float, ...]] = ()
 
     @classmethod
     def for_water(cls, *, backscatter_fraction: float, theta0: float) -> PhaseFunction:
@@ -211,11 +213,15 @@ def _exponent_table(phase: PhaseFunction):
 def _table(phase: PhaseFunction) -> PhaseTable:
     theta = np.geomspace(_THETA_MIN, np.pi, _TABLE_ANGLES)
     values = phase.value(theta)
-    cumulative = phase.cumulative(theta, values)
-    angles = np.concatenate([[0.0], theta])
+    nodes = np.union1d(theta, phase.kinks)  # the cumulative's nodes: the kinks added
+    cumulative = phase.cumulative(nodes, phase.value(nodes))
+    angles = np.concatenate([[0.0], nodes])
     cumulative = np.maximum.accumulate(cumulative)
     probabilities = np.linspace(0.0, 1.0, _TABLE_QUANTILES + 1)
-    quantiles = np.interp(probabilities, cumulative, angles)
+    # no angle beyond where the cumulative first reaches its top (a function that is 0
+    # over the backward hemisphere: `workers.optics.phases.paper.Paper` with b_b = 0)
+    top = angles[np.searchsorted(cumulative, cumulative[-1])]
+    quantiles = np.minimum(np.interp(probabilities, cumulative, angles), top)
     back = 1.0 - float(np.interp(0.5 * np.pi, angles, cumulative))
     return PhaseTable(
         log_theta0=float(np.log(theta[0])),

@@ -1,9 +1,13 @@
-"""The paper's small-angle phase function (§4.4), s ∝ θ^-3/2 (θ0² + θ²)^-1/2.
+"""The paper's phase function (§4.4) on the sphere: its forward shape, the water's b_b and β(π).
 
-The fast renderer transforms it as it is, on 0 < θ ≤ π (its own normalisation, Σ(0) = 1);
-the Monte Carlo renderer samples it normalised over the sphere (`Paper.value`). Its
-backscatter is its own: the fast renderer's gated water backscatter keeps β(π) = 0.174 b_b
-(a forward-peak model says nothing reliable of β(π)).
+The paper models only small angles, s ∝ θ^-3/2 (θ0² + θ²)^-1/2, and takes the gated water
+backscatter from a separate coefficient. `Paper` is the one water both renderers read: the
+fast renderer transforms s as it is on 0 < θ ≤ π (`Paper.small_angle`, Σ(0) = 1) with the
+rate b_f = b − b_b, and takes β(π) = 0.174 b_b (`BETA_PI_PER_BACKSCATTER`); the Monte Carlo
+renderer samples `Paper.value`, which carries the same three things over the sphere: the
+paper's s(θ) on the forward hemisphere holding 1 − b_b/b, and on the backward hemisphere
+the lowest-order polynomial in cos θ holding b_b/b with β̃(π) = 0.174 b_b/b (`backward`).
+With b_b = 0 (the paper's Examples 1–2) neither renderer scatters light backward.
 
 Units: phase functions in 1/sr, angles in rad.
 """
@@ -23,7 +27,13 @@ from workers.optics.phases.base import (
     register,
 )
 
-__all__ = ["Paper", "paper_phase_function"]
+__all__ = ["BACKWARD_CONSTANT", "BACKWARD_SLOPE", "Paper", "backward", "paper_phase_function"]
+
+BACKWARD_SLOPE = 2 * (BETA_PI_PER_BACKSCATTER - 0.5 / np.pi)
+"""γ of the backward shape α + γ |cos θ| [1/sr]: 2 (0.174 − 1/(2π)) = 0.0297 sr⁻¹."""
+
+BACKWARD_CONSTANT = BETA_PI_PER_BACKSCATTER - BACKWARD_SLOPE
+"""α of the backward shape α + γ |cos θ| [1/sr]: 1/π − 0.174 = 0.1443 sr⁻¹."""
 
 
 @functools.lru_cache(maxsize=16)
@@ -68,17 +78,60 @@ def paper_phase_function(theta, *, theta0):
     return np.where(theta <= np.pi, s, 0.0)[()]
 
 
+def backward(theta, *, fraction):
+    r"""The backward hemisphere of `Paper`: b_b/b spread as α + γ |cos θ| [1/sr].
+
+    Parameters
+    ----------
+    theta : float or array_like
+        Scattering angle θ [rad]; the shape is 0 below π/2.
+    fraction : float
+        The water's backscatter fraction B = b_b/b [1].
+
+    Returns
+    -------
+    float or ndarray
+        :math:`B\,(\alpha + \gamma\,|\cos\theta|)` on π/2 < θ ≤ π, 0 below.
+
+    Notes
+    -----
+    The lowest-order polynomial in cos θ that meets both of the fast renderer's backward
+    quantities for every B ≥ 0 (b_b = 0 included, where Fournier–Forand has no fit):
+    :math:`2\pi\int_{\pi/2}^{\pi}(\alpha+\gamma|\cos\theta|)\sin\theta\,d\theta
+    = 2\pi(\alpha + \gamma/2) = 1` and α + γ = 0.174 sr⁻¹ (β(π) = 0.174 b_b), so
+    α = 1/π − 0.174, γ = 2 (0.174 − 1/(2π)) (`BACKWARD_CONSTANT`, `BACKWARD_SLOPE`). It
+    rises from 0.144 B sr⁻¹ at 90° to 0.174 B at 180°; Fournier–Forand fitted to
+    B = 0.0183 (the project's default water) runs 0.152–0.174 B over 110–180° and rises to
+    0.20 B at 90° (Petzold's average particle function: 0.23 B at 90°, 0.13–0.17 B beyond
+    130°, Mobley 1994 Table 3.10).
+    """
+    theta = np.asarray(theta, dtype=np.float64)
+    shape = BACKWARD_CONSTANT - BACKWARD_SLOPE * np.cos(theta)
+    return np.where(theta > 0.5 * np.pi, fraction * shape, 0.0)[()]
+
+
 @functools.lru_cache(maxsize=16)
-def _sphere_norm(theta0: float) -> float:
-    theta = np.geomspace(_THETA_MIN * 1e-3, np.pi, 200_001)
-    s = paper_phase_function(theta, theta0=theta0) * np.sin(theta)
-    return float(2 * np.pi * np.trapezoid(s, theta) + 2 * np.pi * s[0] * theta[0] / 1.5)
+def _forward_cumulative(theta0: float):
+    """(ln θ, F(θ)): the share of s sin θ below θ within the forward hemisphere, F(π/2) = 1."""
+    theta = np.geomspace(_THETA_MIN * 1e-3, 0.5 * np.pi, 200_001)
+    weights = paper_phase_function(theta, theta0=theta0) * np.sin(theta) * theta  # per ln θ
+    steps = 0.5 * (weights[1:] + weights[:-1]) * np.diff(np.log(theta))
+    first = 2 * weights[0]  # s sin θ ∝ θ^(-1/2) below the grid: ∫ θ^(1/2) d ln θ = 2 θ^(1/2)
+    cumulative = first + np.concatenate([[0.0], np.cumsum(steps)])
+    return np.log(theta), cumulative / cumulative[-1], float(2 * np.pi * cumulative[-1])
 
 
 @register
 @dataclass(frozen=True, kw_only=True)
 class Paper(PhaseFunction):
-    r"""The paper's phase function with angular scale θ0 [rad] (paper: 0.12).
+    r"""The paper's phase function for a water of angular scale θ0 and backscatter fraction B.
+
+    Parameters
+    ----------
+    theta0 : float
+        Angular scale θ0 > 0 [rad] (paper: 0.12).
+    fraction : float
+        The water's b_b/b, in [0, 1] [1].
 
     Notes
     -----
@@ -93,36 +146,48 @@ class Paper(PhaseFunction):
 
     name = "paper"
     mtf_tail = 0.5
+    kinks = (0.5 * np.pi,)
     theta0: float
+    fraction: float
 
     @classmethod
     def for_water(cls, *, backscatter_fraction, theta0):
-        """With the water's θ0 [rad]; its b_b/b [1] is not used."""
-        return cls(theta0=float(theta0))
+        """With the water's b_b/b [1] and θ0 [rad]."""
+        return cls(theta0=float(theta0), fraction=float(backscatter_fraction))
 
     def value(self, theta):
-        r"""The paper's s(θ) normalised over the sphere [1/sr].
+        r"""The paper's water over the sphere [1/sr].
 
-        :math:`s(\theta)/(2\pi\int_0^\pi s\sin\theta\,d\theta)`: the shape of
-        `paper_phase_function` with the 3-D measure sin θ dθ in place of θ dθ.
+        :math:`(1-B)\,s(\theta)/(2\pi\int_0^{\pi/2}s\sin\theta\,d\theta)` on θ ≤ π/2 (the
+        shape of `paper_phase_function`), `backward` beyond: ∫ over the sphere = 1, over
+        the backward hemisphere B, β̃(π) = 0.174 B.
         """
-        return np.asarray(paper_phase_function(theta, theta0=self.theta0)) / _sphere_norm(
-            self.theta0
-        )
+        theta = np.asarray(theta, dtype=np.float64)
+        _, _, norm = _forward_cumulative(self.theta0)
+        forward = (1.0 - self.fraction) / norm * paper_phase_function(theta, theta0=self.theta0)
+        front = theta <= 0.5 * np.pi
+        return np.where(front, forward, backward(theta, fraction=self.fraction))[()]
 
     def small_angle(self):
-        """`paper_phase_function` itself, on (0, π] [1/sr]."""
+        """`paper_phase_function` itself, on (0, π] [1/sr] (the fast renderer's rate is b_f)."""
         return functools.partial(paper_phase_function, theta0=self.theta0), np.pi
 
+    def backscatter_fraction(self):
+        """B, which `value` holds on the backward hemisphere exactly [1]."""
+        return self.fraction
+
     def backscatter_pi_per_backscatter(self):
-        """`BETA_PI_PER_BACKSCATTER` [1/sr]: β(π) is taken from the water's b_b."""
+        """`BETA_PI_PER_BACKSCATTER` [1/sr]: β̃(π)/B of `backward`."""
         return BETA_PI_PER_BACKSCATTER
 
     def cumulative(self, theta, values):
-        """Trapezoid sum in ln θ, the cone below θ[0] as ∫ θ^(1/2) [1]."""
-        weights = 2 * np.pi * values * np.sin(theta) * theta  # per unit ln θ
-        steps = 0.5 * (weights[1:] + weights[:-1]) * np.diff(np.log(theta))
-        first = 2 * np.pi * values[0] * theta[0] ** 2 / 1.5  # ∫ θ^(1/2) below θ_min
-        cumulative = np.concatenate([[0.0], first + np.concatenate([[0.0], np.cumsum(steps)])])
-        cumulative /= cumulative[-1]
-        return cumulative
+        """(1 − B) F(θ) forward (`_forward_cumulative`), closed form backward [1].
+
+        Backward, 1 − B + 2π B (α μ + γ μ²/2) with μ = −cos θ.
+        """
+        log_theta, forward, _ = _forward_cumulative(self.theta0)
+        b = self.fraction
+        mu = np.maximum(-np.cos(theta), 0.0)
+        back = 1.0 - b + 2 * np.pi * b * (BACKWARD_CONSTANT * mu + 0.5 * BACKWARD_SLOPE * mu * mu)
+        front = (1.0 - b) * np.interp(np.log(theta), log_theta, forward)
+        return np.concatenate([[0.0], np.where(theta <= 0.5 * np.pi, front, back)])
