@@ -86,7 +86,9 @@ def _slab_scene(scene: Scene) -> Scene:
     """`scene`'s water and geometry alone, for its slab gains.
 
     A flat sea, no target, one frame, `SLAB` gates from the surface to below the deepest
-    gate, rendered by the fast renderer.
+    gate, rendered by the fast renderer; the sea's and the target's settings are the
+    defaults' (the transport's but its phase function), so that the scenes of a sweep
+    over them share one tabulation.
     """
     deepest = max(bottom for _, bottom in scene.receiver.gate_depths)
     edges = SLAB * np.arange(math.ceil(deepest / SLAB) + 1)
@@ -94,8 +96,11 @@ def _slab_scene(scene: Scene) -> Scene:
     receiver = type(scene.receiver).model_validate({**scene.receiver.model_dump(), "gates": gates})
     return scene.model_copy(
         update={
-            "surface": scene.surface.model_copy(update={"spectrum": "flat"}),
-            "target": scene.target.model_copy(update={"shape": "none"}),
+            "surface": type(scene.surface).model_validate({"spectrum": "flat"}),
+            "target": type(scene.target).model_validate({"shape": "none"}),
+            "transport": type(scene.transport).model_validate(
+                {"phase_function": scene.transport.phase_function}
+            ),
             "sequence": scene.sequence.model_copy(update={"frames": 1}),
             "receiver": receiver,
         }
