@@ -33,7 +33,16 @@ from workers.setup.timegains import (
     slab_gains,
 )
 
-__all__ = ["receiver_terms", "scene_setup", "time_resolved"]
+__all__ = ["TABULATION", "receiver_terms", "scene_setup", "time_resolved"]
+
+TABULATION = {
+    "receiver": {"pixels": 32, "field_of_view_deg": 6.7},
+    "platform": {"altitude": 34.0, "nadir_deg": 0.0},
+    "radiometry": {"mode": "normalised", "white_plane_photons": 0.0},
+    "surface": {"spectrum": "flat"},
+    "target": {"shape": "none"},
+}
+"""The view the time-resolved gains are tabulated in, whatever the scene's (`_slab_scene`)."""
 
 
 @functools.lru_cache(maxsize=32)
@@ -83,26 +92,24 @@ def time_resolved(scene: Scene) -> bool:
 
 
 def _slab_scene(scene: Scene) -> Scene:
-    """`scene`'s water and geometry alone, for its slab gains.
+    """`scene`'s water alone, for its slab gains, in the tabulation's own geometry.
 
-    A flat sea, no target, one frame, `SLAB` gates from the surface to below the deepest
-    gate, rendered by the fast renderer; the sea's and the target's settings are the
-    defaults' (the transport's but its phase function), so that the scenes of a sweep
-    over them share one tabulation.
+    `SLAB` gates from the surface to below the deepest gate, under `TABULATION`'s view (the
+    transport reference's: 32 px over 6.7° from 34 m at nadir, the default laser, a flat
+    sea, no target, one frame), rendered by the fast renderer; of the scene only its water
+    and the transport's phase function. The gains are taken as the water's, per depth:
+    the scenes of a sweep over the platform, the view, the sea or the target share one
+    tabulation per water (a random design over altitude would otherwise pay one a sample).
     """
     deepest = max(bottom for _, bottom in scene.receiver.gate_depths)
     edges = SLAB * np.arange(math.ceil(deepest / SLAB) + 1)
     gates = [[float(top), float(bottom)] for top, bottom in itertools.pairwise(edges)]
-    receiver = type(scene.receiver).model_validate({**scene.receiver.model_dump(), "gates": gates})
-    return scene.model_copy(
-        update={
-            "surface": type(scene.surface).model_validate({"spectrum": "flat"}),
-            "target": type(scene.target).model_validate({"shape": "none"}),
-            "transport": type(scene.transport).model_validate(
-                {"phase_function": scene.transport.phase_function}
-            ),
-            "sequence": scene.sequence.model_copy(update={"frames": 1}),
-            "receiver": receiver,
+    return Scene.model_validate(
+        {
+            **TABULATION,
+            "water": scene.water.model_dump(),
+            "receiver": {**TABULATION["receiver"], "gates": gates},
+            "transport": {"phase_function": scene.transport.phase_function},
         }
     )
 

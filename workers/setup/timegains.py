@@ -14,9 +14,9 @@ back, late (docs/model.md §10).
 Where that matters (`workers.setup.builder.time_resolved`: the backscatter's optical
 depth to the deepest gate's bottom, b_b z, at least `BACKSCATTER_DEPTH`), each gate's
 reflectance is multiplied by the ratio of the two renderers' returns, tabulated per 1 m
-slab of depth by the Monte Carlo renderer once per water and geometry (`slab_gains`, a
-fixed photon stream, so the same bytes every time; the builder caches them by the water
-and geometry) and weighted over the gate's slab as its single-scattering return is
+slab of depth by the Monte Carlo renderer once per water (`slab_gains`, a fixed photon
+stream, so the same bytes every time; the builder tabulates them in one view,
+`workers.setup.builder.TABULATION`, and caches them by the water) and weighted over the gate's slab as its single-scattering return is
 (`gate_time_gains`).
 """
 
