@@ -16,8 +16,8 @@ depth to the deepest gate's bottom, b_b z, at least `BACKSCATTER_DEPTH`), each g
 reflectance is multiplied by the ratio of the two renderers' returns, tabulated per 1 m
 slab of depth by the Monte Carlo renderer once per water (`slab_gains`, a fixed photon
 stream, so the same bytes every time; the builder tabulates them in one view,
-`workers.setup.builder.TABULATION`, and caches them by the water) and weighted over the gate's slab as its single-scattering return is
-(`gate_time_gains`).
+`workers.setup.builder.TABULATION`, and caches them by the water) and weighted over the
+gate's slab as its single-scattering return is (`gate_time_gains`).
 """
 
 from __future__ import annotations
