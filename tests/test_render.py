@@ -309,8 +309,10 @@ def test_a_target_in_the_gate_that_changes_it_by_little_is_unseen():
     # Issue #24, item 6: a sphere at 9.5–10.5 m in turbid harbour water, its top inside the
     # gate 3.66–9.75 m, was labelled in_gate (its return exceeds the 0.25 m of water it
     # hides) though it changes the gate's image by 2e-4: the rest of the gate's water is
-    # there with or without it. The gate 9.4–10.0 m holds its top and changes by +4 %,
-    # the gate 9–12 m lies mostly in its shadow (-17 %).
+    # there with or without it. The gate 9.4–10.0 m holds its top: +4 % with the
+    # small-angle return alone, -7 % with the time-resolved gains (issue #40 item 2: the
+    # water there returns 1.41 times more, and the sphere hides more than its top sends);
+    # the gate 9–12 m lies mostly in its shadow (-23 %).
     s = scene(
         surface={"spectrum": "flat"},
         water={"preset": "turbid_harbour"},
@@ -319,12 +321,12 @@ def test_a_target_in_the_gate_that_changes_it_by_little_is_unseen():
     )
     ds = render(s, seed=1)
     relative = ds.target_effect_relative.values[0]
-    assert abs(relative[0]) < 1e-3 and 0.02 < relative[1] < 0.05 and relative[2] < -0.1
-    assert ds.target_visibility.values.tolist() == [[3, 3, 2]]
+    assert abs(relative[0]) < 1e-3 and -0.09 < relative[1] < -0.05 and relative[2] < -0.1
+    assert ds.target_visibility.values.tolist() == [[3, 2, 2]]
     loose = s.model_copy(
-        update={"target": s.target.model_copy(update={"visibility_threshold": 0.02})}
+        update={"target": s.target.model_copy(update={"visibility_threshold": 0.1})}
     )
-    assert render(loose, seed=1).target_visibility.values.tolist() == [[3, 1, 2]]
+    assert render(loose, seed=1).target_visibility.values.tolist() == [[3, 3, 2]]
 
 
 def test_target_in_gate_brightens_below_gate_is_invisible_above_gate_shadows():

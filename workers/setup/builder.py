@@ -8,6 +8,8 @@ radians here. The model is in ``docs/model.md``.
 from __future__ import annotations
 
 import functools
+import itertools
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -23,13 +25,109 @@ from workers.settings.scene import Scene
 from workers.setup.compiled import Photons, Setup
 from workers.setup.geometry import PinholeCamera, flat_sea_point
 from workers.setup.seasetup import scene_sea, surface_kriging
+from workers.setup.timegains import (
+    BACKSCATTER_DEPTH,
+    CALIBRATION_PHOTONS,
+    SLAB,
+    gate_time_gains,
+    slab_gains,
+)
 
-__all__ = ["receiver_terms", "scene_setup"]
+__all__ = ["TABULATION", "receiver_terms", "scene_setup", "time_resolved"]
+
+TABULATION = {
+    "receiver": {"pixels": 32, "field_of_view_deg": 6.7},
+    "platform": {"altitude": 34.0, "nadir_deg": 0.0},
+    "radiometry": {"mode": "normalised", "white_plane_photons": 0.0},
+    "surface": {"spectrum": "flat"},
+    "target": {"shape": "none"},
+}
+"""The view the time-resolved gains are tabulated in, whatever the scene's (`_slab_scene`)."""
 
 
 @functools.lru_cache(maxsize=32)
 def scene_setup(scene: Scene) -> Setup:
-    """What every frame of every sample of a scene shares (cached by the scene, hashable)."""
+    """What every frame of every sample of a scene shares (cached by the scene, hashable).
+
+    Where the fast renderer's gates hold water that scatters many times (`time_resolved`),
+    each gate's reflectance carries its time-resolved gain, tabulated by the Monte Carlo
+    renderer (`workers.setup.timegains`, docs/model.md §5).
+    """
+    setup = _compile(scene)
+    if not time_resolved(scene):
+        return setup
+    gains, _ = _slab_gains(_slab_scene(scene))
+    factors = gate_time_gains(
+        gains=gains,
+        gates=setup.gates,
+        diffuse_attenuation=setup.water.diffuse_attenuation * setup.secant,
+    )
+    reflectances = tuple(r * g for r, g in zip(setup.reflectances, factors, strict=True))
+    return replace(setup, reflectances=reflectances)
+
+
+def time_resolved(scene: Scene) -> bool:
+    """Whether the fast renderer takes `scene`'s gate returns with time-resolved gains.
+
+    Parameters
+    ----------
+    scene : Scene
+        The scene.
+
+    Returns
+    -------
+    bool
+        True for the fast renderer (``transport.method: small_angle``) where b_b z_max is
+        at least `workers.setup.timegains.BACKSCATTER_DEPTH` (z_max the deepest gate's
+        bottom) and both renderers scatter by the same phase function (the gains are
+        the ratio of their returns: with two phase functions it would hold their
+        difference too).
+    """
+    if scene.transport.method != "small_angle":
+        return False
+    if scene.water.phase_function != scene.transport.phase_function:
+        return False
+    deepest = max(bottom for _, bottom in scene.receiver.gate_depths)
+    return scene.water.coefficients["backscatter"] * deepest >= BACKSCATTER_DEPTH
+
+
+def _slab_scene(scene: Scene) -> Scene:
+    """`scene`'s water alone, for its slab gains, in the tabulation's own geometry.
+
+    `SLAB` gates from the surface to below the deepest gate, under `TABULATION`'s view (the
+    transport reference's: 32 px over 6.7° from 34 m at nadir, the default laser, a flat
+    sea, no target, one frame), rendered by the fast renderer; of the scene only its water
+    and the transport's phase function. The gains are taken as the water's, per depth:
+    the scenes of a sweep over the platform, the view, the sea or the target share one
+    tabulation per water (a random design over altitude would otherwise pay one a sample).
+    """
+    deepest = max(bottom for _, bottom in scene.receiver.gate_depths)
+    edges = SLAB * np.arange(math.ceil(deepest / SLAB) + 1)
+    gates = [[float(top), float(bottom)] for top, bottom in itertools.pairwise(edges)]
+    return Scene.model_validate(
+        {
+            **TABULATION,
+            "water": scene.water.model_dump(),
+            "receiver": {**TABULATION["receiver"], "gates": gates},
+            "transport": {"phase_function": scene.transport.phase_function},
+        }
+    )
+
+
+@functools.lru_cache(maxsize=16)
+def _slab_gains(slabs: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """`workers.setup.timegains.slab_gains` of a `_slab_scene` (cached by it)."""
+    transport = slabs.transport.model_copy(
+        update={"method": "monte_carlo", "photons": CALIBRATION_PHOTONS}
+    )
+    return slab_gains(
+        fast=_compile(slabs),
+        transport=_compile(slabs.model_copy(update={"transport": transport})),
+    )
+
+
+def _compile(scene: Scene) -> Setup:
+    """`scene_setup` without the time-resolved gains."""
     w, p, r, laser = scene.water, scene.platform, scene.receiver, scene.laser
     coefficients = w.coefficients
     coefficients.update(
