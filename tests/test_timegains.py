@@ -48,9 +48,29 @@ def test_time_resolved_where_backscatter_optical_depth_reaches_a_tenth(
     assert builder.time_resolved(scene(water, gates, method, **fields)) is applies
 
 
-def test_time_resolved_needs_one_phase_function_in_both_renderers():
-    turbid = scene("turbid_harbour", "mldc", phase_function="henyey_greenstein")
+def test_paper_takes_transport_gains_in_any_water_that_backscatters():
+    # `paper` (PhaseFunction.transport_gains): its wide-angle tail, not the light's time,
+    # sets Wells' deficit, 0.72-0.87 of transport in coastal water (b_b z = 0.043)
+    assert builder.time_resolved(scene("coastal", "mldc", phase_function="paper"))
+    no_return = scene("coastal", "mldc", phase_function="paper", backscatter=0.0)
+    assert not builder.time_resolved(no_return)  # Examples 1-2: nothing to gain
+
+
+def test_time_resolved_needs_a_phase_function_transport_can_sample():
+    # Wells' own is defined at small angles only: no transport of that water to gain by
+    turbid = scene("turbid_harbour", "mldc", phase_function="wells")
     assert not builder.time_resolved(turbid)
+
+
+def test_the_gains_are_the_waters_whatever_the_monte_carlo_would_sample():
+    # transport.phase_function is the Monte Carlo's choice alone: the fast renderer's
+    # gains are transport's of its own water, so the images do not depend on it
+    water = scene("turbid_harbour", [[1.0, 2.0], [2.0, 3.0]], phase_function="paper")
+    other = water.model_copy(
+        update={"transport": water.transport.model_copy(update={"phase_function": "paper"})}
+    )
+    assert builder.time_resolved(water)
+    assert builder.scene_setup(water).reflectances == builder.scene_setup(other).reflectances
 
 
 def test_gate_gain_weights_slabs_by_their_single_scattering_return():

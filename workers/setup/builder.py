@@ -15,6 +15,7 @@ from dataclasses import replace
 import numpy as np
 
 from workers.optics.fresnel import fresnel_reflectance
+from workers.optics.phases.base import phase_named
 from workers.optics.water import (
     WaterOptics,
     slab_backscatter_centroid,
@@ -77,16 +78,22 @@ def time_resolved(scene: Scene) -> bool:
     Returns
     -------
     bool
-        True for the fast renderer (``transport.method: small_angle``) where b_b z_max is
-        at least `workers.setup.timegains.BACKSCATTER_DEPTH` (z_max the deepest gate's
-        bottom) and both renderers scatter by the same phase function (the gains are
-        the ratio of their returns: with two phase functions it would hold their
-        difference too).
+        True for the fast renderer (``transport.method: small_angle``) where the water's
+        phase function is one the Monte Carlo renderer can sample (defined over the
+        sphere: the gains are transport's return of the same water over the fast
+        renderer's; ``transport.phase_function``, the Monte Carlo's own choice, plays no
+        part), the water backscatters (b_b > 0), and either b_b z_max is at least
+        `workers.setup.timegains.BACKSCATTER_DEPTH` (z_max the deepest gate's bottom) or
+        the phase function asks for them in any water
+        (`workers.optics.phases.base.PhaseFunction.transport_gains`: ``paper``).
     """
-    if scene.transport.method != "small_angle":
+    phase = phase_named(scene.water.phase_function)
+    if scene.transport.method != "small_angle" or not phase.spherical:
         return False
-    if scene.water.phase_function != scene.transport.phase_function:
-        return False
+    if scene.water.coefficients["backscatter"] <= 0.0:
+        return False  # no water return to gain
+    if phase.transport_gains:
+        return True
     deepest = max(bottom for _, bottom in scene.receiver.gate_depths)
     return scene.water.coefficients["backscatter"] * deepest >= BACKSCATTER_DEPTH
 
@@ -96,8 +103,9 @@ def _slab_scene(scene: Scene) -> Scene:
 
     `SLAB` gates from the surface to below the deepest gate, under `TABULATION`'s view (the
     transport reference's: 32 px over 6.7° from 34 m at nadir, the default laser, a flat
-    sea, no target, one frame), rendered by the fast renderer; of the scene only its water
-    and the transport's phase function. The gains are taken as the water's, per depth:
+    sea, no target, one frame), rendered by the fast renderer and by transport of the same
+    water (its phase function sampled by the Monte Carlo renderer); of the scene only its
+    water. The gains are taken as the water's, per depth:
     the scenes of a sweep over the platform, the view, the sea or the target share one
     tabulation per water (a random design over altitude would otherwise pay one a sample).
     """
@@ -109,7 +117,7 @@ def _slab_scene(scene: Scene) -> Scene:
             **TABULATION,
             "water": scene.water.model_dump(),
             "receiver": {**TABULATION["receiver"], "gates": gates},
-            "transport": {"phase_function": scene.transport.phase_function},
+            "transport": {"phase_function": scene.water.phase_function},
         }
     )
 

@@ -105,8 +105,11 @@ class PhaseFunction:
     over the whole sphere, so that the Monte Carlo renderer can sample it), ``fractions``
     (the closed range of the water's b_b/b it can be built for, None: any) and
     ``mtf_tail`` (the exponent a of D(ψ) ∝ ψ^-a beyond the table of `mtf_exponent`; 1 for
-    a function finite at θ = 0) and ``kinks`` (angles [rad] where the function jumps, added
-    to the nodes of the sampling table's cumulative so that no draw crosses them).
+    a function finite at θ = 0), ``kinks`` (angles [rad] where the function jumps, added
+    to the nodes of the sampling table's cumulative so that no draw crosses them) and
+    ``transport_gains`` (True where the fast renderer's small-angle spread of the function
+    misses transport's gated water return by more than 5 % in any water, so that its gates
+    always take the Monte Carlo's gains, `workers.setup.builder.time_resolved`).
     """
 
     name: ClassVar[str]
@@ -114,6 +117,7 @@ class PhaseFunction:
     fractions: ClassVar[tuple[float, float] | None] = None
     mtf_tail: ClassVar[float] = 1.0
     kinks: ClassVar[tuple[float, ...]] = ()
+    transport_gains: ClassVar[bool] = False
 
     @classmethod
     def for_water(cls, *, backscatter_fraction: float, theta0: float) -> PhaseFunction:

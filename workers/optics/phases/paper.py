@@ -147,6 +147,9 @@ class Paper(PhaseFunction):
     name = "paper"
     mtf_tail = 0.5
     kinks = (0.5 * np.pi,)
+    # its θ^-3/2 tail: the small-angle spread reads 0.72-0.87 of transport's return in
+    # coastal water, where Fournier-Forand's reads 0.99 (docs/model.md §10)
+    transport_gains = True
     theta0: float
     fraction: float
 
