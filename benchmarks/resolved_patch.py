@@ -15,7 +15,8 @@ through the receiver's 10 cm pupil (``pupil=True``) over four seas:
 - ``facet``: the same sub-grid slopes, the same cell's facet refracting the way down and
   the way up (``subgrid_up="facet"``);
 
-and a flat sea once. Stored in ``tests/data/resolved_patch.npz``: each gate's mean over the
+and a flat sea once; then the fast renderer on the same seas (printed, not stored).
+Stored in ``tests/data/resolved_patch.npz``: each gate's mean over the
 image and its standard error (the 16 batches, one pupil point each), per sea and model, and
 the flat sea's. `tests/test_resolved_patch.py` reads it.
 
@@ -39,6 +40,7 @@ import time
 import numpy as np
 
 from workers.montecarlo import renderer as montecarlo
+from workers.render import render_arrays
 from workers.sea.cascades import Sea, subgrid_slope_covariance
 from workers.sea.surface import Surface, draw
 from workers.settings.scene import Scene
@@ -76,6 +78,13 @@ def patch_scene(*, wind: float, photons: int) -> Scene:
             "radiometry": {"mode": "normalised", "white_plane_photons": 0.0},
             "transport": {"method": "monte_carlo", "photons": photons, "batches": 16},
         }
+    )
+
+
+def small_angle(scene: Scene) -> Scene:
+    """The same scene for the fast (small-angle) renderer."""
+    return scene.model_copy(
+        update={"transport": scene.transport.model_copy(update={"method": "small_angle"})}
     )
 
 
@@ -182,6 +191,23 @@ def main(argv=None) -> None:
     for model_index, model in enumerate(MODELS[1:], start=1):
         paired = ratio[:, model_index, 0] / ratio[:, 0, 0]
         print(f"{model:8s} / resolved, gate 1, per sea: {np.array2string(paired, precision=3)}")
+    # the fast renderer on the same seas, each over its own flat sea (not stored)
+    fast = {wind: small_angle(patch_scene(wind=wind, photons=args.photons)) for wind in (0, 5)}
+    fast_flat = render_arrays(fast[0], seed=0)["expected"][0].mean(axis=(1, 2))
+    shares = (
+        np.array(
+            [
+                render_arrays(fast[5], seed=int(root))["expected"][0].mean(axis=(1, 2)) / fast_flat
+                for root in roots
+            ]
+        )
+        / ratio[:, 0]
+    )
+    print(
+        "fast renderer / resolved, gates 1-6, seas' mean: "
+        + " ".join(f"{r:.3f}" for r in shares.mean(axis=0))
+        + f" (gate 1 per sea {np.array2string(shares[:, 0], precision=3)})"
+    )
     np.savez_compressed(
         args.out,
         models=np.array(MODELS),
