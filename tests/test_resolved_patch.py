@@ -13,6 +13,7 @@ import pathlib
 
 import numpy as np
 import pytest
+from test_montecarlo import ALTITUDE, N_WATER, beam_profile, block_ratio, white_plane
 
 from benchmarks.resolved_patch import MODELS, patch_scene
 from workers.montecarlo import renderer as montecarlo
@@ -96,3 +97,28 @@ def test_pupil_points_sample_the_disc_evenly():
     np.testing.assert_allclose(np.mean(radius**2), 0.1**2 / 8, rtol=1e-12)
     assert np.hypot(*points.mean(axis=0)) < 0.05 / 16
     np.testing.assert_array_equal(montecarlo.pupil_points(0.0, 4), np.zeros((4, 2)))
+
+
+def test_the_pupil_keeps_the_lidar_equation():
+    # an unscattered Lambertian plane seen through the pupil (each batch from its own
+    # point of the 10 cm aperture) still reads rho e^(-2cz) (H / (H + z/n))^2 in units of
+    # the white plane, as the pinhole does (test_montecarlo), within four standard errors
+    c, depth = 0.15, 5.0
+    s = white_plane(depth=depth, absorption=c, bottom=10.0, transport={"photons": 1_000_000})
+    setup = scene_setup(s)
+    frame = montecarlo.render_frame(setup, None, 0, SampleSeed(root=3), pupil=True)
+    closed = np.exp(-2 * c * depth) * (ALTITUDE / (ALTITUDE + depth / N_WATER)) ** 2
+    ratio, error = block_ratio(frame.expected[0], frame.stderr[0], closed * beam_profile())
+    assert error < 0.005
+    assert abs(ratio - 1) < 4 * error, (ratio, error)
+
+
+def test_the_way_up_is_named():
+    with pytest.raises(ValueError, match="subgrid_up must be 'blur' or 'facet'"):
+        montecarlo.render_frame(
+            scene_setup(patch_scene(wind=0.0, photons=1000)),
+            None,
+            0,
+            SampleSeed(root=0),
+            subgrid_up="faceted",
+        )
