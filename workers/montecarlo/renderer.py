@@ -66,6 +66,7 @@ __all__ = [
     "FrameTransport",
     "biasing_share",
     "phase_record",
+    "pupil_points",
     "render_frame",
     "sight_subdivision",
 ]
@@ -158,6 +159,8 @@ def render_frame(
     *,
     bias=None,
     reflection_bias=TARGET_BIAS,
+    pupil=False,
+    subgrid_up="blur",
 ):
     """Render one frame by photon transport.
 
@@ -178,6 +181,16 @@ def render_frame(
         Share of the reflections off the target drawn about the way to the receiver
         (0: none, Lambertian); default `TARGET_BIAS`. Any share in [0, 1) gives the same
         expectation.
+    pupil : bool, optional
+        Read the light through the receiver's aperture (`Setup.receiver_aperture`) rather
+        than its centre: batch b looks from the b-th of `pupil_points` (the pinhole moved
+        across the pupil, the pixels' directions kept, the laser at the centre), so the
+        batches' mean is the aperture's average (docs/model.md §9). Default False: the
+        pinhole at the centre.
+    subgrid_up : {"blur", "facet"}, optional
+        How the slopes below the sea's grid enter the way up: ``blur`` (default), an
+        independent Gaussian blur of the point looked up; ``facet``, the lines of sight
+        refracted at the same cell's sub-grid slope as the photons on the way down.
 
     Returns
     -------
@@ -188,10 +201,18 @@ def render_frame(
     n_w = setup.water.refractive_index
     pixels = setup.pixels
     sub = sight_subdivision(setup)
-    # the corners follow the resolved sea; its sub-grid slopes blur the way up
-    subgrid = getattr(surface, "subgrid", None)
+    if subgrid_up not in ("blur", "facet"):
+        raise ValueError(f"subgrid_up must be 'blur' or 'facet', got {subgrid_up!r}")
+    # the corners follow the resolved sea; its sub-grid slopes blur the way up (or facet it)
+    subgrid = getattr(surface, "subgrid", None) if subgrid_up == "blur" else None
     resolved = surface if subgrid is None else dataclasses.replace(surface, subgrid=None)
-    corners = _sight_lines(sensor, resolved, frame, n_w, pixels, sub)
+    batches = settings.batches
+    shifts = pupil_points(setup.receiver_aperture, batches) if pupil else np.zeros((1, 2))
+    receivers = [
+        dataclasses.replace(sensor, position=sensor.position + shift @ sensor.camera.rotation[:2])
+        for shift in shifts
+    ]
+    corners = [_sight_lines(r, resolved, frame, n_w, pixels, sub) for r in receivers]
     sea = _sea(surface, frame)
     lowest, highest = _sea_bounds(sea)
     paths = 2.0 * np.asarray(sensor.paths, dtype=np.float64)
@@ -199,12 +220,10 @@ def render_frame(
     air_back = float(sensor.position[2]) - highest
     longest = float(gates.closes.max())
     deepest = max((longest - 2.0 * air_back) / (2.0 * n_w) - lowest, 0.0) + 0.5
-    top = max(highest, float(corners.z.max())) + 0.01
+    top = max(highest, *(float(c.z.max()) for c in corners)) + 0.01
     cells = (pixels * sub) ** 2
     thick = max(SLAB_THICKNESS, (top + deepest) * cells / LOOKUP_ENTRIES)
     slabs = max(1, math.ceil((top + deepest) / thick))
-    buckets = build_lookup(corners, pixels * sub, top, thick, slabs)
-    lookup = Lookup(top, thick, slabs, sub, *buckets)
     water = setup.water
     table = setup.phase_table()
     blur = (0.0,) * 5
@@ -227,12 +246,16 @@ def render_frame(
         bias=float(bias),
         reflection_bias=float(reflection_bias),
     )
-    camera = Point(*(float(v) for v in np.asarray(sensor.position, dtype=np.float64)))
     phase = phase_record(table)
-    scenery = Scenery(medium, phase, limits, camera, sea, corners, lookup, gates)
+    sceneries = []
+    for receiver, lines in zip(receivers, corners, strict=True):
+        lookup = Lookup(
+            top, thick, slabs, sub, *build_lookup(lines, pixels * sub, top, thick, slabs)
+        )
+        camera = Point(*(float(v) for v in np.asarray(receiver.position, dtype=np.float64)))
+        sceneries.append(Scenery(medium, phase, limits, camera, sea, lines, lookup, gates))
     shape = shape_named(setup.target.shape)
     target = shape.record(setup.target, setup.target_centre)
-    batches = settings.batches
     per_batch = -(-settings.photons // batches)
     rng = seed.photon_rng(frame)
     key = np.uint64(seed.photon_key(frame))
@@ -245,6 +268,7 @@ def render_frame(
             sensor, setup.beam, surface, frame, n_w, rng, count, beam_power / per_batch
         )
         index = batch * per_batch + first
+        scenery = sceneries[batch % len(sceneries)]
         transport(launch, key, index, scenery, target, images[batch], tallies[batch])
     mean = images.mean(axis=0) * setup.scale
     error = images.std(axis=0, ddof=1) / math.sqrt(batches) * setup.scale
@@ -255,6 +279,31 @@ def render_frame(
         mask = _mask(centres, setup, shape, pixels)
     totals = dict(zip(TALLIES, (tallies.sum(axis=0) / batches).tolist(), strict=True))
     return FrameTransport(mean.astype(np.float32), error.astype(np.float32), mask, totals)
+
+
+def pupil_points(diameter, count):
+    r"""Where the batches look from: `count` points spread evenly over the pupil [m].
+
+    The sunflower layout, point k at radius :math:`\tfrac D2\sqrt{(k + \tfrac12)/K}` and
+    angle k times the golden angle, equal areas of the disc each; K = `count`, D =
+    `diameter`. All at the centre when D = 0 (the pinhole).
+
+    Parameters
+    ----------
+    diameter : float
+        The aperture's diameter D [m].
+    count : int
+        K, the number of points (the batches) [1].
+
+    Returns
+    -------
+    numpy.ndarray
+        (K, 2) offsets along the camera's u and v axes [m], float64.
+    """
+    k = np.arange(count)
+    radius = 0.5 * diameter * np.sqrt((k + 0.5) / count)
+    angle = k * math.pi * (3.0 - math.sqrt(5.0))
+    return np.stack([radius * np.cos(angle), radius * np.sin(angle)], axis=-1)
 
 
 def biasing_share(*, scattering, depth):
