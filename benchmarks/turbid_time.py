@@ -3,9 +3,10 @@
 The turbid reference scene of `benchmarks.transport_reference` (turbid harbour water, 32 px
 over 6.7° from 34 m, nadir, flat sea, no target) with 16 gates of 1 m from the surface to
 16 m, rendered by the Monte Carlo renderer and by the fast renderer without its
-time-resolved gains (`workers.setup.builder.time_resolved` turned off: the small-angle
-theory alone), once with the default laser (its field the image's) and once with a laser of
-20°, far wider than the image, which the water's spread can no longer carry light out of.
+time-resolved gains (`workers.setup.builder.time_resolved` turned off in
+`workers.render`: the small-angle theory alone), once with the default laser (its field
+the image's) and once with a laser of 20°, far wider than the image, which the water's
+spread can no longer carry light out of.
 Prints, per slab, transport's mean image, its relative error and fast / transport.
 
 Measured on 2026-11-28 (issue #40 item 2), 3 × 10⁶ photons (51 s) and 8 × 10⁶ photons
@@ -74,7 +75,7 @@ def main(argv=None) -> None:
     fast_scene = scene.model_copy(
         update={"transport": scene.transport.model_copy(update={"method": "small_angle"})}
     )
-    with mock.patch("workers.setup.builder.time_resolved", return_value=False):
+    with mock.patch("workers.render.time_resolved", return_value=False):
         fast = render_arrays(fast_scene, seed=11)["expected"][0].mean(axis=(1, 2))
     image = transport["expected"][0]
     mean = image.mean(axis=(1, 2))

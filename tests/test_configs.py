@@ -195,6 +195,7 @@ WINGS = (
     "dataset",
     "fast",
     "montecarlo",
+    "calibration",
     "detectors",
 )
 """The sub-packages of `workers`, lowest first: a wing imports only the wings before it."""

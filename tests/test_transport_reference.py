@@ -131,7 +131,7 @@ def test_fast_renderer_gate_backgrounds_within_issue_24_targets(reference, water
 def test_fast_renderer_turbid_backgrounds_within_issue_24_target(reference):
     # Issue #40 item 2: in turbid harbour water the small-angle spread alone gave 0.80,
     # 0.78, 0.71 of transport in gates 1-3 (b z = 7-20: the light it counts as lost to
-    # backscatter returns, late); with the time-resolved gains (`workers.setup.timegains`)
+    # backscatter returns, late); with the time-resolved gains (`workers.calibration.timegains`)
     # 0.97, 1.03, 0.99, 0.92 in gates 1-4
     image, error, _, scene = stored(reference, "turbid-none")
     mean, se = gate_means(image, error)

@@ -57,6 +57,7 @@ import numpy as np
 import xarray as xr
 
 from workers.backends.backend import Backend, get_backend
+from workers.calibration.timegains import calibrated
 from workers.dataset.labels import labelled_dataset, rendered_arrays, target_mask
 from workers.fast import stages
 from workers.fast.planes import frame_geometry
@@ -65,7 +66,8 @@ from workers.receiver.noise import shot_noise
 from workers.settings.scene import Scene
 from workers.settings.section import SceneError
 from workers.settings.seeds import SampleSeed
-from workers.setup.builder import scene_setup
+from workers.setup.builder import scene_setup, slab_setups, time_resolved
+from workers.setup.compiled import Setup
 
 __all__ = ["render", "render_arrays", "render_batch", "render_images", "render_pair"]
 
@@ -295,6 +297,21 @@ def _backend(scene: Scene, name: str, device: str) -> Backend:
     return backend
 
 
+def _setup(scene: Scene) -> Setup:
+    """The scene's setup, with transport's gains where the fast renderer takes them.
+
+    `workers.setup.builder.scene_setup`, its gates' reflectances calibrated by photon
+    transport of its water (`workers.calibration.timegains.calibrated`) where
+    `workers.setup.builder.time_resolved`: water that scatters many times, the paper's
+    phase function (docs/model.md §5).
+    """
+    setup = scene_setup(scene)
+    if not time_resolved(scene):
+        return setup
+    fast, transport = slab_setups(scene)
+    return calibrated(setup, fast=fast, transport=transport)
+
+
 def _sample_seed(seed: int | SampleSeed) -> SampleSeed:
     """A sample's seed: an int is the root seed of a lone sample."""
     return seed if isinstance(seed, SampleSeed) else SampleSeed(root=int(seed))
@@ -322,7 +339,7 @@ def _sample_arrays(scene: Scene, seed: SampleSeed, backend: Backend) -> dict[str
 
 def _render_sample(scene: Scene, seed: SampleSeed, backend: Backend) -> SampleLight:
     """The sample's light: its sea, each frame's light, its noise."""
-    setup = scene_setup(scene)
+    setup = _setup(scene)
     times = np.arange(scene.sequence.frames) * scene.sequence.interval
     surface = setup.surface(seed, times, backend=backend)
     light = _render_frames(scene, surface, seed, backend)
@@ -351,7 +368,7 @@ def _render_frames(scene: Scene, surface, seed: SampleSeed, backend: Backend) ->
     result has no image (None): the noise is drawn after.
     """
     xp = backend.xp
-    setup = scene_setup(scene)
+    setup = _setup(scene)
     expected, masks, errors, twins = [], [], [], []
     for frame in range(scene.sequence.frames):
         if scene.transport.method == "monte_carlo":

@@ -26,15 +26,30 @@ from workers.settings.scene import Scene
 from workers.setup.compiled import Photons, Setup
 from workers.setup.geometry import PinholeCamera, flat_sea_point
 from workers.setup.seasetup import scene_sea, surface_kriging
-from workers.setup.timegains import (
-    BACKSCATTER_DEPTH,
-    CALIBRATION_PHOTONS,
-    SLAB,
-    gate_time_gains,
-    slab_gains,
-)
 
-__all__ = ["TABULATION", "receiver_terms", "scene_setup", "time_resolved"]
+__all__ = [
+    "BACKSCATTER_DEPTH",
+    "CALIBRATION_PHOTONS",
+    "SLAB",
+    "TABULATION",
+    "receiver_terms",
+    "scene_setup",
+    "slab_setups",
+    "time_resolved",
+]
+
+BACKSCATTER_DEPTH = 0.1
+"""Smallest b_b z_max [1] (z_max the deepest gate's bottom) at which the fast renderer takes
+transport's gains (`time_resolved`): the share of the return that Wells' attenuation loses
+to backscatter over the round trip, 1 − e^(−2 b_b z), is then 18 % or more (coastal water
+to 15.2 m: 0.043, no gains; the paper's Example 4 to 9 m: 0.139; turbid harbour water
+from 9.8 m: 0.34)."""
+
+SLAB = 1.0
+"""Thickness of the depth slabs the gains are tabulated on [m]."""
+
+CALIBRATION_PHOTONS = 2_000_000
+"""Photons of the Monte Carlo run that tabulates a water's slab gains."""
 
 TABULATION = {
     "receiver": {"pixels": 32, "field_of_view_deg": 6.7},
@@ -44,27 +59,6 @@ TABULATION = {
     "target": {"shape": "none"},
 }
 """The view the time-resolved gains are tabulated in, whatever the scene's (`_slab_scene`)."""
-
-
-@functools.lru_cache(maxsize=32)
-def scene_setup(scene: Scene) -> Setup:
-    """What every frame of every sample of a scene shares (cached by the scene, hashable).
-
-    Where the fast renderer's gates hold water that scatters many times (`time_resolved`),
-    each gate's reflectance carries its time-resolved gain, tabulated by the Monte Carlo
-    renderer (`workers.setup.timegains`, docs/model.md §5).
-    """
-    setup = _compile(scene)
-    if not time_resolved(scene):
-        return setup
-    gains, _ = _slab_gains(_slab_scene(scene))
-    factors = gate_time_gains(
-        gains=gains,
-        gates=setup.gates,
-        diffuse_attenuation=setup.water.diffuse_attenuation * setup.secant,
-    )
-    reflectances = tuple(r * g for r, g in zip(setup.reflectances, factors, strict=True))
-    return replace(setup, reflectances=reflectances)
 
 
 def time_resolved(scene: Scene) -> bool:
@@ -78,12 +72,14 @@ def time_resolved(scene: Scene) -> bool:
     Returns
     -------
     bool
-        True for the fast renderer (``transport.method: small_angle``) where the water's
+        True where `workers.render` takes the gate returns of `scene` with the gains
+        (`workers.calibration.timegains.calibrated`) of its water (`slab_setups`): for
+        the fast renderer (``transport.method: small_angle``) where the water's
         phase function is one the Monte Carlo renderer can sample (defined over the
         sphere: the gains are transport's return of the same water over the fast
         renderer's; ``transport.phase_function``, the Monte Carlo's own choice, plays no
         part), the water backscatters (b_b > 0), and either b_b z_max is at least
-        `workers.setup.timegains.BACKSCATTER_DEPTH` (z_max the deepest gate's bottom) or
+        `BACKSCATTER_DEPTH` (z_max the deepest gate's bottom) or
         the phase function asks for them in any water
         (`workers.optics.phases.base.PhaseFunction.transport_gains`: ``paper``).
     """
@@ -122,20 +118,39 @@ def _slab_scene(scene: Scene) -> Scene:
     )
 
 
+def slab_setups(scene: Scene) -> tuple[Setup, Setup]:
+    """The setups that tabulate the gains of `scene`'s water: fast, then transport.
+
+    Parameters
+    ----------
+    scene : Scene
+        A scene where `time_resolved`.
+
+    Returns
+    -------
+    fast, transport : Setup
+        `_slab_scene` compiled for the fast renderer and for the Monte Carlo renderer
+        (`CALIBRATION_PHOTONS`), the same objects for every scene of the water (cached:
+        `workers.calibration.timegains.slab_gains` keeps its gains by them).
+    """
+    return _slab_setups(_slab_scene(scene))
+
+
 @functools.lru_cache(maxsize=16)
-def _slab_gains(slabs: Scene) -> tuple[np.ndarray, np.ndarray]:
-    """`workers.setup.timegains.slab_gains` of a `_slab_scene` (cached by it)."""
+def _slab_setups(slabs: Scene) -> tuple[Setup, Setup]:
+    """`slab_setups` of a `_slab_scene` (cached by it)."""
     transport = slabs.transport.model_copy(
         update={"method": "monte_carlo", "photons": CALIBRATION_PHOTONS}
     )
-    return slab_gains(
-        fast=_compile(slabs),
-        transport=_compile(slabs.model_copy(update={"transport": transport})),
-    )
+    return scene_setup(slabs), scene_setup(slabs.model_copy(update={"transport": transport}))
 
 
-def _compile(scene: Scene) -> Setup:
-    """`scene_setup` without the time-resolved gains."""
+@functools.lru_cache(maxsize=32)
+def scene_setup(scene: Scene) -> Setup:
+    """What every frame of every sample of a scene shares (cached by the scene, hashable).
+
+    Without transport's gains (`time_resolved`), which `workers.render` applies.
+    """
     w, p, r, laser = scene.water, scene.platform, scene.receiver, scene.laser
     coefficients = w.coefficients
     coefficients.update(

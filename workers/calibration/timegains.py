@@ -1,4 +1,4 @@
-"""Time-resolved gate gains: the water's return by photon transport, slab by slab in depth.
+"""Transport's gate gains: the water's return by photon transport, slab by slab in depth.
 
 Wells' small-angle spread (`workers.fast.spread`) carries all forward-scattered light at
 its depth and counts the backscattered share b_b as lost: a gate's water return is the
@@ -12,56 +12,76 @@ in water that scatters many times the light the small-angle theory counts as los
 back, late (docs/model.md §10).
 
 Where that matters (`workers.setup.builder.time_resolved`: the backscatter's optical
-depth to the deepest gate's bottom, b_b z, at least `BACKSCATTER_DEPTH`), each gate's
-reflectance is multiplied by the ratio of the two renderers' returns, tabulated per 1 m
-slab of depth by the Monte Carlo renderer once per water (`slab_gains`, a fixed photon
-stream, so the same bytes every time; the builder tabulates them in one view,
-`workers.setup.builder.TABULATION`, and caches them by the water) and weighted over the
-gate's slab as its single-scattering return is (`gate_time_gains`).
+depth to the deepest gate's bottom, b_b z, at least
+`workers.setup.builder.BACKSCATTER_DEPTH`, or a phase function whose wide-angle tail
+Wells' spread misses in any water, `paper`), `calibrated` multiplies each gate's
+reflectance by the ratio of the two renderers' returns, tabulated per 1 m slab of depth by
+the Monte Carlo renderer once per water (`slab_gains`, a fixed photon stream, so the same
+bytes every time, in one view, `workers.setup.builder.TABULATION`, whatever the scene's:
+`workers.setup.builder.slab_setups`), weighted over the gate's slab as its
+single-scattering return is (`gate_time_gains`). A wing above both renderers, since it
+runs both.
 """
 
 from __future__ import annotations
 
+import functools
+from dataclasses import replace
+
 import numpy as np
 
+from workers.backends.backend import get_backend
+from workers.fast import stages
+from workers.fast.planes import frame_geometry
+from workers.montecarlo.renderer import render_frame
 from workers.optics.water import slab_backscatter_reflectance
 from workers.settings.seeds import SampleSeed
+from workers.setup.builder import SLAB
 from workers.setup.compiled import Setup
 
-__all__ = [
-    "BACKSCATTER_DEPTH",
-    "CALIBRATION_PHOTONS",
-    "CALIBRATION_SEED",
-    "SLAB",
-    "gate_time_gains",
-    "slab_gains",
-]
-
-BACKSCATTER_DEPTH = 0.1
-"""Smallest b_b z_max [1] (z_max the deepest gate's bottom) at which the gains apply: the
-share of the return that Wells' attenuation loses to backscatter over the round trip,
-1 − e^(−2 b_b z), is then 18 % or more (coastal water to 15.2 m: 0.043, no gains; the
-paper's Example 4 to 9 m: 0.139; turbid harbour water from 9.8 m: 0.34)."""
-
-SLAB = 1.0
-"""Thickness of the depth slabs the gains are tabulated on [m]."""
-
-CALIBRATION_PHOTONS = 2_000_000
-"""Photons of the Monte Carlo run that tabulates a water's slab gains."""
+__all__ = ["CALIBRATION_SEED", "calibrated", "gate_time_gains", "slab_gains"]
 
 CALIBRATION_SEED = 20261128
 """Root seed of that run: the gains are a fixed quadrature, not the sample's randomness."""
 
 
+@functools.lru_cache(maxsize=32)
+def calibrated(setup: Setup, *, fast: Setup, transport: Setup) -> Setup:
+    """`setup` with each gate's reflectance times its gain from the slabs of `fast`, `transport`.
+
+    Parameters
+    ----------
+    setup : Setup
+        A fast-renderer scene's setup, without gains (`workers.setup.builder.scene_setup`).
+    fast, transport : Setup
+        Its water's slab setups (`workers.setup.builder.slab_setups`).
+
+    Returns
+    -------
+    Setup
+        The same setup but its ``reflectances``, each times `gate_time_gains` of
+        `slab_gains` (cached: one object per setup, as the setup's own caches want).
+    """
+    gains, _ = slab_gains(fast=fast, transport=transport)
+    factors = gate_time_gains(
+        gains=gains,
+        gates=setup.gates,
+        diffuse_attenuation=setup.water.diffuse_attenuation * setup.secant,
+    )
+    reflectances = tuple(r * g for r, g in zip(setup.reflectances, factors, strict=True))
+    return replace(setup, reflectances=reflectances)
+
+
+@functools.lru_cache(maxsize=16)
 def slab_gains(*, fast: Setup, transport: Setup) -> tuple[np.ndarray, np.ndarray]:
-    """Transport's water return over the fast renderer's, slab by slab.
+    """Transport's water return over the fast renderer's, slab by slab (cached by the two).
 
     Parameters
     ----------
     fast, transport : Setup
         The same flat, target-free scene of `SLAB` gates from the surface down, one frame,
         compiled for the fast renderer (without gains) and for the Monte Carlo renderer
-        (`CALIBRATION_PHOTONS`) (`workers.setup.builder.scene_setup` builds both).
+        (`workers.setup.builder.CALIBRATION_PHOTONS`): `workers.setup.builder.slab_setups`.
 
     Returns
     -------
@@ -70,11 +90,6 @@ def slab_gains(*, fast: Setup, transport: Setup) -> tuple[np.ndarray, np.ndarray
         (seed `CALIBRATION_SEED`) and its standard error [1]; 1 ± 0 where the fast
         renderer has no light.
     """
-    from workers.backends.backend import get_backend  # the renderers build on this package
-    from workers.fast import stages
-    from workers.fast.planes import frame_geometry
-    from workers.montecarlo.renderer import render_frame
-
     light = stages.frame_light(fast, frame_geometry(fast, 0), None, 0, get_backend("numpy"))
     fast_means = light.images.astype(np.float64).mean(axis=(1, 2))
     transported = render_frame(transport, None, 0, SampleSeed(root=CALIBRATION_SEED))
