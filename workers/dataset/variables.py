@@ -39,8 +39,10 @@ __all__ = [
 COUNT_HEADROOM = 16.0
 """Largest expected count of a pixel over the brightest thing a scene shows (`count_dtype`):
 room for the focusing of light by waves and for shading that returns more than a flat
-plate (a white sphere under ``shading: paper``: twice). Not a strict bound: a count beyond
-the store's type is caught when the sample is stored (``valid_max``), never wrapped."""
+plate (a white sphere under ``shading: paper``: twice), and for transport's gate gains
+(`workers.calibration.timegains`, 0.9-1.8), which the planning does not tabulate. Not a
+strict bound: a count beyond the store's type is caught when the sample is stored
+(``valid_max``), never wrapped."""
 
 
 class Visibility(enum.IntEnum):
