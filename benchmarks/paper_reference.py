@@ -19,14 +19,11 @@ in all; 64 kB); ``--scale 0.1`` for a quick look (the file is then not written u
 from __future__ import annotations
 
 import argparse
-import json
-import time
 from pathlib import Path
 
 import numpy as np
 
-from benchmarks.transport_reference import SEED, reference_scene
-from workers.render import render_arrays
+from benchmarks.transport_reference import reference_scene, stored_render
 from workers.settings.scene import Scene
 
 OUTPUT = Path(__file__).resolve().parent.parent / "tests" / "data" / "paper_reference.npz"
@@ -58,20 +55,7 @@ def main(argv=None) -> None:
     for name in args.only:
         photons = int(SCENES[name][2] * args.scale)
         scene = paper_scene(name, photons=photons)
-        start = time.perf_counter()
-        out = render_arrays(scene, seed=SEED)
-        seconds = time.perf_counter() - start
-        expected, stderr = out["expected"][0], out["expected_stderr"][0]
-        arrays[f"{name}/expected"] = expected
-        arrays[f"{name}/stderr"] = stderr
-        arrays[f"{name}/mask"] = out["target_mask"][0]
-        arrays[f"{name}/scene"] = np.array(json.dumps(scene.model_dump(mode="json")))
-        means = expected.mean(axis=(1, 2))
-        errors = np.sqrt((stderr**2).sum(axis=(1, 2))) / stderr[0].size
-        print(
-            f"{name:16s} {photons:>11,d} photons {seconds:7.1f} s  gate means "
-            + " ".join(f"{m:.3e}±{100 * e / m:.1f}%" for m, e in zip(means, errors, strict=True))
-        )
+        print(stored_render(arrays, name, scene, photons=photons))
     if args.scale == 1.0 or args.write:
         np.savez_compressed(OUTPUT, **arrays)
         print(f"wrote {OUTPUT}")

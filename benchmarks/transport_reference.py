@@ -79,6 +79,40 @@ def reference_scene(name: str, *, photons: int | None = None, target: bool = Tru
     return Scene.model_validate(data)
 
 
+def stored_render(arrays: dict, key: str, scene: Scene, *, photons: int) -> str:
+    """Render `scene` by transport into ``arrays[key/...]``; the line that reports it.
+
+    Parameters
+    ----------
+    arrays : dict
+        The reference's arrays by name, added to: ``key/expected``, ``/stderr``, ``/mask``
+        (the first frame's) and ``/scene`` (the scene as JSON).
+    key : str
+        The scene's name in the reference.
+    scene : Scene
+        A Monte Carlo scene.
+    photons : int
+        Its photons, for the report.
+
+    Returns
+    -------
+    str
+        The render's photons, seconds and gate means with their relative errors.
+    """
+    start = time.perf_counter()
+    out = render_arrays(scene, seed=SEED)
+    seconds = time.perf_counter() - start
+    expected, stderr = out["expected"][0], out["expected_stderr"][0]
+    arrays[f"{key}/expected"] = expected
+    arrays[f"{key}/stderr"] = stderr
+    arrays[f"{key}/mask"] = out["target_mask"][0]
+    arrays[f"{key}/scene"] = np.array(json.dumps(scene.model_dump(mode="json")))
+    means = expected.mean(axis=(1, 2))
+    errors = np.sqrt((stderr**2).sum(axis=(1, 2))) / stderr[0].size
+    gates = " ".join(f"{m:.3e}±{100 * e / m:.1f}%" for m, e in zip(means, errors, strict=True))
+    return f"{key:20s} {photons:>11,d} photons {seconds:7.1f} s  gate means {gates}"
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scale", type=float, default=1.0, help="photons times this")
@@ -91,22 +125,7 @@ def main(argv=None) -> None:
             photons = int(SCENES[name][1] * args.scale)
             scene = reference_scene(name, photons=photons, target=target)
             key = name if target else f"{name}-none"
-            start = time.perf_counter()
-            out = render_arrays(scene, seed=SEED)
-            seconds = time.perf_counter() - start
-            expected, stderr = out["expected"][0], out["expected_stderr"][0]
-            arrays[f"{key}/expected"] = expected
-            arrays[f"{key}/stderr"] = stderr
-            arrays[f"{key}/mask"] = out["target_mask"][0]
-            arrays[f"{key}/scene"] = np.array(json.dumps(scene.model_dump(mode="json")))
-            means = expected.mean(axis=(1, 2))
-            errors = np.sqrt((stderr**2).sum(axis=(1, 2))) / stderr[0].size
-            print(
-                f"{key:20s} {photons:>11,d} photons {seconds:7.1f} s  gate means "
-                + " ".join(
-                    f"{m:.3e}±{100 * e / m:.1f}%" for m, e in zip(means, errors, strict=True)
-                )
-            )
+            print(stored_render(arrays, key, scene, photons=photons))
     if args.scale == 1.0 or args.write:
         np.savez_compressed(OUTPUT, **arrays)
         print(f"wrote {OUTPUT}")
