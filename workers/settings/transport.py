@@ -57,7 +57,9 @@ class Transport(Section):
         "(`workers.optics.phases`, docs/model.md): `fournier_forand` with its two "
         "parameters fitted to the water's backscatter fraction b_b/b and β(π) = 0.174 b_b "
         "(the fast renderer's); `paper`, the paper's s(θ) with the water's theta0 forward, "
-        "the water's b_b/b and β(π) = 0.174 b_b backward; or any other registered one.",
+        "the water's b_b/b and β(π) = 0.174 b_b backward; or any other registered one. "
+        "Set it to `water.phase_function` for the water the fast renderer renders (whose "
+        "gains from transport, where it takes them, are of the water's own function).",
         json_schema_extra={**units("1"), "enum": SPHERICAL},
     )
     max_scattering: int | None = Field(
