@@ -114,6 +114,7 @@ def run_plan(
     on_progress=None,
     completed: np.ndarray | None = None,
     backend: Backend = NUMPY,
+    batch_memory: float | None = None,
 ) -> RunResult:
     """Render every missing sample of `plan` into `store`.
 
@@ -134,7 +135,9 @@ def run_plan(
     a line until the first shard is written, then the bar); None shows nothing.
     `completed`: with `resume`, the store's completion flags if already read. The
     samples render on `backend`; on a CUDA device each task asks for one unit of its
-    worker's ``GPU`` resource (`GPU_RESOURCE`).
+    worker's ``GPU`` resource (`GPU_RESOURCE`). A task renders its samples of a scene in
+    batches of at most `batch_memory` bytes (None: a share of its device's memory,
+    `service.batching.memory_budget`).
     """
     size = shard_samples(store.group())
     if resume:
@@ -170,6 +173,7 @@ def run_plan(
         failed=failed,
         cancel=cancel,
         backend=backend,
+        memory=batch_memory,
     )
 
     def alone(samples):
@@ -259,6 +263,7 @@ def _submit_bounded(
     failed,
     cancel=None,
     backend=NUMPY,
+    memory=None,
 ):
     """Submit `batches` keeping at most `window` tasks in flight; record what happened."""
     running: dict = {}  # future -> (samples, submitted at)
@@ -273,6 +278,7 @@ def _submit_bounded(
             store,
             jobs,
             backend,
+            memory,
             key=f"oceanlidar-{tag}-{start}-{len(jobs)}",
             retries=RETRIES,
             pure=False,
@@ -397,6 +403,7 @@ def execute(
     claim: str | None = None,
     owner: str | None = None,
     backend: Backend = NUMPY,
+    batch_memory: float | None = None,
 ) -> RunResult:
     """Create (or reopen) the store, run the missing samples and write the statistics.
 
@@ -424,7 +431,8 @@ def execute(
     recorded in a new store (`service.store.template.create_store`). The samples render
     on `backend` (`service.devices.choose`), which a new store records and a resumed one
     must have recorded (`service.devices.check_same`); a CUDA backend without `client` or
-    `scheduler` starts dask-cuda's local cluster, one worker a GPU.
+    `scheduler` starts dask-cuda's local cluster, one worker a GPU. `batch_memory`
+    (``--batch-memory``, bytes) goes to `run_plan`.
     """
     options = {"resume": resume, "overwrite": overwrite, "backend": backend}
     # a GPU worker sees its own GPU alone, as ``cuda`` (``cuda:N`` picks the embedded one)
@@ -489,6 +497,7 @@ def execute(
                 on_progress=on_progress,
                 completed=before,
                 backend=rendering,
+                batch_memory=batch_memory,
             )
             result.damaged, result.relabelled = damaged, relabelled
             if result.ok:

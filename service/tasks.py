@@ -1,8 +1,9 @@
 """A run's task: one shard's samples rendered in batches, checked and written whole.
 
 `task_batches` groups the samples a run renders by the shard that holds them; `render_shard`
-(on a dask worker) renders each scene's samples of its shard in one batch on the run's
-backend (`render_samples`), checks every sample's values and writes the shard
+(on a dask worker) renders each scene's samples of its shard on the run's backend
+(`render_samples`) in batches sized to the memory its device gives a task
+(`service.batching.batch_samples`), checks every sample's values and writes the shard
 (`service.store.shards.write_shard`). On a GPU worker two such tasks run at once
 (`service.cluster.GPU_TASKS`): while one renders on the GPU, the other checks, encodes and
 writes the shard it rendered on the host's cores. The bytes stay the same: a sample's
@@ -17,6 +18,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from service.batching import batch_samples, memory_budget
 from service.cluster import hold
 from service.devices import NUMPY
 from service.store import integrity, shards
@@ -56,7 +58,7 @@ def render_samples(scene: Scene, seeds: list, *, backend: Backend) -> dict[str, 
     return render_batch(scene, seeds, backend=backend.name, device=backend.device)
 
 
-def render_shard(store: Store, jobs, backend: Backend = NUMPY):
+def render_shard(store: Store, jobs, backend: Backend = NUMPY, memory: float | None = None):
     """Render samples of one shard and write the whole shard (runs on a dask worker).
 
     Parameters
@@ -67,9 +69,13 @@ def render_shard(store: Store, jobs, backend: Backend = NUMPY):
         ``(sample, scene, seed)`` per sample, all in one shard: its index, its
         `workers.settings.scene.Scene` (hashable, sent as it is) and
         `workers.settings.seeds.SampleSeed`.
-        Consecutive samples of one scene render in one batch.
+        Consecutive samples of one scene render in batches of at most
+        `service.batching.batch_samples` (the same bytes whatever the batches).
     backend : Backend, optional
         Where they render (`service.devices.choose`).
+    memory : float or None, optional
+        Bytes a batch may take (``--batch-memory``); None: `service.batching.memory_budget`'s
+        share of what this worker's device gives a task.
 
     Returns
     -------
@@ -81,24 +87,38 @@ def render_shard(store: Store, jobs, backend: Backend = NUMPY):
     """
     tune_allocator()
     group = store.group("r+")
+    budget = memory_budget(backend, memory)
     rejected, valid = [], {}
     for scene, run in itertools.groupby(jobs, key=lambda job: job[1]):
-        run = list(run)
-        try:
-            batch = render_samples(scene, [seed for _, _, seed in run], backend=backend)
-        except SceneError as error:
-            rejected.extend((sample, str(error), True) for sample, _, _ in run)
-            continue
-        for index, (sample, _, _) in enumerate(run):
-            rendered = {name: values[index] for name, values in batch.items()}
-            reason = integrity.invalid_values(rendered, scene)
-            if reason is None:
-                valid[sample] = rendered
-            else:
-                rejected.append((sample, reason, False))
+        run, size = list(run), batch_samples(scene, budget)
+        for start in range(0, len(run), size):
+            rejected += _render_checked(scene, run[start : start + size], backend, valid)
     if valid:
         shards.write_shard(group, valid)
     hold(jobs[0][0])  # tests only
+    return rejected
+
+
+def _render_checked(scene: Scene, run: list, backend: Backend, valid: dict) -> list:
+    """Render the jobs `run` of `scene` in one batch; add the valid samples to `valid`.
+
+    Returns
+    -------
+    list of tuple
+        The samples not valid, as `render_shard` returns them.
+    """
+    try:
+        batch = render_samples(scene, [seed for _, _, seed in run], backend=backend)
+    except SceneError as error:
+        return [(sample, str(error), True) for sample, _, _ in run]
+    rejected = []
+    for index, (sample, _, _) in enumerate(run):
+        rendered = {name: values[index] for name, values in batch.items()}
+        reason = integrity.invalid_values(rendered, scene)
+        if reason is None:
+            valid[sample] = rendered
+        else:
+            rejected.append((sample, reason, False))
     return rejected
 
 

@@ -11,6 +11,7 @@ from service.inputs import DEFAULT_MAX_MEMORY, json_object
 
 __all__ = [
     "backend",
+    "batch_memory",
     "count",
     "limits",
     "output",
@@ -62,6 +63,19 @@ def backend(command, renders: str) -> None:
         "--device",
         default=None,
         help=f"device {renders} render on: cpu (default), cuda or cuda:N (implies torch)",
+    )
+
+
+def batch_memory(command) -> None:
+    """``--batch-memory``: the memory a batch of one scene's samples may take on a worker."""
+    command.add_argument(
+        "--batch-memory",
+        type=float,
+        default=None,
+        metavar="GIB",
+        help="memory a batch of one scene's samples may take, GiB (default: half of what a "
+        "task has: a GPU's memory shared by its worker's tasks, a CPU worker's share of the "
+        "machine's)",
     )
 
 

@@ -67,6 +67,7 @@ def _run(commands) -> None:
         help="seconds after its submission that a task is given up as stuck (default 600)",
     )
     arguments.backend(run, "the samples")
+    arguments.batch_memory(run)
     arguments.limits(run)
     arguments.storage_options(run)
 
@@ -263,6 +264,7 @@ def parser() -> argparse.ArgumentParser:
         help="skip the timed renders of sample 0's first frame (and the run-time estimate)",
     )
     arguments.backend(validate, "the timed renders")
+    arguments.batch_memory(validate)
     arguments.limits(validate)
 
     commands.add_parser("schema", help="print the JSON Schema of sweep files (for editors)")

@@ -24,6 +24,7 @@ import yaml
 from dask.utils import format_bytes, format_time
 
 from service.admission import Rules, admit
+from service.batching import BUDGET_SHARE, batch_samples, sample_memory, task_memory
 from service.devices import NUMPY, check_renderers, choose
 from service.errors import BadFileError, BadOptionError, BadSweepError
 from service.inputs import DEFAULT_MAX_MEMORY, read_text, shown
@@ -40,6 +41,8 @@ from workers.settings.section import SceneError
 from workers.setup.seasetup import scene_sea
 
 __all__ = [
+    "batch_lines",
+    "batch_memory",
     "cmd_run",
     "cmd_schema",
     "cmd_validate",
@@ -76,6 +79,49 @@ def memory_limit(args) -> float:
     if args.max_memory is not None and not args.max_memory > 0:
         raise BadOptionError("--max-memory must be a positive number of GiB")
     return DEFAULT_MAX_MEMORY if args.max_memory is None else args.max_memory * 2**30
+
+
+def batch_memory(args) -> float | None:
+    """The memory [bytes] a batch may take by ``--batch-memory`` (GiB); None if not given.
+
+    Raises
+    ------
+    BadOptionError
+        If ``--batch-memory`` is not a positive number.
+    """
+    if args.batch_memory is None:
+        return None
+    if not args.batch_memory > 0:  # NaN too
+        raise BadOptionError("--batch-memory must be a positive number of GiB")
+    return args.batch_memory * 2**30
+
+
+def batch_lines(plan: Plan, backend: Backend, *, memory: float | None, workers: int) -> list[str]:
+    """The batches a run's tasks render, for people: the sweep's largest scene's.
+
+    A task renders its shard's samples of one scene in batches of
+    `service.batching.batch_samples` (`service.tasks.render_shard`), at most the shard's
+    samples of a point (its realisations, as a rule). The budget is `memory` (``--batch-memory``), else `BUDGET_SHARE` of
+    `service.batching.task_memory` on `backend` with `workers` sharing this machine (a
+    ``--scheduler``'s workers may have other memory: they size their batches themselves).
+    """
+    point = max(range(len(plan.scenes)), key=lambda p: sample_memory(plan.scenes[p]))
+    scene = plan.scenes[point]
+    if memory is None:
+        task, source = task_memory(backend, workers=workers)
+        budget, source = BUDGET_SHARE * task, f"{BUDGET_SHARE:.0%} of {source}"
+    else:
+        budget, source = memory, "--batch-memory"
+    per_sample, most = sample_memory(scene), min(shard_size(plan), plan.realisations)
+    batch = min(batch_samples(scene, budget), most)
+    largest = ", the largest" if len(plan.scenes) > 1 else ""
+    capped = f"; a shard holds {most} of a point" if batch == most else ""
+    return [
+        f"  batches: up to {batch} samples of a scene at once on {backend.device}, about "
+        f"{format_bytes(batch * per_sample)} a batch ({format_bytes(per_sample)} a sample "
+        f"at point {point}{largest}{capped})",
+        f"  batch memory: {format_bytes(budget)} ({source})",
+    ]
 
 
 def load(args) -> Plan:
@@ -205,7 +251,8 @@ def _sea_lines(plan: Plan) -> list[str]:
 
 
 def cmd_validate(args) -> int:
-    """Check a sweep; print its plan, its seas' resolved shares, an estimated run time."""
+    """Check a sweep; print its plan, its seas' resolved shares, its batches, a run time."""
+    memory = batch_memory(args)
     plan = load(args)
     print("\n".join(plan_lines(plan) + _sea_lines(plan)))
     if args.show_scene:
@@ -213,6 +260,8 @@ def cmd_validate(args) -> int:
         print(yaml.safe_dump(plan.scenes[0].model_dump(mode="json"), sort_keys=False), end="")
     backend = choose(args.backend, args.device)
     check_renderers(plan, backend)
+    workers, kind = _estimate_workers(args, backend)
+    print("\n".join(batch_lines(plan, backend, memory=memory, workers=workers)))
     if args.no_estimate:
         return EXIT_OK
     # one render per renderer (transport.method): Monte Carlo takes far longer a sample
@@ -225,7 +274,6 @@ def cmd_validate(args) -> int:
         sum(timed[method][i] * len(where) for method, where in points.items()) / len(plan.scenes)
         for i in (1, 2)
     )
-    workers, kind = _estimate_workers(args, backend)
     seconds = run_time(
         samples=plan.samples,
         scenes=len(set(plan.scenes)),
@@ -299,6 +347,7 @@ def _check_run_flags(args) -> None:
         raise BadOptionError("--workers must be at least 1")
     if args.batch is not None and args.batch < 1:
         raise BadOptionError("--batch must be at least 1")
+    batch_memory(args)
     if not args.task_timeout > 0:
         raise BadOptionError("--task-timeout must be a positive number of seconds")
     if args.verify and not args.resume:
@@ -367,6 +416,7 @@ def cmd_run(args) -> int:
                 task_timeout=args.task_timeout,
                 progress_stream=None if args.quiet else sys.stderr,
                 backend=backend,
+                batch_memory=batch_memory(args),
             )
     except ClusterError as error:
         log.error("oceanlidar run: error: %s", error)
