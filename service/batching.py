@@ -84,14 +84,19 @@ def task_memory(backend: Backend, *, workers: int | None = None) -> tuple[float,
 
 
 def memory_budget(backend: Backend, memory: float | None = None, **where) -> float:
-    """Memory [bytes] a batch may take: `memory` if given (``--batch-memory``), else
-    `BUDGET_SHARE` of `task_memory` (`where` its keywords)."""
+    """Memory [bytes] a batch may take.
+
+    `memory` if given (``--batch-memory``), else `BUDGET_SHARE` of `task_memory` (`where`
+    its keywords).
+    """
     if memory is not None:
         return memory
     return BUDGET_SHARE * task_memory(backend, **where)[0]
 
 
 def batch_samples(scene: Scene, budget: float) -> int:
-    """Samples of `scene` a batch holds within `budget` bytes (`sample_memory` each), at
-    least one."""
+    """Samples of `scene` a batch holds within `budget` bytes (`sample_memory` each).
+
+    At least one: a sample over the budget renders alone (``--max-memory`` bounds a sample).
+    """
     return max(1, int(budget // sample_memory(scene)))

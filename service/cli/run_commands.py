@@ -101,9 +101,10 @@ def batch_lines(plan: Plan, backend: Backend, *, memory: float | None, workers: 
 
     A task renders its shard's samples of one scene in batches of
     `service.batching.batch_samples` (`service.tasks.render_shard`), at most the shard's
-    samples of a point (its realisations, as a rule). The budget is `memory` (``--batch-memory``), else `BUDGET_SHARE` of
-    `service.batching.task_memory` on `backend` with `workers` sharing this machine (a
-    ``--scheduler``'s workers may have other memory: they size their batches themselves).
+    samples of a point (its realisations, as a rule). The budget is `memory`
+    (``--batch-memory``), else `BUDGET_SHARE` of `service.batching.task_memory` on `backend`
+    with `workers` sharing this machine (a ``--scheduler``'s workers may have other memory:
+    they size their batches themselves).
     """
     point = max(range(len(plan.scenes)), key=lambda p: sample_memory(plan.scenes[p]))
     scene = plan.scenes[point]
