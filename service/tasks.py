@@ -89,8 +89,8 @@ def render_shard(store: Store, jobs, backend: Backend = NUMPY, memory: float | N
     group = store.group("r+")
     budget = memory_budget(backend, memory)
     rejected, valid = [], {}
-    for scene, group in itertools.groupby(jobs, key=lambda job: job[1]):
-        run, size = list(group), batch_samples(scene, budget)
+    for scene, same in itertools.groupby(jobs, key=lambda job: job[1]):
+        run, size = list(same), batch_samples(scene, budget)
         for start in range(0, len(run), size):
             rejected += _render_checked(scene, run[start : start + size], backend, valid)
     if valid:
