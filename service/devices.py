@@ -22,6 +22,7 @@ __all__ = [
     "check_on_worker",
     "check_same",
     "choose",
+    "named",
     "recorded",
     "stored",
 ]
@@ -32,6 +33,15 @@ DEVICE_ATTR = "render_device"
 """Root attribute of a samples store: the kind of device they were rendered on."""
 NUMPY = Backend(name="numpy", device="cpu")
 """The default backend, and that of the stores written before they recorded one."""
+
+
+def named(backend: str | None, device: str | None) -> tuple[str, str]:
+    """The backend and device that ``--backend`` and ``--device`` name, defaults filled in.
+
+    A device of None is ``cpu``; a backend of None is torch on a CUDA device, else numpy.
+    """
+    device = "cpu" if device is None else device
+    return backend or ("numpy" if device == "cpu" else "torch"), device
 
 
 def choose(backend: str | None, device: str | None, *, here: bool = True) -> Backend:
@@ -58,8 +68,7 @@ def choose(backend: str | None, device: str | None, *, here: bool = True) -> Bac
         Naming ``--backend`` or ``--device`` and why (torch not installed, no CUDA device,
         numpy on a GPU, an unknown name; a GPU's index for a scheduler's workers).
     """
-    device = "cpu" if device is None else device
-    name = backend or ("numpy" if device == "cpu" else "torch")
+    name, device = named(backend, device)
     if not here:
         if ":" in device:
             raise BadOptionError(
@@ -73,7 +82,7 @@ def choose(backend: str | None, device: str | None, *, here: bool = True) -> Bac
         raise BadOptionError(f"--{error}") from None
 
 
-def check_renderers(plan, backend: Backend) -> None:
+def check_renderers(plan, backend: Backend, points=None) -> None:
     """Refuse a sweep with Monte Carlo points on a backend other than numpy, before any work.
 
     Parameters
@@ -82,6 +91,8 @@ def check_renderers(plan, backend: Backend) -> None:
         The sweep (every point's scene is read: built, on a trusted resume).
     backend : Backend
         Where it would render.
+    points : iterable of int, optional
+        The points that render (``preview``'s one); default every point.
 
     Raises
     ------
@@ -90,8 +101,8 @@ def check_renderers(plan, backend: Backend) -> None:
     """
     if backend.name == "numpy":
         return
-    for point, scene in enumerate(plan.scenes):
-        if scene.transport.method == "monte_carlo":
+    for point in range(len(plan.scenes)) if points is None else points:
+        if plan.scenes[point].transport.method == "monte_carlo":
             raise BadOptionError(
                 f"--backend {backend.name}: point {point} renders by Monte Carlo "
                 "(transport.method: monte_carlo), which runs on the numpy backend only"

@@ -21,8 +21,10 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from PIL import Image
 
+from service.devices import NUMPY
 from service.errors import BadOptionError
 from service.sweep import Plan
+from workers.backends.backend import Backend
 from workers.dataset.variables import Visibility
 from workers.render import render
 
@@ -57,13 +59,17 @@ CLIP_PERCENTILE = 99.5
 """Percentile of a gate's pixels its colour scale tops at (`colour_scales`)."""
 
 
-def render_preview(plan: Plan, sample: int) -> xr.Dataset:
-    """Render sample `sample` of a sweep exactly as the service would, with its surface."""
+def render_preview(plan: Plan, sample: int, backend: Backend = NUMPY) -> xr.Dataset:
+    """Render sample `sample` of a sweep exactly as the service would, with its surface.
+
+    On `backend` (``preview --backend --device``, `service.devices.choose`): a run on that
+    backend and device writes the same sample.
+    """
     address = plan.sample(sample)
     scene = address.scene
     if not scene.save_surface:
         scene = scene.model_copy(update={"save_surface": True})
-    return render(scene, seed=address.seed)
+    return render(scene, seed=address.seed, backend=backend.name, device=backend.device)
 
 
 def new_figure(*, figsize: tuple[float, float]) -> Figure:

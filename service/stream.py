@@ -18,9 +18,11 @@ import numpy as np
 from torch.utils.data import IterableDataset, get_worker_info
 
 from service.dataset import image_type
+from service.devices import check_renderers, named
 from service.inputs import position
 from service.store.template import store_variables
 from service.sweep import Plan, load_sweep
+from workers.backends.backend import get_backend
 from workers.render import render_arrays
 from workers.settings.seeds import SampleSeed
 
@@ -71,12 +73,15 @@ class SweepStream(IterableDataset):
     TypeError
         For points, realisations or first that are not integers (``0.7``, ``2.5``, ``True``).
     ValueError
-        For points outside the sweep, fewer than one realisation, a negative first, or
-        an image type that would wrap the counts.
+        For points outside the sweep, fewer than one realisation, a negative first, an
+        image type that would wrap the counts, a backend or device that cannot render here
+        (naming ``backend`` or ``device``: `workers.backends.backend.get_backend`), or a
+        Monte Carlo point on torch.
     backend, device : str, optional
-        The array backend and device to render on, passed to
-        `workers.render.render_arrays` when given (a store's bytes are those of the
-        backend that wrote it: its ``render_backend``, ``render_device``).
+        The array backend and device to render on (`workers.render.render_arrays`), as
+        ``--backend`` and ``--device`` name them (`service.devices.named`: default numpy on
+        the CPU, torch on a CUDA device), checked as the stream is made. A store's bytes
+        are those of the backend that wrote it: its ``render_backend``, ``render_device``.
     shuffle : bool, optional
         Shuffle each realisation's points (`order`; default), or keep point order.
 
@@ -128,9 +133,9 @@ class SweepStream(IterableDataset):
             image = table["image"]
             largest = image.attrs.get("valid_max")
             self.dtypes["image"] = image_type(image_dtype, stored=image.dtype, largest=largest)
-        self.options = {
-            key: value for key, value in (("backend", backend), ("device", device)) if value
-        }
+        chosen = get_backend(*named(backend, device))
+        check_renderers(self.plan, chosen, points=self.points)
+        self.options = {"backend": chosen.name, "device": chosen.device}
         self.shuffle, self.epoch = bool(shuffle), 0
 
     def __len__(self) -> int:

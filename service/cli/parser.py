@@ -114,6 +114,7 @@ def _preview(commands) -> None:
         help="dots per inch (default: 100, or more where a gate's image would have fewer "
         "than 2 screen pixels across each of its pixels)",
     )
+    arguments.backend(preview, "a sweep file's sample")
     arguments.limits(preview)
     arguments.storage_options(preview)
 

@@ -256,13 +256,13 @@ def cmd_validate(args) -> int:
     memory = batch_memory(args)
     plan = load(args)
     print("\n".join(plan_lines(plan) + _sea_lines(plan)))
-    if args.show_scene:
-        print("# the scene of point 0, every default filled in (units: `oceanlidar schema`)")
-        print(yaml.safe_dump(plan.scenes[0].model_dump(mode="json"), sort_keys=False), end="")
     backend = choose(args.backend, args.device)
     check_renderers(plan, backend)
     workers, kind = _estimate_workers(args, backend)
     print("\n".join(batch_lines(plan, backend, memory=memory, workers=workers)))
+    if args.show_scene:
+        print("# the scene of point 0, every default filled in (units: `oceanlidar schema`)")
+        print(yaml.safe_dump(plan.scenes[0].model_dump(mode="json"), sort_keys=False), end="")
     if args.no_estimate:
         return EXIT_OK
     # one render per renderer (transport.method): Monte Carlo takes far longer a sample

@@ -18,7 +18,7 @@ import sys
 
 import numpy as np
 
-from service.devices import BACKEND_ATTR, DEVICE_ATTR, choose, stored
+from service.devices import BACKEND_ATTR, DEVICE_ATTR, check_renderers, choose, stored
 from service.errors import BadOptionError, DamagedStoreError, InputError, UnusableOutputError
 from service.inputs import shown
 from service.store import integrity
@@ -335,6 +335,7 @@ def cmd_preview(args) -> int:
     if args.realisation is not None and args.point is None:
         raise BadOptionError("--realisation needs --point: the sample of that point")
     if os.path.isfile(args.source):
+        backend = choose(args.backend, args.device)
         plan = load_sweep(args.source, max_memory=None if args.no_limits else memory_limit(args))
         sample = _sample_of(
             args,
@@ -342,12 +343,19 @@ def cmd_preview(args) -> int:
             realisations=np.tile(np.arange(plan.realisations), len(plan.points)),
         )
         address = plan.sample(sample)
-        ds = render_preview(plan, sample)
+        check_renderers(plan, backend, points=[address.point])
+        ds = render_preview(plan, sample, backend)
         title = _sample_title(
             plan.sweep.name, sample, address.point, address.values, address.realisation
         )
         measurements = address.scene.surface.conditioning.points
     else:
+        if args.backend is not None or args.device is not None:
+            flag = "--backend" if args.backend is not None else "--device"
+            raise BadOptionError(
+                f"{flag}: preview reads a store's sample as it was rendered; give it with a "
+                "sweep file, whose sample preview renders"
+            )
         store = _store(args, args.source)
         ds = _open(store)
         sample = _sample_of(args, points=ds["point"].values, realisations=ds["realisation"].values)
