@@ -129,6 +129,70 @@ def test_validate_estimates_the_run_and_shows_the_resolved_scene(tmp_path, capsy
     assert Scene.model_validate(shown) == scene
 
 
+def test_validate_says_the_batch_size_and_its_memory(tmp_path, capsys):
+    # issue #39 item 5: the samples of a scene a task renders at once, the memory a batch
+    # takes (the largest scene's, `service.batching.sample_memory` a sample) and the budget
+    from dask.utils import format_bytes
+
+    from service.batching import sample_memory
+
+    sweep = tiny(tmp_path, realisations=16)  # 32 samples: shards of 4 (at least 8 shards)
+    plan = load_sweep(sweep)
+    largest = max(range(2), key=lambda point: sample_memory(plan.scenes[point]))
+    per_sample = sample_memory(plan.scenes[largest])
+    gib = 2.5 * per_sample / 2**30  # two samples fit
+    assert main(["validate", str(sweep), "--no-estimate", "--batch-memory", str(gib)]) == 0
+    out = capsys.readouterr().out
+    assert (
+        f"  batches: up to 2 samples of a scene at once on cpu, about "
+        f"{format_bytes(2 * per_sample)} a batch ({format_bytes(per_sample)} a sample at "
+        f"point {largest}, the largest)\n  batch memory: {format_bytes(gib * 2**30)} "
+        "(--batch-memory)\n"
+    ) in out, out
+    # by default, half of a worker's share of this machine: a shard's 4 samples of a point
+    assert main(["validate", str(sweep), "--no-estimate", "--workers", "2"]) == 0
+    out = capsys.readouterr().out
+    assert (
+        f"  batches: up to 4 samples of a scene at once on cpu, about "
+        f"{format_bytes(4 * per_sample)} a batch (" in out
+    ), out
+    assert "a shard holds 4 of a point)" in out, out
+    assert (
+        "  batch memory: " in out and "(50% of this machine's memory shared by 2 worker(s))" in out
+    ), out
+
+
+@pytest.mark.parametrize("value", ["0", "-1", "nan"])
+def test_a_batch_memory_that_is_no_size_is_refused(tmp_path, capsys, value, monkeypatch):
+    import service.run
+
+    monkeypatch.setattr(service.run, "execute", lambda *a, **k: pytest.fail("ran"))
+    for command in ("validate", "run"):
+        assert main([command, str(tiny(tmp_path)), "--batch-memory", value]) == 2
+        error = capsys.readouterr().err
+        assert (
+            f"oceanlidar {command}: error: --batch-memory must be a positive number of GiB"
+            in error
+        )
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.yaml"]
+
+
+def test_run_passes_batch_memory_to_its_tasks(tmp_path, monkeypatch):
+    # `run --batch-memory GIB`: the bytes every task's batches may take (`render_shard`'s)
+    import service.run
+
+    given = []
+
+    def execute(plan, store, **options):
+        given.append(options["batch_memory"])
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(service.run, "execute", execute)
+    main(["run", str(tiny(tmp_path)), "--batch-memory", "1.5"])
+    main(["run", str(tiny(tmp_path))])
+    assert given == [1.5 * 2**30, None]
+
+
 def test_validate_refuses_a_scene_that_renders_invalid_values(tmp_path, capsys, monkeypatch):
     # the render `validate` times is checked as `run` checks each sample before writing
     # it: a NaN there is a scene no sample of which would be written (a user trial found

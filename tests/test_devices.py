@@ -230,6 +230,81 @@ def test_a_shards_samples_of_one_scene_render_in_one_batch_on_the_runs_backend(
             assert ds.image[sample].values.tobytes() == alone["image"].tobytes()
 
 
+def test_a_shards_samples_of_a_scene_render_in_batches_that_fit_the_memory_given(tmp_path):
+    # issue #39 item 5: a task renders a scene's samples in batches of as many as fit its
+    # memory budget (`service.batching.batch_samples`, at least one), and the bytes are
+    # those of one batch a scene: a sample's bytes never depend on its batch
+    from service.batching import sample_memory
+    from service.store.template import create_store
+
+    sweep_file(tmp_path, realisations=3)
+    plan = parse_sweep((tmp_path / "sweep.yaml").read_text(), folder=tmp_path)
+    per_sample = max(sample_memory(scene) for scene in plan.scenes)
+    batches = []
+    real = service.tasks.render_samples
+
+    def spy(scene, seeds, *, backend):
+        batches.append((plan.scenes.index(scene), len(seeds)))
+        return real(scene, seeds, backend=backend)
+
+    stores = {}
+    for memory in (None, 2.5 * per_sample, 0.5 * per_sample):
+        store = stores[memory] = Store.at(str(tmp_path / f"out-{memory}.zarr"))
+        create_store(plan, store, samples_per_shard=4)
+        batches.clear()
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(service.tasks, "render_samples", spy)
+            for _, jobs in task_batches(plan, range(plan.samples), 4):
+                assert render_shard(store, jobs, NUMPY, memory) == []
+        stores[memory] = (store, list(batches))
+    # shard 0 holds point 0's three samples and point 1's first, shard 1 point 1's others
+    assert stores[None][1] == [(0, 3), (1, 1), (1, 2)]  # this machine's budget: all at once
+    assert stores[2.5 * per_sample][1] == [(0, 2), (0, 1), (1, 1), (1, 2)]
+    assert stores[0.5 * per_sample][1] == [(0, 1)] * 3 + [(1, 1)] * 3  # one a batch, at least
+    whole = stores[None][0].url
+    for memory in (2.5 * per_sample, 0.5 * per_sample):
+        assert_same_samples(stores[memory][0].url, whole, names=None)
+
+
+def test_a_batch_takes_half_the_memory_a_task_has_on_its_device(monkeypatch):
+    # issue #39 item 5: on a dask worker its memory limit shared by its threads; elsewhere
+    # this machine's memory (dask's MEMORY_LIMIT, what the embedded cluster shares) by the
+    # workers; on a GPU its memory shared by the GPU_TASKS tasks its worker runs at once
+    from distributed import Client, LocalCluster
+    from distributed.system import MEMORY_LIMIT
+
+    from service.batching import BUDGET_SHARE, batch_samples, memory_budget, task_memory
+
+    assert BUDGET_SHARE == 0.5
+    assert task_memory(NUMPY, workers=4)[0] == MEMORY_LIMIT / 4
+    assert memory_budget(NUMPY, workers=4) == MEMORY_LIMIT / 8
+    assert memory_budget(NUMPY, 3e9, workers=4) == 3e9  # --batch-memory
+    options = {"processes": False, "n_workers": 1, "threads_per_worker": 2}
+    with (
+        LocalCluster(memory_limit=2**30, dashboard_address=None, **options) as cluster,
+        Client(cluster, set_as_default=False) as client,
+    ):
+        # `workers` counts this machine's workers off a worker: a worker knows its own limit
+        memory, source = client.submit(lambda: task_memory(NUMPY, workers=16)).result()
+    assert memory == 2**30 / 2 and "2 thread(s)" in source
+
+    class Properties:
+        total_memory = 80 * 2**30
+
+    torch = pytest.importorskip("torch")
+    monkeypatch.setattr(torch.cuda, "get_device_properties", lambda device: Properties)
+    cuda = Backend(name="torch", device="cuda")
+    assert task_memory(cuda) == (
+        80 * 2**30 / GPU_TASKS,
+        f"cuda's memory shared by {GPU_TASKS} tasks",
+    )
+    scene = parse_sweep(TINY_SWEEP.format(name="t", seed=1, realisations=1, output="o")).scenes[0]
+    from service.batching import sample_memory
+
+    assert batch_samples(scene, 7.9 * sample_memory(scene)) == 7
+    assert batch_samples(scene, 1.0) == 1
+
+
 @pytest.fixture
 def gpu_and_cpu_workers():
     """A cluster in this process: a worker advertising `GPU_TASKS` GPU slots, one without."""
