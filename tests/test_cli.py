@@ -273,6 +273,78 @@ def stored(tmp_path_factory):
     return url
 
 
+def test_preview_renders_on_the_backend_and_device_chosen(tmp_path, monkeypatch):
+    # issue #39 item 5: `preview --backend torch` renders the sweep's sample on torch (it
+    # rendered on numpy only), as `run --backend torch` would write it: within the
+    # backends' agreement (PEAK_TOLERANCE of each expected image's peak) of numpy's
+    pytest.importorskip("torch")
+    from test_render_batch import PEAK_TOLERANCE
+
+    from workers.backends.backend import Backend
+
+    torch_cpu = Backend(name="torch", device="cpu")
+    sweep = tiny(tmp_path)
+    rendered = []
+    real = plots.render
+
+    def spy(scene, *, seed, backend, device):
+        rendered.append((backend, device))
+        return real(scene, seed=seed, backend=backend, device=device)
+
+    monkeypatch.setattr(plots, "render", spy)
+    output = tmp_path / "p.png"
+    assert main(["preview", str(sweep), "--backend", "torch", "--output", str(output)]) == 0
+    assert rendered == [("torch", "cpu")] and output.stat().st_size > 0
+    plan = load_sweep(sweep)
+    on_torch = plots.render_preview(plan, 0, torch_cpu)
+    on_numpy = plots.render_preview(plan, 0)
+    a, b = on_numpy.expected.values.astype(np.float64), on_torch.expected.values
+    peak = np.abs(a).max(axis=(-2, -1))
+    assert peak.min() > 0
+    assert (np.abs(a - b).max(axis=(-2, -1)) <= PEAK_TOLERANCE * peak).all()
+    assert (on_numpy.target_mask.values == on_torch.target_mask.values).all()
+    assert not np.array_equal(on_numpy.image.values, on_torch.image.values)  # torch's noise
+
+
+@pytest.mark.parametrize(
+    ("flags", "message"),
+    [
+        (["--device", "tpu"], "--device: 'tpu' is neither 'cpu' nor 'cuda'"),
+        (["--backend", "numpy", "--device", "cuda"], "--device: the numpy backend runs on"),
+        (
+            ["--backend", "torch", "--point", "1"],
+            "--backend torch: point 1 renders by Monte Carlo (transport.method: monte_carlo)",
+        ),
+    ],
+    ids=["unknown-device", "numpy-on-cuda", "monte-carlo-on-torch"],
+)
+def test_preview_refuses_a_backend_that_cannot_render_its_sample(tmp_path, cli, flags, message):
+    # issue #39 item 5: the flag named, exit 2, no traceback, nothing drawn
+    sweep = tiny(tmp_path)
+    sweep.write_text(
+        sweep.read_text().replace(
+            "target.shape: {values: [sphere, none]}",
+            "transport.method: {values: [small_angle, monte_carlo]}",
+        )
+    )
+    result = cli("preview", "t.yaml", "--output", "p.png", *flags, cwd=tmp_path)
+    assert result.returncode == 2, result.stderr
+    assert f"oceanlidar preview: error: {message}" in result.stderr
+    assert "Traceback" not in result.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.yaml"]
+
+
+def test_preview_of_a_store_refuses_a_backend(stored, tmp_path, cli):
+    # a store's sample is read as it was rendered: a backend asked would be ignored
+    for flags in (["--backend", "torch"], ["--device", "cpu"]):
+        result = cli("preview", stored, "--output", "p.png", *flags, cwd=tmp_path)
+        assert result.returncode == 2, result.stderr
+        assert f"oceanlidar preview: error: {flags[0]}: preview reads a store's sample" in (
+            result.stderr
+        )
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_preview_reads_a_store_and_shares_one_scale(stored, tmp_path, monkeypatch):
     drawn = []
 

@@ -89,6 +89,52 @@ def test_bad_arguments_name_themselves(sweep):
         SweepStream(plan, arrays=("surface_elevation",))
 
 
+def test_a_backend_that_cannot_render_is_refused_as_the_stream_is_made(tmp_path):
+    # issue #39 item 5: a bad device or a Monte Carlo point on torch was found only when an
+    # item rendered (in a DataLoader's worker); now as the stream is made, the field named
+    import torch
+
+    from service.sweep import parse_sweep
+
+    text = TINY_SWEEP.format(name="t", seed=1, realisations=2, output="t.zarr")
+    plan = parse_sweep(text)
+    with pytest.raises(ValueError, match=r"^device: 'tpu' is neither 'cpu' nor 'cuda'"):
+        SweepStream(plan, device="tpu")
+    with pytest.raises(ValueError, match=r"^device: the numpy backend runs on the cpu"):
+        SweepStream(plan, backend="numpy", device="cuda:0")
+    if not torch.cuda.is_available():  # a CUDA device implies torch, as --device does
+        with pytest.raises(ValueError, match=r"^device: 'cuda' asked, but this machine has no"):
+            SweepStream(plan, device="cuda")
+    carlo = parse_sweep(
+        text.replace(
+            "target.shape: {values: [sphere, none]}",
+            "transport.method: {values: [small_angle, monte_carlo]}",
+        )
+    )
+    with pytest.raises(ValueError, match="--backend torch: point 1 renders by Monte Carlo"):
+        SweepStream(carlo, backend="torch")
+    SweepStream(carlo, backend="torch", points=[0])  # the points drawn only
+
+
+def test_items_render_on_the_backend_chosen(tmp_path):
+    # torch's items are those `render_arrays` gives on torch (its own noise), byte for byte
+    from service.sweep import parse_sweep
+    from workers.render import render_arrays
+    from workers.settings.seeds import SampleSeed
+
+    plan = parse_sweep(TINY_SWEEP.format(name="t", seed=1, realisations=1, output="t.zarr"))
+    stream = SweepStream(
+        plan, realisations=1, arrays=("image",), labels=(), shuffle=False, backend="torch"
+    )
+    for item in stream:
+        point = int(item["point"])
+        seed = SampleSeed(root=1, point=point, realisation=0)
+        on_torch = render_arrays(plan.scenes[point], seed=seed, backend="torch")
+        on_numpy = render_arrays(plan.scenes[point], seed=seed)
+        assert item["image"].tobytes() == on_torch["image"].tobytes()
+        assert item["image"].tobytes() != on_numpy["image"].tobytes()
+
+
 def test_positions_and_image_types_that_would_misread_are_refused(sweep):
     # issue #37 items 5 and 7: points=[0.7] rendered point 0, realisations=2.5 failed later,
     # and an image type narrower than the counts wrapped them (3434 as uint8: 106)
