@@ -350,6 +350,8 @@ def test_a_cuda_run_on_a_scheduler_renders_on_its_gpu_workers_only(
     monkeypatch.setattr(
         service.run, "check_on_worker", lambda b: checked.append((get_worker().name, b))
     )
+    # nor a GPU's memory to size the batches by (`service.batching.task_memory`)
+    monkeypatch.setattr(service.tasks, "memory_budget", lambda backend, memory: 2**30)
     sweep_file(tmp_path)
     plan = parse_sweep((tmp_path / "sweep.yaml").read_text(), folder=tmp_path)
     store = Store.at(str(tmp_path / "out.zarr"))
