@@ -23,9 +23,10 @@ pixels batch 1 cold batch 1 warm batch 4 cold estimate
 256    51.4         22.7         54.2         288.0
 ====== ============ ============ ============ ========
 
-A warm sample (its scene set up) peaks at 18 to 44 % of a cold one: a batched renderer's
-samples past the first cost that much, so the estimate sizes its batches 2 to 6 times too
-small, never too large. The estimate takes 0.2 to 0.3 ms a scene, once per scene a task.
+A warm sample (its scene set up) peaks at 18 to 44 % of a cold one: where a batch holds
+its samples' arrays side by side, those past the first should cost about that much, and
+N times the estimate overstates the batch the more, the larger N (to measure once the
+batched renderer is in). The estimate takes 0.2 to 0.3 ms a scene, once per scene a task.
 """
 
 import argparse
