@@ -23,6 +23,7 @@ from service.errors import BadOptionError
 __all__ = [
     "GPU_TASKS",
     "ClusterError",
+    "connecting",
     "dask_client",
     "dask_setup",
     "embedded_cluster",
@@ -228,6 +229,16 @@ def embedded_cuda_cluster(
 
 
 @contextlib.contextmanager
+def connecting(*, workers: int | None, scheduler: str | None, device: str) -> str:
+    """What `dask_client` does to get a run its cluster, in words (a set-up phase's line)."""
+    if scheduler is not None:
+        return f"connecting to the scheduler at {scheduler}"
+    if device != "cpu":
+        return "starting the local CUDA cluster (one worker a GPU)"
+    count = workers or os.cpu_count() or 1
+    return f"starting the local cluster ({count} worker{'s' if count > 1 else ''})"
+
+
 def dask_client(
     *,
     workers: int | None,

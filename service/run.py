@@ -24,7 +24,6 @@ import dataclasses
 import errno
 import functools
 import hashlib
-import os
 import threading
 import time
 
@@ -32,7 +31,7 @@ import numpy as np
 from distributed import Client, wait
 
 from service.admission import check_output
-from service.cluster import ClusterError, dask_client
+from service.cluster import ClusterError, connecting, dask_client
 from service.devices import NUMPY, check_on_worker
 from service.errors import BadOptionError
 from service.progress import Progress, phase
@@ -339,16 +338,6 @@ def _resources(backend: Backend) -> dict | None:
     return GPU_RESOURCE if backend.device != "cpu" else None
 
 
-def _connecting(workers: int | None, scheduler: str | None, backend: Backend) -> str:
-    """The set-up phase that gets a run its cluster, in words."""
-    if scheduler is not None:
-        return f"connecting to the scheduler at {scheduler}"
-    if backend.device != "cpu":
-        return "starting the local CUDA cluster (one worker a GPU)"
-    count = workers or os.cpu_count() or 1
-    return f"starting the local cluster ({count} worker{'s' if count > 1 else ''})"
-
-
 def _see_and_check(store: Store, token: str, backend: Backend) -> None:
     """On a worker: it sees `store` and its lock `token`, and it renders on `backend`."""
     store.check_workers_see(token)
@@ -455,7 +444,7 @@ def execute(
         said = functools.partial(phase, stream=progress_stream)
         with contextlib.ExitStack() as connected:
             if client is None:
-                with said(_connecting(workers, scheduler, backend)):
+                with said(connecting(workers=workers, scheduler=scheduler, device=backend.device)):
                     client = connected.enter_context(connect())
             with said("waiting for the workers to start and see the store"):
                 _probe(client, store, token, rendering)
