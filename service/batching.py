@@ -28,11 +28,19 @@ from distributed import get_worker
 from distributed.system import MEMORY_LIMIT
 
 from service.cluster import GPU_TASKS
+from service.errors import BadOptionError
 from service.sweep import memory_estimate
 from workers.backends.backend import Backend
 from workers.settings.scene import Scene
 
-__all__ = ["BUDGET_SHARE", "batch_samples", "memory_budget", "sample_memory", "task_memory"]
+__all__ = [
+    "BUDGET_SHARE",
+    "batch_samples",
+    "given_memory",
+    "memory_budget",
+    "sample_memory",
+    "task_memory",
+]
 
 BUDGET_SHARE = 0.5
 """Share of a task's memory (`task_memory`) its batches may take by default: the rest holds
@@ -81,6 +89,23 @@ def task_memory(backend: Backend, *, workers: int | None = None) -> tuple[float,
         return limit / threads, f"the dask worker's memory limit shared by {threads} thread(s)"
     workers = workers or os.cpu_count() or 1
     return MEMORY_LIMIT / workers, f"this machine's memory shared by {workers} worker(s)"
+
+
+def given_memory(gib: float | None) -> float | None:
+    """The bytes ``--batch-memory`` gives in GiB (``run``, ``validate``, ``serve``).
+
+    None if not given.
+
+    Raises
+    ------
+    BadOptionError
+        If it is not a positive number (NaN among them).
+    """
+    if gib is None:
+        return None
+    if not gib > 0:
+        raise BadOptionError("--batch-memory must be a positive number of GiB")
+    return gib * 2**30
 
 
 def memory_budget(backend: Backend, memory: float | None = None, **where) -> float:

@@ -228,7 +228,6 @@ def embedded_cuda_cluster(
         )
 
 
-@contextlib.contextmanager
 def connecting(*, workers: int | None, scheduler: str | None, device: str) -> str:
     """What `dask_client` does to get a run its cluster, in words (a set-up phase's line)."""
     if scheduler is not None:
@@ -239,6 +238,7 @@ def connecting(*, workers: int | None, scheduler: str | None, device: str) -> st
     return f"starting the local cluster ({count} worker{'s' if count > 1 else ''})"
 
 
+@contextlib.contextmanager
 def dask_client(
     *,
     workers: int | None,

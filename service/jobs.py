@@ -105,13 +105,25 @@ class Runner:
     backend : Backend, optional
         Where every job's samples render (``serve --backend --device``): a job resuming a
         store rendered elsewhere is rejected (`service.devices.check_same`).
+    batch_memory : float or None, optional
+        Bytes a task's batch may take (``serve --batch-memory``); None: a share of its
+        device's memory (`service.batching.memory_budget`).
     """
 
     def __init__(
-        self, table, client, *, data_root, max_running, queue_limit, batch_size, backend=NUMPY
+        self,
+        table,
+        client,
+        *,
+        data_root,
+        max_running,
+        queue_limit,
+        batch_size,
+        backend=NUMPY,
+        batch_memory=None,
     ):
         self.table, self.client, self.data_root = table, client, data_root
-        self.backend = backend
+        self.backend, self.batch_memory = backend, batch_memory
         self.max_running, self.queue_limit, self.batch_size = max_running, queue_limit, batch_size
         self._running: dict[str, tuple[threading.Thread, Cancel]] = {}
         self._stop = threading.Event()
@@ -348,6 +360,7 @@ class Runner:
                 claim=f"oceanlidar service job {job.id}",
                 owner=job.owner,
                 backend=self.backend,
+                batch_memory=self.batch_memory,
             )
         except Exception as error:  # a job's failure must not take the service down
             message = str(error) if isinstance(error, InputError) else repr(error)

@@ -46,6 +46,7 @@ from starlette.responses import (
 from starlette.routing import Route
 
 from service import package_version
+from service.batching import given_memory
 from service.cluster import dask_client
 from service.connections import Connection, Server, connection_limit
 from service.devices import choose
@@ -348,6 +349,7 @@ def serve(args, security) -> int:
         if getattr(args, flag) is not None and getattr(args, flag) < 1:
             raise BadOptionError(f"--{flag.replace('_', '-')} must be at least 1")
     backend = choose(args.backend, args.device, here=args.scheduler is None)
+    memory = given_memory(args.batch_memory)
     root = Store.at(args.data_root, args.storage_options)
     local = "://" not in root.url
     if local and os.path.exists(root.url) and not os.path.isdir(root.url):
@@ -375,6 +377,7 @@ def serve(args, security) -> int:
                 queue_limit=args.queue_limit,
                 batch_size=args.batch,
                 backend=backend,
+                batch_memory=memory,
             )
             limit = connection_limit()
             config = uvicorn.Config(

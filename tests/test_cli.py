@@ -167,14 +167,66 @@ def test_a_batch_memory_that_is_no_size_is_refused(tmp_path, capsys, value, monk
     import service.run
 
     monkeypatch.setattr(service.run, "execute", lambda *a, **k: pytest.fail("ran"))
-    for command in ("validate", "run"):
-        assert main([command, str(tiny(tmp_path)), "--batch-memory", value]) == 2
+    monkeypatch.chdir(tmp_path)
+    serve = ["serve", "--no-auth", "--port", "1", "--db", "jobs.sqlite", "--data-root", "data"]
+    for command in (["validate", "t.yaml"], ["run", "t.yaml"], serve):
+        tiny(tmp_path)
+        assert main([*command, "--batch-memory", value]) == 2
         error = capsys.readouterr().err
         assert (
-            f"oceanlidar {command}: error: --batch-memory must be a positive number of GiB"
+            f"oceanlidar {command[0]}: error: --batch-memory must be a positive number of GiB"
             in error
         )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["t.yaml"]
+
+
+def test_serve_passes_batch_memory_to_every_jobs_tasks(tmp_path, monkeypatch):
+    # `serve --batch-memory GIB`: its runner runs every job with it (`Runner`, `execute`)
+    import contextlib
+
+    import service.jobs
+    import service.server
+
+    class GivenError(Exception):
+        pass
+
+    def runner(*args, **options):
+        raise GivenError(options["batch_memory"])
+
+    monkeypatch.setattr(service.server, "dask_client", lambda **o: contextlib.nullcontext())
+    monkeypatch.setattr(service.server, "Runner", runner)
+    monkeypatch.chdir(tmp_path)
+    with socket.socket() as free:
+        free.bind(("127.0.0.1", 0))
+        port = str(free.getsockname()[1])
+    serve = ["serve", "--no-auth", "--port", port, "--db", "j.sqlite", "--data-root", "data"]
+    with pytest.raises(GivenError) as given:
+        main([*serve, "--batch-memory", "0.25"])
+    assert given.value.args == (2**28,)
+    # and the runner runs each job's tasks with it
+    from service.records import Job, JobState
+    from service.table import JobTable
+
+    ran = []
+
+    def execute(plan, store, **options):
+        ran.append(options["batch_memory"])
+        raise RuntimeError("stop here")
+
+    monkeypatch.setattr(service.jobs, "execute", execute)
+    table = JobTable(str(tmp_path / "t.sqlite"))
+    (tmp_path / "data").mkdir(exist_ok=True)
+    root = Store.at(str(tmp_path / "data"))
+    options = {"max_running": 1, "queue_limit": 1, "batch_size": None}
+    runner = service.jobs.Runner(table, None, data_root=root, batch_memory=2**28, **options)
+    text = TINY_SWEEP.format(name="j", seed=1, realisations=1, output="j.zarr")
+    job = Job(
+        "j1", "me", "j", JobState.RUNNING, "new", text, "j.zarr", f"{root.url}/j.zarr", 0.0, 2
+    )
+    table.add(job)
+    runner._run(job, service.jobs.Cancel())
+    assert ran == [2**28]
+    assert "stop here" in table.get("j1").message
 
 
 def test_run_passes_batch_memory_to_its_tasks(tmp_path, monkeypatch):

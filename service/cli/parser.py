@@ -180,6 +180,7 @@ def _job_commands(commands) -> None:
     where.add_argument("--workers", type=int, default=None, help="embedded cluster's workers")
     where.add_argument("--scheduler", help="address of an existing dask scheduler")
     arguments.backend(serve, "every job's samples")
+    arguments.batch_memory(serve)
     tls = serve.add_argument_group("TLS (for tls:// schedulers; else dask's configuration)")
     tls.add_argument("--tls-ca-file", help="CA certificate(s), PEM")
     tls.add_argument("--tls-cert", help="client certificate, PEM")

@@ -24,7 +24,13 @@ import yaml
 from dask.utils import format_bytes, format_time
 
 from service.admission import Rules, admit
-from service.batching import BUDGET_SHARE, batch_samples, sample_memory, task_memory
+from service.batching import (
+    BUDGET_SHARE,
+    batch_samples,
+    given_memory,
+    sample_memory,
+    task_memory,
+)
 from service.devices import NUMPY, check_renderers, choose
 from service.errors import BadFileError, BadOptionError, BadSweepError
 from service.inputs import DEFAULT_MAX_MEMORY, read_text, shown
@@ -42,7 +48,6 @@ from workers.setup.seasetup import scene_sea
 
 __all__ = [
     "batch_lines",
-    "batch_memory",
     "cmd_run",
     "cmd_schema",
     "cmd_validate",
@@ -79,21 +84,6 @@ def memory_limit(args) -> float:
     if args.max_memory is not None and not args.max_memory > 0:
         raise BadOptionError("--max-memory must be a positive number of GiB")
     return DEFAULT_MAX_MEMORY if args.max_memory is None else args.max_memory * 2**30
-
-
-def batch_memory(args) -> float | None:
-    """The memory [bytes] a batch may take by ``--batch-memory`` (GiB); None if not given.
-
-    Raises
-    ------
-    BadOptionError
-        If ``--batch-memory`` is not a positive number.
-    """
-    if args.batch_memory is None:
-        return None
-    if not args.batch_memory > 0:  # NaN too
-        raise BadOptionError("--batch-memory must be a positive number of GiB")
-    return args.batch_memory * 2**30
 
 
 def batch_lines(plan: Plan, backend: Backend, *, memory: float | None, workers: int) -> list[str]:
@@ -253,7 +243,7 @@ def _sea_lines(plan: Plan) -> list[str]:
 
 def cmd_validate(args) -> int:
     """Check a sweep; print its plan, its seas' resolved shares, its batches, a run time."""
-    memory = batch_memory(args)
+    memory = given_memory(args.batch_memory)
     plan = load(args)
     print("\n".join(plan_lines(plan) + _sea_lines(plan)))
     backend = choose(args.backend, args.device)
@@ -348,7 +338,7 @@ def _check_run_flags(args) -> None:
         raise BadOptionError("--workers must be at least 1")
     if args.batch is not None and args.batch < 1:
         raise BadOptionError("--batch must be at least 1")
-    batch_memory(args)
+    given_memory(args.batch_memory)
     if not args.task_timeout > 0:
         raise BadOptionError("--task-timeout must be a positive number of seconds")
     if args.verify and not args.resume:
@@ -417,7 +407,7 @@ def cmd_run(args) -> int:
                 task_timeout=args.task_timeout,
                 progress_stream=None if args.quiet else sys.stderr,
                 backend=backend,
-                batch_memory=batch_memory(args),
+                batch_memory=given_memory(args.batch_memory),
             )
     except ClusterError as error:
         log.error("oceanlidar run: error: %s", error)
