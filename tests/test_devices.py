@@ -266,6 +266,37 @@ def test_a_shards_samples_of_a_scene_render_in_batches_that_fit_the_memory_given
         assert_same_samples(stores[memory][0].url, whole, names=None)
 
 
+def test_a_runs_batch_memory_reaches_its_tasks(tmp_path, monkeypatch):
+    # `execute(..., batch_memory=)` (``run --batch-memory``): every task's batches fit it
+    from distributed import Client, LocalCluster
+
+    from service.batching import sample_memory
+
+    sweep_file(tmp_path, realisations=3)
+    plan = parse_sweep((tmp_path / "sweep.yaml").read_text(), folder=tmp_path)
+    per_sample = max(sample_memory(scene) for scene in plan.scenes)
+    sizes = []
+    real = service.tasks.render_samples
+
+    def spy(scene, seeds, *, backend):
+        sizes.append(len(seeds))
+        return real(scene, seeds, backend=backend)
+
+    monkeypatch.setattr(service.tasks, "render_samples", spy)
+    options = {"processes": False, "n_workers": 1, "threads_per_worker": 1}
+    with (
+        LocalCluster(dashboard_address=None, **options) as cluster,
+        Client(cluster, set_as_default=False) as client,
+    ):
+        for memory, output in ((1.5 * per_sample, "one.zarr"), (None, "all.zarr")):
+            sizes.clear()
+            store = Store.at(str(tmp_path / output))
+            common = {"client": client, "batch_size": 6}
+            assert execute(plan, store, batch_memory=memory, **common).ok
+            assert sorted(sizes) == ([1] * 6 if memory else [3, 3])
+    assert_same_samples(str(tmp_path / "one.zarr"), str(tmp_path / "all.zarr"), names=None)
+
+
 def test_a_batch_takes_half_the_memory_a_task_has_on_its_device(monkeypatch):
     # issue #39 item 5: on a dask worker its memory limit shared by its threads; elsewhere
     # this machine's memory (dask's MEMORY_LIMIT, what the embedded cluster shares) by the
