@@ -409,7 +409,7 @@ def test_memory_is_estimated_before_anything_is_built(tmp_path, capsys):
     class RenderedError(Exception):
         pass
 
-    def rendered(plan, sample):
+    def rendered(plan, sample, backend):  # preview renders on --backend/--device
         raise RenderedError
 
     with pytest.MonkeyPatch.context() as patch:
