@@ -1,0 +1,143 @@
+"""The torch operators a `workers.render.render_batch` dispatches, counted (issue #39).
+
+Every ATen operator the render calls on the torch backend passes a
+`torch.utils._python_dispatch.TorchDispatchMode`, which counts them (`count_ops`):
+
+- ``ops``: all of them, ``non_view`` those that are not views (a launch each on a GPU);
+- ``from_host``: tensors made from host data (``aten::lift_fresh``: ``torch.tensor`` or
+  ``torch.as_tensor`` of a Python or numpy value, a host-to-device copy on a GPU) and
+  copies from the CPU to another device;
+- ``scalar_reads``: ``aten::_local_scalar_dense`` (``float(t)``, ``bool(t)``, ``t.item()``:
+  the host waits for the device) and copies from another device to the CPU;
+- ``tolist`` and ``numpy``: calls of ``Tensor.tolist`` and ``Tensor.numpy``, host reads
+  that dispatch no operator on the CPU (counted by wrapping the two methods).
+
+Usage, from the repository root: ``python -m benchmarks.torch_ops [--sizes 64 256]
+[--batches 1 16] [--device cpu]``; it prints the counts a batch and a sample for the
+six-gate scene of `benchmarks.gpu` (a 0.3 m sphere at 5 m, ML(DC) gates), each batch
+counted after a warm-up batch (the scene's setup and frame geometry cached, as in a run).
+
+On the shared 2-core machine, torch 2.14 on the CPU (2026-11-29), per sample, the same at
+batches 1 and 16 (samples rendered one after another):
+
+====== ==================== ====== ======== ========= ============ ======
+pixels code                 ops    non-view from host scalar reads tolist
+====== ==================== ====== ======== ========= ============ ======
+64     main (a12c210)       see the report of issue #39's torchops branch
+====== ==================== ====== ======== ========= ============ ======
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+from collections import Counter
+
+import torch
+from torch.utils._python_dispatch import TorchDispatchMode
+
+from benchmarks.gpu import scene
+from workers.render import render_batch
+from workers.settings.seeds import SampleSeed
+
+KINDS = ("ops", "non_view", "from_host", "scalar_reads", "tolist", "numpy")
+"""What `count_ops` counts, in the order the table prints them."""
+
+_COPIES = ("aten._to_copy.default", "aten.copy_.default")
+
+
+class _Counting(TorchDispatchMode):
+    """Counts every operator dispatched while active, by kind and by name."""
+
+    def __init__(self, counts: Counter, names: Counter):
+        super().__init__()
+        self.counts, self.names = counts, names
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        kwargs = kwargs or {}
+        result = func(*args, **kwargs)
+        name = str(func)
+        self.counts["ops"] += 1
+        self.names[name] += 1
+        if not func.is_view:
+            self.counts["non_view"] += 1
+        if name.startswith("aten.lift_fresh"):
+            self.counts["from_host"] += 1
+        elif name == "aten._local_scalar_dense.default":
+            self.counts["scalar_reads"] += 1
+        elif name in _COPIES:
+            source = args[1] if name == "aten.copy_.default" else args[0]
+            target = args[0] if name == "aten.copy_.default" else result
+            if source.device.type == "cpu" and target.device.type != "cpu":
+                self.counts["from_host"] += 1
+            elif source.device.type != "cpu" and target.device.type == "cpu":
+                self.counts["scalar_reads"] += 1
+        return result
+
+
+@contextlib.contextmanager
+def count_ops():
+    """Count the torch operators and host reads of the enclosed code.
+
+    Yields
+    ------
+    tuple of collections.Counter
+        ``(counts, names)``: the counts by kind (`KINDS`), and the operators by name;
+        filled while the context is open.
+    """
+    counts, names = Counter({kind: 0 for kind in KINDS}), Counter()
+    wrapped = {name: getattr(torch.Tensor, name) for name in ("tolist", "numpy")}
+
+    def counting(name):
+        method = wrapped[name]
+
+        def call(self, *args, **kwargs):
+            counts[name] += 1
+            return method(self, *args, **kwargs)
+
+        return call
+
+    try:
+        for name in wrapped:
+            setattr(torch.Tensor, name, counting(name))
+        with _Counting(counts, names):
+            yield counts, names
+    finally:
+        for name, method in wrapped.items():
+            setattr(torch.Tensor, name, method)
+
+
+def batch_ops(s, batch: int, *, device: str = "cpu") -> tuple[Counter, Counter]:
+    """`count_ops` of one `render_batch` of `batch` samples of scene `s` on torch.
+
+    A batch of one is rendered first (not counted), so that the scene's setup and its
+    frame geometry are cached, as in a run.
+    """
+    seeds = [SampleSeed(root=7, point=0, realisation=r) for r in range(batch)]
+    render_batch(s, seeds[:1], backend="torch", device=device)
+    with count_ops() as (counts, names):
+        render_batch(s, seeds, backend="torch", device=device)
+    return counts, names
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", type=int, nargs="+", default=[64, 256])
+    parser.add_argument("--batches", type=int, nargs="+", default=[1, 16])
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--top", type=int, default=0, help="print the most called operators")
+    args = parser.parse_args()
+    print(f"torch {torch.__version__} on {args.device}; counts a batch / a sample")
+    print("pixels  batch  " + "  ".join(f"{kind:>19}" for kind in KINDS))
+    for n in args.sizes:
+        s = scene(n)
+        for batch in args.batches:
+            counts, names = batch_ops(s, batch, device=args.device)
+            cells = (f"{counts[kind]:>10} / {counts[kind] / batch:>6.0f}" for kind in KINDS)
+            print(f"{n:>6}  {batch:>5}  " + "  ".join(cells), flush=True)
+            for name, count in names.most_common(args.top):
+                print(f"        {count:>8}  {name}")
+
+
+if __name__ == "__main__":
+    main()
