@@ -5,8 +5,9 @@ Every ATen operator the render calls on the torch backend passes a
 
 - ``ops``: all of them, ``non_view`` those that are not views (a launch each on a GPU);
 - ``from_host``: tensors made from host data (``aten::lift_fresh``: ``torch.tensor`` or
-  ``torch.as_tensor`` of a Python or numpy value, a host-to-device copy on a GPU) and
-  copies from the CPU to another device;
+  ``torch.as_tensor`` of a Python or numpy value, a host-to-device copy on a GPU; not a
+  Python scalar assigned to a slice, ``t[...] = 0.0``, which fills it) and copies from
+  the CPU to another device;
 - ``scalar_reads``: ``aten::_local_scalar_dense`` (``float(t)``, ``bool(t)``, ``t.item()``:
   the host waits for the device) and copies from another device to the CPU;
 - ``tolist`` and ``numpy``: calls of ``Tensor.tolist`` and ``Tensor.numpy``, host reads
@@ -52,6 +53,7 @@ class _Counting(TorchDispatchMode):
     def __init__(self, counts: Counter, names: Counter):
         super().__init__()
         self.counts, self.names = counts, names
+        self.lifted = None
 
     def __torch_dispatch__(self, func, types, args=(), kwargs=None):
         kwargs = kwargs or {}
@@ -59,10 +61,15 @@ class _Counting(TorchDispatchMode):
         name = str(func)
         self.counts["ops"] += 1
         self.names[name] += 1
+        if name == "aten.fill_.Tensor" and args[1] is self.lifted:
+            # ``t[:k] = 0.0``: a host scalar fills the slice (no copy on a GPU)
+            self.counts["from_host"] -= 1
         if not func.is_view:
             self.counts["non_view"] += 1
+            self.lifted = None  # a setitem's scalar is used at once, after its slices
         if name.startswith("aten.lift_fresh"):
             self.counts["from_host"] += 1
+            self.lifted = result if result.dim() == 0 else None
         elif name == "aten._local_scalar_dense.default":
             self.counts["scalar_reads"] += 1
         elif name in _COPIES:
