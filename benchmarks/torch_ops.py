@@ -7,11 +7,12 @@ Every ATen operator the render calls on the torch backend passes a
 - ``from_host``: tensors made from host data (``aten::lift_fresh``: ``torch.tensor`` or
   ``torch.as_tensor`` of a Python or numpy value, a host-to-device copy on a GPU; not a
   Python scalar assigned to a slice, ``t[...] = 0.0``, which fills it) and copies from
-  the CPU to another device;
+  the CPU to another device; ``scalars`` those of them that are 0-d (Python scalars);
 - ``scalar_reads``: ``aten::_local_scalar_dense`` (``float(t)``, ``bool(t)``, ``t.item()``:
   the host waits for the device) and copies from another device to the CPU;
 - ``tolist`` and ``numpy``: calls of ``Tensor.tolist`` and ``Tensor.numpy``, host reads
-  that dispatch no operator on the CPU (counted by wrapping the two methods).
+  that dispatch no operator on the CPU (counted by wrapping the two methods). Where each
+  host read is made is recorded too (``--reads``).
 
 Usage, from the repository root: ``python -m benchmarks.torch_ops [--sizes 64 256]
 [--batches 1 16] [--device cpu]``; it prints the counts a batch and a sample for the
@@ -32,7 +33,9 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import sys
 from collections import Counter
+from pathlib import Path
 
 import torch
 from torch.utils._python_dispatch import TorchDispatchMode
@@ -41,44 +44,67 @@ from benchmarks.gpu import scene
 from workers.render import render_batch
 from workers.settings.seeds import SampleSeed
 
-KINDS = ("ops", "non_view", "from_host", "scalar_reads", "tolist", "numpy")
+KINDS = ("ops", "non_view", "from_host", "scalars", "scalar_reads", "tolist", "numpy")
 """What `count_ops` counts, in the order the table prints them."""
+
+READS = ("scalar_reads", "tolist", "numpy")
+"""The kinds that read values back to the host (`count_ops` records where)."""
 
 _COPIES = ("aten._to_copy.default", "aten.copy_.default")
 
+_WORKERS = str(Path(__file__).resolve().parent.parent / "workers")
+
+
+def _site() -> str:
+    """``module:function`` of the innermost caller in `workers` (``?`` if none)."""
+    frame = sys._getframe(2)
+    while frame is not None and not frame.f_code.co_filename.startswith(_WORKERS):
+        frame = frame.f_back
+    if frame is None:
+        return "?"
+    return f"{frame.f_globals.get('__name__')}:{frame.f_code.co_name}"
+
 
 class _Counting(TorchDispatchMode):
-    """Counts every operator dispatched while active, by kind and by name."""
+    """Counts every operator dispatched while active: by kind, by name, reads by site."""
 
-    def __init__(self, counts: Counter, names: Counter):
+    def __init__(self, counts: Counter, names: Counter, reads: Counter):
         super().__init__()
-        self.counts, self.names = counts, names
+        self.counts, self.names, self.reads = counts, names, reads
         self.lifted = None
+
+    def _add(self, kind: str, step: int = 1):
+        self.counts[kind] += step
+        if kind in READS:
+            self.reads[kind, _site()] += step
 
     def __torch_dispatch__(self, func, types, args=(), kwargs=None):
         kwargs = kwargs or {}
         result = func(*args, **kwargs)
         name = str(func)
-        self.counts["ops"] += 1
+        self._add("ops")
         self.names[name] += 1
         if name == "aten.fill_.Tensor" and args[1] is self.lifted:
             # ``t[:k] = 0.0``: a host scalar fills the slice (no copy on a GPU)
-            self.counts["from_host"] -= 1
+            self._add("from_host", -1)
+            self._add("scalars", -1)
         if not func.is_view:
-            self.counts["non_view"] += 1
+            self._add("non_view")
             self.lifted = None  # a setitem's scalar is used at once, after its slices
         if name.startswith("aten.lift_fresh"):
-            self.counts["from_host"] += 1
-            self.lifted = result if result.dim() == 0 else None
+            self._add("from_host")
+            if result.dim() == 0:
+                self._add("scalars")
+                self.lifted = result
         elif name == "aten._local_scalar_dense.default":
-            self.counts["scalar_reads"] += 1
+            self._add("scalar_reads")
         elif name in _COPIES:
             source = args[1] if name == "aten.copy_.default" else args[0]
             target = args[0] if name == "aten.copy_.default" else result
             if source.device.type == "cpu" and target.device.type != "cpu":
-                self.counts["from_host"] += 1
+                self._add("from_host")
             elif source.device.type != "cpu" and target.device.type == "cpu":
-                self.counts["scalar_reads"] += 1
+                self._add("scalar_reads")
         return result
 
 
@@ -89,32 +115,34 @@ def count_ops():
     Yields
     ------
     tuple of collections.Counter
-        ``(counts, names)``: the counts by kind (`KINDS`), and the operators by name;
-        filled while the context is open.
+        ``(counts, names, reads)``: the counts by kind (`KINDS`), the operators by name,
+        and the host reads (`READS`) by kind and site (``module:function``, the innermost
+        function of `workers` that made them); filled while the context is open.
     """
-    counts, names = Counter({kind: 0 for kind in KINDS}), Counter()
+    counts, names, reads = Counter({kind: 0 for kind in KINDS}), Counter(), Counter()
+    counting = _Counting(counts, names, reads)
     wrapped = {name: getattr(torch.Tensor, name) for name in ("tolist", "numpy")}
 
-    def counting(name):
+    def reading(name):
         method = wrapped[name]
 
         def call(self, *args, **kwargs):
-            counts[name] += 1
+            counting._add(name)
             return method(self, *args, **kwargs)
 
         return call
 
     try:
         for name in wrapped:
-            setattr(torch.Tensor, name, counting(name))
-        with _Counting(counts, names):
-            yield counts, names
+            setattr(torch.Tensor, name, reading(name))
+        with counting:
+            yield counts, names, reads
     finally:
         for name, method in wrapped.items():
             setattr(torch.Tensor, name, method)
 
 
-def batch_ops(s, batch: int, *, device: str = "cpu") -> tuple[Counter, Counter]:
+def batch_ops(s, batch: int, *, device: str = "cpu") -> tuple[Counter, Counter, Counter]:
     """`count_ops` of one `render_batch` of `batch` samples of scene `s` on torch.
 
     A batch of one is rendered first (not counted), so that the scene's setup and its
@@ -122,9 +150,9 @@ def batch_ops(s, batch: int, *, device: str = "cpu") -> tuple[Counter, Counter]:
     """
     seeds = [SampleSeed(root=7, point=0, realisation=r) for r in range(batch)]
     render_batch(s, seeds[:1], backend="torch", device=device)
-    with count_ops() as (counts, names):
+    with count_ops() as counted:
         render_batch(s, seeds, backend="torch", device=device)
-    return counts, names
+    return counted
 
 
 def main():
@@ -133,17 +161,20 @@ def main():
     parser.add_argument("--batches", type=int, nargs="+", default=[1, 16])
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--top", type=int, default=0, help="print the most called operators")
+    parser.add_argument("--reads", action="store_true", help="print where the host reads")
     args = parser.parse_args()
     print(f"torch {torch.__version__} on {args.device}; counts a batch / a sample")
-    print("pixels  batch  " + "  ".join(f"{kind:>19}" for kind in KINDS))
+    print("pixels  batch  " + "  ".join(f"{kind:>17}" for kind in KINDS))
     for n in args.sizes:
         s = scene(n)
         for batch in args.batches:
-            counts, names = batch_ops(s, batch, device=args.device)
-            cells = (f"{counts[kind]:>10} / {counts[kind] / batch:>6.0f}" for kind in KINDS)
+            counts, names, reads = batch_ops(s, batch, device=args.device)
+            cells = (f"{counts[kind]:>8} / {counts[kind] / batch:>6.0f}" for kind in KINDS)
             print(f"{n:>6}  {batch:>5}  " + "  ".join(cells), flush=True)
             for name, count in names.most_common(args.top):
                 print(f"        {count:>8}  {name}")
+            for (kind, site), count in sorted(reads.items()) if args.reads else ():
+                print(f"        {count:>8}  {kind} in {site}")
 
 
 if __name__ == "__main__":

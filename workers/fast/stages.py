@@ -167,9 +167,9 @@ def frame_light(
     # the near and far parts of a spread each ring a little below zero where almost no
     # light lands; their sum is light, never negative
     scale = float(np.float32(setup.scale))
-    images = xp.maximum(images, 0.0) * scale
+    images = xp.clip(images, min=0.0) * scale
     if free is not None:
-        free = xp.reshape(xp.maximum(free, 0.0) * scale, (-1, pixels, pixels))
+        free = xp.reshape(xp.clip(free, min=0.0) * scale, (-1, pixels, pixels))
         silhouette = xp.reshape(silhouette, (pixels, pixels))
     return FrameLight(
         images=xp.reshape(images, (-1, pixels, pixels)), silhouette=silhouette, free=free
