@@ -11,8 +11,10 @@ Every ATen operator the render calls on the torch backend passes a
 - ``scalar_reads``: ``aten::_local_scalar_dense`` (``float(t)``, ``bool(t)``, ``t.item()``:
   the host waits for the device) and copies from another device to the CPU;
 - ``tolist`` and ``numpy``: calls of ``Tensor.tolist`` and ``Tensor.numpy``, host reads
-  that dispatch no operator on the CPU (counted by wrapping the two methods). Where each
-  host read is made is recorded too (``--reads``).
+  that dispatch no operator on the CPU (counted by wrapping the two methods).
+
+Where the host's traffic (all but the first two kinds) comes from is recorded too
+(``--sites``).
 
 Usage, from the repository root: ``python -m benchmarks.torch_ops [--sizes 64 256]
 [--batches 1 16] [--device cpu]``; it prints the counts a batch and a sample for the
@@ -40,6 +42,7 @@ from pathlib import Path
 import torch
 from torch.utils._python_dispatch import TorchDispatchMode
 
+import workers
 from benchmarks.gpu import scene
 from workers.render import render_batch
 from workers.settings.seeds import SampleSeed
@@ -48,17 +51,27 @@ KINDS = ("ops", "non_view", "from_host", "scalars", "scalar_reads", "tolist", "n
 """What `count_ops` counts, in the order the table prints them."""
 
 READS = ("scalar_reads", "tolist", "numpy")
-"""The kinds that read values back to the host (`count_ops` records where)."""
+"""The kinds that read values back to the host."""
+
+SITED = ("from_host", "scalars", *READS)
+"""The kinds `count_ops` records the sites of: the host's traffic."""
 
 _COPIES = ("aten._to_copy.default", "aten.copy_.default")
 
-_WORKERS = str(Path(__file__).resolve().parent.parent / "workers")
+_WORKERS = Path(workers.__file__).parent
+_BACKEND = str(_WORKERS / "backends" / "backend.py")
 
 
 def _site() -> str:
-    """``module:function`` of the innermost caller in `workers` (``?`` if none)."""
+    """``module:function`` of the innermost caller in `workers` (``?`` if none).
+
+    `workers.backends.backend`'s conversions are skipped: their caller is the site.
+    """
     frame = sys._getframe(2)
-    while frame is not None and not frame.f_code.co_filename.startswith(_WORKERS):
+    while frame is not None and (
+        not frame.f_code.co_filename.startswith(str(_WORKERS))
+        or frame.f_code.co_filename == _BACKEND
+    ):
         frame = frame.f_back
     if frame is None:
         return "?"
@@ -68,15 +81,15 @@ def _site() -> str:
 class _Counting(TorchDispatchMode):
     """Counts every operator dispatched while active: by kind, by name, reads by site."""
 
-    def __init__(self, counts: Counter, names: Counter, reads: Counter):
+    def __init__(self, counts: Counter, names: Counter, sites: Counter):
         super().__init__()
-        self.counts, self.names, self.reads = counts, names, reads
+        self.counts, self.names, self.sites = counts, names, sites
         self.lifted = None
 
     def _add(self, kind: str, step: int = 1):
         self.counts[kind] += step
-        if kind in READS:
-            self.reads[kind, _site()] += step
+        if kind in SITED:
+            self.sites[kind, _site()] += step
 
     def __torch_dispatch__(self, func, types, args=(), kwargs=None):
         kwargs = kwargs or {}
@@ -115,12 +128,12 @@ def count_ops():
     Yields
     ------
     tuple of collections.Counter
-        ``(counts, names, reads)``: the counts by kind (`KINDS`), the operators by name,
-        and the host reads (`READS`) by kind and site (``module:function``, the innermost
-        function of `workers` that made them); filled while the context is open.
+        ``(counts, names, sites)``: the counts by kind (`KINDS`), the operators by name,
+        and the host's traffic (`SITED`) by kind and site (``module:function``, the
+        innermost function of `workers` that made it); filled while the context is open.
     """
-    counts, names, reads = Counter({kind: 0 for kind in KINDS}), Counter(), Counter()
-    counting = _Counting(counts, names, reads)
+    counts, names, sites = Counter({kind: 0 for kind in KINDS}), Counter(), Counter()
+    counting = _Counting(counts, names, sites)
     wrapped = {name: getattr(torch.Tensor, name) for name in ("tolist", "numpy")}
 
     def reading(name):
@@ -136,7 +149,7 @@ def count_ops():
         for name in wrapped:
             setattr(torch.Tensor, name, reading(name))
         with counting:
-            yield counts, names, reads
+            yield counts, names, sites
     finally:
         for name, method in wrapped.items():
             setattr(torch.Tensor, name, method)
@@ -161,19 +174,19 @@ def main():
     parser.add_argument("--batches", type=int, nargs="+", default=[1, 16])
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--top", type=int, default=0, help="print the most called operators")
-    parser.add_argument("--reads", action="store_true", help="print where the host reads")
+    parser.add_argument("--sites", action="store_true", help="print the host's traffic's sites")
     args = parser.parse_args()
     print(f"torch {torch.__version__} on {args.device}; counts a batch / a sample")
     print("pixels  batch  " + "  ".join(f"{kind:>17}" for kind in KINDS))
     for n in args.sizes:
         s = scene(n)
         for batch in args.batches:
-            counts, names, reads = batch_ops(s, batch, device=args.device)
+            counts, names, sites = batch_ops(s, batch, device=args.device)
             cells = (f"{counts[kind]:>8} / {counts[kind] / batch:>6.0f}" for kind in KINDS)
             print(f"{n:>6}  {batch:>5}  " + "  ".join(cells), flush=True)
             for name, count in names.most_common(args.top):
                 print(f"        {count:>8}  {name}")
-            for (kind, site), count in sorted(reads.items()) if args.reads else ():
+            for (kind, site), count in sorted((+sites).items()) if args.sites else ():
                 print(f"        {count:>8}  {kind} in {site}")
 
 
