@@ -46,7 +46,7 @@ _HEADROOM_BITS = 62
 """The fixed point's sums stay below 2⁶² in magnitude (int64 holds 2⁶³)."""
 
 
-SCALARS = 4096
+_SCALARS = 4096
 """Most 0-d tensors `_scalar` keeps (a few kilobytes each on a GPU, at most)."""
 
 
@@ -63,7 +63,7 @@ def _scalar(value, like: torch.Tensor) -> torch.Tensor:
     return _device_scalar(value, math.copysign(1.0, value), like.device)
 
 
-@functools.lru_cache(maxsize=SCALARS)
+@functools.lru_cache(maxsize=_SCALARS)
 def _device_scalar(value: float, sign: float, device: torch.device) -> torch.Tensor:
     """`_scalar`'s tensor of `value` on `device` (`sign` tells −0.0 from 0.0 in the key)."""
     return torch.tensor(value, dtype=torch.float32, device=device)
