@@ -21,14 +21,31 @@ Usage, from the repository root: ``python -m benchmarks.torch_ops [--sizes 64 25
 six-gate scene of `benchmarks.gpu` (a 0.3 m sphere at 5 m, ML(DC) gates), each batch
 counted after a warm-up batch (the scene's setup and frame geometry cached, as in a run).
 
-On the shared 2-core machine, torch 2.14 on the CPU (2026-11-29), per sample, the same at
-batches 1 and 16 (samples rendered one after another):
+On the shared 2-core machine, torch 2.14 on the CPU (2026-11-29), a sample (a batch's
+counts over its samples; they are rendered one after another), before (main, a12c210) and
+after this branch (torchops: `workers.backends.kernels_torch`'s scalars made once per value
+and device, the gates' gains on the device, `clip` for the images' floor, one host read
+in `workers.fast.stages._target_frame`):
 
-====== ==================== ====== ======== ========= ============ ======
-pixels code                 ops    non-view from host scalar reads tolist
-====== ==================== ====== ======== ========= ============ ======
-64     main (a12c210)       see the report of issue #39's torchops branch
-====== ==================== ====== ======== ========= ============ ======
+====== ===== ====== ====== ======== ========= ======= ====== ====== =====
+pixels batch code   ops    non-view from host scalars reads  tolist numpy
+====== ===== ====== ====== ======== ========= ======= ====== ====== =====
+64     1     before 9 353  8 109    406       386     8      21     6
+64     1     after  8 997  8 143    8         0       7      21     4
+64     16    before 9 371  8 123    406       386     8      21     6
+64     16    after  9 015  8 157    8         0       7      21     4
+256    1     before 9 206  7 984    380       362     8      21     6
+256    1     after  8 874  8 018    6         0       7      21     4
+256    16    before 9 127  7 928    380       362     8      21     6
+256    16    after  8 795  7 962    6         0       7      21     4
+====== ===== ====== ====== ======== ========= ======= ====== ====== =====
+
+What is left from the host: the sample's sea modes (two a cascade) and, where the sea
+moves the gates over the target, its maps for that height (two); the reads: the sea's
+height over the target (1), the rays' convergence tests through the sea (6), the planes'
+windows (21 ``tolist``) and the results (4 ``numpy``). The non-view operators grow by 34
+a sample: the gains of every ray and gate on the device, where the host integrated only
+the rays whose slab the surface cuts.
 """
 
 from __future__ import annotations
