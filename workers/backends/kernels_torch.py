@@ -17,6 +17,9 @@ kernels return (and `gather_levels`' window, which the caller passes as ints).
 
 from __future__ import annotations
 
+import functools
+import math
+
 import torch
 
 from workers.backends.kernels import Cells
@@ -43,9 +46,27 @@ _HEADROOM_BITS = 62
 """The fixed point's sums stay below 2⁶² in magnitude (int64 holds 2⁶³)."""
 
 
+_SCALARS = 4096
+"""Most 0-d tensors `_scalar` keeps (a few kilobytes each on a GPU, at most)."""
+
+
 def _scalar(value, like: torch.Tensor) -> torch.Tensor:
-    """A float32 scalar as a 0-d float32 tensor on `like`'s device (float32 arithmetic)."""
-    return torch.tensor(float(value), dtype=torch.float32, device=like.device)
+    """A float32 scalar as a 0-d float32 tensor on `like`'s device (float32 arithmetic).
+
+    The tensor is made once per value and device (`_device_scalar`), so that a call
+    copies no Python scalar to the device: the planes' maps (`Cells`), densities and
+    the sea's grid steps are the same in every sample of a scene. A device tensor, not a
+    Python number: CUDA divides by a host scalar as a product with its reciprocal, not
+    as numba does.
+    """
+    value = float(value)
+    return _device_scalar(value, math.copysign(1.0, value), like.device)
+
+
+@functools.lru_cache(maxsize=_SCALARS)
+def _device_scalar(value: float, sign: float, device: torch.device) -> torch.Tensor:
+    """`_scalar`'s tensor of `value` on `device` (`sign` tells −0.0 from 0.0 in the key)."""
+    return torch.tensor(value, dtype=torch.float32, device=device)
 
 
 def _at(base, slope, depth, origin, scale):

@@ -167,9 +167,9 @@ def frame_light(
     # the near and far parts of a spread each ring a little below zero where almost no
     # light lands; their sum is light, never negative
     scale = float(np.float32(setup.scale))
-    images = xp.maximum(images, 0.0) * scale
+    images = xp.clip(images, min=0.0) * scale
     if free is not None:
-        free = xp.reshape(xp.maximum(free, 0.0) * scale, (-1, pixels, pixels))
+        free = xp.reshape(xp.clip(free, min=0.0) * scale, (-1, pixels, pixels))
         silhouette = xp.reshape(silhouette, (pixels, pixels))
     return FrameLight(
         images=xp.reshape(images, (-1, pixels, pixels)), silhouette=silhouette, free=free
@@ -207,10 +207,11 @@ def _sea_rays(setup: Setup, geometry: FrameGeometry, surface, frame: int) -> Sea
 def _gate_gains(setup: Setup, excess, backend: Backend) -> list:
     """`workers.setup.compiled.Setup.gate_gains` of the rays' air paths, on the backend.
 
-    They are computed on the host: a ray's gain is a float64 slab integral where the
-    gated slab is cut by the surface.
+    A ray's gain is a float64 slab integral where the gated slab is cut by the surface:
+    on numpy of the cut rays alone, on torch of every ray on the device
+    (`workers.setup.gates.gate_gains`), with nothing read back to the host.
     """
-    return [backend.asarray(gain) for gain in setup.gate_gains(backend.to_numpy(excess))]
+    return setup.gate_gains(excess)
 
 
 def _target_frame(geometry: FrameGeometry, rays: SeaRays, images, backend: Backend):
@@ -233,13 +234,14 @@ def _target_frame(geometry: FrameGeometry, rays: SeaRays, images, backend: Backe
     sight_extra = rays.sight.extra(levels.fine.depth)
     light = geometry.target_light
     if geometry.target_gating is not None:
-        # the sea's height over the target moves the gates' depths across it
+        # the sea's height over the target moves the gates' depths across it (its mean
+        # over the silhouette, 0 without one: one value read back to the host)
         held = xp.sum(silhouette)
-        if float(held) > 0.0:
-            height = float(xp.sum(silhouette * rays.sight_height) / held)
-            shift = gate_shift(geometry.target_gating.setup, height)
-            if shift != 0.0:
-                light = geometry.target_gating.light(shift).on(backend)
+        held = xp.where(held > 0.0, held, xp.ones_like(held))
+        height = float(xp.sum(silhouette * rays.sight_height) / held)
+        shift = gate_shift(geometry.target_gating.setup, height)
+        if shift != 0.0:
+            light = geometry.target_gating.light(shift).on(backend)
     rows = light.rows
     lit = rows if resample is None else resample.source_rows(rows)
     wide = any(coarse is not None for _, coarse in light.weights)

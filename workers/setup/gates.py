@@ -16,7 +16,10 @@ gated depth by at most (1 − 1/n)|η| (a few centimetres), far below the gates'
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
+from array_api_compat import array_namespace, is_torch_array
 
 from workers.optics.water import slab_backscatter_reflectance
 
@@ -202,8 +205,9 @@ def gate_gains(excess, *, diffuse_attenuation, refractive_index, secant, slabs):
 
     Parameters
     ----------
-    excess : ndarray
-        Air path less the central ray's [m].
+    excess : array_like or torch.Tensor
+        Air path less the central ray's [m]: host values, or a torch tensor, whose gains
+        are computed on its device (`_device_gains`).
     diffuse_attenuation, refractive_index, secant : float
         K [1/m], n [1], sec ϑ_c [1], as in `gate_gain`.
     slabs : sequence of tuple
@@ -211,14 +215,70 @@ def gate_gains(excess, *, diffuse_attenuation, refractive_index, secant, slabs):
 
     Returns
     -------
-    list of ndarray
-        The gain of each gate [1], float32.
+    list of ndarray or torch.Tensor
+        The gain of each gate [1], float32, where `excess` is.
     """
     k, n = diffuse_attenuation, refractive_index
+    if is_torch_array(excess):
+        return _device_gains(excess, k, n, secant, slabs)
     excess = np.asarray(excess, dtype=np.float32)
     lift = np.exp(np.float32(k / n) * excess)
     rise = excess * np.float32(1.0 / (n * secant))
     return [_gain(lift.copy(), rise, k, secant, *slab) for slab in slabs]
+
+
+def _device_gains(excess, k, n, secant, slabs):
+    r"""`gate_gains` of a torch tensor on its device: nothing is read back to the host.
+
+    Every ray and gate is evaluated at once (a gate axis), where the host computes only
+    the rays whose slab the surface cuts (`_gain`); the cut is taken by a ``where``. The
+    slab's share is :math:`\int_{(t-\delta)_+}^{(b-\delta)_+} e^{-2K'z}dz =
+    -\mathrm{expm1}(-2K'\Delta)\,e^{-2K'(t-\delta)_+}/(2K')` in float64 on the device
+    (K' = K sec ϑ_c, Δ the cut slab's thickness; Δ itself at K' = 0), over the whole slab's
+    (`_slab_terms`): the gains agree with the host's to float32 rounding.
+    """
+    xp = array_namespace(excess)
+    attenuation = k * secant
+    tops, top_floats, bottoms, wholes, units = _slab_terms(
+        xp, excess.device, tuple(tuple(slab) for slab in slabs), attenuation, k, secant
+    )
+    excess = xp.astype(excess, xp.float32)
+    lift = xp.exp(np.float32(k / n) * excess)
+    rise = excess * np.float32(1.0 / (n * secant))
+    shifted = xp.astype(rise, xp.float64)
+    upper = xp.clip(tops - shifted, min=0.0)
+    thickness = xp.clip(bottoms - shifted, min=0.0) - upper
+    share = thickness
+    if attenuation > 0.0:
+        share = xp.expm1((-2.0 * attenuation) * thickness) * xp.exp((-2.0 * attenuation) * upper)
+        share = share * (-0.5 / attenuation)
+    cut = xp.astype(xp.sqrt(share / wholes), xp.float32)
+    # the host compares the float32 rises with each top taken to float32
+    gains = xp.where(rise > top_floats, cut, lift) * units
+    return [gains[g] for g in range(len(slabs))]
+
+
+@functools.lru_cache(maxsize=64)
+def _slab_terms(xp, device, slabs, attenuation, k, secant):
+    """The gates' constants of `_device_gains` on `device`, shape (gate, 1), made once.
+
+    The tops (float64 and float32), the bottoms, the whole slab's single-scattering
+    integral (`workers.optics.water.slab_backscatter_reflectance` with πβ(π) = 1, from the
+    top) and the central ray's attenuation to each gate's plane, float32, as `_gain`'s.
+    """
+    tops, bottoms, depths = (np.array([[slab[i]] for slab in slabs]) for i in range(3))
+    wholes = slab_backscatter_reflectance(
+        backscatter_pi=1 / np.pi,
+        diffuse_attenuation=attenuation,
+        top=tops,
+        bottom=bottoms,
+        reference=0.0,
+    )
+    units = np.exp(-k * depths * (secant - 1.0)).astype(np.float32)
+    return tuple(
+        xp.asarray(values, device=device)
+        for values in (tops, tops.astype(np.float32), bottoms, wholes, units)
+    )
 
 
 def _gain(gain, rise, k, secant, top, bottom, depth):
