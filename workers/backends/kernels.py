@@ -29,6 +29,7 @@ __all__ = [
     "sample",
     "span",
     "splat_levels",
+    "surface_hits",
 ]
 
 _ONE = np.float32(1.0)
@@ -444,6 +445,85 @@ def _bilinear(field, n, inverse, x, y, out, first):
             out[i] = value
         else:
             out[i] += value
+
+
+@numba.njit(cache=True, nogil=True)
+def surface_hits(grids, sizes, inverses, rays, tolerance, iterations, travel, eta):
+    """Rays' hits on the sum of periodic elevation grids, by fixed-point iteration from z = 0.
+
+    Parameters
+    ----------
+    grids, sizes, inverses : tuple
+        The elevation grids, as for `bilinear_sum` (one field each).
+    rays : tuple of ndarray
+        ``(ox, oy, oz, dx, dy, dz)``: the rays' origins [m] and directions [1], one value
+        a ray (a shared origin broadcast, stride 0), all of one float dtype.
+    tolerance : float32
+        Largest height change [m] over all rays at which the iteration stops.
+    iterations : int
+        Most steps.
+    travel : ndarray
+        Out: each ray's parameter at its hit, ``(η − oz) / dz`` of the η before the last
+        step, the rays' dtype.
+    eta : ndarray
+        Out: the elevation under ``o + travel·d`` [m], float32.
+
+    Notes
+    -----
+    Start: ``travel = −oz/dz`` (z = 0), η the elevation under that point. A step sets
+    ``travel = (η − oz)/dz`` and η to the elevation under ``o + travel·d``, for every ray;
+    the steps stop after the first whose largest height change over all rays is below
+    `tolerance`, or after `iterations`. This is one pass over the rays a step, the grids
+    summed in turn with `bilinear_sum`'s float32 arithmetic, and the rays' own arithmetic
+    in their dtype, as numpy does it: the same bytes as the steps written with numpy
+    arrays, and as a fixed count of `iterations` steps that stops updating every ray once
+    they have all converged (the torch twin).
+    """
+    ox, oy, oz, dx, dy, dz = rays
+    for i in range(dz.size):
+        travel[i] = -oz[i] / dz[i]
+        x, y = ox[i] + travel[i] * dx[i], oy[i] + travel[i] * dy[i]
+        eta[i] = _elevation(grids, sizes, inverses, x, y)
+    for _ in range(iterations):
+        largest = _ZERO  # NaN once any change is NaN, as numpy's max
+        for i in range(dz.size):
+            step = (eta[i] - oz[i]) / dz[i]
+            x, y = ox[i] + step * dx[i], oy[i] + step * dy[i]
+            height = _elevation(grids, sizes, inverses, x, y)
+            change = abs(height - eta[i])
+            if change > largest or change != change:
+                largest = change
+            travel[i] = step
+            eta[i] = height
+        if largest < tolerance:
+            break
+
+
+@numba.njit(cache=True, nogil=True)
+def _elevation(grids, sizes, inverses, x, y):
+    """The sum over `grids` of their bilinear value at (x, y), `_bilinear`'s arithmetic."""
+    total = _ZERO
+    for g in range(len(grids)):
+        field, n, inverse = grids[g][0], sizes[g], inverses[g]
+        tx = np.float32(x) * inverse
+        ty = np.float32(y) * inverse
+        column, row = np.floor(tx), np.floor(ty)
+        tx -= column
+        ty -= row
+        c, r = int(column), int(row)
+        if n & (n - 1) == 0:
+            c &= n - 1
+            r &= n - 1
+        else:
+            c %= n
+            r %= n
+        low = r * (n + 1) + c
+        high = low + n + 1
+        lower = (field[low + 1] - field[low]) * tx + field[low]
+        upper = (field[high + 1] - field[high]) * tx + field[high]
+        value = (upper - lower) * ty + lower
+        total = value if g == 0 else total + value
+    return total
 
 
 @numba.njit(cache=True)

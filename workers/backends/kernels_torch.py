@@ -31,6 +31,7 @@ __all__ = [
     "sample",
     "span",
     "splat_levels",
+    "surface_hits",
 ]
 
 _MASK = (1 << 64) - 1
@@ -413,6 +414,53 @@ def bilinear_sum(grids, sizes, inverses, x, y, out):
             upper = (field[high + 1] - field[high]) * tx + field[high]
             value = (upper - lower) * ty + lower
             out[k] = value if g == 0 else out[k] + value
+
+
+def surface_hits(grids, sizes, inverses, rays, tolerance, iterations, travel, eta):
+    """Rays' hits on the sum of periodic elevation grids (`workers.backends.kernels`).
+
+    Parameters
+    ----------
+    grids, sizes, inverses : tuple
+        The elevation grids, as for `bilinear_sum` (one field each).
+    rays : tuple
+        ``(ox, oy, oz, dx, dy, dz)`` [m], [1]: tensors of the rays' shape, or numbers
+        (0-d tensors) for an origin every ray shares.
+    tolerance : float
+        Largest height change [m] over all rays below which the steps stop changing
+        anything.
+    iterations : int
+        The number of steps.
+    travel, eta : torch.Tensor
+        Out: each ray's parameter at its hit (the rays' dtype) and the elevation there
+        [m] (float32).
+
+    Notes
+    -----
+    Always `iterations` steps, and no read on the host: a flag on the device, cleared by
+    the first step whose largest change is below `tolerance`, keeps every ray where it is
+    from then on. The numba loop stops there instead: the same values (to float32
+    rounding of the elevations' sums).
+    """
+    ox, oy, oz, dx, dy, dz = rays
+
+    def elevation(step):
+        out = torch.empty((1, eta.shape[0]), dtype=torch.float32, device=eta.device)
+        bilinear_sum(grids, sizes, inverses, ox + step * dx, oy + step * dy, out)
+        return out[0]
+
+    step = -oz / dz
+    height = elevation(step)
+    going = torch.ones((), dtype=torch.bool, device=eta.device)
+    for _ in range(iterations):
+        moved = (height - oz) / dz
+        new = elevation(moved)
+        converged = torch.max(torch.abs(new - height)) < tolerance
+        step = torch.where(going, moved, step)
+        height = torch.where(going, new, height)
+        going = going & ~converged
+    travel.copy_(step)
+    eta.copy_(height)
 
 
 def _signed(word: int) -> int:

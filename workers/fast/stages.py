@@ -22,7 +22,7 @@ from workers.backends.kernels import Cells
 from workers.fast.planes import FrameGeometry, Plane
 from workers.fast.targetgating import gate_shift
 from workers.setup.compiled import Setup
-from workers.setup.interface import Projected, through_surface
+from workers.setup.interface import Projected, surface_hit, through_surface
 
 __all__ = ["FrameLight", "PlaneLight", "SeaRays", "Splat", "frame_light"]
 
@@ -184,12 +184,13 @@ def _sea_rays(setup: Setup, geometry: FrameGeometry, surface, frame: int) -> Sea
     central = float(np.float32(geometry.central_air))
     down = through_surface(geometry.lattice, surface, frame, n_w)
     # the pixels' lines of sight are never laser rays (`workers.setup.sensor.lattice_offset`)
-    up = through_surface(geometry.pixel_rays, surface, frame, n_w)
+    hit = surface_hit(geometry.pixel_rays, surface, frame)
+    up = through_surface(geometry.pixel_rays, surface, frame, n_w, hit=hit)
     lines = up.on_axes(axes_grid, K)
     sight, sight_lines = up, lines
     if getattr(surface, "subgrid", None) is not None and geometry.impostor is not None:
-        resolved = dataclasses.replace(surface, subgrid=None)
-        sight = through_surface(geometry.pixel_rays, resolved, frame, n_w)
+        resolved = dataclasses.replace(surface, subgrid=None)  # the same hits
+        sight = through_surface(geometry.pixel_rays, resolved, frame, n_w, hit=hit)
         sight_lines = sight.on_axes(axes_grid, K)
     return SeaRays(
         down=down.on_axes(axes_grid, K),
