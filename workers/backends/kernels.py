@@ -1,8 +1,9 @@
 """Compiled loops of the render: rays splatted onto two-level planes, pixels gathered.
 
-`bilinear_sum` samples the sea's periodic cascades at the rays, `cell_uniforms` hashes the
-rays' sub-grid cells to uniform numbers (`workers.sea.surface`); `column_convolution` is the
-coarse spread's direct column sums (`workers.fast.spread`).
+`bilinear_sum` samples the sea's periodic cascades at the rays, `surface_hits` finds where
+rays meet their sum, `cell_uniforms` hashes the rays' sub-grid cells to uniform numbers
+(`workers.sea.surface`); `column_convolution` is the coarse spread's direct column sums
+(`workers.fast.spread`).
 
 Each ray or pixel is located on a plane's fine grid from its in-water line
 (`workers.setup.interface.Projected`: ``base + z·slope`` along the plane's axes), in float32 with

@@ -1,4 +1,4 @@
-"""The render's kernels on PyTorch tensors: `workers.backends.kernels`' eight, vectorised.
+"""The render's kernels on PyTorch tensors: `workers.backends.kernels`' nine, vectorised.
 
 The same names, arguments, out-parameters and returned ints as the numba loops of
 `workers.backends.kernels`, on torch tensors of the same dtypes on any device (CPU or CUDA): a
@@ -12,7 +12,8 @@ No float atomics: the scatter-adds of `splat_levels` (the rays' bilinear deposit
 the fine field's block sums) are taken in fixed point (`_FixedPoint`), exact int64 sums,
 so the result does not depend on the rays' order nor on the device's scheduling: the
 same inputs give the same bytes. The only host synchronisations are the ints the
-kernels return (and `gather_levels`' window, which the caller passes as ints).
+kernels return (and `gather_levels`' window, which the caller passes as ints):
+`surface_hits` takes a fixed count of steps where numba stops at convergence.
 """
 
 from __future__ import annotations
