@@ -20,6 +20,7 @@ from workers.setup.interface import (
     ray_components,
     surface_hit,
     through_surface,
+    through_surface_and_resolved,
 )
 
 N_WATER = 1.34
@@ -167,17 +168,20 @@ def test_the_kernels_steps_after_convergence_change_no_byte():
     assert step.tobytes() != travel.tobytes()
 
 
-def test_the_resolved_sea_shares_the_hits():
-    # the lines of sight through the resolved sea (no sub-grid slopes) meet it where the
-    # full sea's do: passing that hit gives the bytes of finding it again
+def test_the_full_and_resolved_seas_share_hits_and_slopes_to_the_byte():
+    # the lines of sight through the sea and through its resolved part (the target's
+    # reading) meet it at the same points with the same cascades' slopes: found once, the
+    # bytes of tracing each
     surface = sea(wind=8.0)
     resolved = dataclasses.replace(surface, subgrid=None)
     rays = fan(10.0)
-    hit = surface_hit(rays, surface, 0)
-    shared = through_surface(rays, resolved, 0, N_WATER, hit=hit)
-    again = through_surface(rays, resolved, 0, N_WATER)
-    for name in ("air", "x", "y", "z", "tan_x", "tan_y", "secant", "transmittance"):
-        assert getattr(shared, name).tobytes() == getattr(again, name).tobytes(), name
+    both = through_surface_and_resolved(rays, surface, 0, N_WATER)
+    for got, sea_ in zip(both, (surface, resolved), strict=True):
+        alone = through_surface(rays, sea_, 0, N_WATER)
+        for field in dataclasses.fields(alone):
+            value, expected = getattr(got, field.name), getattr(alone, field.name)
+            assert value.tobytes() == expected.tobytes(), field.name
+    assert both[0].tan_x.tobytes() != both[1].tan_x.tobytes()  # the sub-grid slopes differ
 
 
 def torch_backend(device):

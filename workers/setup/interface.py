@@ -10,6 +10,7 @@ the same, so numpy's bytes are those of plain numpy code.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,6 +29,7 @@ __all__ = [
     "ray_components",
     "surface_hit",
     "through_surface",
+    "through_surface_and_resolved",
 ]
 
 SURFACE_ITERATIONS = 8
@@ -182,7 +184,7 @@ def surface_hit(rays, surface, frame):
     return travel, eta
 
 
-def through_surface(rays, surface, frame, refractive_index, *, hit=None):
+def through_surface(rays, surface, frame, refractive_index):
     r"""Intersect rays with the surface, refract them and get their Fresnel transmittance.
 
     Parameters
@@ -197,9 +199,6 @@ def through_surface(rays, surface, frame, refractive_index, *, hit=None):
         Frame index into the surface.
     refractive_index : float
         Refractive index of the water [1].
-    hit : tuple, optional
-        The rays' `surface_hit` on this surface's elevation, when already found (the
-        same rays through a sea with other slopes: the same bytes).
 
     Returns
     -------
@@ -218,14 +217,51 @@ def through_surface(rays, surface, frame, refractive_index, *, hit=None):
     away from them (cos i <= 0), and rays the surface would send back up, transmit
     nothing.
     """
-    ox, oy, _, dx, dy, dz = rays
-    xp = array_namespace(dx)
-    travel, eta = surface_hit(rays, surface, frame) if hit is None else hit
-    x, y = ox + travel * dx, oy + travel * dy
+    travel, eta = surface_hit(rays, surface, frame)
+    x, y = rays[0] + travel * rays[3], rays[1] + travel * rays[4]
     if surface is None:
-        sx = sy = eta
+        slopes = (eta, eta)
     else:
-        sx, sy = surface.slopes_at(x, y, frame)
+        slopes = surface.slopes_at(x, y, frame)
+    return _refracted(rays, (travel, x, y, eta), slopes, refractive_index)
+
+
+def through_surface_and_resolved(rays, surface, frame, refractive_index):
+    """`through_surface` of a sea, and of its resolved part (no sub-grid slopes).
+
+    Parameters
+    ----------
+    rays : tuple
+        As for `through_surface`.
+    surface : Surface
+        The sea surface, with its sub-grid slopes.
+    frame : int
+        Frame index into the surface.
+    refractive_index : float
+        Refractive index of the water [1].
+
+    Returns
+    -------
+    full, resolved : Transmitted
+        Through `surface`, and through it without its ``subgrid``: the bytes of
+        `through_surface` of each. They share the hits (the sub-grid slopes do not move
+        the elevation) and the cascades' slopes, found once.
+    """
+    travel, eta = surface_hit(rays, surface, frame)
+    x, y = rays[0] + travel * rays[3], rays[1] + travel * rays[4]
+    slope_x, slope_y = dataclasses.replace(surface, subgrid=None).slopes_at(x, y, frame)
+    more_x, more_y = surface.subgrid.at(x, y, frame)
+    hit = (travel, x, y, eta)
+    full = _refracted(rays, hit, (slope_x + more_x, slope_y + more_y), refractive_index)
+    return full, _refracted(rays, hit, (slope_x, slope_y), refractive_index)
+
+
+def _refracted(rays, hit, slopes, refractive_index):
+    """The rays refracted at their hits ``(travel, x, y, eta)`` on facets of `slopes`."""
+    dx, dy, dz = rays[3:]
+    travel, x, y, eta = hit
+    sx, sy = slopes
+    xp = array_namespace(dx)
     ratio = 1.0 / refractive_index
     inverse_norm = 1.0 / xp.sqrt(1.0 + sx * sx + sy * sy)
     cos_incidence = (dx * sx + dy * sy - dz) * inverse_norm
