@@ -407,7 +407,7 @@ class Surface:
         One pass of the backend's kernel (`workers.backends.kernels.surface_hits`) over
         the rays a step, every cascade summed in it; on torch a fixed count of steps
         and nothing read on the host. The values of the steps written with
-        `elevation_at` (`workers.setup.interface.through_surface`'s notes).
+        `elevation_at` (`workers.setup.interface.surface_hit`).
         """
         backend, xp = self.backend, self.backend.xp
         dz = rays[5]

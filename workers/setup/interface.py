@@ -157,10 +157,11 @@ def surface_hit(rays, surface, frame):
     ray's previous point; it contracts by |slope · tan(view)| per step. A step moves every
     ray; the first step after which no ray's elevation changed by `SURFACE_TOLERANCE` or
     more is the last (at most `SURFACE_ITERATIONS`), so the hit is within about the
-    tolerance of the exact one. On the device it is always `SURFACE_ITERATIONS` steps,
-    every ray held where it is once they have all converged: no read on the host, the
-    same values. A `Surface` takes its steps in one kernel pass each
-    (`Surface.hits`).
+    tolerance of the exact one. A `Surface` takes its steps in one kernel pass each
+    (`Surface.hits`: numba's stops there, torch's takes them all as below); any other sea
+    with an ``elevation_at`` takes all `SURFACE_ITERATIONS` steps with array operations,
+    every ray held where it is once they have all converged (a flag, no read on the
+    host): the values of stopping there.
     """
     ox, oy, oz, dx, dy, dz = rays
     xp = array_namespace(dz)
