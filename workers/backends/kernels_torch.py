@@ -441,27 +441,57 @@ def surface_hits(grids, sizes, inverses, rays, tolerance, iterations, travel, et
     Always `iterations` steps, and no read on the host: a flag on the device, cleared by
     the first step whose largest change is below `tolerance`, keeps every ray where it is
     from then on. The numba loop stops there instead: the same values (to float32
-    rounding of the elevations' sums).
+    rounding). Each step samples every grid in one set of operations (`_Elevation`).
     """
     ox, oy, oz, dx, dy, dz = rays
-
-    def elevation(step):
-        out = torch.empty((1, eta.shape[0]), dtype=torch.float32, device=eta.device)
-        bilinear_sum(grids, sizes, inverses, ox + step * dx, oy + step * dy, out)
-        return out[0]
-
+    elevation = _Elevation(grids, sizes, inverses, eta.device)
+    if not isinstance(oz, torch.Tensor):  # number / tensor is a reciprocal times the number
+        oz = dz.new_full((), oz)
     step = -oz / dz
-    height = elevation(step)
+    height = elevation(ox + step * dx, oy + step * dy)
     going = torch.ones((), dtype=torch.bool, device=eta.device)
     for _ in range(iterations):
         moved = (height - oz) / dz
-        new = elevation(moved)
+        new = elevation(ox + moved * dx, oy + moved * dy)
         converged = torch.max(torch.abs(new - height)) < tolerance
         step = torch.where(going, moved, step)
         height = torch.where(going, new, height)
         going = going & ~converged
     travel.copy_(step)
     eta.copy_(height)
+
+
+class _Elevation:
+    """The sum of periodic grids' bilinear values at points, every grid in one set of ops.
+
+    `bilinear_sum`'s arithmetic for one field a grid: the grids' fields laid end to end,
+    each point's value on every grid at once (grid × point), then the grids added in turn.
+    """
+
+    def __init__(self, grids, sizes, inverses, device):
+        self.fields = torch.cat([grid[0] for grid in grids])
+        ends = torch.tensor([(n + 1) ** 2 for n in sizes], device=device).cumsum(0)
+        self.size = torch.tensor(sizes, device=device)[:, None]
+        self.start = (ends - (self.size[:, 0] + 1) ** 2)[:, None]
+        self.inverse = torch.tensor(inverses, dtype=torch.float32, device=device)[:, None]
+
+    def __call__(self, x, y):
+        tx = x.to(torch.float32) * self.inverse
+        ty = y.to(torch.float32) * self.inverse
+        column, row = torch.floor(tx), torch.floor(ty)
+        tx, ty = tx - column, ty - row
+        c = torch.remainder(column.to(torch.int64), self.size)
+        r = torch.remainder(row.to(torch.int64), self.size)
+        low = r * (self.size + 1) + c + self.start
+        high = low + self.size + 1
+        field = self.fields
+        lower = (field[low + 1] - field[low]) * tx + field[low]
+        upper = (field[high + 1] - field[high]) * tx + field[high]
+        value = (upper - lower) * ty + lower
+        total = value[0]
+        for g in range(1, value.shape[0]):
+            total = total + value[g]
+        return total
 
 
 def _signed(word: int) -> int:
