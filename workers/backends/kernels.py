@@ -474,57 +474,35 @@ def surface_hits(grids, sizes, inverses, rays, tolerance, iterations, travel, et
     Start: ``travel = −oz/dz`` (z = 0), η the elevation under that point. A step sets
     ``travel = (η − oz)/dz`` and η to the elevation under ``o + travel·d``, for every ray;
     the steps stop after the first whose largest height change over all rays is below
-    `tolerance`, or after `iterations`. This is one pass over the rays a step, the grids
-    summed in turn with `bilinear_sum`'s float32 arithmetic, and the rays' own arithmetic
-    in their dtype, as numpy does it: the same bytes as the steps written with numpy
-    arrays, and as a fixed count of `iterations` steps that stops updating every ray once
-    they have all converged (the torch twin).
+    `tolerance`, or after `iterations`. The grids are summed with `bilinear_sum`'s loops
+    and the rays' own arithmetic is in their dtype, as numpy does it: the same bytes as
+    the steps written with numpy arrays, and as a fixed count of `iterations` steps that
+    stops updating every ray once they have all converged (the torch twin). A step is
+    a few passes over the rays, with no arrays made but three for the whole search.
     """
     ox, oy, oz, dx, dy, dz = rays
+    x, y, heights = np.empty_like(travel), np.empty_like(travel), np.empty_like(eta)
     for i in range(dz.size):
         travel[i] = -oz[i] / dz[i]
-        x, y = ox[i] + travel[i] * dx[i], oy[i] + travel[i] * dy[i]
-        eta[i] = _elevation(grids, sizes, inverses, x, y)
+        x[i] = ox[i] + travel[i] * dx[i]
+        y[i] = oy[i] + travel[i] * dy[i]
+    for g in range(len(grids)):
+        _bilinear(grids[g][0], sizes[g], inverses[g], x, y, eta, g == 0)
     for _ in range(iterations):
+        for i in range(dz.size):
+            travel[i] = (eta[i] - oz[i]) / dz[i]
+            x[i] = ox[i] + travel[i] * dx[i]
+            y[i] = oy[i] + travel[i] * dy[i]
+        for g in range(len(grids)):
+            _bilinear(grids[g][0], sizes[g], inverses[g], x, y, heights, g == 0)
         largest = _ZERO  # NaN once any change is NaN, as numpy's max
         for i in range(dz.size):
-            step = (eta[i] - oz[i]) / dz[i]
-            x, y = ox[i] + step * dx[i], oy[i] + step * dy[i]
-            height = _elevation(grids, sizes, inverses, x, y)
-            change = abs(height - eta[i])
+            change = abs(heights[i] - eta[i])
             if change > largest or change != change:
                 largest = change
-            travel[i] = step
-            eta[i] = height
+            eta[i] = heights[i]
         if largest < tolerance:
             break
-
-
-@numba.njit(cache=True, nogil=True)
-def _elevation(grids, sizes, inverses, x, y):
-    """The sum over `grids` of their bilinear value at (x, y), `_bilinear`'s arithmetic."""
-    total = _ZERO
-    for g in range(len(grids)):
-        field, n, inverse = grids[g][0], sizes[g], inverses[g]
-        tx = np.float32(x) * inverse
-        ty = np.float32(y) * inverse
-        column, row = np.floor(tx), np.floor(ty)
-        tx -= column
-        ty -= row
-        c, r = int(column), int(row)
-        if n & (n - 1) == 0:
-            c &= n - 1
-            r &= n - 1
-        else:
-            c %= n
-            r %= n
-        low = r * (n + 1) + c
-        high = low + n + 1
-        lower = (field[low + 1] - field[low]) * tx + field[low]
-        upper = (field[high + 1] - field[high]) * tx + field[high]
-        value = (upper - lower) * ty + lower
-        total = value if g == 0 else total + value
-    return total
 
 
 @numba.njit(cache=True)

@@ -404,10 +404,10 @@ class Surface:
 
         Notes
         -----
-        One pass of the backend's kernel (`workers.backends.kernels.surface_hits`) over
-        the rays a step, every cascade summed in it; on torch a fixed count of steps
-        and nothing read on the host. The values of the steps written with
-        `elevation_at` (`workers.setup.interface.surface_hit`).
+        One call of the backend's kernel (`workers.backends.kernels.surface_hits`) for
+        the whole search; on torch a fixed count of steps and nothing read on the host.
+        The values of the steps written with `elevation_at`
+        (`workers.setup.interface.surface_hit`).
         """
         backend, xp = self.backend, self.backend.xp
         dz = rays[5]

@@ -37,7 +37,7 @@ SURFACE_ITERATIONS = 8
 
 Measured (`surface_hit`'s notes): the shipped configurations' seas at nadir converge in
 1–3 steps, seas of 0.5–15 m/s seen from 40° off nadir in at most 6; at 60° the eighth
-step still moves some hits by 1–40 mm.
+step still moves some hits by 1–41 mm.
 """
 
 SURFACE_TOLERANCE = 1e-3
@@ -157,7 +157,7 @@ def surface_hit(rays, surface, frame):
     ray's previous point; it contracts by |slope · tan(view)| per step. A step moves every
     ray; the first step after which no ray's elevation changed by `SURFACE_TOLERANCE` or
     more is the last (at most `SURFACE_ITERATIONS`), so the hit is within about the
-    tolerance of the exact one. A `Surface` takes its steps in one kernel pass each
+    tolerance of the exact one. A `Surface` takes its steps in one kernel
     (`Surface.hits`: numba's stops there, torch's takes them all as below); any other sea
     with an ``elevation_at`` takes all `SURFACE_ITERATIONS` steps with array operations,
     every ray held where it is once they have all converged (a flag, no read on the
