@@ -271,7 +271,7 @@ def _refracted(rays, hit, slopes, refractive_index):
     coefficient = (ratio * cos_i - cos_t) * inverse_norm
     down = -(ratio * dz + coefficient)
     facing = (cos_incidence > 0) & (down > 0)
-    secant = xp.where(facing, 1.0 / xp.where(facing, down, 1.0), 1.0)
+    secant = 1.0 / xp.where(facing, down, 1.0)  # 1 where not facing
     transmittance = 1.0 - fresnel_reflectance(cos_i, n1=1.0, n2=refractive_index)
 
     def single(values):
