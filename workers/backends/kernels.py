@@ -1,8 +1,9 @@
 """Compiled loops of the render: rays splatted onto two-level planes, pixels gathered.
 
-`bilinear_sum` samples the sea's periodic cascades at the rays, `cell_uniforms` hashes the
-rays' sub-grid cells to uniform numbers (`workers.sea.surface`); `column_convolution` is the
-coarse spread's direct column sums (`workers.fast.spread`).
+`bilinear_sum` samples the sea's periodic cascades at the rays, `surface_hits` finds where
+rays meet their sum, `cell_uniforms` hashes the rays' sub-grid cells to uniform numbers
+(`workers.sea.surface`); `column_convolution` is the coarse spread's direct column sums
+(`workers.fast.spread`).
 
 Each ray or pixel is located on a plane's fine grid from its in-water line
 (`workers.setup.interface.Projected`: ``base + z·slope`` along the plane's axes), in float32 with
@@ -29,6 +30,7 @@ __all__ = [
     "sample",
     "span",
     "splat_levels",
+    "surface_hits",
 ]
 
 _ONE = np.float32(1.0)
@@ -444,6 +446,63 @@ def _bilinear(field, n, inverse, x, y, out, first):
             out[i] = value
         else:
             out[i] += value
+
+
+@numba.njit(cache=True, nogil=True)
+def surface_hits(grids, sizes, inverses, rays, tolerance, iterations, travel, eta):
+    """Rays' hits on the sum of periodic elevation grids, by fixed-point iteration from z = 0.
+
+    Parameters
+    ----------
+    grids, sizes, inverses : tuple
+        The elevation grids, as for `bilinear_sum` (one field each).
+    rays : tuple of ndarray
+        ``(ox, oy, oz, dx, dy, dz)``: the rays' origins [m] and directions [1], one value
+        a ray (a shared origin broadcast, stride 0), all of one float dtype.
+    tolerance : float32
+        Largest height change [m] over all rays at which the iteration stops.
+    iterations : int
+        Most steps.
+    travel : ndarray
+        Out: each ray's parameter at its hit, ``(η − oz) / dz`` of the η before the last
+        step, the rays' dtype.
+    eta : ndarray
+        Out: the elevation under ``o + travel·d`` [m], float32.
+
+    Notes
+    -----
+    Start: ``travel = −oz/dz`` (z = 0), η the elevation under that point. A step sets
+    ``travel = (η − oz)/dz`` and η to the elevation under ``o + travel·d``, for every ray;
+    the steps stop after the first whose largest height change over all rays is below
+    `tolerance`, or after `iterations`. The grids are summed with `bilinear_sum`'s loops
+    and the rays' own arithmetic is in their dtype, as numpy does it: the same bytes as
+    the steps written with numpy arrays, and as a fixed count of `iterations` steps that
+    stops updating every ray once they have all converged (the torch twin). A step is
+    a few passes over the rays, with no arrays made but three for the whole search.
+    """
+    ox, oy, oz, dx, dy, dz = rays
+    x, y, heights = np.empty_like(travel), np.empty_like(travel), np.empty_like(eta)
+    for i in range(dz.size):
+        travel[i] = -oz[i] / dz[i]
+        x[i] = ox[i] + travel[i] * dx[i]
+        y[i] = oy[i] + travel[i] * dy[i]
+    for g in range(len(grids)):
+        _bilinear(grids[g][0], sizes[g], inverses[g], x, y, eta, g == 0)
+    for _ in range(iterations):
+        for i in range(dz.size):
+            travel[i] = (eta[i] - oz[i]) / dz[i]
+            x[i] = ox[i] + travel[i] * dx[i]
+            y[i] = oy[i] + travel[i] * dy[i]
+        for g in range(len(grids)):
+            _bilinear(grids[g][0], sizes[g], inverses[g], x, y, heights, g == 0)
+        largest = _ZERO  # NaN once any change is NaN, as numpy's max
+        for i in range(dz.size):
+            change = abs(heights[i] - eta[i])
+            if change > largest or change != change:
+                largest = change
+            eta[i] = heights[i]
+        if largest < tolerance:
+            break
 
 
 @numba.njit(cache=True)

@@ -1,4 +1,4 @@
-"""The render's kernels on PyTorch tensors: `workers.backends.kernels`' eight, vectorised.
+"""The render's kernels on PyTorch tensors: `workers.backends.kernels`' nine, vectorised.
 
 The same names, arguments, out-parameters and returned ints as the numba loops of
 `workers.backends.kernels`, on torch tensors of the same dtypes on any device (CPU or CUDA): a
@@ -12,7 +12,8 @@ No float atomics: the scatter-adds of `splat_levels` (the rays' bilinear deposit
 the fine field's block sums) are taken in fixed point (`_FixedPoint`), exact int64 sums,
 so the result does not depend on the rays' order nor on the device's scheduling: the
 same inputs give the same bytes. The only host synchronisations are the ints the
-kernels return (and `gather_levels`' window, which the caller passes as ints).
+kernels return (and `gather_levels`' window, which the caller passes as ints):
+`surface_hits` takes a fixed count of steps where numba stops at convergence.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ __all__ = [
     "sample",
     "span",
     "splat_levels",
+    "surface_hits",
 ]
 
 _MASK = (1 << 64) - 1
@@ -434,6 +436,83 @@ def bilinear_sum(grids, sizes, inverses, x, y, out):
             upper = (field[high + 1] - field[high]) * tx + field[high]
             value = (upper - lower) * ty + lower
             out[k] = value if g == 0 else out[k] + value
+
+
+def surface_hits(grids, sizes, inverses, rays, tolerance, iterations, travel, eta):
+    """Rays' hits on the sum of periodic elevation grids (`workers.backends.kernels`).
+
+    Parameters
+    ----------
+    grids, sizes, inverses : tuple
+        The elevation grids, as for `bilinear_sum` (one field each).
+    rays : tuple
+        ``(ox, oy, oz, dx, dy, dz)`` [m], [1]: tensors of the rays' shape, or numbers
+        (0-d tensors) for an origin every ray shares.
+    tolerance : float
+        Largest height change [m] over all rays below which the steps stop changing
+        anything.
+    iterations : int
+        The number of steps.
+    travel, eta : torch.Tensor
+        Out: each ray's parameter at its hit (the rays' dtype) and the elevation there
+        [m] (float32).
+
+    Notes
+    -----
+    Always `iterations` steps, and no read on the host: a flag on the device, cleared by
+    the first step whose largest change is below `tolerance`, keeps every ray where it is
+    from then on. The numba loop stops there instead: the same values (to float32
+    rounding). Each step samples every grid in one set of operations (`_Elevation`).
+    """
+    ox, oy, oz, dx, dy, dz = rays
+    elevation = _Elevation(grids, sizes, inverses, eta.device)
+    if not isinstance(oz, torch.Tensor):  # number / tensor is a reciprocal times the number
+        oz = dz.new_full((), oz)
+    step = -oz / dz
+    height = elevation(ox + step * dx, oy + step * dy)
+    going = torch.ones((), dtype=torch.bool, device=eta.device)
+    for _ in range(iterations):
+        moved = (height - oz) / dz
+        new = elevation(ox + moved * dx, oy + moved * dy)
+        converged = torch.max(torch.abs(new - height)) < tolerance
+        step = torch.where(going, moved, step)
+        height = torch.where(going, new, height)
+        going = going & ~converged
+    travel.copy_(step)
+    eta.copy_(height)
+
+
+class _Elevation:
+    """The sum of periodic grids' bilinear values at points, every grid in one set of ops.
+
+    `bilinear_sum`'s arithmetic for one field a grid: the grids' fields laid end to end,
+    each point's value on every grid at once (grid × point), then the grids added in turn.
+    """
+
+    def __init__(self, grids, sizes, inverses, device):
+        self.fields = torch.cat([grid[0] for grid in grids])
+        ends = torch.tensor([(n + 1) ** 2 for n in sizes], device=device).cumsum(0)
+        self.size = torch.tensor(sizes, device=device)[:, None]
+        self.start = (ends - (self.size[:, 0] + 1) ** 2)[:, None]
+        self.inverse = torch.tensor(inverses, dtype=torch.float32, device=device)[:, None]
+
+    def __call__(self, x, y):
+        tx = x.to(torch.float32) * self.inverse
+        ty = y.to(torch.float32) * self.inverse
+        column, row = torch.floor(tx), torch.floor(ty)
+        tx, ty = tx - column, ty - row
+        c = torch.remainder(column.to(torch.int64), self.size)
+        r = torch.remainder(row.to(torch.int64), self.size)
+        low = r * (self.size + 1) + c + self.start
+        high = low + self.size + 1
+        field = self.fields
+        lower = (field[low + 1] - field[low]) * tx + field[low]
+        upper = (field[high + 1] - field[high]) * tx + field[high]
+        value = (upper - lower) * ty + lower
+        total = value[0]
+        for g in range(1, value.shape[0]):
+            total = total + value[g]
+        return total
 
 
 def _signed(word: int) -> int:

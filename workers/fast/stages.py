@@ -12,7 +12,6 @@ renderer's code, byte for byte. The model is in `workers.render`'s docstring and
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,7 +21,7 @@ from workers.backends.kernels import Cells
 from workers.fast.planes import FrameGeometry, Plane
 from workers.fast.targetgating import gate_shift
 from workers.setup.compiled import Setup
-from workers.setup.interface import Projected, through_surface
+from workers.setup.interface import Projected, through_surface, through_surface_and_resolved
 
 __all__ = ["FrameLight", "PlaneLight", "SeaRays", "Splat", "frame_light"]
 
@@ -184,13 +183,13 @@ def _sea_rays(setup: Setup, geometry: FrameGeometry, surface, frame: int) -> Sea
     central = float(np.float32(geometry.central_air))
     down = through_surface(geometry.lattice, surface, frame, n_w)
     # the pixels' lines of sight are never laser rays (`workers.setup.sensor.lattice_offset`)
-    up = through_surface(geometry.pixel_rays, surface, frame, n_w)
-    lines = up.on_axes(axes_grid, K)
-    sight, sight_lines = up, lines
     if getattr(surface, "subgrid", None) is not None and geometry.impostor is not None:
-        resolved = dataclasses.replace(surface, subgrid=None)
-        sight = through_surface(geometry.pixel_rays, resolved, frame, n_w)
-        sight_lines = sight.on_axes(axes_grid, K)
+        # the target is read through the resolved sea
+        up, sight = through_surface_and_resolved(geometry.pixel_rays, surface, frame, n_w)
+        lines, sight_lines = up.on_axes(axes_grid, K), sight.on_axes(axes_grid, K)
+    else:
+        up = sight = through_surface(geometry.pixel_rays, surface, frame, n_w)
+        lines = sight_lines = up.on_axes(axes_grid, K)
     return SeaRays(
         down=down.on_axes(axes_grid, K),
         up=lines,

@@ -381,6 +381,50 @@ class Surface:
         grids = tuple(c._wrapped_fields(frame)[:1] for c in self.cascades)
         return _sample(self.cascades, grids, x, y)[0]
 
+    def hits(self, rays, frame, *, iterations, tolerance):
+        """Where rays meet the surface: fixed-point iteration on the elevation from z = 0.
+
+        Parameters
+        ----------
+        rays : tuple
+            ``(ox, oy, oz, dx, dy, dz)`` [m], [1] of one float dtype: 1-D arrays of the
+            backend, an origin every ray shares as numbers.
+        frame : int
+            Frame index.
+        iterations : int
+            Most steps.
+        tolerance : float
+            Largest height change [m] over all rays below which the iteration stops.
+
+        Returns
+        -------
+        travel, eta : array
+            Each ray's parameter at its hit (the rays' dtype) and the elevation there
+            [m] (float32): ``eta`` is `elevation_at` ``o + travel·d``.
+
+        Notes
+        -----
+        One call of the backend's kernel (`workers.backends.kernels.surface_hits`) for
+        the whole search; on torch a fixed count of steps and nothing read on the host.
+        The values of the steps written with `elevation_at`
+        (`workers.setup.interface.surface_hit`).
+        """
+        backend, xp = self.backend, self.backend.xp
+        dz = rays[5]
+        if backend.name == "numpy":  # numba: arrays of one dtype, a float32 tolerance
+            dtype = np.result_type(*rays)
+            rays = tuple(np.broadcast_to(np.asarray(v, dtype), dz.shape) for v in rays)
+            tolerance = np.float32(tolerance)
+        travel = xp.empty(dz.shape, dtype=rays[5].dtype, device=backend.device)
+        eta = xp.empty(dz.shape, dtype=xp.float32, device=backend.device)
+        grids = tuple(c._wrapped_fields(frame)[:1] for c in self.cascades)
+        sizes = tuple(int(c.grid_size) for c in self.cascades)
+        inverses = tuple(np.float32(1.0 / c.spacing) for c in self.cascades)
+        backend.kernels.surface_hits(
+            grids, sizes, inverses, rays, tolerance, iterations, travel, eta
+        )
+        return travel, eta
+
     def slopes_at(self, x, y, frame=0):
         """Slopes ∂η/∂x, ∂η/∂y at world points [1]: the cascades' plus the sub-grid ones."""
         grids = tuple(c._wrapped_fields(frame)[1:] for c in self.cascades)
