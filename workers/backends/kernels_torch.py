@@ -491,10 +491,9 @@ class _Elevation:
 
     def __init__(self, grids, sizes, inverses, device):
         self.fields = torch.cat([grid[0] for grid in grids])
-        ends = torch.tensor([(n + 1) ** 2 for n in sizes], device=device).cumsum(0)
-        self.size = torch.tensor(sizes, device=device)[:, None]
-        self.start = (ends - (self.size[:, 0] + 1) ** 2)[:, None]
-        self.inverse = torch.tensor(inverses, dtype=torch.float32, device=device)[:, None]
+        self.size, self.start, self.inverse = _grid_layout(
+            tuple(int(n) for n in sizes), tuple(float(i) for i in inverses), device
+        )
 
     def __call__(self, x, y):
         tx = x.to(torch.float32) * self.inverse
@@ -513,6 +512,21 @@ class _Elevation:
         for g in range(1, value.shape[0]):
             total = total + value[g]
         return total
+
+
+@functools.lru_cache(maxsize=_SCALARS)
+def _grid_layout(sizes: tuple, inverses: tuple, device: torch.device) -> tuple:
+    """`_Elevation`'s grid sizes, first elements and inverse steps, made once per device.
+
+    Each (grid, 1) on `device`: the grid's side N (int64), the index of its first element
+    in the grids laid end to end ((N + 1)² each), its 1 / spacing (float32). Cached, like
+    `_scalar`'s, so that a call copies nothing from the host.
+    """
+    size = torch.tensor(sizes, device=device)[:, None]
+    ends = torch.tensor([(n + 1) ** 2 for n in sizes], device=device).cumsum(0)
+    start = (ends - (size[:, 0] + 1) ** 2)[:, None]
+    inverse = torch.tensor(inverses, dtype=torch.float32, device=device)[:, None]
+    return size, start, inverse
 
 
 def _signed(word: int) -> int:
