@@ -1,4 +1,4 @@
-"""The render's kernels on PyTorch tensors: `workers.backends.kernels`' eight, vectorised.
+"""The render's kernels on PyTorch tensors: `workers.backends.kernels`' seven, vectorised.
 
 The same names, arguments, out-parameters and returned ints as the numba loops of
 `workers.backends.kernels`, on torch tensors of the same dtypes on any device (CPU or CUDA): a
