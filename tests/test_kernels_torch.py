@@ -241,31 +241,41 @@ def lift():
     return tuple(axes)
 
 
-@pytest.mark.parametrize("tail", [True, False], ids=["tail", "no-tail"])
-@pytest.mark.parametrize("shadowed", [True, False], ids=["shadowed", "all-lit"])
-def test_gather_levels_agrees_with_numba(tail, shadowed, device):
-    rng = np.random.default_rng(5)
-    lines, _ = splat_case(13, n=500)
+def gather_case(seed, *, tail, shadowed):
+    """Lines and a plane's random light: ``(lines, parts, lit)`` for `gather_levels`."""
+    rng = np.random.default_rng(seed)
+    lines, _ = splat_case(seed, n=500)
     window = kernels.reach(lines, PLANE, FINE, COARSE)[:4]
     near = rng.normal(size=(window[1] - window[0], FINE[1])).astype(np.float32)
     far = rng.normal(size=COARSE).astype(np.float32)
     none = np.zeros((0, 0), np.float32)
     tails = tuple(rng.normal(size=s).astype(np.float32) for s in (FINE, COARSE))
-    tails = tails if tail else (none, none)
     lit = rng.uniform(size=FINE).astype(np.float32) if shadowed else none
+    return lines, (near, window, far, tails if tail else (none, none)), lit
+
+
+def torch_parts(parts, device):
+    """`gather_levels`' parts and lift (`lift`) as tensors on `device`."""
+    near, window, far, tails = parts
+    parts_t = (*tensors((near,), device), window, *tensors((far,), device), tensors(tails, device))
+    return parts_t, tuple(tensors(axis, device) for axis in lift())
+
+
+@pytest.mark.parametrize("tail", [True, False], ids=["tail", "no-tail"])
+@pytest.mark.parametrize("shadowed", [True, False], ids=["shadowed", "all-lit"])
+def test_gather_levels_agrees_with_numba(tail, shadowed, device):
+    lines, parts, lit = gather_case(13, tail=tail, shadowed=shadowed)
+    _, _, far, tails = parts
+    rng = np.random.default_rng(5)
     weight = rng.uniform(0.5, 2, lines[0].size).astype(np.float32)
     out = rng.normal(size=lines[0].size).astype(np.float32)
     initial, out_t = out.copy(), torch.from_numpy(out.copy()).to(device)
-    parts = (near, window, far, tails)
     kernels.gather_levels(lines, PLANE, FINE, parts, lift(), lit, (weight,), (out,))
-    parts_t = (*tensors((near,), device), window, *tensors((far,), device), tensors(tails, device))
-    lift_t = tuple(tensors(axis, device) for axis in lift())
     args = (
         tensors(lines, device),
         PLANE,
         FINE,
-        parts_t,
-        lift_t,
+        *torch_parts(parts, device),
         *tensors((lit,), device),
         tensors((weight,), device),
         (out_t,),
@@ -286,19 +296,6 @@ def test_gather_levels_agrees_with_numba(tail, shadowed, device):
     expected = initial[coarse] + weight[coarse] * far_at(read, lines, coarse)
     np.testing.assert_allclose(out[coarse], expected, rtol=1e-5, atol=1e-6)
     assert np.all(out[coarse] != initial[coarse])
-
-
-def gather_case(seed, *, tail, shadowed):
-    """Lines and a plane's random light: ``(lines, parts, lit)`` for `gather_levels`."""
-    rng = np.random.default_rng(seed)
-    lines, _ = splat_case(seed, n=500)
-    window = kernels.reach(lines, PLANE, FINE, COARSE)[:4]
-    near = rng.normal(size=(window[1] - window[0], FINE[1])).astype(np.float32)
-    far = rng.normal(size=COARSE).astype(np.float32)
-    none = np.zeros((0, 0), np.float32)
-    tails = tuple(rng.normal(size=s).astype(np.float32) for s in (FINE, COARSE))
-    lit = rng.uniform(size=FINE).astype(np.float32) if shadowed else none
-    return lines, (near, window, far, tails if tail else (none, none)), lit
 
 
 @pytest.mark.parametrize("tail", [True, False], ids=["tail", "no-tail"])
@@ -328,9 +325,7 @@ def test_one_gather_of_several_outputs_is_their_gathers_apart(tail, shadowed, de
             together[2] - start[2], (together[1] - start[1]) * (weights[2] / weights[1])
         )
     # the torch kernel: the same, to the bit, against its own gathers apart
-    near, window, far, tails = parts
-    parts_t = (*tensors((near,), device), window, *tensors((far,), device), tensors(tails, device))
-    lift_t = tuple(tensors(axis, device) for axis in lift())
+    parts_t, lift_t = torch_parts(parts, device)
     lines_t, weights_t = tensors(lines, device), tensors(weights, device)
     apart_t, together_t = tensors(start, device), tensors(start, device)
     for k in range(3):
