@@ -334,22 +334,25 @@ def gather_levels(lines, cells, shape, parts, lift, lit, weights, out):
     if top < bottom:
         first = cl[left]
         along = np.empty(cl[right - 1] + 2 - first, dtype=np.float32)
-        for r in range(top, bottom):
-            a, lower, upper = rl[r], _ONE - rw[r], rw[r]
-            for b in range(along.size):
-                value = far[a, first + b] * lower + far[a + 1, first + b] * upper
+        # unsigned indices throughout (`_unsigned`): a third of the gather's time
+        top_u, left_u, first_u = np.uint64(top), np.uint64(left), np.uint64(first)
+        for r in range(top_u, np.uint64(bottom)):
+            a, lower, upper = np.uint64(rl[r]), _ONE - rw[r], rw[r]
+            for b in range(np.uint64(along.size)):
+                f = first_u + b
+                value = far[a, f] * lower + far[a + _NEXT, f] * upper
                 if tail_far.size:
-                    value += tail_far[a, first + b] * lower + tail_far[a + 1, first + b] * upper
+                    value += tail_far[a, f] * lower + tail_far[a + _NEXT, f] * upper
                 along[b] = value
-            for c in range(left, right):
-                b = cl[c] - first
-                value = near[r - top, c]
+            for c in range(left_u, np.uint64(right)):
+                b = np.uint64(cl[c] - first)
+                value = near[r - top_u, c]
                 if tail_near.size:
                     value += tail_near[r, c]
-                value += along[b] * (_ONE - cw[c]) + along[b + 1] * cw[c]
-                field[r - top, c - left] = value
+                value += along[b] * (_ONE - cw[c]) + along[b + _NEXT] * cw[c]
+                field[r - top_u, c - left_u] = value
                 if lit.size:
-                    kept[r - top, c - left] = value * lit[r, c]
+                    kept[r - top_u, c - left_u] = value * lit[r, c]
     rows, cols = shape
     base_u, slope_u, base_v, slope_v = lines
     for i in range(lines[0].size):
