@@ -404,15 +404,8 @@ def sample(lines, cells, fields, box, out):
             for k in range(len(fields)):
                 out[k, i] = 0.0
             continue
-        left_share = _ONE - right_share
-        w2 = left_share * down
-        w3 = right_share * down
         for k, field in enumerate(fields):
-            total = field[r, c] * (left_share - w2)
-            total += field[r, c + 1] * (right_share - w3)
-            total += field[r + 1, c] * w2
-            total += field[r + 1, c + 1] * w3
-            out[k, i] = total
+            out[k, i] = _interpolate(field, r, c, down, right_share)
 
 
 @numba.njit(cache=True, nogil=True)
