@@ -212,18 +212,19 @@ Issue #39 items 1-2, CPU part (fewer passes over the lines of sight): a gate's f
 assembled once and read at each line of sight for the image and its target-free twin in
 one pass (`workers.backends.kernels.gather_levels` takes every output), the gates' `unseen`
 maps are read in one pass (one `kernels.sample`), `span` and `outside_rows` are one pass
-(`kernels.reach`), and the deposits and reads index cells unsigned. The same bytes (32
-samples: 64-256 px, sphere / none, flat / 5 / 10 m/s). Callgrind, one sample of
-``scene(256)`` (sphere) after two warm-up renders, each stage's own instructions in scipy
-float32 rfft2+irfft2 pairs of 256² counted the same way (4.38 M instructions), main
-(a12c210) → this: gathers 31.3 → 17.4, splats 12.9 → 11.5, reach 4.9 → 3.7, the hidden
-and mask reads 6.8 → 2.8; the sample 143.2 → 122.7 (this count, toggled around the one
-render, reads more than the issue's 118: compare within it). Splatting every gate plane
-in one loop over the rays (each ray's crossing of every plane in turn, the same bytes) was
-slower on one core, 10.6-11.4 ms against 6.2-6.4 ms for the six planes one by one (a
-plane's 0.4-0.5 MB fields stay in cache while it is splatted alone; with all the planes
-in one flat buffer, its deposits alone took 3.4-4.7 ms against 3.1-3.8 ms for the whole
-per-plane splats): not kept.
+(`kernels.reach`); then the kernels index cells unsigned (numba's negative-index
+wraparound off). The same bytes (32 samples: 64-256 px, sphere / none, flat / 5 / 10 m/s).
+Callgrind, one sample of ``scene(256)`` (sphere) after two warm-up renders, each stage's
+own instructions in scipy float32 rfft2+irfft2 pairs of 256² counted the same way (4.38 M
+instructions), main (a12c210) → the passes → unsigned indices: gathers 31.3 → 19.5 →
+11.7, splats 12.9 → 12.9 → 11.5, reach 4.9 → 3.7, the hidden and mask reads 6.8 → 2.8; the
+sample 143.2 → 126.3 → 117.0 (this count, toggled around the one render, reads more than
+the issue's 118 for main: compare within it). Splatting every gate plane in one loop over
+the rays (each ray's crossing of every plane in turn, the same bytes) was slower on one
+core, 10.6-11.4 ms against 6.2-6.4 ms for the six planes one by one (a plane's 0.4-0.5 MB
+fields stay in cache while it is splatted alone; with all the planes in one flat buffer,
+its deposits alone took 3.4-4.7 ms against 3.1-3.8 ms for the whole per-plane splats): not
+kept.
 """
 
 import argparse
