@@ -219,7 +219,9 @@ own instructions in scipy float32 rfft2+irfft2 pairs of 256² counted the same w
 instructions), main (a12c210) → the passes → unsigned indices: gathers 31.3 → 19.5 →
 11.7, splats 12.9 → 12.9 → 11.5, reach 4.9 → 3.7, the hidden and mask reads 6.8 → 2.8; the
 sample 143.2 → 126.3 → 117.0 (this count, toggled around the one render, reads more than
-the issue's 118 for main: compare within it). Splatting every gate plane in one loop over
+the issue's 118 for main: compare within it). At 512² (pair 19.8 M instructions), main →
+unsigned: gathers 26.6 → 10.0, splats 10.4 → 9.2, reach 4.1 → 3.2, reads 6.0 → 2.5; the
+sample 117.7 → 95.4. Splatting every gate plane in one loop over
 the rays (each ray's crossing of every plane in turn, the same bytes) was slower on one
 core, 10.6-11.4 ms against 6.2-6.4 ms for the six planes one by one (a plane's 0.4-0.5 MB
 fields stay in cache while it is splatted alone; with all the planes in one flat buffer,
