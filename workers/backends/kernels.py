@@ -117,8 +117,8 @@ def _locate(lines, i, cells, rows, cols):
 def _unsigned(r, c):
     """A cell's (r, c), both >= 0, as unsigned ints.
 
-    numba indexes with them without its negative-index wraparound: about 5 % of a splat's
-    or a gather's time.
+    numba indexes with them without its negative-index wraparound: 11 % of a splat's
+    instructions (callgrind, a 256² sample), 40 % of a gather's with its assembly's.
     """
     return np.uint64(r), np.uint64(c)
 
@@ -334,7 +334,7 @@ def gather_levels(lines, cells, shape, parts, lift, lit, weights, out):
     if top < bottom:
         first = cl[left]
         along = np.empty(cl[right - 1] + 2 - first, dtype=np.float32)
-        # unsigned indices throughout (`_unsigned`): a third of the gather's time
+        # unsigned indices throughout, as `_unsigned`'s
         top_u, left_u, first_u = np.uint64(top), np.uint64(left), np.uint64(first)
         for r in range(top_u, np.uint64(bottom)):
             a, lower, upper = np.uint64(rl[r]), _ONE - rw[r], rw[r]
