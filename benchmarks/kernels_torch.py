@@ -46,7 +46,7 @@ def kernel_calls(rng, module, t):
     position = np.arange(FINE[0], dtype=np.float32) / FACTOR + CELLS.shift_v
     lower = np.floor(position).astype(np.intp)
     axis = (lower, (position - lower).astype(np.float32))
-    window = kernels.span(sights, CELLS, FINE)
+    window = kernels.reach(sights, CELLS, FINE, COARSE)[:4]
     near = rng.normal(size=(window[1] - window[0], FINE[1])).astype(np.float32)
     far = rng.normal(size=COARSE).astype(np.float32)
     none = np.zeros((0, 0), np.float32)
@@ -68,9 +68,9 @@ def kernel_calls(rng, module, t):
         "splat_levels": lambda: module.splat_levels(
             lines, power, CELLS, densities, fine, source, BLOCK
         ),
-        "span": lambda: module.span(sights, CELLS, FINE),
+        "reach": lambda: module.reach(sights, CELLS, FINE, COARSE),
         "gather_levels": lambda: module.gather_levels(
-            sights, CELLS, FINE, parts, lift, none, weight, out
+            sights, CELLS, FINE, parts, lift, none, (weight,), (out,)
         ),
         "bilinear_sum": lambda: module.bilinear_sum(grids, (512,) * 3, inverses, x, y, sums),
         "cell_uniforms": lambda: module.cell_uniforms(

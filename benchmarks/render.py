@@ -229,6 +229,26 @@ whole sample (3 after a warm-up): 128.5 → 123.6 pairs (619.6 M → 596.1 M). T
 (`docs/model.md` §3): 1–3 over the shipped configurations, 1–2 at nadir, up to 6 at 40°. On
 torch (CPU) the rays through the sea of a 256² frame take 1 649 operators and no host read
 (main: 1 703 and 6).
+
+Issue #39 items 1-2, CPU part (fewer passes over the lines of sight): a gate's field is
+assembled once and read at each line of sight for the image and its target-free twin in
+one pass (`workers.backends.kernels.gather_levels` takes every output), the gates' `unseen`
+maps are read in one pass (one `kernels.sample`), `span` and `outside_rows` are one pass
+(`kernels.reach`); then the kernels index cells unsigned (numba's negative-index
+wraparound off). The same bytes (32 samples: 64-256 px, sphere / none, flat / 5 / 10 m/s).
+Callgrind, one sample of ``scene(256)`` (sphere) after two warm-up renders, each stage's
+own instructions in scipy float32 rfft2+irfft2 pairs of 256² counted the same way (4.38 M
+instructions), main (a12c210) → the passes → unsigned indices: gathers 31.3 → 19.5 →
+11.7, splats 12.9 → 12.9 → 11.5, reach 4.9 → 3.7, the hidden and mask reads 6.8 → 2.8; the
+sample 143.2 → 126.3 → 117.0 (this count, toggled around the one render, reads more than
+the issue's 118 for main: compare within it). At 512² (pair 19.8 M instructions), main →
+unsigned: gathers 26.6 → 10.0, splats 10.4 → 9.2, reach 4.1 → 3.2, reads 6.0 → 2.5; the
+sample 117.7 → 95.4. Splatting every gate plane in one loop over
+the rays (each ray's crossing of every plane in turn, the same bytes) was slower on one
+core, 10.6-11.4 ms against 6.2-6.4 ms for the six planes one by one (a plane's 0.4-0.5 MB
+fields stay in cache while it is splatted alone; with all the planes in one flat buffer,
+its deposits alone took 3.4-4.7 ms against 3.1-3.8 ms for the whole per-plane splats): not
+kept.
 """
 
 import argparse

@@ -2,7 +2,6 @@
 refraction against the reference optics functions."""
 
 import dataclasses
-import inspect
 
 import numpy as np
 import pytest
@@ -267,14 +266,3 @@ def test_surface_hits_stop_moving_the_rays_once_all_converged(device):
         )
         results.append((travel.cpu().numpy().tobytes(), eta.cpu().numpy().tobytes()))
     assert all(result == results[0] for result in results)
-
-
-def test_the_kernel_modules_expose_the_same_names_and_signatures():
-    # one structure on both backends (issue #39 item 2)
-    kernels_torch = pytest.importorskip("workers.backends.kernels_torch")
-    assert set(kernels.__all__) == set(kernels_torch.__all__)
-    for name in kernels.__all__:
-        if name == "Cells":
-            continue
-        numba_one = inspect.signature(getattr(kernels, name).py_func)
-        assert inspect.signature(getattr(kernels_torch, name)) == numba_one, name

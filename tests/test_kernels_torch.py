@@ -1,5 +1,7 @@
 """The PyTorch kernels against the numba ones (`kernels_torch` vs `kernels`)."""
 
+import inspect
+
 import numpy as np
 import pytest
 
@@ -229,16 +231,6 @@ def test_splat_levels_coarse_rows_of_the_fine_grid_alone(device):
     assert np.all(np.abs(source_t - source) <= tolerances[1])
 
 
-@pytest.mark.parametrize("edges", [True, False], ids=["edges", "random"])
-def test_span_agrees_with_numba(edges, device):
-    lines = splat_case(11, n=60, edges=edges)[0]
-    assert kernels_torch.span(tensors(lines, device), PLANE, FINE) == kernels.span(
-        lines, PLANE, FINE
-    )
-    off = tuple(np.array(v, np.float32) for v in ([-50.0], [0.0], [-50.0], [0.0]))
-    assert kernels_torch.span(tensors(off, device), PLANE, FINE) == (0, 0, 0, 0)
-
-
 def lift():
     """The fine cells' lower coarse cells and weights, as `workers.fast.spread.Levels.lift`."""
     axes = []
@@ -249,33 +241,44 @@ def lift():
     return tuple(axes)
 
 
-@pytest.mark.parametrize("tail", [True, False], ids=["tail", "no-tail"])
-@pytest.mark.parametrize("shadowed", [True, False], ids=["shadowed", "all-lit"])
-def test_gather_levels_agrees_with_numba(tail, shadowed, device):
-    rng = np.random.default_rng(5)
-    lines, _ = splat_case(13, n=500)
-    window = kernels.span(lines, PLANE, FINE)
+def gather_case(seed, *, tail, shadowed):
+    """Lines and a plane's random light: ``(lines, parts, lit)`` for `gather_levels`."""
+    rng = np.random.default_rng(seed)
+    lines, _ = splat_case(seed, n=500)
+    window = kernels.reach(lines, PLANE, FINE, COARSE)[:4]
     near = rng.normal(size=(window[1] - window[0], FINE[1])).astype(np.float32)
     far = rng.normal(size=COARSE).astype(np.float32)
     none = np.zeros((0, 0), np.float32)
     tails = tuple(rng.normal(size=s).astype(np.float32) for s in (FINE, COARSE))
-    tails = tails if tail else (none, none)
     lit = rng.uniform(size=FINE).astype(np.float32) if shadowed else none
+    return lines, (near, window, far, tails if tail else (none, none)), lit
+
+
+def torch_parts(parts, device):
+    """`gather_levels`' parts and lift (`lift`) as tensors on `device`."""
+    near, window, far, tails = parts
+    parts_t = (*tensors((near,), device), window, *tensors((far,), device), tensors(tails, device))
+    return parts_t, tuple(tensors(axis, device) for axis in lift())
+
+
+@pytest.mark.parametrize("tail", [True, False], ids=["tail", "no-tail"])
+@pytest.mark.parametrize("shadowed", [True, False], ids=["shadowed", "all-lit"])
+def test_gather_levels_agrees_with_numba(tail, shadowed, device):
+    lines, parts, lit = gather_case(13, tail=tail, shadowed=shadowed)
+    _, _, far, tails = parts
+    rng = np.random.default_rng(5)
     weight = rng.uniform(0.5, 2, lines[0].size).astype(np.float32)
     out = rng.normal(size=lines[0].size).astype(np.float32)
     initial, out_t = out.copy(), torch.from_numpy(out.copy()).to(device)
-    parts = (near, window, far, tails)
-    kernels.gather_levels(lines, PLANE, FINE, parts, lift(), lit, weight, out)
-    parts_t = (*tensors((near,), device), window, *tensors((far,), device), tensors(tails, device))
-    lift_t = tuple(tensors(axis, device) for axis in lift())
+    kernels.gather_levels(lines, PLANE, FINE, parts, lift(), lit, (weight,), (out,))
     args = (
         tensors(lines, device),
         PLANE,
         FINE,
-        parts_t,
-        lift_t,
-        *tensors((lit, weight), device),
-        out_t,
+        *torch_parts(parts, device),
+        *tensors((lit,), device),
+        tensors((weight,), device),
+        (out_t,),
     )
     kernels_torch.gather_levels(*args)
     # elementwise float32 in the same order: a few roundings of values of size ~ the sum of
@@ -293,6 +296,48 @@ def test_gather_levels_agrees_with_numba(tail, shadowed, device):
     expected = initial[coarse] + weight[coarse] * far_at(read, lines, coarse)
     np.testing.assert_allclose(out[coarse], expected, rtol=1e-5, atol=1e-6)
     assert np.all(out[coarse] != initial[coarse])
+
+
+@pytest.mark.parametrize("tail", [True, False], ids=["tail", "no-tail"])
+@pytest.mark.parametrize("shadowed", [True, False], ids=["shadowed", "all-lit"])
+def test_one_gather_of_several_outputs_is_their_gathers_apart(tail, shadowed, device):
+    # issue #39 item 1: a gate's image and its target-free twin (and any more outputs)
+    # read in one pass give each output the bytes of its own gather: the last keeps `lit`,
+    # the others all the light
+    lines, parts, lit = gather_case(17, tail=tail, shadowed=shadowed)
+    none = np.zeros((0, 0), np.float32)
+    rng = np.random.default_rng(3)
+    weights = tuple(rng.uniform(0.5, 2, (3, lines[0].size)).astype(np.float32))
+    start = tuple(rng.normal(size=(3, lines[0].size)).astype(np.float32))
+    apart = tuple(o.copy() for o in start)
+    for k in range(3):
+        kept = lit if k == 2 else none
+        kernels.gather_levels(
+            lines, PLANE, FINE, parts, lift(), kept, weights[k : k + 1], apart[k : k + 1]
+        )
+    together = tuple(o.copy() for o in start)
+    kernels.gather_levels(lines, PLANE, FINE, parts, lift(), lit, weights, together)
+    for k in range(3):
+        assert together[k].tobytes() == apart[k].tobytes()
+        assert not np.array_equal(together[k], start[k])
+    if shadowed:  # the shadow reaches the last output only
+        assert not np.array_equal(
+            together[2] - start[2], (together[1] - start[1]) * (weights[2] / weights[1])
+        )
+    # the torch kernel: the same, to the bit, against its own gathers apart
+    parts_t, lift_t = torch_parts(parts, device)
+    lines_t, weights_t = tensors(lines, device), tensors(weights, device)
+    apart_t, together_t = tensors(start, device), tensors(start, device)
+    for k in range(3):
+        kept = tensors((lit if k == 2 else none,), device)[0]
+        args = (lines_t, PLANE, FINE, parts_t, lift_t, kept, weights_t[k : k + 1])
+        kernels_torch.gather_levels(*args, apart_t[k : k + 1])
+    lit_t = tensors((lit,), device)[0]
+    kernels_torch.gather_levels(
+        lines_t, PLANE, FINE, parts_t, lift_t, lit_t, weights_t, together_t
+    )
+    for k in range(3):
+        assert together_t[k].cpu().numpy().tobytes() == apart_t[k].cpu().numpy().tobytes()
 
 
 def far_at(field, lines, index):
@@ -314,23 +359,29 @@ def far_at(field, lines, index):
 
 
 @pytest.mark.parametrize("edges", [True, False], ids=["edges", "random"])
-def test_outside_rows_agrees_with_numba(edges, device):
+def test_reach_agrees_with_numba_and_with_the_lines_cells(edges, device):
     lines = splat_case(19, n=60, edges=edges)[0]
-    rows = kernels.outside_rows(lines, PLANE, FINE, COARSE)
-    assert kernels_torch.outside_rows(tensors(lines, device), PLANE, FINE, COARSE) == rows
-    # the rows the lines off the fine grid touch on the coarse one, found in float64
+    found = kernels.reach(lines, PLANE, FINE, COARSE)
+    assert kernels_torch.reach(tensors(lines, device), PLANE, FINE, COARSE) == found
+    # the fine cells the lines touch, and the coarse rows those off the fine grid touch on
+    # the coarse one, found in float64
     fine_row = (lines[2] + lines[3] * 1.5 - 0.5) * 2.0
     fine_col = (lines[0] + lines[1] * 1.5 + 0.25) * 2.0
     on_fine = (fine_row >= 0) & (fine_col >= 0) & (fine_row < FINE[0] - 1)
     on_fine &= fine_col < FINE[1] - 1
+    rows, cols = np.floor(fine_row[on_fine]).astype(int), np.floor(fine_col[on_fine]).astype(int)
+    window = (rows.min(), rows.max() + 2, cols.min(), cols.max() + 2)
     row = fine_row / FACTOR + float(PLANE.shift_v)
     col = fine_col / FACTOR + float(PLANE.shift_u)
     on_coarse = (row >= 0) & (col >= 0) & (row < COARSE[0] - 1) & (col < COARSE[1] - 1)
     touched = np.floor(row[on_coarse & ~on_fine]).astype(int)
-    assert rows == (touched.min(), touched.max() + 2)
-    inside = tuple(np.array(v, np.float32) for v in ([1.0], [0.0], [2.0], [0.0]))
-    assert kernels.outside_rows(inside, PLANE, FINE, COARSE) == (0, 0)
-    assert kernels_torch.outside_rows(tensors(inside, device), PLANE, FINE, COARSE) == (0, 0)
+    assert found == (*window, touched.min(), touched.max() + 2)
+    # no line on the fine grid, none off it on the coarse one: zeros
+    off = tuple(np.array(v, np.float32) for v in ([-50.0], [0.0], [-50.0], [0.0]))
+    assert kernels_torch.reach(tensors(off, device), PLANE, FINE, COARSE) == (0,) * 6
+    assert kernels.reach(off, PLANE, FINE, COARSE) == (0,) * 6
+    inside = tuple(np.array(v, np.float32) for v in ([2.0], [0.0], [3.0], [0.0]))
+    assert kernels.reach(inside, PLANE, FINE, COARSE)[4:] == (0, 0)
 
 
 def test_sample_agrees_with_numba(device):
@@ -397,3 +448,15 @@ def test_column_convolution_agrees_with_numba(device):
     kernels_torch.column_convolution(*tensors((kernel, rows), device), 11, 2, out_t)
     # 4 complex products (|.| < ~25) added to out in order: a few roundings each
     np.testing.assert_allclose(out_t.cpu().numpy(), out, rtol=0, atol=5 * 4 * 8 * U * 25)
+
+
+def test_both_kernel_modules_expose_the_same_names_and_signatures():
+    # issue #39 item 2: a stage calls `Backend.kernels` the same way on either backend
+    assert sorted(kernels.__all__) == sorted(kernels_torch.__all__)
+    for name in kernels.__all__:
+        compiled, vectorised = getattr(kernels, name), getattr(kernels_torch, name)
+        if name == "Cells":
+            assert vectorised is compiled
+            continue
+        python = getattr(compiled, "py_func", compiled)
+        assert inspect.signature(vectorised) == inspect.signature(python), name

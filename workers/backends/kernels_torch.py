@@ -1,11 +1,11 @@
-"""The render's kernels on PyTorch tensors: `workers.backends.kernels`' nine, vectorised.
+"""The render's kernels on PyTorch tensors: `workers.backends.kernels`' eight, vectorised.
 
 The same names, arguments, out-parameters and returned ints as the numba loops of
 `workers.backends.kernels`, on torch tensors of the same dtypes on any device (CPU or CUDA): a
 ``Cells`` is the same NamedTuple of float32 scalars. Every ray, pixel or point is handled
 at once (no Python loop over them), in float32 with the numba code's operations in the
 same order (``t = slope·depth; t += base; t −= origin; t·scale``), so the two agree to
-float32 rounding; `bilinear_sum`, `span`, `outside_rows`, `sample` and `cell_uniforms` have no sums
+float32 rounding; `bilinear_sum`, `reach`, `sample` and `cell_uniforms` have no sums
 whose order could differ.
 
 No float atomics: the scatter-adds of `splat_levels` (the rays' bilinear deposits and
@@ -31,9 +31,8 @@ __all__ = [
     "cell_uniforms",
     "column_convolution",
     "gather_levels",
-    "outside_rows",
+    "reach",
     "sample",
-    "span",
     "splat_levels",
     "surface_hits",
 ]
@@ -270,38 +269,33 @@ def _block_sums(sums, factor, box):
     return blocks.sum(dim=(1, 3))
 
 
-def span(lines, cells, shape):
-    """The fine cells the lines' bilinear corners touch (`workers.backends.kernels.span`).
+def reach(lines, cells, shape, coarse_shape):
+    """The window the lines read and the coarse rows the others do (`kernels.reach`).
 
-    Returns the first row, the last row + 1, the first column and the last column + 1
-    (all 0 if no line meets the grid), python ints.
+    Returns the fine window's first row, last row + 1, first column and last column + 1
+    (all 0 if no line meets the fine grid), then the first row and the last row + 1 of
+    the coarse cells the lines off the fine grid read (0, 0 if none): python ints, read
+    from the device at once.
     """
     rows, cols = shape
-    r, c, _, _, hit = _split(*_coordinates(lines, cells), rows, cols)
-    top, bottom = _extent(r, hit, rows)
-    left, right = _extent(c, hit, cols)
-    top, bottom, left, right = torch.stack((top, bottom, left, right)).tolist()
-    if top >= bottom:
-        return 0, 0, 0, 0
-    return top, bottom, left, right
-
-
-def outside_rows(lines, cells, shape, coarse_shape):
-    """The coarse rows the lines off the fine grid read (`workers.backends.kernels.outside_rows`).
-
-    Returns the first row and the last row + 1 (0, 0 if none), python ints.
-    """
     row, col = _coordinates(lines, cells)
-    hit = _split(row, col, *shape)[4]
-    r, _, _, _, coarse_hit = _split(*_coarse(row, col, cells), *coarse_shape)
-    top, bottom = torch.stack(_extent(r, coarse_hit & ~hit, coarse_shape[0])).tolist()
+    r, c, _, _, hit = _split(row, col, rows, cols)
+    rc, _, _, _, coarse_hit = _split(*_coarse(row, col, cells), *coarse_shape)
+    extents = (
+        *_extent(r, hit, rows),
+        *_extent(c, hit, cols),
+        *_extent(rc, coarse_hit & ~hit, coarse_shape[0]),
+    )
+    top, bottom, left, right, first, last = torch.stack(extents).tolist()
     if top >= bottom:
-        return 0, 0
-    return top, bottom
+        top, bottom, left, right = 0, 0, 0, 0
+    if first >= last:
+        first, last = 0, 0
+    return top, bottom, left, right, first, last
 
 
-def gather_levels(lines, cells, shape, parts, lift, lit, weight, out):
-    """Add the spread field at each line's crossing to `out` (`kernels.gather_levels`).
+def gather_levels(lines, cells, shape, parts, lift, lit, weights, out):
+    """Add the spread field at each line's crossing to each output (`kernels.gather_levels`).
 
     Parameters
     ----------
@@ -313,27 +307,28 @@ def gather_levels(lines, cells, shape, parts, lift, lit, weight, out):
         The fine grid's shape.
     parts : tuple
         ``(near, window, far, tail)``: the near spread on the fine rows
-        ``window[0]:window[1]``, the window (python ints, `span`), the far spread on the
-        coarse grid (on the rows `outside_rows` too), the beam tail's near and far spreads
+        ``window[0]:window[1]``, the window (python ints, `reach`), the far spread on the
+        coarse grid (on the rows `reach` gives too), the beam tail's near and far spreads
         (size 0: none); float32.
     lift : tuple
         ``((lower row, weight), (lower col, weight))`` of each fine cell on the coarse
         grid, int64 and float32 tensors.
     lit : torch.Tensor
-        Share of each fine cell's light kept (the gate's water the target leaves lit),
-        float32 (size 0: all).
-    weight : torch.Tensor
-        Factor on each pixel, float32.
-    out : torch.Tensor
-        In and out: each pixel's sum, float32; pixels off both grids add nothing.
+        Share of each fine cell's light that the last output keeps (the gate's water the
+        target leaves lit), float32 (size 0: all); the other outputs read all the light.
+    weights : tuple of torch.Tensor
+        Per output, the factor on each pixel, float32.
+    out : tuple of torch.Tensor
+        In and out: per output, each pixel's sum, float32; pixels off both grids add
+        nothing.
 
     Notes
     -----
-    The window's field is ``near (+ tail near) + (far (+ tail far) upsampled)`` times
-    `lit`, in numba's float32 order (the far part along the columns first); a line off
-    the fine grid reads the far spread (+ the tail's far part) at its coarse crossing,
-    all its light kept, as numba does. No sum over lines, so the values agree with
-    numba's to float32 rounding.
+    The window's field is ``near (+ tail near) + (far (+ tail far) upsampled)`` (times
+    `lit` for the last output), in numba's float32 order (the far part along the columns
+    first); a line off the fine grid reads the far spread (+ the tail's far part) at its
+    coarse crossing, all its light kept, as numba does. Each line is located once for
+    all outputs. No sum over lines, so the values agree with numba's to float32 rounding.
     """
     near, window, far, (tail_near, tail_far) = parts
     top, bottom, left, right = window
@@ -341,7 +336,7 @@ def gather_levels(lines, cells, shape, parts, lift, lit, weight, out):
     r, c, down, right_share, hit = _split(row, col, *shape)
     if top < bottom:
         (rl, rw), (cl, cw) = (
-            tuple(torch.as_tensor(part, device=out.device) for part in axis) for axis in lift
+            tuple(torch.as_tensor(part, device=near.device) for part in axis) for axis in lift
         )
         a, upper = rl[top:bottom, None], rw[top:bottom, None]
         lower = 1.0 - upper
@@ -357,19 +352,22 @@ def gather_levels(lines, cells, shape, parts, lift, lit, weight, out):
         if tail_near.numel():
             field = field + tail_near[top:bottom, left:right]
         field = field + (along(b) * (1.0 - across) + along(b + 1) * across)
-        if lit.numel():
-            field = field * lit[top:bottom, left:right]
         r = torch.where(hit, r - top, 0)
         c = torch.where(hit, c - left, 0)
-        total = _bilinear(field, r, c, _corner_weights(down, right_share))
-        out.copy_(torch.where(hit, out + total * weight, out))
+        corners = _corner_weights(down, right_share)
+        total = _bilinear(field, r, c, corners)
+        for k, (weight, sums) in enumerate(zip(weights, out, strict=True)):
+            if k == len(out) - 1 and lit.numel():
+                total = _bilinear(field * lit[top:bottom, left:right], r, c, corners)
+            sums.copy_(torch.where(hit, sums + total * weight, sums))
     rc, cc, down, right_share, coarse_hit = _split(*_coarse(row, col, cells), *far.shape)
     coarse_hit &= ~hit
-    weights = _corner_weights(down, right_share)
-    total = _bilinear(far, rc, cc, weights)
+    corners = _corner_weights(down, right_share)
+    total = _bilinear(far, rc, cc, corners)
     if tail_far.numel():
-        total = total + _bilinear(tail_far, rc, cc, weights)
-    out.copy_(torch.where(coarse_hit, out + total * weight, out))
+        total = total + _bilinear(tail_far, rc, cc, corners)
+    for weight, sums in zip(weights, out, strict=True):
+        sums.copy_(torch.where(coarse_hit, sums + total * weight, sums))
 
 
 def sample(lines, cells, fields, box, out):

@@ -82,7 +82,7 @@ class PlaneLight:
 
     `near` holds the fine rows ``window[0]:window[1]`` of the near spread, `far` the far
     spread on the coarse grid, `tail` the beam tail's near and far spreads (size 0: none),
-    float32; `window` is `workers.backends.kernels.span`'s.
+    float32; `window` is `workers.backends.kernels.reach`'s.
     """
 
     near: object
@@ -150,15 +150,13 @@ def frame_light(
         silhouette = _target_frame(geometry, rays, images, backend)
     down_gains = _gate_gains(setup, rays.down_excess, backend)
     up_gains = _gate_gains(setup, rays.up_excess, backend)
+    hidden = _hidden(geometry, rays, backend)
     for g, plane in enumerate(geometry.gate_planes):
         ray_power = rays.power * down_gains[g]
         weight = rays.up_transmittance * up_gains[g]
         outputs = [(weight, free[g], None)] if free is not None else []
         if plane.unseen is not None:
-            # the pixels whose lines of sight the target stops, where they cross it
-            whole = (0, *plane.unseen.shape[:1], 0, plane.unseen.shape[1])
-            hidden = _sample(rays.sight, geometry.sight_cells, (plane.unseen,), whole, backend)[0]
-            weight = weight * (1.0 - hidden)
+            weight = weight * (1.0 - hidden[g])
         outputs.append((weight, images[g], plane.lit))
         splat = _splat(plane, rays.down, ray_power, backend)
         light = _spread(plane, rays.up, splat, backend, tail=plane.tail)
@@ -173,6 +171,21 @@ def frame_light(
     return FrameLight(
         images=xp.reshape(images, (-1, pixels, pixels)), silhouette=silhouette, free=free
     )
+
+
+def _hidden(geometry: FrameGeometry, rays: SeaRays, backend: Backend) -> dict:
+    """Per gate with a shadow, the share of each pixel's view the target stops.
+
+    Each gate's `Plane.unseen` read where the pixels' lines through the resolved sea cross
+    the target's plane: every gate's map is on the same grid, so one pass reads them all.
+    """
+    gates = [g for g, plane in enumerate(geometry.gate_planes) if plane.unseen is not None]
+    if not gates:
+        return {}
+    fields = tuple(geometry.gate_planes[g].unseen for g in gates)
+    whole = (0, fields[0].shape[0], 0, fields[0].shape[1])
+    values = _sample(rays.sight, geometry.sight_cells, fields, whole, backend)
+    return {g: values[k] for k, g in enumerate(gates)}
 
 
 def _sea_rays(setup: Setup, geometry: FrameGeometry, surface, frame: int) -> SeaRays:
@@ -326,35 +339,42 @@ def _spread(
 def _reach(plane: Plane, sight: Projected, backend: Backend) -> tuple:
     """The fine cells the pixels' `sight` reads and the coarse rows the spread must hold.
 
-    Returns `workers.backends.kernels.span`'s window and a slice of coarse rows: those the window's
-    upsampling reads and those where the lines that miss the fine grid cross the coarse
-    one (`workers.backends.kernels.outside_rows`: what `gather_levels` reads for them).
+    Returns `workers.backends.kernels.reach`'s window and a slice of coarse rows: those
+    the window's upsampling reads and those where the lines that miss the fine grid cross
+    the coarse one (what `gather_levels` reads for them), found in one pass.
     """
     levels = plane.levels
-    cells, kernels = Cells.of(levels), backend.kernels
-    window = kernels.span(sight.lines, cells, plane.grid.shape)
+    *window, first, last = backend.kernels.reach(
+        sight.lines, Cells.of(levels), plane.grid.shape, levels.coarse.shape
+    )
     coarse = levels.coarse_rows(slice(*window[:2]))
-    first, last = kernels.outside_rows(sight.lines, cells, plane.grid.shape, levels.coarse.shape)
     if first < last:
         if coarse.start < coarse.stop:
             first, last = min(first, coarse.start), max(last, coarse.stop)
         coarse = slice(first, last)
-    return window, coarse
+    return tuple(window), coarse
 
 
 def _gather(plane: Plane, sight: Projected, light: PlaneLight, outputs, backend: Backend):
-    """Add a plane's `light` at the pixels' sights to each of `outputs`.
+    """Add a plane's `light` at the pixels' sights to each of `outputs`, in one pass.
 
     `outputs` holds ``(weight, out, lit)`` triples: the light, times the share of each
-    cell's light kept, `lit` (None: 1), and each pixel's `weight`, is added to `out`.
+    cell's light kept, `lit` (None: 1), and each pixel's `weight`, is added to `out`. Only
+    the last output may keep a share (`workers.backends.kernels.gather_levels`): the
+    others' `lit` is None.
     """
+    lit = outputs[-1][2]
     levels = plane.levels
-    cells, shape = Cells.of(levels), plane.grid.shape
-    for weight, out, lit in outputs:
-        lit = _none(backend) if lit is None else lit
-        backend.kernels.gather_levels(
-            sight.lines, cells, shape, light.parts, levels.lift, lit, weight, out
-        )
+    backend.kernels.gather_levels(
+        sight.lines,
+        Cells.of(levels),
+        plane.grid.shape,
+        light.parts,
+        levels.lift,
+        _none(backend) if lit is None else lit,
+        tuple(weight for weight, _, _ in outputs),
+        tuple(out for _, out, _ in outputs),
+    )
 
 
 def _none(backend: Backend):
