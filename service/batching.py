@@ -22,6 +22,7 @@ once.
 from __future__ import annotations
 
 import importlib
+import math
 import os
 
 from distributed import get_worker
@@ -99,12 +100,12 @@ def given_memory(gib: float | None) -> float | None:
     Raises
     ------
     BadOptionError
-        If it is not a positive number (NaN among them).
+        If it is not a positive, finite number (NaN and infinity among them).
     """
     if gib is None:
         return None
-    if not gib > 0:
-        raise BadOptionError("--batch-memory must be a positive number of GiB")
+    if not 0 < gib < math.inf:
+        raise BadOptionError("--batch-memory must be a positive, finite number of GiB")
     return gib * 2**30
 
 

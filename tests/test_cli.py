@@ -162,7 +162,7 @@ def test_validate_says_the_batch_size_and_its_memory(tmp_path, capsys):
     ), out
 
 
-@pytest.mark.parametrize("value", ["0", "-1", "nan"])
+@pytest.mark.parametrize("value", ["0", "-1", "nan", "inf", "1e400"])
 def test_a_batch_memory_that_is_no_size_is_refused(tmp_path, capsys, value, monkeypatch):
     import service.run
 
@@ -174,7 +174,7 @@ def test_a_batch_memory_that_is_no_size_is_refused(tmp_path, capsys, value, monk
         assert main([*command, "--batch-memory", value]) == 2
         error = capsys.readouterr().err
         assert (
-            f"oceanlidar {command[0]}: error: --batch-memory must be a positive number of GiB"
+            f"oceanlidar {command[0]}: error: --batch-memory must be a positive, finite number"
             in error
         )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["t.yaml"]
@@ -554,3 +554,15 @@ def test_preview_picks_a_sample_by_point_and_realisation(stored, tmp_path, capsy
     ]:
         assert main(["preview", stored, *flags, "--output", picture]) == 2, flags
         assert message in capsys.readouterr().err, flags
+
+
+def test_a_batch_memory_with_a_unit_is_refused_saying_the_unit(tmp_path, capsys, monkeypatch):
+    # "10GiB" is the size a user means; the flag takes the number of GiB alone
+    monkeypatch.chdir(tmp_path)
+    tiny(tmp_path)
+    with pytest.raises(SystemExit) as stop:
+        main(["validate", "t.yaml", "--batch-memory", "10GiB"])
+    assert stop.value.code == 2
+    error = capsys.readouterr().err
+    assert "--batch-memory: '10GiB' is not a number of GiB (write the number alone" in error
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.yaml"]

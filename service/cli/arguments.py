@@ -70,13 +70,23 @@ def batch_memory(command) -> None:
     """``--batch-memory``: the memory a batch of one scene's samples may take on a worker."""
     command.add_argument(
         "--batch-memory",
-        type=float,
+        type=gibibytes,
         default=None,
         metavar="GIB",
         help="memory a batch of one scene's samples may take, GiB (default: half of what a "
         "task has: a GPU's memory shared by its worker's tasks, a CPU worker's share of the "
         "machine's)",
     )
+
+
+def gibibytes(text: str) -> float:
+    """An argparse type: a number of GiB, written without its unit (``--batch-memory``)."""
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a number of GiB (write the number alone: 2 for 2 GiB)"
+        ) from None
 
 
 def count(least: int):
