@@ -203,6 +203,11 @@ def check_output(
             f"{package_version()}: samples would differ; resume with that version "
             "or start again with --overwrite"
         )
+    if not store.finished():
+        raise UnusableOutputError(
+            f"{name}'s template was not finished (a run stopped while writing it); "
+            "start again with --overwrite"
+        )
     check_same(previous, backend, name=name)
     gates = store.group().get("gate")
     if gates is not None and (problem := old_gate_numbering(gates[:], name)):

@@ -566,3 +566,24 @@ def test_a_batch_memory_with_a_unit_is_refused_saying_the_unit(tmp_path, capsys,
     error = capsys.readouterr().err
     assert "--batch-memory: '10GiB' is not a number of GiB (write the number alone" in error
     assert sorted(p.name for p in tmp_path.iterdir()) == ["t.yaml"]
+
+
+def test_a_store_whose_template_a_stopped_run_left_is_refused_on_resume_and_overwritten(
+    tmp_path, capsys, monkeypatch
+):
+    # a run stopped while writing its template leaves the root group and some arrays'
+    # metadata, but no consolidated metadata (xarray consolidates last): a resume said a
+    # traceback, --overwrite refused to delete the arrays it did not find listed
+    monkeypatch.chdir(tmp_path)
+    tiny(tmp_path)
+    assert main(["run", "t.yaml", "--workers", "1"]) == 0
+    root = tmp_path / "t.zarr" / "zarr.json"
+    metadata = json.loads(root.read_text())
+    del metadata["consolidated_metadata"]
+    root.write_text(json.dumps(metadata))
+    capsys.readouterr()
+    assert main(["run", "t.yaml", "--workers", "1", "--resume"]) == 2
+    error = capsys.readouterr().err
+    assert "template was not finished (a run stopped while writing it); start again with" in error
+    assert main(["run", "t.yaml", "--workers", "1", "--overwrite"]) == 0
+    assert xr.open_zarr(tmp_path / "t.zarr").completed.values.all()

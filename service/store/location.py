@@ -262,11 +262,38 @@ class Store:
         """What the store holds (its `KIND` attribute): ``samples``, ``statistics``..."""
         return (self.attributes() or {}).get(KIND)
 
+    def _consolidated(self) -> dict:
+        """The arrays the root group's consolidated metadata lists (empty: none listed)."""
+        return ((self._metadata() or {}).get("consolidated_metadata") or {}).get("metadata") or {}
+
+    def finished(self) -> bool:
+        """Whether the group's metadata was consolidated.
+
+        A write that stopped before leaves it unconsolidated (a run stopped while writing
+        its template): a resume refuses such a store, ``--overwrite`` replaces it.
+        """
+        return bool(self._consolidated())
+
+    def _arrays_written(self) -> list[str]:
+        """The arrays of an unconsolidated group: its folders holding an array's ``zarr.json``."""
+        names = []
+        for entry in self.fs.ls(self.path, detail=False):
+            name = entry.rstrip("/").rsplit("/", 1)[-1]
+            try:
+                metadata = json.loads(self.fs.cat_file(f"{self.path}/{name}/zarr.json"))
+            except (OSError, ValueError):
+                continue
+            if isinstance(metadata, dict) and metadata.get("node_type") == "array":
+                names.append(name)
+        return names
+
     def removable(self, kind: str) -> list[str]:
         """The files of the `kind` dataset here, which may be deleted to replace it.
 
         Only what the store's own metadata lists may go: its group and array metadata, and
-        chunk keys of the arrays that its consolidated metadata names. Anything else in the
+        chunk keys of the arrays that its consolidated metadata names (of a template whose
+        write stopped before its metadata was consolidated, the arrays whose own metadata
+        was written). Anything else in the
         folder (a user's file, a store of another kind) refuses the whole deletion, before
         anything is deleted.
 
@@ -299,7 +326,7 @@ class Store:
             raise UnusableOutputError(
                 f"{self.url} exists and is not an oceanlidar {kind} store; refusing to delete it"
             )
-        arrays = (self._metadata().get("consolidated_metadata") or {}).get("metadata") or {}
+        arrays = self._consolidated() or self._arrays_written()
         listed = re.compile(
             r"zarr\.json|(?:"
             + "|".join(re.escape(name) for name in arrays)
