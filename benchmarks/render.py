@@ -254,7 +254,8 @@ Issue #39, the three merged (torch's scalars, the rays' hits, the passes above),
 sample by callgrind (valgrind 3.19; a warm-up render, then ``callgrind_control -d`` dumps
 around 8 renders of seeds 1-8 and around 20 scipy float32 pairs of 256², so the seas'
 first target gating steps are in both): main (a12c210) 6.05e8 instructions a sphere sample,
-138.7 pairs (no target 3.61e8, 82.7); merged (8b83e63) 4.68e8, 107.3 pairs (-23 %). CPU
+138.7 pairs (no target 3.61e8, 82.7); merged (8b83e63) 4.68e8, 107.3 pairs (-23 %; no
+target 3.45e8, 78.9, -5 %: the one gather and the one hidden read pay where a target is). CPU
 time, 128 px, batches of 4, medians of 3, one thread, loaded machine: numpy + numba 17.7 →
 15.5 ms a sample; torch on the CPU 111.9 → 116.6 ms (its 8 fixed steps through the sea),
 6.3 → 7.5 times numba. The issue's targets (at most 45 pairs at 256², torch within 1.5
