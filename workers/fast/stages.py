@@ -148,8 +148,10 @@ def frame_light(
     if geometry.impostor is not None:
         free = xp.zeros(shape, dtype=xp.float32, device=backend.device)
         silhouette = _target_frame(geometry, rays, images, backend)
-    down_gains = _gate_gains(setup, rays.down_excess, backend)
-    up_gains = _gate_gains(setup, rays.up_excess, backend)
+    # float64 slab integrals where the surface cuts a gate's slab, on the rays' backend
+    # (`workers.setup.gates.gate_gains`: on torch every ray on the device, nothing read back)
+    down_gains = setup.gate_gains(rays.down_excess)
+    up_gains = setup.gate_gains(rays.up_excess)
     hidden = _hidden(geometry, rays, backend)
     for g, plane in enumerate(geometry.gate_planes):
         ray_power = rays.power * down_gains[g]
@@ -214,16 +216,6 @@ def _sea_rays(setup: Setup, geometry: FrameGeometry, surface, frame: int) -> Sea
         down_excess=down.air - central,
         up_excess=up.air - central,
     )
-
-
-def _gate_gains(setup: Setup, excess, backend: Backend) -> list:
-    """`workers.setup.compiled.Setup.gate_gains` of the rays' air paths, on the backend.
-
-    A ray's gain is a float64 slab integral where the gated slab is cut by the surface:
-    on numpy of the cut rays alone, on torch of every ray on the device
-    (`workers.setup.gates.gate_gains`), with nothing read back to the host.
-    """
-    return setup.gate_gains(excess)
 
 
 def _target_frame(geometry: FrameGeometry, rays: SeaRays, images, backend: Backend):
